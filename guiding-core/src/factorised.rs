@@ -1,0 +1,1 @@
+//! Factorised 2D directional densities (placeholder: being written).

@@ -1,0 +1,29 @@
+//! `guiding-core`: the `no_std` kernels of the path-guiding library.
+//!
+//! Every formula lives here once, as plain functions over `f32` that work on a
+//! single query, so the CPU runtime loops over a batch and a SPIR-V shader runs
+//! one invocation per element. GPU-visible values are `#[repr(C)]` +
+//! [`bytemuck::Pod`]; transcendental math goes through [`math`] only.
+//!
+//! Directional distributions:
+//! - [`lobe::vmf::VmfLobe`] and [`mixture::vmf::VmfMixture`] — von Mises–Fisher
+//!   (Neural Parametric Mixtures, Dong et al. 2023);
+//! - [`lobe::nasg::NasgLobe`] and [`mixture::nasg::NasgMixture`] — normalised
+//!   anisotropic spherical Gaussians (Huang et al. 2024);
+//! - [`pdf1d::Pdf1d`] and [`factorised`] — factorised piecewise PDFs
+//!   (Figueiredo et al. 2025).
+#![no_std]
+#![deny(missing_docs)]
+
+#[cfg(feature = "std")]
+extern crate std;
+
+pub mod factorised;
+pub mod frame;
+pub mod lobe;
+pub mod math;
+pub mod mixture;
+pub mod pdf1d;
+pub mod sphere;
+
+pub use glam;

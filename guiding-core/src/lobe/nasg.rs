@@ -1,0 +1,1 @@
+//! Normalised anisotropic spherical Gaussian lobe (placeholder: being written).

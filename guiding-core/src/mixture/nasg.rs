@@ -1,0 +1,1 @@
+//! Mixtures of NASG lobes (placeholder: being written).

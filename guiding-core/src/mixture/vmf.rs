@@ -1,0 +1,352 @@
+//! Mixtures of `K` von Mises–Fisher lobes (Neural Parametric Mixtures, Dong et
+//! al. 2023), their decoder from raw network outputs, the analytic gradient of
+//! `ln p(ω)` used for training (NPM eq. 9), and the product with a clamped
+//! cosine used by radiance guiding.
+
+use crate::lobe::vmf::{dlog_pdf_dkappa, VmfLobe};
+use crate::lobe::DirectionSample;
+use crate::math::{exp, ln, sanitize, sigmoid, sin_cos, sqrt, PI, TWO_PI};
+use crate::mixture::{select_component, softmax};
+use crate::sphere::one_minus_cos_angle;
+use bytemuck::{Pod, Zeroable};
+use glam::{Vec2, Vec3};
+
+/// Raw network outputs per vMF lobe: `[weight logit, log κ, θ, φ]`.
+pub const VMF_RAW_PER_LOBE: usize = 4;
+/// Raw outputs are clamped to `±VMF_RAW_LIMIT` (NaN becomes 0) before decoding.
+pub const VMF_RAW_LIMIT: f32 = 1e30;
+/// Lower clamp of the raw `ln κ` output: κ ≥ e⁻¹⁰ ≈ 4.5·10⁻⁵.
+pub const VMF_LOG_KAPPA_MIN: f32 = -10.0;
+/// Upper clamp of the raw `ln κ` output: κ ≤ e¹⁰ ≈ 2.2·10⁴ (a lobe ~0.4° wide).
+pub const VMF_LOG_KAPPA_MAX: f32 = 10.0;
+/// Concentration of the vMF lobe that approximates the clamped cosine
+/// `max(0, n·ω)` (the value NPM and Open PGL use).
+pub const CLAMPED_COSINE_KAPPA: f32 = 2.18853;
+
+/// A mixture of `K` vMF lobes, stored structure-of-arrays so the `K`-lobe
+/// density loop vectorises.
+///
+/// `repr(C)`, `Pod`, `7 K` floats (224 bytes for K = 8): a decoded
+/// distribution that a renderer can keep per path vertex and evaluate at
+/// several directions (MIS, NEE) without touching the network again.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VmfMixture<const K: usize> {
+    /// Mixture weights, `≥ 0`, summing to one.
+    pub weight: [f32; K],
+    /// x components of the unit mean directions.
+    pub mean_x: [f32; K],
+    /// y components of the unit mean directions.
+    pub mean_y: [f32; K],
+    /// z components of the unit mean directions.
+    pub mean_z: [f32; K],
+    /// Concentrations κ.
+    pub kappa: [f32; K],
+    /// Per-lobe normalisers `κ / (2π (1 − e^{−2κ}))`.
+    pub norm: [f32; K],
+    /// Per-lobe `1 − e^{−2κ}`.
+    pub one_minus_e2k: [f32; K],
+}
+
+// SAFETY: `repr(C)` struct of `[f32; K]` arrays only: no padding, every bit
+// pattern valid, zero is valid.
+unsafe impl<const K: usize> Zeroable for VmfMixture<K> {}
+// SAFETY: see above; `Copy + 'static` holds for every `K`.
+unsafe impl<const K: usize> Pod for VmfMixture<K> {}
+
+/// One lobe's decoded parameters and the activation derivatives the gradient
+/// needs.
+struct DecodedLobe {
+    mean: Vec3,
+    /// ∂μ/∂(raw θ).
+    dmean_dtheta_raw: Vec3,
+    /// ∂μ/∂(raw φ).
+    dmean_dphi_raw: Vec3,
+    kappa: f32,
+    /// ∂κ/∂(raw ln κ): κ inside the clamp range, 0 outside.
+    dkappa_draw: f32,
+}
+
+/// NPM Table 1 activations for one lobe: `κ = exp(clamp(r₁))`,
+/// `θ = π·sigmoid(r₂)`, `φ = 2π·sigmoid(r₃)`, `μ = (sin θ cos φ, sin θ sin φ, cos θ)`.
+fn decode_lobe(raw: &[f32; VMF_RAW_PER_LOBE]) -> DecodedLobe {
+    let r_kappa = sanitize(raw[1], VMF_RAW_LIMIT);
+    let log_kappa = r_kappa.clamp(VMF_LOG_KAPPA_MIN, VMF_LOG_KAPPA_MAX);
+    let kappa = exp(log_kappa);
+    let inside = r_kappa > VMF_LOG_KAPPA_MIN && r_kappa < VMF_LOG_KAPPA_MAX;
+    let s_theta = sigmoid(sanitize(raw[2], VMF_RAW_LIMIT));
+    let s_phi = sigmoid(sanitize(raw[3], VMF_RAW_LIMIT));
+    let (sin_t, cos_t) = sin_cos(PI * s_theta);
+    let (sin_p, cos_p) = sin_cos(TWO_PI * s_phi);
+    let mean = Vec3::new(sin_t * cos_p, sin_t * sin_p, cos_t);
+    let dtheta = PI * s_theta * (1.0 - s_theta);
+    let dphi = TWO_PI * s_phi * (1.0 - s_phi);
+    DecodedLobe {
+        mean,
+        dmean_dtheta_raw: Vec3::new(cos_t * cos_p, cos_t * sin_p, -sin_t) * dtheta,
+        dmean_dphi_raw: Vec3::new(-sin_t * sin_p, sin_t * cos_p, 0.0) * dphi,
+        kappa,
+        dkappa_draw: if inside { kappa } else { 0.0 },
+    }
+}
+
+/// Sanitised weight logits of `raw`.
+fn weight_logits<const K: usize>(raw: &[[f32; VMF_RAW_PER_LOBE]; K]) -> [f32; K] {
+    let mut logits = [0.0; K];
+    let mut k = 0;
+    while k < K {
+        logits[k] = sanitize(raw[k][0], VMF_RAW_LIMIT);
+        k += 1;
+    }
+    logits
+}
+
+impl<const K: usize> VmfMixture<K> {
+    /// Mixture of the given lobes with the given weights (normalised here;
+    /// negative or NaN weights count as zero, all-zero weights become uniform).
+    #[must_use]
+    pub fn from_lobes(lobes: &[VmfLobe; K], weights: &[f32; K]) -> Self {
+        let mut m = Self::zeroed();
+        let mut sum = 0.0;
+        let mut k = 0;
+        while k < K {
+            let w = if weights[k] > 0.0 && weights[k] <= f32::MAX {
+                weights[k]
+            } else {
+                0.0
+            };
+            m.weight[k] = w;
+            sum += w;
+            m.set_lobe(k, &lobes[k]);
+            k += 1;
+        }
+        k = 0;
+        while k < K {
+            m.weight[k] = if sum > 0.0 && sum <= f32::MAX {
+                m.weight[k] / sum
+            } else {
+                1.0 / K as f32
+            };
+            k += 1;
+        }
+        m
+    }
+
+    /// Decodes raw network outputs (NPM Table 1): weights by softmax of the
+    /// logits, `κ = exp(clamp(ln κ, −10, 10))`, mean from sigmoid-activated
+    /// spherical angles. Any input, including NaN and ±∞, gives a valid
+    /// mixture.
+    #[must_use]
+    pub fn decode(raw: &[[f32; VMF_RAW_PER_LOBE]; K]) -> Self {
+        let mut m = Self::zeroed();
+        softmax(&weight_logits(raw), &mut m.weight);
+        let mut k = 0;
+        while k < K {
+            let d = decode_lobe(&raw[k]);
+            m.set_lobe(k, &VmfLobe::new(d.mean, d.kappa));
+            k += 1;
+        }
+        m
+    }
+
+    fn set_lobe(&mut self, k: usize, lobe: &VmfLobe) {
+        self.mean_x[k] = lobe.mean[0];
+        self.mean_y[k] = lobe.mean[1];
+        self.mean_z[k] = lobe.mean[2];
+        self.kappa[k] = lobe.kappa;
+        self.norm[k] = lobe.norm;
+        self.one_minus_e2k[k] = lobe.one_minus_e2k;
+    }
+
+    /// Lobe `k` as a standalone [`VmfLobe`].
+    #[inline]
+    #[must_use]
+    pub fn lobe(&self, k: usize) -> VmfLobe {
+        VmfLobe {
+            mean: [self.mean_x[k], self.mean_y[k], self.mean_z[k]],
+            kappa: self.kappa[k],
+            norm: self.norm[k],
+            one_minus_e2k: self.one_minus_e2k[k],
+        }
+    }
+
+    /// Density `Σ_k w_k v(ω | μ_k, κ_k)` in solid angle.
+    #[inline]
+    #[must_use]
+    pub fn pdf(&self, direction: Vec3) -> f32 {
+        let len2 = direction.length_squared();
+        if !(len2 > 0.0 && len2 <= f32::MAX) {
+            // No angle to speak of: the antipode convention of `one_minus_cos_angle`.
+            let mut p = 0.0;
+            let mut k = 0;
+            while k < K {
+                p += self.weight[k] * self.norm[k] * exp(-2.0 * self.kappa[k]);
+                k += 1;
+            }
+            return p;
+        }
+        let len = sqrt(len2);
+        let mut p = 0.0;
+        let mut k = 0;
+        while k < K {
+            // Inlined `one_minus_cos_angle` over the SoA arrays (see sphere.rs).
+            let (mx, my, mz) = (self.mean_x[k], self.mean_y[k], self.mean_z[k]);
+            let dot = mx * direction.x + my * direction.y + mz * direction.z;
+            let cx = my * direction.z - mz * direction.y;
+            let cy = mz * direction.x - mx * direction.z;
+            let cz = mx * direction.y - my * direction.x;
+            let cross2 = cx * cx + cy * cy + cz * cz;
+            let t = if dot > 0.0 {
+                cross2 / (len * (len + dot))
+            } else {
+                1.0 - dot / len
+            };
+            p += self.weight[k] * self.norm[k] * exp(-self.kappa[k] * t);
+            k += 1;
+        }
+        p
+    }
+
+    /// Alias of [`Self::pdf`]: a normalised mixture's value is its density.
+    #[inline]
+    #[must_use]
+    pub fn eval(&self, direction: Vec3) -> f32 {
+        self.pdf(direction)
+    }
+
+    /// Draws a direction: `u.x` selects the lobe by the weights and is then
+    /// rescaled and reused as the lobe's azimuth number; `u.y` is the lobe's
+    /// polar number. The returned pdf is the full mixture density.
+    #[inline]
+    #[must_use]
+    pub fn sample(&self, u: Vec2) -> DirectionSample {
+        let (k, u_lobe) = match select_component(&self.weight, u.x) {
+            Some(sel) => sel,
+            // Unreachable for mixtures built by this module (weights sum to 1).
+            None => (0, u.x),
+        };
+        let direction = self.lobe(k).sample(Vec2::new(u_lobe, u.y)).direction;
+        DirectionSample {
+            direction,
+            pdf: self.pdf(direction),
+        }
+    }
+
+    /// Product with the clamped cosine `max(0, n·ω)` approximated by the vMF
+    /// lobe `e^{κ_c (n·ω − 1)}`, κ_c = [`CLAMPED_COSINE_KAPPA`] (NPM §4.2,
+    /// Open PGL's radiance → product conversion), normalised again.
+    ///
+    /// Closed form: `e^{κ_k(μ_k·ω−1)} e^{κ_c(n·ω−1)} = e^{κ'−κ_k−κ_c} e^{κ'(μ'·ω−1)}`
+    /// with `κ' μ' = κ_k μ_k + κ_c n`, so lobe k keeps weight
+    /// `∝ w_k · norm(κ_k) / norm(κ') · e^{κ'−κ_k−κ_c}` (the exponent is ≤ 0 by
+    /// the triangle inequality; evaluated in log space).
+    ///
+    /// Approximation, not an identity: the vMF cosine is positive below the
+    /// horizon, so the product keeps a little mass there.
+    #[must_use]
+    pub fn product_with_clamped_cosine(&self, normal: Vec3) -> Self {
+        let n = crate::frame::normalize_or(normal, Vec3::Z);
+        let kc = CLAMPED_COSINE_KAPPA;
+        let mut out = Self::zeroed();
+        let mut log_w = [f32::MIN; K];
+        let mut max_log = f32::MIN;
+        let mut k = 0;
+        while k < K {
+            let lobe = self.lobe(k);
+            let axis = lobe.mean() * lobe.kappa + n * kc;
+            let kappa_p = sqrt(axis.length_squared());
+            let product = VmfLobe::new(axis, kappa_p);
+            out.set_lobe(k, &product);
+            if self.weight[k] > 0.0 {
+                log_w[k] = ln(self.weight[k]) + ln(lobe.norm) - ln(product.norm)
+                    + (product.kappa - lobe.kappa - kc);
+                max_log = max_log.max(log_w[k]);
+            }
+            k += 1;
+        }
+        let mut sum = 0.0;
+        k = 0;
+        while k < K {
+            let w = if self.weight[k] > 0.0 {
+                exp(log_w[k] - max_log)
+            } else {
+                0.0
+            };
+            out.weight[k] = w;
+            sum += w;
+            k += 1;
+        }
+        k = 0;
+        while k < K {
+            out.weight[k] /= sum;
+            k += 1;
+        }
+        out
+    }
+
+    /// `ln p(ω)` of the mixture decoded from `raw`, and its gradient with
+    /// respect to every raw output, through the activations of
+    /// [`Self::decode`] — the term NPM eq. 9 weights per training sample.
+    ///
+    /// Evaluated in log space (log-softmax, log-sum-exp), so it stays finite
+    /// where every lobe's density underflows. Clamped `ln κ` outputs get a zero
+    /// gradient, as the clamp's derivative is zero there.
+    pub fn grad_log_pdf(
+        raw: &[[f32; VMF_RAW_PER_LOBE]; K],
+        direction: Vec3,
+        grad: &mut [[f32; VMF_RAW_PER_LOBE]; K],
+    ) -> f32 {
+        let direction = crate::frame::normalize_or(direction, Vec3::Z);
+        let logits = weight_logits(raw);
+        let mut max_logit = f32::MIN;
+        let mut k = 0;
+        while k < K {
+            max_logit = max_logit.max(logits[k]);
+            k += 1;
+        }
+        let mut sum = 0.0;
+        k = 0;
+        while k < K {
+            sum += exp(logits[k] - max_logit);
+            k += 1;
+        }
+        let log_sum = ln(sum);
+
+        // log(w_k f_k) per lobe.
+        let mut log_terms = [0.0; K];
+        let mut max_term = f32::MIN;
+        k = 0;
+        while k < K {
+            let d = decode_lobe(&raw[k]);
+            let lobe = VmfLobe::new(d.mean, d.kappa);
+            let t = one_minus_cos_angle(lobe.mean(), direction);
+            let log_w = logits[k] - max_logit - log_sum;
+            log_terms[k] = log_w + ln(lobe.norm) - lobe.kappa * t;
+            max_term = max_term.max(log_terms[k]);
+            k += 1;
+        }
+        let mut total = 0.0;
+        k = 0;
+        while k < K {
+            total += exp(log_terms[k] - max_term);
+            k += 1;
+        }
+        let log_pdf = max_term + ln(total);
+
+        k = 0;
+        while k < K {
+            let d = decode_lobe(&raw[k]);
+            let t = one_minus_cos_angle(d.mean, direction);
+            // Responsibility r_k = w_k f_k / p and weight w_k.
+            let resp = exp(log_terms[k] - log_pdf);
+            let w = exp(logits[k] - max_logit - log_sum);
+            grad[k][0] = resp - w;
+            grad[k][1] = resp * dlog_pdf_dkappa(d.kappa, t) * d.dkappa_draw;
+            // ∂ ln f_k / ∂μ = κ ω (the density depends on μ through κ μ·ω).
+            grad[k][2] = resp * d.kappa * direction.dot(d.dmean_dtheta_raw);
+            grad[k][3] = resp * d.kappa * direction.dot(d.dmean_dphi_raw);
+            k += 1;
+        }
+        log_pdf
+    }
+}

@@ -1,0 +1,1 @@
+//! Piecewise 1D densities (placeholder: being written).
