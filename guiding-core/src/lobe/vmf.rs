@@ -122,14 +122,27 @@ impl VmfLobe {
     #[inline]
     #[must_use]
     pub fn sample(&self, u: Vec2) -> DirectionSample {
-        let t = self.sample_one_minus_cos(u.y);
-        let sin_theta = safe_sqrt(t * (2.0 - t));
-        let local = spherical_direction(sin_theta, 1.0 - t, TWO_PI * u.x);
-        let direction = Frame::from_z(self.mean()).to_world(local);
+        let (direction, t) = self.sample_with_one_minus_cos(u);
         DirectionSample {
             direction,
             pdf: self.norm * exp(-self.kappa * t),
         }
+    }
+
+    /// [`Self::sample`] without the density: the direction only (mixtures
+    /// evaluate their own density afterwards).
+    #[inline]
+    #[must_use]
+    pub fn sample_direction(&self, u: Vec2) -> Vec3 {
+        self.sample_with_one_minus_cos(u).0
+    }
+
+    #[inline]
+    fn sample_with_one_minus_cos(&self, u: Vec2) -> (Vec3, f32) {
+        let t = self.sample_one_minus_cos(u.y);
+        let sin_theta = safe_sqrt(t * (2.0 - t));
+        let local = spherical_direction(sin_theta, 1.0 - t, TWO_PI * u.x);
+        (Frame::from_z(self.mean()).to_world(local), t)
     }
 
     /// Inverse of [`Self::sample`]: the `u` that maps to `direction`.

@@ -186,7 +186,9 @@ impl<const K: usize> VmfMixture<K> {
             return p;
         }
         let len = sqrt(len2);
-        let mut p = 0.0;
+        // Per-lobe terms first (a loop without a floating-point reduction, which
+        // LLVM vectorises), then their sum.
+        let mut terms = [0.0f32; K];
         let mut k = 0;
         while k < K {
             // Inlined `one_minus_cos_angle` over the SoA arrays (see sphere.rs).
@@ -196,12 +198,18 @@ impl<const K: usize> VmfMixture<K> {
             let cy = mz * direction.x - mx * direction.z;
             let cz = mx * direction.y - my * direction.x;
             let cross2 = cx * cx + cy * cy + cz * cz;
-            let t = if dot > 0.0 {
-                cross2 / (len * (len + dot))
-            } else {
-                1.0 - dot / len
-            };
-            p += self.weight[k] * self.norm[k] * exp(-self.kappa[k] * t);
+            // One division with selected operands, so the loop stays branch-free.
+            let front = dot > 0.0;
+            let num = if front { cross2 } else { len - dot };
+            let den = if front { len * (len + dot) } else { len };
+            let t = num / den;
+            terms[k] = self.weight[k] * self.norm[k] * exp(-self.kappa[k] * t);
+            k += 1;
+        }
+        let mut p = 0.0;
+        k = 0;
+        while k < K {
+            p += terms[k];
             k += 1;
         }
         p
@@ -225,7 +233,7 @@ impl<const K: usize> VmfMixture<K> {
             // Unreachable for mixtures built by this module (weights sum to 1).
             None => (0, u.x),
         };
-        let direction = self.lobe(k).sample(Vec2::new(u_lobe, u.y)).direction;
+        let direction = self.lobe(k).sample_direction(Vec2::new(u_lobe, u.y));
         DirectionSample {
             direction,
             pdf: self.pdf(direction),
