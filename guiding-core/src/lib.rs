@@ -27,3 +27,8 @@ pub mod pdf1d;
 pub mod sphere;
 
 pub use glam;
+
+/// The README's code examples, compiled and run as doctests.
+#[cfg(doctest)]
+#[doc = include_str!("../../README.md")]
+pub struct ReadmeDoctests;

@@ -40,7 +40,7 @@ pub fn exp(x: f32) -> f32 {
     const MIN_ARG: f32 = -87.336_55;
     // Round-to-nearest of x·log2(e) by the 1.5·2²³ trick (exact for |n| < 2²²).
     const ROUND: f32 = 12_582_912.0;
-    let xc = x.max(MIN_ARG).min(MAX_ARG);
+    let xc = x.clamp(MIN_ARG, MAX_ARG);
     let shifted = xc * LOG2_E + ROUND;
     let n = shifted - ROUND;
     let r = xc - n * LN2_HI - n * LN2_LO;
@@ -49,7 +49,7 @@ pub fn exp(x: f32) -> f32 {
     let p = p * r + 8.333_452e-3;
     let p = p * r + 4.166_579_6e-2;
     let p = p * r + 1.666_666_5e-1;
-    let p = p * r + 5.000_000_1e-1;
+    let p = p * r + 0.5;
     let er = p * r * r + r + 1.0;
     // n is also held, as an integer, in the low mantissa bits of `shifted`:
     // reading it from there avoids a float → int conversion (which does not

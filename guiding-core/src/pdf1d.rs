@@ -1,1 +1,622 @@
-//! Piecewise 1D densities (placeholder: being written).
+//! Piecewise densities on `[0, 1]` from `N` bins: the 1D building block of the
+//! factorised directional PDFs (Figueiredo et al. 2025, "Neural Path Guiding
+//! with Distribution Factorization", EGSR 2025, §3.1).
+//!
+//! A network outputs `N` logits per dimension; the activation is `N · softmax`,
+//! so the bin values `v_i` have mean one and the density integrates to one
+//! without any further normalisation. Two reconstructions are offered:
+//!
+//! - [`Interpolation::Nearest`]: piecewise constant, `p(x) = v_⌊xN⌋`;
+//! - [`Interpolation::Linear`]: `v_i` sits at the bin centre `x_i = (i + ½)/N`
+//!   and `p` interpolates linearly between centres. On the half bins at the
+//!   ends, [`Boundary::Wrap`] (the azimuth φ) interpolates across the seam
+//!   between `v_{N−1}` and `v_0`, and [`Boundary::Clamp`] (the polar angle θ)
+//!   holds `v_0` on `[0, ½N⁻¹]` and `v_{N−1}` on `[1 − ½N⁻¹, 1]` (§3.1).
+//!
+//! In both cases `∫₀¹ p = mean(v) = 1`: as pieces, the linear density has
+//! knots `[0, x_0, …, x_{N−1}, 1]` with end values `e = (v_{N−1} + v_0)/2`
+//! (wrap) or `v_0`, `v_{N−1}` (clamp); the `N − 1` full pieces carry
+//! `Σ (v_{k−1} + v_k) / 2N`, the two half pieces `(e_0 + v_0 + v_{N−1} + e_1)/4N`,
+//! which sums to `Σ v_k / N` for either boundary.
+//!
+//! Sampling scans the pieces accumulating their masses (no CDF table: the
+//! struct stays `N` floats and two codes) and inverts the quadratic CDF of a
+//! linear piece in the cancellation-free form of [`sample_linear`].
+
+use crate::math::{exp, ln, sanitize, sqrt, ONE_MINUS_EPSILON};
+use crate::mixture::softmax;
+use bytemuck::{Pod, Zeroable};
+
+/// Logits are clamped to `±PDF1D_LOGIT_LIMIT` (NaN becomes 0) before the
+/// softmax, so that any network output gives a valid density.
+pub const PDF1D_LOGIT_LIMIT: f32 = 1e30;
+
+/// How the bin values are reconstructed into a density.
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Interpolation {
+    /// Piecewise constant: `p(x) = v_⌊xN⌋`.
+    Nearest = 0,
+    /// Piecewise linear between bin centres (Figueiredo et al. 2025, §3.1).
+    Linear = 1,
+}
+
+impl Interpolation {
+    /// The `u32` code stored in GPU-visible structs.
+    #[inline]
+    #[must_use]
+    pub fn code(self) -> u32 {
+        self as u32
+    }
+
+    /// Reads a code: `0` is [`Interpolation::Nearest`], every other value
+    /// [`Interpolation::Linear`] (so a corrupt code still names a valid mode).
+    #[inline]
+    #[must_use]
+    pub fn from_code(code: u32) -> Self {
+        if code == 0 {
+            Self::Nearest
+        } else {
+            Self::Linear
+        }
+    }
+}
+
+/// How the ends of `[0, 1]` are treated.
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Boundary {
+    /// Periodic (the azimuth φ): `0` and `1` are the same point; linear
+    /// interpolation crosses the seam.
+    Wrap = 0,
+    /// Clamped (the polar angle θ): the end half bins are constant.
+    Clamp = 1,
+}
+
+impl Boundary {
+    /// The `u32` code stored in GPU-visible structs.
+    #[inline]
+    #[must_use]
+    pub fn code(self) -> u32 {
+        self as u32
+    }
+
+    /// Reads a code: `0` is [`Boundary::Wrap`], every other value
+    /// [`Boundary::Clamp`].
+    #[inline]
+    #[must_use]
+    pub fn from_code(code: u32) -> Self {
+        if code == 0 {
+            Self::Wrap
+        } else {
+            Self::Clamp
+        }
+    }
+}
+
+/// Samples `t ∈ [0, 1)` with density `∝ (1 − t) a + t b` on the unit interval,
+/// from `u ∈ [0, 1)`; `a, b ≥ 0`, not both zero.
+///
+/// The CDF is `F(t) = t (a (2 − t) + b t) / (a + b)`; its root is written
+/// without cancellation (pbrt-v4 `SampleLinear`):
+///
+/// ```text
+/// t = u (a + b) / (a + √((1 − u) a² + u b²))
+/// ```
+///
+/// which degenerates smoothly to `t = u` for `a = b` and to `t = √u` for
+/// `a = 0`. Deviation from pbrt: `a` and `b` are first divided by `max(a, b)`
+/// so their squares can neither overflow nor underflow to a wrong ratio.
+/// Invalid input (NaN, negative, both zero) is treated as `a = b` (`t = u`).
+#[inline]
+#[must_use]
+pub fn sample_linear(u: f32, a: f32, b: f32) -> f32 {
+    let u = clamp_unit(u);
+    let a = if a > 0.0 { a } else { 0.0 };
+    let b = if b > 0.0 { b } else { 0.0 };
+    let m = a.max(b);
+    if !(m > 0.0 && m <= f32::MAX) {
+        return u;
+    }
+    let a = a / m;
+    let b = b / m;
+    if u == 0.0 {
+        return 0.0;
+    }
+    let t = u * (a + b) / (a + sqrt((1.0 - u) * (a * a) + u * (b * b)));
+    t.clamp(0.0, ONE_MINUS_EPSILON)
+}
+
+/// CDF of [`sample_linear`]: `F(t) = t (a (2 − t) + b t) / (a + b)` for
+/// `t ∈ [0, 1]` (clamped), every term non-negative. Invalid `a, b` behave as
+/// in [`sample_linear`] (`F(t) = t`).
+#[inline]
+#[must_use]
+pub fn linear_cdf(t: f32, a: f32, b: f32) -> f32 {
+    let t = if t > 0.0 { t.min(1.0) } else { 0.0 };
+    let a = if a > 0.0 { a } else { 0.0 };
+    let b = if b > 0.0 { b } else { 0.0 };
+    let m = a.max(b);
+    if !(m > 0.0 && m <= f32::MAX) {
+        return t;
+    }
+    let a = a / m;
+    let b = b / m;
+    (t * (a * (2.0 - t) + b * t) / (a + b)).clamp(0.0, 1.0)
+}
+
+/// `u` clamped to `[0, 1)`, NaN to 0.
+#[inline]
+fn clamp_unit(u: f32) -> f32 {
+    if u > 0.0 {
+        u.min(ONE_MINUS_EPSILON)
+    } else {
+        0.0
+    }
+}
+
+/// Brings `x` into `[0, 1]`: NaN and ±∞ become 0; otherwise a wrapping
+/// domain takes `x mod 1` and a clamped one clamps. `x ∈ [0, 1]` is kept as
+/// is (also `x = 1`, the left limit at the seam).
+#[inline]
+fn reduce(x: f32, boundary: Boundary) -> f32 {
+    if !x.is_finite() {
+        return 0.0;
+    }
+    match boundary {
+        // `%` is the truncating remainder, in (−1, 1) and exact.
+        Boundary::Wrap => {
+            if x < 0.0 {
+                (x % 1.0 + 1.0).min(1.0)
+            } else if x > 1.0 {
+                x % 1.0
+            } else {
+                x
+            }
+        }
+        Boundary::Clamp => x.clamp(0.0, 1.0),
+    }
+}
+
+/// Interpolation stencil at `x ∈ [0, 1]`: `p(x) = (1 − f) v_i + f v_j`.
+#[inline]
+fn stencil<const N: usize>(
+    x: f32,
+    interp: Interpolation,
+    boundary: Boundary,
+) -> (usize, usize, f32) {
+    let n = N as f32;
+    match interp {
+        Interpolation::Nearest => {
+            let i = bin_index::<N>(x * n);
+            (i, i, 0.0)
+        }
+        Interpolation::Linear => {
+            let s = x * n - 0.5;
+            match boundary {
+                Boundary::Wrap => {
+                    if s < 0.0 {
+                        // Between the centre of the last bin (at −½N⁻¹ across
+                        // the seam) and that of the first.
+                        (N - 1, 0, (s + 1.0).clamp(0.0, 1.0))
+                    } else {
+                        let i = bin_index::<N>(s);
+                        let j = if i + 1 < N { i + 1 } else { 0 };
+                        (i, j, (s - i as f32).clamp(0.0, 1.0))
+                    }
+                }
+                Boundary::Clamp => {
+                    let s = s.clamp(0.0, n - 1.0);
+                    let i = bin_index::<N>(s);
+                    if i + 1 < N {
+                        (i, i + 1, (s - i as f32).clamp(0.0, 1.0))
+                    } else {
+                        (i, i, 0.0)
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// `⌊s⌋` clamped to `[0, N − 1]` (NaN to 0).
+#[inline]
+fn bin_index<const N: usize>(s: f32) -> usize {
+    if s > 0.0 {
+        let i = s as usize;
+        if i < N {
+            i
+        } else {
+            N - 1
+        }
+    } else {
+        0
+    }
+}
+
+/// A density on `[0, 1]` from `N ≥ 1` bin values of mean one (Figueiredo et
+/// al. 2025, §3.1).
+///
+/// `repr(C)`, `Pod`, `N + 2` four-byte words: the values, then the
+/// [`Interpolation`] and [`Boundary`] codes. Built by [`Self::from_logits`] or
+/// [`Self::from_values`]; a zeroed value is only a placeholder to be
+/// overwritten (its density is zero, and [`Self::sample`] falls back to `x = u`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pdf1d<const N: usize> {
+    /// Bin values `v_i ≥ 0` with `Σ v_i = N`.
+    pub values: [f32; N],
+    /// [`Interpolation`] code.
+    pub interpolation: u32,
+    /// [`Boundary`] code.
+    pub boundary: u32,
+}
+
+// SAFETY: `repr(C)` struct of an `[f32; N]` array and two `u32`s, all 4-byte
+// aligned, so no padding; every bit pattern is valid and zero is valid.
+unsafe impl<const N: usize> Zeroable for Pdf1d<N> {}
+// SAFETY: see above; `Copy + 'static` holds for every `N`.
+unsafe impl<const N: usize> Pod for Pdf1d<N> {}
+
+impl<const N: usize> Pdf1d<N> {
+    /// The network activation `v = N · softmax(logits)` (DF §3.1). Logits are
+    /// sanitised first (NaN → 0, clamped to ±[`PDF1D_LOGIT_LIMIT`]), so any
+    /// input gives a valid density.
+    #[must_use]
+    pub fn from_logits(
+        logits: &[f32; N],
+        interpolation: Interpolation,
+        boundary: Boundary,
+    ) -> Self {
+        let mut clean = [0.0; N];
+        let mut k = 0;
+        while k < N {
+            clean[k] = sanitize(logits[k], PDF1D_LOGIT_LIMIT);
+            k += 1;
+        }
+        let mut pdf = Self {
+            values: [0.0; N],
+            interpolation: interpolation.code(),
+            boundary: boundary.code(),
+        };
+        softmax(&clean, &mut pdf.values);
+        let n = N as f32;
+        k = 0;
+        while k < N {
+            pdf.values[k] *= n;
+            k += 1;
+        }
+        pdf
+    }
+
+    /// Density with values proportional to `values`, normalised here to mean
+    /// one. Negative, NaN and infinite values count as zero; all-zero values
+    /// give the uniform density. Values are divided by their maximum before
+    /// summing, so even `f32::MAX` inputs cannot overflow.
+    #[must_use]
+    pub fn from_values(
+        values: &[f32; N],
+        interpolation: Interpolation,
+        boundary: Boundary,
+    ) -> Self {
+        let mut pdf = Self {
+            values: [0.0; N],
+            interpolation: interpolation.code(),
+            boundary: boundary.code(),
+        };
+        let mut max = 0.0f32;
+        let mut k = 0;
+        while k < N {
+            let v = values[k];
+            let v = if v > 0.0 && v <= f32::MAX { v } else { 0.0 };
+            pdf.values[k] = v;
+            max = max.max(v);
+            k += 1;
+        }
+        if max <= 0.0 {
+            k = 0;
+            while k < N {
+                pdf.values[k] = 1.0;
+                k += 1;
+            }
+            return pdf;
+        }
+        let mut sum = 0.0;
+        k = 0;
+        while k < N {
+            pdf.values[k] /= max;
+            sum += pdf.values[k];
+            k += 1;
+        }
+        // sum ∈ [1, N].
+        let scale = N as f32 / sum;
+        k = 0;
+        while k < N {
+            pdf.values[k] *= scale;
+            k += 1;
+        }
+        pdf
+    }
+
+    /// The interpolation mode.
+    #[inline]
+    #[must_use]
+    pub fn interpolation(&self) -> Interpolation {
+        Interpolation::from_code(self.interpolation)
+    }
+
+    /// The boundary mode.
+    #[inline]
+    #[must_use]
+    pub fn boundary(&self) -> Boundary {
+        Boundary::from_code(self.boundary)
+    }
+
+    /// Density `p(x)`; `x` outside `[0, 1]` is wrapped or clamped according
+    /// to the boundary, NaN/±∞ read as 0.
+    ///
+    /// Nearest: `v_⌊xN⌋`. Linear: `(1 − f) v_i + f v_j` with `s = xN − ½`,
+    /// `i = ⌊s⌋`, `f = s − i`, `j = i + 1` (indices mod `N` for wrap; `s`
+    /// clamped to `[0, N − 1]` for clamp).
+    #[inline]
+    #[must_use]
+    pub fn pdf(&self, x: f32) -> f32 {
+        let boundary = self.boundary();
+        let x = reduce(x, boundary);
+        let (i, j, f) = stencil::<N>(x, self.interpolation(), boundary);
+        (1.0 - f) * self.values[i] + f * self.values[j]
+    }
+
+    /// Alias of [`Self::pdf`]: the density is normalised by construction.
+    #[inline]
+    #[must_use]
+    pub fn eval(&self, x: f32) -> f32 {
+        self.pdf(x)
+    }
+
+    /// Number of pieces the density is made of: `N` (nearest) or `N + 1`
+    /// (linear: two half pieces at the ends).
+    #[inline]
+    fn piece_count(&self) -> usize {
+        match self.interpolation() {
+            Interpolation::Nearest => N,
+            Interpolation::Linear => N + 1,
+        }
+    }
+
+    /// Piece `k` as `(start, width, value at start, value at end)`.
+    #[inline]
+    fn piece(&self, k: usize) -> (f32, f32, f32, f32) {
+        let inv_n = 1.0 / N as f32;
+        match self.interpolation() {
+            Interpolation::Nearest => (k as f32 * inv_n, inv_n, self.values[k], self.values[k]),
+            Interpolation::Linear => {
+                let first = self.values[0];
+                let last = self.values[N - 1];
+                let (e0, e1) = match self.boundary() {
+                    Boundary::Wrap => {
+                        let e = 0.5 * (first + last);
+                        (e, e)
+                    }
+                    Boundary::Clamp => (first, last),
+                };
+                if k == 0 {
+                    (0.0, 0.5 * inv_n, e0, first)
+                } else if k < N {
+                    (
+                        (k as f32 - 0.5) * inv_n,
+                        inv_n,
+                        self.values[k - 1],
+                        self.values[k],
+                    )
+                } else {
+                    ((N as f32 - 0.5) * inv_n, 0.5 * inv_n, last, e1)
+                }
+            }
+        }
+    }
+
+    /// Mass `w (a + b) / 2` of piece `k`.
+    #[inline]
+    fn piece_mass(&self, k: usize) -> f32 {
+        let (_, w, a, b) = self.piece(k);
+        0.5 * w * (a + b)
+    }
+
+    /// Sum of the piece masses (one up to rounding).
+    #[inline]
+    fn total_mass(&self) -> f32 {
+        let count = self.piece_count();
+        let mut total = 0.0;
+        let mut k = 0;
+        while k < count {
+            total += self.piece_mass(k);
+            k += 1;
+        }
+        total
+    }
+
+    /// Draws `x ∈ [0, 1)` from `u ∈ [0, 1)` (clamped; NaN reads as 0) by
+    /// inverting the CDF, and returns `(x, p(x))`.
+    ///
+    /// The pieces are scanned accumulating their masses; inside the chosen
+    /// piece, [`sample_linear`] inverts the quadratic CDF. The returned density
+    /// is [`Self::pdf`] at the returned `x`, so the two always agree exactly.
+    /// Should rounding place `x` on a point of zero density (the zero end of a
+    /// piece, or across the edge into an empty bin; probability ~2⁻²⁴), `x`
+    /// is stepped up to four ulps into the piece, and if the density there
+    /// still underflows, moved `2⁻¹⁰` of the piece width inwards, so sampled
+    /// points have `p > 0` whenever the chosen piece has positive density
+    /// inside.
+    #[must_use]
+    pub fn sample(&self, u: f32) -> (f32, f32) {
+        let u = clamp_unit(u);
+        let total = self.total_mass();
+        if !(total > 0.0 && total <= f32::MAX) {
+            // Not a density built by the constructors (e.g. zeroed).
+            return (u, self.pdf(u));
+        }
+        let target = u * total;
+        let count = self.piece_count();
+        let mut cum = 0.0;
+        let mut chosen = count;
+        let mut local = 0.0;
+        let mut last = count;
+        let mut last_cum = 0.0;
+        let mut k = 0;
+        while k < count {
+            let m = self.piece_mass(k);
+            if m > 0.0 {
+                if target < cum + m {
+                    chosen = k;
+                    local = (target - cum) / m;
+                    break;
+                }
+                last = k;
+                last_cum = cum;
+                cum += m;
+            }
+            k += 1;
+        }
+        if chosen == count {
+            // Rounding left the target beyond the last partial sum: the last
+            // non-empty piece takes it (`last < count` as total > 0).
+            chosen = if last < count { last } else { 0 };
+            local = (target - last_cum) / self.piece_mass(chosen);
+        }
+        let local = clamp_unit(local);
+        let (start, width, a, b) = self.piece(chosen);
+        let t = sample_linear(local, a, b);
+        let mut x = clamp_unit(start + width * t);
+        let mut p = self.pdf(x);
+        // Rounding put x on zero density: step a few ulps into the piece …
+        let mut step = 0;
+        while (p <= 0.0 || p.is_nan()) && step < 4 {
+            x = if t > 0.5 {
+                x - x * f32::EPSILON
+            } else {
+                x + (x * f32::EPSILON).max(f32::MIN_POSITIVE)
+            };
+            x = clamp_unit(x);
+            p = self.pdf(x);
+            step += 1;
+        }
+        // … and if the density there still underflows, 2⁻¹⁰ of the width.
+        if p <= 0.0 || p.is_nan() {
+            let t = t.clamp(1.0 / 1024.0, 1.0 - 1.0 / 1024.0);
+            x = clamp_unit(start + width * t);
+            p = self.pdf(x);
+        }
+        (x, p)
+    }
+
+    /// The CDF `∫₀ˣ p`, the inverse of [`Self::sample`]: `u ∈ [0, 1)` with
+    /// `sample(u).0 = x`. `x` is reduced to `[0, 1]` as in [`Self::pdf`].
+    #[must_use]
+    pub fn invert(&self, x: f32) -> f32 {
+        let x = reduce(x, self.boundary());
+        let total = self.total_mass();
+        if !(total > 0.0 && total <= f32::MAX) {
+            return clamp_unit(x);
+        }
+        let n = N as f32;
+        let count = self.piece_count();
+        // Piece holding x: bins for nearest; for linear, piece k covers
+        // [(k − ½)/N, (k + ½)/N) with the half pieces at the ends.
+        let s = match self.interpolation() {
+            Interpolation::Nearest => x * n,
+            Interpolation::Linear => x * n + 0.5,
+        };
+        let piece = if s > 0.0 {
+            let i = s as usize;
+            if i < count {
+                i
+            } else {
+                count - 1
+            }
+        } else {
+            0
+        };
+        let mut cum = 0.0;
+        let mut k = 0;
+        while k < piece {
+            cum += self.piece_mass(k);
+            k += 1;
+        }
+        let (start, width, a, b) = self.piece(piece);
+        let t = (x - start) / width;
+        cum += self.piece_mass(piece) * linear_cdf(t, a, b);
+        clamp_unit(cum / total)
+    }
+
+    /// `ln p(x)` of the density [`Self::from_logits`] builds from `logits`,
+    /// and its gradient `∂ ln p / ∂ logits` into `grad`, through the
+    /// `N · softmax` activation.
+    ///
+    /// With the stencil `p = (1 − f) v_i + f v_j` of [`Self::pdf`] and
+    /// `∂v_k/∂l_m = v_k (δ_km − s_m)` (`s = softmax(l)`):
+    ///
+    /// ```text
+    /// ∂ ln p / ∂ l_m = [(1 − f) v_i δ_im + f v_j δ_jm] / p − s_m
+    /// ```
+    ///
+    /// Everything is evaluated in log space: `ln p = ln N + (m − L) − ln Σ_k
+    /// e^{l_k − L} + ln[(1 − f) e^{l_i − m} + f e^{l_j − m}]`, with `L` the
+    /// largest logit and `m` the largest logit among the stencil entries of
+    /// non-zero weight, so `ln p` and the gradient stay finite (and accurate)
+    /// even where `p` underflows to zero in `f32` (e.g. ±10³⁰ logits). Logits
+    /// are sanitised as in [`Self::from_logits`]; `x` is reduced as in
+    /// [`Self::pdf`]. At kinks (bin edges for nearest, centres for linear)
+    /// the one-sided stencil of [`Self::pdf`] is used.
+    pub fn grad_log_pdf(
+        logits: &[f32; N],
+        x: f32,
+        interpolation: Interpolation,
+        boundary: Boundary,
+        grad: &mut [f32; N],
+    ) -> f32 {
+        let mut l = [0.0; N];
+        let mut max = f32::MIN;
+        let mut k = 0;
+        while k < N {
+            l[k] = sanitize(logits[k], PDF1D_LOGIT_LIMIT);
+            max = max.max(l[k]);
+            k += 1;
+        }
+        let mut sum = 0.0;
+        k = 0;
+        while k < N {
+            sum += exp(l[k] - max);
+            k += 1;
+        }
+        // sum ≥ 1.
+        let log_sum = ln(sum);
+        k = 0;
+        while k < N {
+            grad[k] = -exp(l[k] - max - log_sum);
+            k += 1;
+        }
+
+        let x = reduce(x, boundary);
+        let (i, j, f) = stencil::<N>(x, interpolation, boundary);
+        let (ci, cj) = if i == j { (1.0, 0.0) } else { (1.0 - f, f) };
+        // Largest logit among the entries that carry weight (ci > 0 or cj > 0;
+        // ci + cj = 1, so at least one does).
+        let m = if ci > 0.0 && cj > 0.0 {
+            l[i].max(l[j])
+        } else if ci > 0.0 {
+            l[i]
+        } else {
+            l[j]
+        };
+        let ti = if ci > 0.0 { ci * exp(l[i] - m) } else { 0.0 };
+        let tj = if cj > 0.0 { cj * exp(l[j] - m) } else { 0.0 };
+        // ≥ the weight of the entry holding m, > 0.
+        let local = ti + tj;
+        grad[i] += ti / local;
+        if cj > 0.0 {
+            grad[j] += tj / local;
+        }
+        ln(N as f32) + (m - max) - log_sum + ln(local)
+    }
+}

@@ -3,7 +3,9 @@
 use glam::{DVec3, Vec3};
 use guiding_core::frame::{normalize_or, Frame};
 use guiding_core::math;
-use guiding_core::sphere::{one_minus_cos_angle, square_to_uniform_sphere, uniform_sphere_to_square};
+use guiding_core::sphere::{
+    one_minus_cos_angle, square_to_uniform_sphere, uniform_sphere_to_square,
+};
 use guiding_tests::rng::Pcg32;
 
 /// Distance in units in the last place between two finite f32 of equal sign.
@@ -28,7 +30,11 @@ fn exp_is_within_two_ulp_of_correctly_rounded() {
         }
         let d = ulp_distance(math::exp(x), reference);
         worst = worst.max(d);
-        assert!(d <= 2, "exp({x}) = {} vs {reference} ({d} ulp)", math::exp(x));
+        assert!(
+            d <= 2,
+            "exp({x}) = {} vs {reference} ({d} ulp)",
+            math::exp(x)
+        );
     }
     println!("worst exp error: {worst} ulp");
 }
@@ -49,7 +55,17 @@ fn exp_edges() {
 
 #[test]
 fn sigmoid_and_sanitize_are_total() {
-    for x in [f32::NEG_INFINITY, -1e30, -100.0, -1.0, 0.0, 1.0, 100.0, 1e30, f32::INFINITY] {
+    for x in [
+        f32::NEG_INFINITY,
+        -1e30,
+        -100.0,
+        -1.0,
+        0.0,
+        1.0,
+        100.0,
+        1e30,
+        f32::INFINITY,
+    ] {
         let s = math::sigmoid(x);
         assert!((0.0..=1.0).contains(&s), "sigmoid({x}) = {s}");
         let reference = 1.0 / (1.0 + (-(x as f64)).exp());
@@ -63,11 +79,20 @@ fn sigmoid_and_sanitize_are_total() {
 
 #[test]
 fn x_over_one_minus_exp_neg_matches_f64() {
-    for x in [0.0f32, 1e-38, 1e-30, 1e-10, 1e-4, 0.01, 0.5, 1.0, 10.0, 100.0, 1e6] {
+    for x in [
+        0.0f32, 1e-38, 1e-30, 1e-10, 1e-4, 0.01, 0.5, 1.0, 10.0, 100.0, 1e6,
+    ] {
         let got = math::x_over_one_minus_exp_neg(x) as f64;
         let xd = x as f64;
-        let want = if xd < 1e-12 { 1.0 + xd / 2.0 } else { xd / -(-xd).exp_m1() };
-        assert!((got - want).abs() <= 2e-7 * want, "x = {x}: {got} vs {want}");
+        let want = if xd < 1e-12 {
+            1.0 + xd / 2.0
+        } else {
+            xd / -(-xd).exp_m1()
+        };
+        assert!(
+            (got - want).abs() <= 2e-7 * want,
+            "x = {x}: {got} vs {want}"
+        );
     }
 }
 
@@ -137,7 +162,10 @@ fn one_minus_cos_angle_keeps_relative_precision_near_the_axis() {
     }
     assert_eq!(one_minus_cos_angle(Vec3::Z, Vec3::ZERO), 2.0);
     assert_eq!(one_minus_cos_angle(Vec3::Z, Vec3::splat(f32::NAN)), 2.0);
-    assert_eq!(one_minus_cos_angle(Vec3::Z, Vec3::splat(f32::INFINITY)), 2.0);
+    assert_eq!(
+        one_minus_cos_angle(Vec3::Z, Vec3::splat(f32::INFINITY)),
+        2.0
+    );
 }
 
 #[test]

@@ -58,8 +58,8 @@ pub fn select_component<const K: usize>(weights: &[f32; K], u: f32) -> Option<(u
         k += 1;
     }
     // Rounding: the partial sums ended below u; the last non-empty component takes it.
-    match last {
-        Some((k, s)) => Some((k, ((u - s) / weights[k]).clamp(0.0, ONE_MINUS_EPSILON))),
-        None => None,
+    if let Some((k, s)) = last {
+        return Some((k, ((u - s) / weights[k]).clamp(0.0, ONE_MINUS_EPSILON)));
     }
+    None
 }
