@@ -6,16 +6,18 @@
 //! fixed table of 4096, so the branch predictor cannot memorise one path.
 
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion, Throughput};
+use guiding_core::factorised::FactorisedTable;
 use guiding_core::glam::{Vec2, Vec3};
 use guiding_core::lobe::vmf::VmfLobe;
 use guiding_core::mixture::vmf::VmfMixture;
+use guiding_core::pdf1d::Interpolation;
 use guiding_core::sphere::{square_to_uniform_sphere, UNIFORM_SPHERE_PDF};
 use std::hint::black_box;
 
 const BATCH: usize = 4096;
 
-/// Deterministic low-discrepancy-free random numbers (a 32-bit LCG is plenty
-/// for a benchmark input table).
+/// Deterministic random numbers (a 32-bit LCG is plenty for a benchmark
+/// input table).
 fn random_table(seed: u32) -> Vec<Vec2> {
     let mut s = seed;
     let mut next = move || {
@@ -31,7 +33,7 @@ fn random_raw<const K: usize, const R: usize>(seed: u32) -> [[f32; R]; K] {
     for (k, lobe) in raw.iter_mut().enumerate() {
         for (j, v) in lobe.iter_mut().enumerate() {
             let u = table[k * R + j];
-            *v = 4.0 * (u.x - 0.5) + if j == 1 { 3.0 } else { 0.0 };
+            *v = 4.0 * (u.x - 0.5);
         }
     }
     raw
@@ -70,7 +72,11 @@ fn distributions(c: &mut Criterion) {
         (s.direction, s.pdf)
     });
 
-    let vmf8 = VmfMixture::<8>::decode(&random_raw::<8, 4>(11));
+    let mut raw = random_raw::<8, 4>(11);
+    for lobe in raw.iter_mut() {
+        lobe[1] += 3.0; // ln κ around 3: lobes of κ ≈ 20
+    }
+    let vmf8 = VmfMixture::<8>::decode(&raw);
     bench_batch(c, "vmf_mixture_k8", |u| {
         let s = vmf8.sample(u);
         (s.direction, s.pdf)
@@ -81,5 +87,21 @@ fn distributions(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, distributions);
+fn factorised(c: &mut Criterion) {
+    let marginal: [[f32; 32]; 1] = random_raw::<1, 32>(21);
+    let conditional: [[f32; 16]; 32] = random_raw::<32, 16>(23);
+    for (name, interpolation) in [
+        ("df_nearest_32x16", Interpolation::Nearest),
+        ("df_linear_32x16", Interpolation::Linear),
+    ] {
+        let table =
+            FactorisedTable::<32, 16>::from_logits(&marginal[0], &conditional, interpolation);
+        bench_batch(c, name, |u| {
+            let s = table.sample(u);
+            (s.direction, s.pdf)
+        });
+    }
+}
+
+criterion_group!(benches, distributions, factorised);
 criterion_main!(benches);

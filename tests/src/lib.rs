@@ -21,3 +21,5 @@ pub trait SphereDistribution {
 }
 
 pub mod chi2;
+pub mod gradcheck;
+pub mod quadrature;

@@ -145,9 +145,14 @@ impl VmfLobe {
         (Frame::from_z(self.mean()).to_world(local), t)
     }
 
-    /// Inverse of [`Self::sample`]: the `u` that maps to `direction`.
+    /// Inverse of [`Self::sample`]: the `u` that maps to `direction`. A zero
+    /// or non-finite `direction` has no preimage and gives `(0, 0)`.
     #[must_use]
     pub fn invert(&self, direction: Vec3) -> Vec2 {
+        let len2 = direction.length_squared();
+        if !(len2 > 0.0 && len2 <= f32::MAX) {
+            return Vec2::ZERO;
+        }
         let mean = self.mean();
         let local = Frame::from_z(mean).to_local(direction);
         let mut phi = atan2(local.y, local.x);

@@ -1,0 +1,206 @@
+//! Finite-difference gradient checks, robust to a few kinks (the
+//! tiny-cuda-nn convention: all but a small fraction of the components must
+//! agree).
+//!
+//! Errors are symmetric relative errors `e = |a − n| / max(|a|, |n|, floor)`
+//! between an analytic component `a` and a numeric one `n`: scale-free for
+//! large components and an absolute error `|a − n| / floor` for components
+//! both near zero, where relative errors are meaningless.
+
+/// Central differences `∂f/∂x_i ≈ (f(x + h_i e_i) − f(x − h_i e_i)) / (2 h_i)`
+/// with `h_i = h · max(1, |x_i|)` (the step actually taken, after rounding
+/// `x_i ± h_i`, is used in the quotient).
+#[must_use]
+pub fn central_difference(f: impl Fn(&[f64]) -> f64, x: &[f64], h: f64) -> Vec<f64> {
+    let mut probe = x.to_vec();
+    (0..x.len())
+        .map(|i| {
+            let step = h * x[i].abs().max(1.0);
+            let (hi, lo) = (x[i] + step, x[i] - step);
+            probe[i] = hi;
+            let f_hi = f(&probe);
+            probe[i] = lo;
+            let f_lo = f(&probe);
+            probe[i] = x[i];
+            (f_hi - f_lo) / (hi - lo)
+        })
+        .collect()
+}
+
+/// Symmetric relative error `|a − n| / max(|a|, |n|, floor)`; infinite if
+/// either value is not finite.
+#[must_use]
+pub fn symmetric_relative_error(analytic: f64, numeric: f64, floor: f64) -> f64 {
+    if !(analytic.is_finite() && numeric.is_finite()) {
+        return f64::INFINITY;
+    }
+    (analytic - numeric).abs() / analytic.abs().max(numeric.abs()).max(floor)
+}
+
+/// Passes if all but the worst `⌊ignore_fraction · errors.len()⌋` errors are
+/// `≤ tol` (a NaN error always counts as failing); otherwise panics listing
+/// the worst offenders by index.
+///
+/// # Panics
+/// When the check fails.
+pub fn assert_gradients(name: &str, errors: &[f64], tol: f64, ignore_fraction: f64) {
+    let labels: Vec<String> = (0..errors.len()).map(|i| format!("#{i}")).collect();
+    check(name, errors, &labels, None, tol, ignore_fraction);
+}
+
+/// One compared component.
+#[derive(Clone, Debug)]
+pub struct GradientEntry {
+    /// Where it came from (sample, parameter).
+    pub label: String,
+    /// Analytic value.
+    pub analytic: f64,
+    /// Finite-difference value.
+    pub numeric: f64,
+    /// Symmetric relative error.
+    pub error: f64,
+}
+
+/// Accumulates compared components over many points, then checks them all at
+/// once with [`GradientErrors::assert`].
+#[derive(Clone, Debug)]
+pub struct GradientErrors {
+    /// Floor of the denominator of the relative error.
+    pub floor: f64,
+    /// Every compared component.
+    pub entries: Vec<GradientEntry>,
+}
+
+impl GradientErrors {
+    /// Empty accumulator with the given floor.
+    #[must_use]
+    pub fn new(floor: f64) -> Self {
+        Self {
+            floor,
+            entries: Vec::new(),
+        }
+    }
+
+    /// Records one component.
+    pub fn push(&mut self, label: impl Into<String>, analytic: f64, numeric: f64) {
+        self.entries.push(GradientEntry {
+            label: label.into(),
+            analytic,
+            numeric,
+            error: symmetric_relative_error(analytic, numeric, self.floor),
+        });
+    }
+
+    /// Records a whole gradient; component `i` is labelled `"{label}[i]"`.
+    pub fn push_all(&mut self, label: &str, analytic: &[f64], numeric: &[f64]) {
+        assert_eq!(analytic.len(), numeric.len(), "{label}: length mismatch");
+        for (i, (a, n)) in analytic.iter().zip(numeric).enumerate() {
+            self.push(format!("{label}[{i}]"), *a, *n);
+        }
+    }
+
+    /// The errors recorded so far.
+    #[must_use]
+    pub fn errors(&self) -> Vec<f64> {
+        self.entries.iter().map(|e| e.error).collect()
+    }
+
+    /// Like [`assert_gradients`], naming the offenders by label and value.
+    ///
+    /// # Panics
+    /// When the check fails.
+    pub fn assert(&self, name: &str, tol: f64, ignore_fraction: f64) {
+        let labels: Vec<String> = self.entries.iter().map(|e| e.label.clone()).collect();
+        check(
+            name,
+            &self.errors(),
+            &labels,
+            Some(&self.entries),
+            tol,
+            ignore_fraction,
+        );
+    }
+
+    /// `(number above tol, largest error)`, for reporting.
+    #[must_use]
+    pub fn summary(&self, tol: f64) -> (usize, f64) {
+        let errors = self.errors();
+        let above = errors.iter().filter(|e| e.is_nan() || **e > tol).count();
+        let worst =
+            errors.iter().copied().fold(
+                0.0,
+                |m: f64, e| {
+                    if e.is_nan() {
+                        f64::INFINITY
+                    } else {
+                        m.max(e)
+                    }
+                },
+            );
+        (above, worst)
+    }
+}
+
+fn check(
+    name: &str,
+    errors: &[f64],
+    labels: &[String],
+    entries: Option<&[GradientEntry]>,
+    tol: f64,
+    ignore_fraction: f64,
+) {
+    let allowed = (ignore_fraction * errors.len() as f64).floor() as usize;
+    // NaN sorts as the worst.
+    let key = |e: f64| if e.is_nan() { f64::INFINITY } else { e };
+    let mut order: Vec<usize> = (0..errors.len()).collect();
+    order.sort_by(|&a, &b| key(errors[b]).total_cmp(&key(errors[a])));
+    let failing = order
+        .iter()
+        .filter(|&&i| errors[i].is_nan() || errors[i] > tol)
+        .count();
+    if failing <= allowed {
+        return;
+    }
+    let mut msg = format!(
+        "{name}: {failing} of {} gradient components exceed the symmetric relative error {tol:e} \
+         (at most {allowed} may); worst:\n",
+        errors.len()
+    );
+    for &i in order.iter().take(20) {
+        match entries {
+            Some(e) => msg.push_str(&format!(
+                "  {}: error {:.3e}, analytic {:e}, numeric {:e}\n",
+                labels[i], errors[i], e[i].analytic, e[i].numeric
+            )),
+            None => msg.push_str(&format!("  {}: error {:.3e}\n", labels[i], errors[i])),
+        }
+    }
+    panic!("{msg}");
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn central_difference_of_a_polynomial() {
+        let f = |x: &[f64]| x[0] * x[0] * x[1] + 3.0 * x[1];
+        let g = central_difference(f, &[2.0, -5.0], 1e-6);
+        assert!(
+            (g[0] - -20.0).abs() < 1e-6 && (g[1] - 7.0).abs() < 1e-6,
+            "{g:?}"
+        );
+    }
+
+    #[test]
+    fn ignore_fraction_rounds_down() {
+        let mut errors = vec![0.0; 199];
+        errors.push(1.0);
+        assert_gradients("one of 200 at 1 %", &errors, 1e-2, 0.01);
+        let r =
+            std::panic::catch_unwind(|| assert_gradients("one of 99", &errors[101..], 1e-2, 0.01));
+        assert!(r.is_err());
+        let r = std::panic::catch_unwind(|| assert_gradients("NaN", &[f64::NAN], 1e-2, 0.0));
+        assert!(r.is_err());
+    }
+}
