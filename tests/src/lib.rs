@@ -23,3 +23,10 @@ pub trait SphereDistribution {
 pub mod chi2;
 pub mod gradcheck;
 pub mod quadrature;
+
+/// Every chi² test one run of the suite performs: the registry's cases plus
+/// the standalone ones. The Šidák correction divides α among all of them.
+#[must_use]
+pub fn total_chi2_tests() -> usize {
+    cases::all_cases().len() + cases::factorised::STANDALONE_CHI2_TESTS
+}

@@ -11,7 +11,7 @@ use glam::{Vec2, Vec3};
 use guiding_core::factorised::{self, FactorisedTable, LN_FOUR_PI};
 use guiding_core::math::{INV_FOUR_PI, ONE_MINUS_EPSILON};
 use guiding_core::pdf1d::{linear_cdf, sample_linear, Boundary, Interpolation, Pdf1d};
-use guiding_tests::cases::factorised::{logits, random_table, LogitKind};
+use guiding_tests::cases::factorised::{logits, random_table, LogitKind, STANDALONE_CHI2_TESTS};
 use guiding_tests::rng::Pcg32;
 use proptest::prelude::*;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
@@ -278,10 +278,6 @@ fn sample_pdf_invert_consistency() {
 // 1D chi².
 // ---------------------------------------------------------------------------
 
-/// Number of chi² tests in this file, for the Šidák correction: 1D (5 sizes
-/// × 4 configs × 3 kinds) and sphere-level tables (2 sizes × 2
-/// interpolations × 2 kinds × 2 seeds).
-const CHI2_TESTS: usize = 5 * 4 * 3 + 2 * 2 * 2 * 2;
 const CHI2_ALPHA: f64 = 0.01;
 const CHI2_SAMPLES: usize = 1_000_000;
 
@@ -337,9 +333,10 @@ fn chi2_p_value(observed: &[u64], expected: &[f64]) -> f64 {
     ChiSquared::new((dof - 1) as f64).unwrap().sf(chi2)
 }
 
-/// Šidák-corrected per-test level.
+/// Šidák-corrected per-test level over every chi² test of the suite (this
+/// file's [`STANDALONE_CHI2_TESTS`] and the registry's cases).
 fn sidak_alpha() -> f64 {
-    1.0 - (1.0 - CHI2_ALPHA).powf(1.0 / CHI2_TESTS as f64)
+    1.0 - (1.0 - CHI2_ALPHA).powf(1.0 / guiding_tests::total_chi2_tests() as f64)
 }
 
 fn check_chi2<const N: usize>() {
@@ -813,6 +810,16 @@ fn chi2_table<const M: usize, const N: usize>(table: &FactorisedTable<M, N>, see
         }
     }
     chi2_p_value(&observed, &expected)
+}
+
+/// The declared count that the suite-wide Šidák correction uses must match
+/// the chi² tests this file really runs.
+#[test]
+fn standalone_chi2_count_is_declared() {
+    let sizes_1d = 5; // check_chi2::<1, 2, 16, 32, 64>
+    let one_d = sizes_1d * CONFIGS.len() * KINDS.len();
+    let tables = 2 * 2 * 2 * 2; // chi2_tables: sizes × interpolations × kinds × seeds
+    assert_eq!(one_d + tables, STANDALONE_CHI2_TESTS);
 }
 
 #[test]

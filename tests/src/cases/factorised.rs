@@ -3,6 +3,12 @@
 //! interpolations.
 
 use super::Case;
+
+/// Chi² tests of the factorised family that run outside the registry (in
+/// `tests/tests/factorised.rs`, with exact cell integrals): 1D (5 sizes × 4
+/// configurations × 3 logit kinds) and sphere-level tables at the paper's
+/// sizes (2 sizes × 2 interpolations × 2 kinds × 2 seeds).
+pub const STANDALONE_CHI2_TESTS: usize = 5 * 4 * 3 + 2 * 2 * 2 * 2;
 use crate::rng::Pcg32;
 use crate::SphereDistribution;
 use glam::{DVec3, Vec3};
