@@ -18,12 +18,16 @@
 #[cfg(feature = "std")]
 extern crate std;
 
+pub mod encoding;
 pub mod factorised;
 pub mod frame;
 pub mod lobe;
 pub mod math;
 pub mod mixture;
+pub mod mlp;
+pub mod optim;
 pub mod pdf1d;
+pub mod rng;
 pub mod sphere;
 
 pub use glam;
