@@ -46,8 +46,9 @@ pub enum Warp {
     /// Azimuth: `u < ½` is the east half, `w = 2u`,
     /// `φ = atan(c·tan(π(w − ½))) ∈ (−π/2, π/2)`; `u ≥ ½` the west half,
     /// `w = 2u − 1`, `φ` = the same + π. `c = phi_stretch ≥ 1` crowds columns
-    /// around `φ = 0` and `φ = π` (the `x` axis, e.g. the long axis of an
-    /// anisotropic lobe); `c = 1` is uniform in φ. `dφ/du = 2cπ(1 + τ²)/(1 + c²τ²)`,
+    /// around `φ = ±π/2` (the `y` axis, where an anisotropic NASG lobe with
+    /// `a > 0` concentrates its mass) and thins them around `φ = 0, π`;
+    /// `c = 1` is uniform in φ. `dφ/du = 2cπ(1 + τ²)/(1 + c²τ²)`,
     /// `τ = tan(π(w − ½))`.
     ///
     /// Jacobian `dω = |dφ/du|·|ds/dv| du dv`.

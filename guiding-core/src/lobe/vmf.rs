@@ -33,10 +33,13 @@ pub const VMF_KAPPA_MAX: f32 = 1e7;
 /// resolution).
 pub const VMF_KAPPA_UNIFORM: f32 = 1e-30;
 
-/// Samples never go further than `κ (1 − cos θ) = 80` from the mean, so that
-/// their density (≥ `norm · e^{−80}`) stays a normal, positive `f32`. The
-/// probability mass beyond is `e^{−80} ≈ 2·10⁻³⁵`.
-pub const VMF_MAX_EXPONENT: f32 = 80.0;
+/// The polar random number is used as `max(ξ, 2⁻²⁴)`: `2⁻²⁴` is the resolution
+/// of an `f32` random number in `[0, 1)`, and without the cut the single value
+/// `ξ = 0` would jump to the antipode, a point of density `~e^{−2κ}` (zero in
+/// `f32` for κ ≳ 44), instead of the `2⁻²⁴`-quantile where its neighbours land.
+/// With it, sampled densities are `≥ norm · 2⁻²⁴ · (1 − e^{−2κ})`, positive
+/// and normal.
+pub const VMF_TAIL_CUT: f32 = 1.0 / 16_777_216.0;
 
 /// A von Mises–Fisher lobe with its constants precomputed (the Open PGL
 /// layout: evaluating a lobe costs one `exp`).
@@ -111,10 +114,11 @@ impl VmfLobe {
         if self.kappa < VMF_KAPPA_UNIFORM {
             return 2.0 * (1.0 - u_theta);
         }
-        // 1 − cos θ = −ln(1 − (1 − ξ)(1 − e^{−2κ})) / κ, capped at the antipode
-        // and at the density floor of VMF_MAX_EXPONENT.
-        let t = -ln_1p(-(1.0 - u_theta) * self.one_minus_e2k) / self.kappa;
-        t.min(2.0).min(VMF_MAX_EXPONENT / self.kappa)
+        // 1 − cos θ = −ln(1 − (1 − ξ)(1 − e^{−2κ})) / κ, ξ cut at VMF_TAIL_CUT
+        // and the result capped at the antipode.
+        let xi = u_theta.max(VMF_TAIL_CUT);
+        let t = -ln_1p(-(1.0 - xi) * self.one_minus_e2k) / self.kappa;
+        t.min(2.0)
     }
 
     /// Draws a direction from `u ∈ [0, 1)²`: `u.x` picks the azimuth, `u.y`
