@@ -8,7 +8,9 @@
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion, Throughput};
 use guiding_core::factorised::FactorisedTable;
 use guiding_core::glam::{Vec2, Vec3};
+use guiding_core::lobe::nasg::{NasgLobe, NASG_EPSILON};
 use guiding_core::lobe::vmf::VmfLobe;
+use guiding_core::mixture::nasg::{NasgMixture, NASG_RAW_PER_LOBE};
 use guiding_core::mixture::vmf::VmfMixture;
 use guiding_core::pdf1d::Interpolation;
 use guiding_core::sphere::{square_to_uniform_sphere, UNIFORM_SPHERE_PDF};
@@ -84,6 +86,22 @@ fn distributions(c: &mut Criterion) {
     bench_batch(c, "vmf_mixture_k8_pdf_only", |u| {
         let d = square_to_uniform_sphere(u);
         (d, vmf8.pdf(d))
+    });
+
+    let nasg = NasgLobe::new(Vec3::new(0.3, -0.5, 0.8), Vec3::X, 25.0, 4.0, NASG_EPSILON);
+    bench_batch(c, "nasg_lobe", |u| {
+        let s = nasg.sample(u);
+        (s.direction, s.pdf)
+    });
+
+    let mut raw = random_raw::<8, NASG_RAW_PER_LOBE>(13);
+    for lobe in raw.iter_mut() {
+        lobe[1] += 3.0; // ln λ around 3
+    }
+    let nasg8 = NasgMixture::<8>::decode(&raw, 0.0);
+    bench_batch(c, "nasg_mixture_k8", |u| {
+        let s = nasg8.sample(u);
+        (s.direction, s.pdf)
     });
 }
 

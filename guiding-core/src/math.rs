@@ -138,7 +138,8 @@ pub fn tan(x: f32) -> f32 {
 #[inline]
 #[must_use]
 pub fn copysign(x: f32, s: f32) -> f32 {
-    libm::copysignf(x, s)
+    // Bit operations instead of libm's out-of-line call: exact, and inlined.
+    f32::from_bits((x.to_bits() & 0x7fff_ffff) | (s.to_bits() & 0x8000_0000))
 }
 
 /// Logistic sigmoid `1 / (1 + e^{-x})`, finite for every finite or infinite `x`.
@@ -179,4 +180,12 @@ pub fn x_over_one_minus_exp_neg(x: f32) -> f32 {
     } else {
         x / -expm1(-x)
     }
+}
+
+/// Largest integer `≤ x` (libm `floorf`; a native instruction on the GPU).
+/// NaN and ±∞ are returned unchanged.
+#[inline]
+#[must_use]
+pub fn floor(x: f32) -> f32 {
+    libm::floorf(x)
 }
