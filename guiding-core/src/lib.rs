@@ -22,12 +22,14 @@ pub mod encoding;
 pub mod factorised;
 pub mod frame;
 pub mod lobe;
+pub mod loss;
 pub mod math;
 pub mod mixture;
 pub mod mlp;
 pub mod optim;
 pub mod pdf1d;
 pub mod rng;
+pub mod sample;
 pub mod sphere;
 
 pub use glam;
