@@ -93,7 +93,7 @@ pub fn nasg_mis_loss(w: f32, log_guide: f32, c: f32, bsdf_pdf: f32, e: f32) -> N
     // ln p_mis = logaddexp(ln cq, ln (1−c)b).
     let hi = log_cq.max(log_b);
     let lo = log_cq.min(log_b);
-    if !(hi > f32::NEG_INFINITY) {
+    if hi.is_nan() || hi == f32::NEG_INFINITY {
         // Both densities are zero: the sample carries no information.
         return NasgLossTerms {
             loss: 0.0,
