@@ -26,6 +26,7 @@ pub mod loss;
 pub mod math;
 pub mod mixture;
 pub mod mlp;
+pub mod model;
 pub mod optim;
 pub mod pdf1d;
 pub mod rng;

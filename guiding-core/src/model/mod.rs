@@ -1,0 +1,82 @@
+//! Guiding models: encodings → MLP → directional distribution, as per-query
+//! kernels over one flat parameter buffer (shared by the CPU runtime, the GPU
+//! build, the optimiser and the save file).
+//!
+//! A model is a small `Copy` value holding its configuration (grid box, layer
+//! offsets, target); parameters live outside it, in `params: &[f32]`, and
+//! gradients are accumulated into a buffer of the same layout.
+
+use crate::lobe::DirectionSample;
+use crate::sample::TrainingSample;
+use bytemuck::{Pod, Zeroable};
+use glam::{Vec2, Vec3};
+
+/// Where and how the renderer asks for a guiding distribution.
+///
+/// `repr(C)`, `Pod`, 48 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct QueryPoint {
+    /// World-space position.
+    pub position: [f32; 3],
+    /// Surface roughness in `[0, 1]` (product models only).
+    pub roughness: f32,
+    /// Unit shading normal (product models only).
+    pub normal: [f32; 3],
+    /// Padding.
+    pub pad0: f32,
+    /// Unit outgoing direction (product models only).
+    pub wo: [f32; 3],
+    /// Padding.
+    pub pad1: f32,
+}
+
+impl QueryPoint {
+    /// The query of a training sample (same position, normal, ωo, roughness).
+    #[must_use]
+    pub fn of_sample(s: &TrainingSample) -> Self {
+        Self {
+            position: s.position,
+            roughness: s.roughness,
+            normal: s.normal,
+            pad0: 0.0,
+            wo: s.wo,
+            pad1: 0.0,
+        }
+    }
+
+    /// Position as a vector.
+    #[inline]
+    #[must_use]
+    pub fn position(&self) -> Vec3 {
+        Vec3::from_array(self.position)
+    }
+}
+
+/// The per-query kernels every guiding model provides. Generic code (the CPU
+/// runtime, shader entry points) is written against this trait; there is no
+/// `dyn` use of it.
+pub trait GuidingModel: Copy {
+    /// Number of `f32` parameters (the length of the flat buffer).
+    fn param_count(&self) -> usize;
+
+    /// Deterministic initialisation of `params` (length `param_count()`) from `seed`.
+    fn init(&self, params: &mut [f32], seed: u32);
+
+    /// Draws a direction for `query` from `u ∈ [0, 1)²`, with its density.
+    fn sample(&self, params: &[f32], query: &QueryPoint, u: Vec2) -> DirectionSample;
+
+    /// Density of `direction` for `query`.
+    fn pdf(&self, params: &[f32], query: &QueryPoint, direction: Vec3) -> f32;
+
+    /// Probability of sampling the guide rather than the BSDF at `query`
+    /// (a learned value for NASG; a constant for the other models).
+    fn selection_probability(&self, params: &[f32], query: &QueryPoint) -> f32;
+
+    /// Adds the gradient of one sample's training loss (with respect to every
+    /// parameter) into `grad` (length `param_count()`) and returns the loss.
+    /// A sample that fails [`TrainingSample::validate`] adds nothing and
+    /// returns `0`.
+    fn accumulate_gradient(&self, params: &[f32], sample: &TrainingSample, grad: &mut [f32])
+        -> f32;
+}
