@@ -20,6 +20,8 @@ extern crate std;
 
 pub mod encoding;
 pub mod factorised;
+#[cfg(feature = "std")]
+pub mod field;
 pub mod frame;
 pub mod lobe;
 pub mod loss;

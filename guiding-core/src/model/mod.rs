@@ -6,6 +6,10 @@
 //! offsets, target); parameters live outside it, in `params: &[f32]`, and
 //! gradients are accumulated into a buffer of the same layout.
 
+pub mod df;
+pub mod nasg;
+pub mod npm;
+
 use crate::lobe::DirectionSample;
 use crate::sample::TrainingSample;
 use bytemuck::{Pod, Zeroable};
