@@ -189,10 +189,23 @@ fn uniform_sphere_warp_round_trips() {
 
 #[test]
 fn copysign_matches_std() {
-    let values = [0.0f32, -0.0, 1.5, -2.5, f32::INFINITY, f32::NEG_INFINITY, 1e-40, f32::MAX];
+    let values = [
+        0.0f32,
+        -0.0,
+        1.5,
+        -2.5,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        1e-40,
+        f32::MAX,
+    ];
     for x in values {
         for s in values {
-            assert_eq!(math::copysign(x, s).to_bits(), x.copysign(s).to_bits(), "{x} {s}");
+            assert_eq!(
+                math::copysign(x, s).to_bits(),
+                x.copysign(s).to_bits(),
+                "{x} {s}"
+            );
         }
         assert!(math::copysign(f32::NAN, x).is_nan());
     }
