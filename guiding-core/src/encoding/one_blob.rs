@@ -1,0 +1,69 @@
+//! One-blob encoding of a scalar (Müller et al. 2019, "Neural Importance
+//! Sampling", §4.3), which Neural Parametric Mixtures (Dong et al. 2023) use
+//! for the surface normal (per component) and the roughness.
+//!
+//! ## Formula
+//!
+//! The unit interval is cut into `k` bins with centres `c_i = (i + ½)/k`; a
+//! Gaussian kernel of standard deviation `σ = 1/k` placed at `x` is evaluated
+//! at the bin centres:
+//!
+//! `b_i(x) = exp(−(x − c_i)² / (2σ²)) = exp(−((i + ½) − k·x)² / 2)`, `i < k`.
+//!
+//! The kernel is not normalised (its peak is 1, reached when `x` sits on a
+//! bin centre), and the bins do not wrap around.
+//!
+//! ## Deviation
+//!
+//! tiny-cuda-nn's `OneBlob` integrates a quartic kernel over each bin with
+//! periodic wrap-around; this follows the paper's text (a Gaussian with
+//! `σ = 1/k`, "discretised into the bins" = sampled at the bin centres).
+
+use crate::encoding::write_clamped;
+use crate::math::exp;
+
+/// Bins NPM uses per encoded scalar.
+pub const ONE_BLOB_DEFAULT_BINS: u32 = 4;
+
+/// Writes the `bins` one-blob values of `x` (formula in the
+/// [module docs](self)) to `out[out_offset ..]` and returns
+/// `out_offset + bins`.
+///
+/// `x` is clamped to `[0, 1]` (±∞ to the ends) and NaN encodes as `0.5`. For
+/// a value `v ∈ [−1, 1]` (a normal component) pass `0.5·v + 0.5`. Slots at or
+/// past `N` are skipped (the loop stops there, so a huge `bins` is harmless).
+/// Every output is in `[0, 1]`.
+pub fn one_blob_encode<const N: usize>(
+    x: f32,
+    bins: u32,
+    out: &mut [f32; N],
+    out_offset: usize,
+) -> usize {
+    let end = out_offset.wrapping_add(bins as usize);
+    if out_offset >= N {
+        return end;
+    }
+    let x = if x >= 0.0 {
+        if x <= 1.0 {
+            x
+        } else {
+            1.0
+        }
+    } else if x < 0.0 {
+        0.0
+    } else {
+        0.5
+    };
+    let kx = bins as f32 * x;
+    let mut i = 0u32;
+    while i < bins {
+        let o = out_offset + i as usize;
+        if o >= N {
+            break;
+        }
+        let d = (i as f32 + 0.5) - kx;
+        write_clamped(out, o, exp(-0.5 * d * d));
+        i += 1;
+    }
+    end
+}
