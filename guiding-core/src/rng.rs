@@ -1,1 +1,144 @@
-//! Placeholder (being written).
+//! A tiny deterministic random number generator that works the same on the
+//! CPU and in a shader: 32-bit integer arithmetic only (no `u64`, which SPIR-V
+//! needs the optional `Int64` capability for), no tables, no allocation.
+//!
+//! Two flavours of the same permutation:
+//! - [`pcg_hash`] / [`hash2`] / [`uniform_at`]: counter-based ("stateless")
+//!   random numbers, `value = f(seed, index)`. Any element can be drawn
+//!   independently of the others, so a buffer is initialised in parallel (one
+//!   GPU invocation per parameter) with the same values as the sequential CPU
+//!   loop. [`crate::mlp::Mlp::init`] uses this.
+//! - [`Rng`]: a sequential PCG generator whose 4-byte state is `#[repr(C)]` +
+//!   [`Pod`], so it can live in a GPU buffer (one per pixel or path) and be
+//!   carried between kernel launches.
+//!
+//! Both are PCG-RXS-M-XS 32/32 (O'Neill 2014, *PCG: A Family of Simple Fast
+//! Space-Efficient Statistically Good Algorithms for Random Number
+//! Generation*, §6.3.4): a 32-bit LCG (multiplier 747 796 405, increment
+//! 2 891 336 453) followed by the random-xorshift / multiply / xorshift output
+//! permutation. [`pcg_hash`] is the one-round hash that Jarzynski & Olano
+//! (2020, *Hash Functions for GPU Rendering*, JCGT 9(3)) recommend as the best
+//! speed/quality trade-off among 32-bit GPU hashes. The period of [`Rng`] is
+//! 2³², plenty for per-path sampling; it is **not** a cryptographic or
+//! high-dimensional-quality generator (tests use their own 64-bit PCG32).
+
+use bytemuck::{Pod, Zeroable};
+
+/// LCG multiplier of PCG 32/32.
+const PCG_MULTIPLIER: u32 = 747_796_405;
+/// LCG increment of PCG 32/32.
+const PCG_INCREMENT: u32 = 2_891_336_453;
+/// Multiplier of the RXS-M-XS output permutation.
+const RXS_M_XS_MULTIPLIER: u32 = 277_803_737;
+
+/// The RXS-M-XS output permutation of one 32-bit LCG state (a bijection of
+/// `u32`).
+#[inline]
+#[must_use]
+fn rxs_m_xs(state: u32) -> u32 {
+    let word = ((state >> ((state >> 28) + 4)) ^ state).wrapping_mul(RXS_M_XS_MULTIPLIER);
+    (word >> 22) ^ word
+}
+
+/// PCG hash (Jarzynski & Olano 2020): one LCG step of `input` followed by the
+/// RXS-M-XS permutation. A bijection of `u32`: distinct inputs never collide.
+#[inline]
+#[must_use]
+pub fn pcg_hash(input: u32) -> u32 {
+    rxs_m_xs(
+        input
+            .wrapping_mul(PCG_MULTIPLIER)
+            .wrapping_add(PCG_INCREMENT),
+    )
+}
+
+/// Hash of a `(seed, index)` pair: `pcg_hash(index + pcg_hash(seed))`
+/// (wrapping add). For a fixed seed it is a bijection of `index`, so the
+/// values of one stream never repeat within 2³² indices; different seeds
+/// give streams that are offset by a pseudo-random amount in the same
+/// 2³²-cycle.
+#[inline]
+#[must_use]
+pub fn hash2(seed: u32, index: u32) -> u32 {
+    pcg_hash(index.wrapping_add(pcg_hash(seed)))
+}
+
+/// The top 24 bits of `bits` as a float in `[0, 1)`: `(bits >> 8) · 2⁻²⁴`.
+/// Every value is exactly representable, the largest is `1 − 2⁻²⁴`.
+#[inline]
+#[must_use]
+pub fn unit_f32(bits: u32) -> f32 {
+    (bits >> 8) as f32 * (1.0 / 16_777_216.0)
+}
+
+/// The top 23 bits of `bits` as a float in `(−1, 1)`, symmetric about zero:
+/// `(2k + 1 − 2²³) · 2⁻²³` for `k = bits >> 9`, i.e. the midpoints of 2²³
+/// equal cells. Exactly representable and exactly zero-mean over all `k` (a
+/// `2u − 1` of [`unit_f32`] would have mean `−2⁻²⁴` and include `−1`).
+#[inline]
+#[must_use]
+pub fn symmetric_unit_f32(bits: u32) -> f32 {
+    ((bits >> 9) as f32 * 2.0 + (1.0 - 8_388_608.0)) * (1.0 / 8_388_608.0)
+}
+
+/// Counter-based uniform in `[0, 1)`: [`unit_f32`] of [`hash2`]`(seed, index)`.
+#[inline]
+#[must_use]
+pub fn uniform_at(seed: u32, index: u32) -> f32 {
+    unit_f32(hash2(seed, index))
+}
+
+/// Sequential PCG-RXS-M-XS 32/32 generator.
+///
+/// `repr(C)`, [`Pod`], 4 bytes: the whole state is one `u32`, so an array of
+/// generators can be uploaded to and read back from a GPU buffer. Output
+/// `i` (0-based) of `Rng::new(seed)` is `rxs_m_xs(s_i)` with
+/// `s_0 = pcg_hash(seed)` and `s_{i+1} = 747 796 405 · s_i + 2 891 336 453`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Pod, Zeroable)]
+pub struct Rng {
+    /// Current LCG state.
+    pub state: u32,
+}
+
+impl Rng {
+    /// Generator for `seed`; the seed is hashed first so that consecutive
+    /// seeds (pixel indices, say) start at unrelated points of the cycle.
+    #[inline]
+    #[must_use]
+    pub fn new(seed: u32) -> Self {
+        Self {
+            state: pcg_hash(seed),
+        }
+    }
+
+    /// Generator for a `(seed, stream)` pair, e.g. `(frame, pixel)`: starts
+    /// at [`hash2`]`(seed, stream)`.
+    #[inline]
+    #[must_use]
+    pub fn with_stream(seed: u32, stream: u32) -> Self {
+        Self {
+            state: hash2(seed, stream),
+        }
+    }
+
+    /// Next 32 random bits.
+    #[inline]
+    pub fn next_u32(&mut self) -> u32 {
+        let old = self.state;
+        self.state = old.wrapping_mul(PCG_MULTIPLIER).wrapping_add(PCG_INCREMENT);
+        rxs_m_xs(old)
+    }
+
+    /// Uniform in `[0, 1)` with 24 random bits ([`unit_f32`]).
+    #[inline]
+    pub fn next_f32(&mut self) -> f32 {
+        unit_f32(self.next_u32())
+    }
+
+    /// Uniform in `(−1, 1)`, symmetric ([`symmetric_unit_f32`]).
+    #[inline]
+    pub fn next_symmetric_f32(&mut self) -> f32 {
+        symmetric_unit_f32(self.next_u32())
+    }
+}

@@ -6,6 +6,7 @@
 //! Test helpers live here, never in the library crates.
 
 pub mod cases;
+pub mod fuzz_checks;
 pub mod rng;
 
 use glam::Vec3;
@@ -22,6 +23,7 @@ pub trait SphereDistribution {
 
 pub mod chi2;
 pub mod gradcheck;
+pub mod oracles;
 pub mod quadrature;
 
 /// Every chi² test one run of the suite performs: the registry's cases plus
