@@ -1,0 +1,485 @@
+//! Wavefront path tracer.
+//!
+//! Each worker thread takes a block of pixels and, for every sample index, runs the block's
+//! paths through a per-bounce pipeline of structure-of-arrays queues:
+//!
+//! 1. **intersect** the path queue (closest hit),
+//! 2. **emission**: add emitted radiance at the hits (MIS-weighted for `pt-nee`) and compact
+//!    the surviving hits into a [`VertexBatch`],
+//! 3. **guiding query**: [`guiding_query`] receives the whole batch (the plug-in point for the
+//!    batched path-guiding model; a no-op today),
+//! 4. **NEE** (`pt-nee`): sample area lights and emit a [`ShadowQueue`],
+//! 5. **shadow**: trace the shadow queue and add the unoccluded contributions,
+//! 6. **BSDF sampling**: continue the paths into the next bounce's queue.
+//!
+//! Depth follows Mitsuba: `max_depth = 1` only shows directly visible emission; a hit at
+//! bounce `b` (0 = camera hit) adds emission when `b < max_depth` and does NEE/continues when
+//! `b + 1 < max_depth`. No Russian roulette (keeps variance comparable; the estimator is unbiased
+//! either way).
+
+use crate::bsdf::Material;
+use crate::math::{power_heuristic, Frame, Rng};
+use crate::scene::Scene;
+use glam::Vec3;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+
+/// Which estimator to run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum IntegratorKind {
+    /// BSDF sampling only; emission is picked up when a path hits a light.
+    Pt,
+    /// Next-event estimation on area lights + BSDF sampling, combined with the power heuristic.
+    PtNee,
+}
+
+/// Render parameters.
+#[derive(Clone, Copy, Debug)]
+pub struct RenderOptions {
+    /// Estimator.
+    pub integrator: IntegratorKind,
+    /// Samples per pixel.
+    pub spp: u32,
+    /// Mitsuba max_depth.
+    pub max_depth: u32,
+    /// Worker threads (0 = all cores).
+    pub threads: usize,
+    /// Random seed.
+    pub seed: u64,
+    /// Override the image width/height (0 = scene's).
+    pub width: u32,
+    /// Override the image height (0 = scene's).
+    pub height: u32,
+}
+
+/// A rendered image plus per-pixel variance information for statistical tests.
+#[derive(Clone, Debug)]
+pub struct Image {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Pixel estimates (mean over samples), row-major.
+    pub pixels: Vec<[f32; 3]>,
+    /// Estimated variance of each pixel estimate (sample variance / spp), row-major.
+    pub var_of_mean: Vec<[f32; 3]>,
+}
+
+impl Image {
+    /// Mean RGB over all pixels.
+    pub fn mean(&self) -> [f64; 3] {
+        let mut m = [0.0f64; 3];
+        for p in &self.pixels {
+            for c in 0..3 {
+                m[c] += p[c] as f64;
+            }
+        }
+        m.map(|v| v / self.pixels.len().max(1) as f64)
+    }
+
+    /// Standard error of [`Image::mean`], from the per-pixel sample variances (pixels are
+    /// independent, so `Var(mean) = sum_p Var(pixel_p) / P^2`).
+    pub fn mean_std_error(&self) -> [f64; 3] {
+        let mut v = [0.0f64; 3];
+        for p in &self.var_of_mean {
+            for c in 0..3 {
+                v[c] += p[c] as f64;
+            }
+        }
+        let n = self.var_of_mean.len().max(1) as f64;
+        v.map(|x| x.sqrt() / n)
+    }
+
+    /// True if every pixel value is finite and non-negative.
+    pub fn all_finite(&self) -> bool {
+        self.pixels
+            .iter()
+            .all(|p| p.iter().all(|c| c.is_finite() && *c >= 0.0))
+    }
+}
+
+/// Surviving path vertices of one bounce, structure-of-arrays. This is the unit of work a
+/// batched guiding query (or a GPU kernel) operates on.
+#[derive(Default, Debug)]
+pub struct VertexBatch {
+    /// Path slot (pixel within the block).
+    pub slot: Vec<u32>,
+    /// Hit position.
+    pub p: Vec<Vec3>,
+    /// Geometric normal.
+    pub ng: Vec<Vec3>,
+    /// Shading normal.
+    pub ns: Vec<Vec3>,
+    /// Direction towards the previous vertex (world space, unit).
+    pub wi: Vec<Vec3>,
+    /// Path throughput up to this vertex.
+    pub beta: Vec<Vec3>,
+    /// Material index.
+    pub material: Vec<u32>,
+}
+
+impl VertexBatch {
+    fn clear(&mut self) {
+        self.slot.clear();
+        self.p.clear();
+        self.ng.clear();
+        self.ns.clear();
+        self.wi.clear();
+        self.beta.clear();
+        self.material.clear();
+    }
+    /// Number of vertices.
+    pub fn len(&self) -> usize {
+        self.slot.len()
+    }
+    /// True if empty.
+    pub fn is_empty(&self) -> bool {
+        self.slot.is_empty()
+    }
+}
+
+/// Hook for the batched guiding query: receives every vertex of a bounce before any
+/// sampling decision is made there.
+///
+/// GUIDING PLUG-IN POINT: a guiding model will evaluate its (batched) directional distribution
+/// for all `batch.p` / `batch.ns` / `batch.wi` here and return per-vertex mixture parameters that
+/// the BSDF-sampling stage then mixes with BSDF sampling (one-sample MIS). Today it does nothing.
+pub fn guiding_query(batch: &VertexBatch) {
+    let _ = batch;
+}
+
+/// Paths in flight (structure-of-arrays).
+#[derive(Default)]
+struct PathQueue {
+    slot: Vec<u32>,
+    o: Vec<Vec3>,
+    d: Vec<Vec3>,
+    beta: Vec<Vec3>,
+    /// Solid-angle pdf of the direction `d` (for MIS at an emitter hit).
+    pdf: Vec<f32>,
+    /// `d` came from the camera (no MIS).
+    from_camera: Vec<bool>,
+}
+
+impl PathQueue {
+    fn clear(&mut self) {
+        self.slot.clear();
+        self.o.clear();
+        self.d.clear();
+        self.beta.clear();
+        self.pdf.clear();
+        self.from_camera.clear();
+    }
+    fn push(&mut self, slot: u32, o: Vec3, d: Vec3, beta: Vec3, pdf: f32, from_camera: bool) {
+        self.slot.push(slot);
+        self.o.push(o);
+        self.d.push(d);
+        self.beta.push(beta);
+        self.pdf.push(pdf);
+        self.from_camera.push(from_camera);
+    }
+}
+
+/// Shadow rays of the NEE stage.
+#[derive(Default)]
+struct ShadowQueue {
+    slot: Vec<u32>,
+    o: Vec<Vec3>,
+    d: Vec<Vec3>,
+    tmax: Vec<f32>,
+    contrib: Vec<Vec3>,
+}
+
+impl ShadowQueue {
+    fn clear(&mut self) {
+        self.slot.clear();
+        self.o.clear();
+        self.d.clear();
+        self.tmax.clear();
+        self.contrib.clear();
+    }
+}
+
+/// Offsets `p` along the geometric normal to the side of `dir`, against self-intersection.
+#[inline]
+fn offset(p: Vec3, ng: Vec3, dir: Vec3) -> Vec3 {
+    let eps = 1e-4 * (1.0 + p.abs().max_element());
+    if ng.dot(dir) >= 0.0 {
+        p + ng * eps
+    } else {
+        p - ng * eps
+    }
+}
+
+/// Per-block worker state (queues are reused across bounces and samples).
+struct Worker<'s> {
+    scene: &'s Scene,
+    opts: RenderOptions,
+    paths: PathQueue,
+    next: PathQueue,
+    verts: VertexBatch,
+    shadow: ShadowQueue,
+    /// One RNG per slot; path slots are stable for the whole sample.
+    rng: Vec<Rng>,
+    /// Radiance of the current sample per slot.
+    radiance: Vec<Vec3>,
+}
+
+impl Worker<'_> {
+    /// Renders pixels `[start, start + count)` and returns per-pixel (sum, sum of squares).
+    fn block(
+        &mut self,
+        start: usize,
+        count: usize,
+        width: u32,
+        height: u32,
+    ) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+        let mut sum = vec![[0.0f64; 3]; count];
+        let mut sum2 = vec![[0.0f64; 3]; count];
+        let max_depth = self.opts.max_depth;
+        for s in 0..self.opts.spp {
+            self.paths.clear();
+            self.rng.clear();
+            self.radiance.clear();
+            self.radiance.resize(count, Vec3::ZERO);
+            for i in 0..count {
+                let pix = start + i;
+                let (x, y) = ((pix % width as usize) as f32, (pix / width as usize) as f32);
+                let mut rng = Rng::new(self.opts.seed, pix as u64, s as u64);
+                let (u, v) = (
+                    (x + rng.next_f32()) / width as f32,
+                    (y + rng.next_f32()) / height as f32,
+                );
+                let (o, d) = self.scene.camera.ray(u, v);
+                self.rng.push(rng);
+                self.paths.push(i as u32, o, d, Vec3::ONE, 0.0, true);
+            }
+            let mut bounce = 0u32;
+            while !self.paths.slot.is_empty() && bounce < max_depth {
+                self.stage_intersect_and_emission(bounce);
+                guiding_query(&self.verts);
+                if self.opts.integrator == IntegratorKind::PtNee {
+                    self.stage_nee();
+                    self.stage_shadow();
+                }
+                self.stage_bsdf_sample();
+                std::mem::swap(&mut self.paths, &mut self.next);
+                bounce += 1;
+            }
+            for i in 0..count {
+                let l = self.radiance[i];
+                for c in 0..3 {
+                    let v = if l[c].is_finite() { l[c] as f64 } else { 0.0 };
+                    sum[i][c] += v;
+                    sum2[i][c] += v * v;
+                }
+            }
+        }
+        (sum, sum2)
+    }
+
+    /// Stages 1 and 2: closest hit, emission (with MIS), compaction into the vertex batch.
+    fn stage_intersect_and_emission(&mut self, bounce: u32) {
+        let scene = self.scene;
+        self.verts.clear();
+        let continue_path = bounce + 1 < self.opts.max_depth;
+        for i in 0..self.paths.slot.len() {
+            let (o, d) = (self.paths.o[i], self.paths.d[i]);
+            let Some(hit) = scene.intersect(o, d, 0.0, f32::INFINITY) else {
+                continue;
+            };
+            let slot = self.paths.slot[i];
+            let beta = self.paths.beta[i];
+            let shape = &scene.shapes[hit.shape as usize];
+            if let Some(le) = shape.emission {
+                let cos_l = hit.ns.dot(-d);
+                if cos_l > 0.0 {
+                    let w = if self.paths.from_camera[i]
+                        || self.opts.integrator == IntegratorKind::Pt
+                    {
+                        1.0
+                    } else {
+                        let pdf_light = scene.light_pdf_area(hit.shape) * hit.t * hit.t / cos_l;
+                        power_heuristic(self.paths.pdf[i], pdf_light)
+                    };
+                    self.radiance[slot as usize] += beta * le * w;
+                }
+            }
+            if !continue_path {
+                continue;
+            }
+            let mat = &scene.materials[shape.material as usize];
+            if mat.is_black() || hit.ns.dot(-d) <= 0.0 {
+                continue; // absorbed, or the back of a one-sided BSDF
+            }
+            self.verts.slot.push(slot);
+            self.verts.p.push(hit.p);
+            self.verts.ng.push(hit.ng);
+            self.verts.ns.push(hit.ns);
+            self.verts.wi.push(-d);
+            self.verts.beta.push(beta);
+            self.verts.material.push(shape.material);
+        }
+    }
+
+    /// Stage 4: next-event estimation, producing shadow rays.
+    fn stage_nee(&mut self) {
+        let scene = self.scene;
+        self.shadow.clear();
+        for i in 0..self.verts.len() {
+            let slot = self.verts.slot[i];
+            let rng = &mut self.rng[slot as usize];
+            let (u0, u1, u2) = (rng.next_f32(), rng.next_f32(), rng.next_f32());
+            let Some(ls) = scene.sample_light(u0, u1, u2) else {
+                continue;
+            };
+            let p = self.verts.p[i];
+            let to = ls.p - p;
+            let dist2 = to.length_squared();
+            if dist2.is_nan() || dist2 <= 0.0 {
+                continue;
+            }
+            let dist = dist2.sqrt();
+            let wo = to / dist;
+            let cos_l = ls.n.dot(-wo);
+            if cos_l <= 0.0 {
+                continue;
+            }
+            let frame = Frame::new(self.verts.ns[i]);
+            let mat: &Material = &scene.materials[self.verts.material[i] as usize];
+            let (f, pdf_bsdf) = mat.eval(frame.to_local(self.verts.wi[i]), frame.to_local(wo));
+            if f.max_element() <= 0.0 {
+                continue;
+            }
+            let pdf_light = ls.pdf_area * dist2 / cos_l;
+            let w = power_heuristic(pdf_light, pdf_bsdf);
+            let contrib = self.verts.beta[i] * f * ls.radiance * (w / pdf_light);
+            let o = offset(p, self.verts.ng[i], wo);
+            let target = offset(ls.p, ls.n, -wo);
+            let seg = target - o;
+            let len = seg.length();
+            self.shadow.slot.push(slot);
+            self.shadow.o.push(o);
+            self.shadow.d.push(seg / len);
+            self.shadow.tmax.push(len * (1.0 - 1e-4));
+            self.shadow.contrib.push(contrib);
+        }
+    }
+
+    /// Stage 5: trace shadow rays and accumulate unoccluded light.
+    fn stage_shadow(&mut self) {
+        for i in 0..self.shadow.slot.len() {
+            if !self
+                .scene
+                .occluded(self.shadow.o[i], self.shadow.d[i], 0.0, self.shadow.tmax[i])
+            {
+                self.radiance[self.shadow.slot[i] as usize] += self.shadow.contrib[i];
+            }
+        }
+    }
+
+    /// Stage 6: BSDF sampling into the next bounce's queue.
+    fn stage_bsdf_sample(&mut self) {
+        let scene = self.scene;
+        self.next.clear();
+        for i in 0..self.verts.len() {
+            let slot = self.verts.slot[i];
+            let rng = &mut self.rng[slot as usize];
+            let (u1, u2) = (rng.next_f32(), rng.next_f32());
+            let frame = Frame::new(self.verts.ns[i]);
+            let mat = &scene.materials[self.verts.material[i] as usize];
+            let Some(bs) = mat.sample(frame.to_local(self.verts.wi[i]), u1, u2) else {
+                continue;
+            };
+            let wo = frame.to_world(bs.wo).normalize();
+            let beta = self.verts.beta[i] * bs.weight;
+            if beta.max_element() <= 0.0 || !beta.is_finite() {
+                continue;
+            }
+            // Geometric-normal side test: don't continue into the surface we just left.
+            if wo.dot(self.verts.ng[i]) * self.verts.wi[i].dot(self.verts.ng[i]) <= 0.0 {
+                continue;
+            }
+            let o = offset(self.verts.p[i], self.verts.ng[i], wo);
+            self.next.push(slot, o, wo, beta, bs.pdf, false);
+        }
+    }
+}
+
+/// Renders `scene` with the given options.
+pub fn render(scene: &Scene, opts: &RenderOptions) -> Image {
+    let width = if opts.width > 0 {
+        opts.width
+    } else {
+        scene.settings.width
+    };
+    let height = if opts.height > 0 {
+        opts.height
+    } else {
+        scene.settings.height
+    };
+    let npix = width as usize * height as usize;
+    let threads = if opts.threads == 0 {
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    } else {
+        opts.threads
+    };
+    let block = npix.div_ceil(threads * 8).clamp(64, 4096);
+    let nblocks = npix.div_ceil(block);
+    let next = AtomicUsize::new(0);
+    let out = Mutex::new((vec![[0.0f64; 3]; npix], vec![[0.0f64; 3]; npix]));
+    std::thread::scope(|s| {
+        for _ in 0..threads.min(nblocks) {
+            s.spawn(|| {
+                let mut w = Worker {
+                    scene,
+                    opts: *opts,
+                    paths: PathQueue::default(),
+                    next: PathQueue::default(),
+                    verts: VertexBatch::default(),
+                    shadow: ShadowQueue::default(),
+                    rng: Vec::new(),
+                    radiance: Vec::new(),
+                };
+                loop {
+                    let b = next.fetch_add(1, Ordering::Relaxed);
+                    if b >= nblocks {
+                        break;
+                    }
+                    let start = b * block;
+                    let count = block.min(npix - start);
+                    let (s1, s2) = w.block(start, count, width, height);
+                    let mut g = out.lock().unwrap_or_else(|e| e.into_inner());
+                    g.0[start..start + count].copy_from_slice(&s1);
+                    g.1[start..start + count].copy_from_slice(&s2);
+                }
+            });
+        }
+    });
+    let (sum, sum2) = out.into_inner().unwrap_or_else(|e| e.into_inner());
+    let n = opts.spp.max(1) as f64;
+    let pixels = sum.iter().map(|s| s.map(|v| (v / n) as f32)).collect();
+    let var_of_mean = sum
+        .iter()
+        .zip(&sum2)
+        .map(|(s, s2)| {
+            let mut v = [0.0f32; 3];
+            for c in 0..3 {
+                let mean = s[c] / n;
+                let var = if n > 1.0 {
+                    ((s2[c] - n * mean * mean) / (n - 1.0)).max(0.0)
+                } else {
+                    0.0
+                };
+                v[c] = (var / n) as f32;
+            }
+            v
+        })
+        .collect();
+    Image {
+        width,
+        height,
+        pixels,
+        var_of_mean,
+    }
+}

@@ -1,0 +1,122 @@
+//! Minimal Wavefront OBJ reader: `v`, `vn`, `vt` (ignored), `f` with n-gons (fan-triangulated)
+//! in the `v`, `v/vt`, `v//vn` and `v/vt/vn` forms, negative (relative) indices.
+//! Grouping/material statements (`o g s usemtl mtllib`) are accepted and ignored because they
+//! do not affect geometry; anything else is an error naming the line.
+
+use crate::error::{Error, Result};
+use crate::scene::Prim;
+use glam::Vec3;
+
+/// Parses OBJ text into triangles. `file` is only used in error messages.
+pub fn parse_obj(text: &str, file: &str) -> Result<Vec<Prim>> {
+    let err = |line: usize, msg: String| Error::Obj {
+        file: file.to_string(),
+        line,
+        msg,
+    };
+    let mut pos: Vec<Vec3> = Vec::new();
+    let mut nrm: Vec<Vec3> = Vec::new();
+    let mut n_tex = 0usize;
+    let mut tris = Vec::new();
+    for (ln, raw) in text.lines().enumerate() {
+        let ln = ln + 1;
+        let line = raw.split('#').next().unwrap_or("").trim();
+        let mut it = line.split_whitespace();
+        let Some(tag) = it.next() else { continue };
+        let floats = |it: std::str::SplitWhitespace, n: usize| -> Result<Vec<f32>> {
+            let v: std::result::Result<Vec<f32>, _> = it.map(str::parse::<f32>).collect();
+            let v = v.map_err(|e| err(ln, format!("bad number in \"{line}\": {e}")))?;
+            if v.len() < n {
+                return Err(err(ln, format!("expected {n} numbers in \"{line}\"")));
+            }
+            Ok(v)
+        };
+        match tag {
+            "v" => {
+                let v = floats(it, 3)?;
+                pos.push(Vec3::new(v[0], v[1], v[2]));
+            }
+            "vn" => {
+                let v = floats(it, 3)?;
+                nrm.push(Vec3::new(v[0], v[1], v[2]).normalize_or_zero());
+            }
+            "vt" => {
+                floats(it, 1)?;
+                n_tex += 1;
+            }
+            "f" => {
+                let mut verts = Vec::new();
+                for tok in it {
+                    let mut parts = tok.split('/');
+                    let resolve =
+                        |s: Option<&str>, len: usize, what: &str| -> Result<Option<usize>> {
+                            match s {
+                                None | Some("") => Ok(None),
+                                Some(s) => {
+                                    let i: i64 = s.parse().map_err(|_| {
+                                        err(ln, format!("bad {what} index \"{s}\""))
+                                    })?;
+                                    let idx = if i > 0 { i - 1 } else { len as i64 + i };
+                                    if i == 0 || idx < 0 || idx as usize >= len {
+                                        return Err(err(
+                                            ln,
+                                            format!("{what} index {i} out of range (have {len})"),
+                                        ));
+                                    }
+                                    Ok(Some(idx as usize))
+                                }
+                            }
+                        };
+                    let vi = resolve(parts.next(), pos.len(), "vertex")?.ok_or_else(|| {
+                        err(ln, format!("face vertex \"{tok}\" has no position index"))
+                    })?;
+                    let _ti = resolve(parts.next(), n_tex, "texture")?;
+                    let ni = resolve(parts.next(), nrm.len(), "normal")?;
+                    verts.push((vi, ni));
+                }
+                if verts.len() < 3 {
+                    return Err(err(ln, "face with fewer than 3 vertices".into()));
+                }
+                let all_n = verts.iter().all(|v| v.1.is_some());
+                for k in 1..verts.len() - 1 {
+                    let tri = [verts[0], verts[k], verts[k + 1]];
+                    let p = tri.map(|v| pos[v.0]);
+                    let n = all_n.then(|| tri.map(|v| nrm[v.1.unwrap_or(0)]));
+                    tris.push(Prim::Tri { p, n });
+                }
+            }
+            "o" | "g" | "s" | "usemtl" | "mtllib" => {}
+            other => return Err(err(ln, format!("unsupported statement \"{other}\""))),
+        }
+    }
+    if tris.is_empty() {
+        return Err(err(0, "no faces".into()));
+    }
+    Ok(tris)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn quad_and_forms() {
+        let t = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0 0 1\nvt 0 0\nf 1//1 2//1 3//1 4//1\nf -4/1 -3/1 -2/1\n";
+        let tris = parse_obj(t, "x.obj").expect("parses");
+        assert_eq!(tris.len(), 3);
+        assert!(matches!(tris[0], Prim::Tri { n: Some(_), .. }));
+        assert!(matches!(tris[2], Prim::Tri { n: None, .. }));
+    }
+
+    #[test]
+    fn errors_name_line() {
+        let e = parse_obj("v 0 0 0\nf 1 2 3\n", "bad.obj")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("bad.obj:2"), "{e}");
+        let e = parse_obj("v 0 0 0\ncurv 1 2\n", "bad.obj")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("curv"), "{e}");
+    }
+}

@@ -1,0 +1,492 @@
+//! Scene representation: triangles and analytic spheres in one CWBVH, materials, area lights
+//! and a Mitsuba-style perspective camera.
+
+use crate::bsdf::Material;
+use crate::error::{Error, Result};
+use crate::math::{sample_uniform_sphere, Frame};
+use glam::{Mat4, Vec3, Vec3A};
+use obvhs::aabb::Aabb;
+use obvhs::cwbvh::CwBvh;
+use obvhs::ray::{Ray, RayHit};
+use obvhs::BvhBuildParams;
+use std::f32::consts::PI;
+use std::time::Duration;
+
+/// A geometric primitive.
+#[derive(Clone, Copy, Debug)]
+pub enum Prim {
+    /// Triangle with optional per-vertex shading normals. The geometric normal follows the
+    /// winding, `(p1 - p0) x (p2 - p0)`.
+    Tri {
+        /// Vertices.
+        p: [Vec3; 3],
+        /// Per-vertex shading normals.
+        n: Option<[Vec3; 3]>,
+    },
+    /// Analytic sphere; the normal points outwards unless `flip` (then inwards).
+    Sphere {
+        /// Centre.
+        center: Vec3,
+        /// Radius.
+        radius: f32,
+        /// Normals point inwards.
+        flip: bool,
+    },
+}
+
+impl Prim {
+    fn aabb(&self) -> Aabb {
+        match *self {
+            Prim::Tri { p, .. } => Aabb::from_points(&[p[0].into(), p[1].into(), p[2].into()]),
+            Prim::Sphere { center, radius, .. } => Aabb::new(
+                Vec3A::from(center - Vec3::splat(radius)),
+                Vec3A::from(center + Vec3::splat(radius)),
+            ),
+        }
+    }
+
+    /// Surface area.
+    pub fn area(&self) -> f32 {
+        match *self {
+            Prim::Tri { p, .. } => 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length(),
+            Prim::Sphere { radius, .. } => 4.0 * PI * radius * radius,
+        }
+    }
+
+    /// Ray intersection; returns `(t, u, v)` for `t` in `(tmin, tmax)`.
+    #[inline]
+    fn intersect(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<(f32, f32, f32)> {
+        match *self {
+            Prim::Tri { p, .. } => {
+                // Moller-Trumbore.
+                let e1 = p[1] - p[0];
+                let e2 = p[2] - p[0];
+                let pv = d.cross(e2);
+                let det = e1.dot(pv);
+                if det.abs() < 1e-12 {
+                    return None;
+                }
+                let inv = 1.0 / det;
+                let tv = o - p[0];
+                let u = tv.dot(pv) * inv;
+                if !(0.0..=1.0).contains(&u) {
+                    return None;
+                }
+                let qv = tv.cross(e1);
+                let v = d.dot(qv) * inv;
+                if v < 0.0 || u + v > 1.0 {
+                    return None;
+                }
+                let t = e2.dot(qv) * inv;
+                (t > tmin && t < tmax).then_some((t, u, v))
+            }
+            Prim::Sphere { center, radius, .. } => {
+                // Numerically robust quadratic (Ray Tracing Gems, ch. 7).
+                let f = o - center;
+                let b = -f.dot(d);
+                let l = f + b * d;
+                let disc = radius * radius - l.length_squared();
+                if disc < 0.0 {
+                    return None;
+                }
+                let c = f.length_squared() - radius * radius;
+                let q = b + b.signum() * disc.sqrt();
+                if q == 0.0 {
+                    return None;
+                }
+                let (t0, t1) = {
+                    let a = c / q;
+                    let b2 = q;
+                    if a < b2 {
+                        (a, b2)
+                    } else {
+                        (b2, a)
+                    }
+                };
+                if t0 > tmin && t0 < tmax {
+                    Some((t0, 0.0, 0.0))
+                } else if t1 > tmin && t1 < tmax {
+                    Some((t1, 0.0, 0.0))
+                } else {
+                    None
+                }
+            }
+        }
+    }
+}
+
+/// A shape groups primitives that share a material and (optionally) an area emitter.
+#[derive(Clone, Debug)]
+pub struct Shape {
+    /// Index into [`Scene::materials`].
+    pub material: u32,
+    /// Area emitter radiance, if the shape is a light.
+    pub emission: Option<Vec3>,
+}
+
+/// Local geometry at a ray hit.
+#[derive(Clone, Copy, Debug)]
+pub struct SurfaceHit {
+    /// Hit position.
+    pub p: Vec3,
+    /// Geometric normal (unit).
+    pub ng: Vec3,
+    /// Shading normal (unit).
+    pub ns: Vec3,
+    /// Shape index.
+    pub shape: u32,
+    /// Distance along the (unit) ray.
+    pub t: f32,
+}
+
+/// Pinhole camera with Mitsuba's perspective conventions (local +z forward, image x towards
+/// local -x, image y towards local -y).
+#[derive(Clone, Copy, Debug)]
+pub struct Camera {
+    /// Camera-to-world transform.
+    pub to_world: Mat4,
+    /// tan(fov_x / 2).
+    pub tan_x: f32,
+    /// tan(fov_y / 2).
+    pub tan_y: f32,
+}
+
+impl Camera {
+    /// Builds a camera from the Mitsuba `fov` (degrees) and `fov_axis` (x, y, smaller, larger).
+    pub fn new(
+        to_world: Mat4,
+        fov_deg: f32,
+        fov_axis: &str,
+        width: u32,
+        height: u32,
+    ) -> Result<Self> {
+        let aspect = width as f32 / height as f32;
+        let t = (fov_deg.to_radians() * 0.5).tan();
+        let along_x = match fov_axis {
+            "x" => true,
+            "y" => false,
+            "smaller" => aspect <= 1.0,
+            "larger" => aspect > 1.0,
+            other => return Err(Error::Scene(format!("unsupported fov_axis \"{other}\""))),
+        };
+        let (tan_x, tan_y) = if along_x {
+            (t, t / aspect)
+        } else {
+            (t * aspect, t)
+        };
+        Ok(Camera {
+            to_world,
+            tan_x,
+            tan_y,
+        })
+    }
+
+    /// Primary ray through film position `(u, v)` in `[0,1]^2` (top-left origin).
+    pub fn ray(&self, u: f32, v: f32) -> (Vec3, Vec3) {
+        let local = Vec3::new(
+            (1.0 - 2.0 * u) * self.tan_x,
+            (1.0 - 2.0 * v) * self.tan_y,
+            1.0,
+        );
+        let o = self.to_world.transform_point3(Vec3::ZERO);
+        let d = self.to_world.transform_vector3(local).normalize();
+        (o, d)
+    }
+}
+
+/// Render settings that come with a scene (overridable on the command line).
+#[derive(Clone, Copy, Debug)]
+pub struct Settings {
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Samples per pixel.
+    pub spp: u32,
+    /// Mitsuba max_depth (1 = directly visible emission only).
+    pub max_depth: u32,
+}
+
+/// An area light: a shape with emission and an area-weighted CDF over its primitives.
+#[derive(Clone, Debug)]
+pub struct Light {
+    /// Emitted radiance.
+    pub radiance: Vec3,
+    /// Primitive indices (into `Scene::prims`, BVH order).
+    pub prims: Vec<u32>,
+    /// Cumulative primitive areas (last = total area).
+    pub cdf: Vec<f32>,
+    /// Total area.
+    pub area: f32,
+}
+
+/// A point sampled on a light.
+#[derive(Clone, Copy, Debug)]
+pub struct LightSample {
+    /// Position.
+    pub p: Vec3,
+    /// Emitting-side normal.
+    pub n: Vec3,
+    /// Radiance.
+    pub radiance: Vec3,
+    /// Area pdf including the light selection probability.
+    pub pdf_area: f32,
+}
+
+/// A complete renderable scene.
+pub struct Scene {
+    /// Primitives, in BVH leaf order.
+    pub prims: Vec<Prim>,
+    /// Shape index of each primitive.
+    pub prim_shape: Vec<u32>,
+    /// Shapes.
+    pub shapes: Vec<Shape>,
+    /// Materials.
+    pub materials: Vec<Material>,
+    /// Area lights.
+    pub lights: Vec<Light>,
+    /// Light index of each shape (`u32::MAX` if none).
+    pub shape_light: Vec<u32>,
+    /// Camera.
+    pub camera: Camera,
+    /// Default settings.
+    pub settings: Settings,
+    bvh: CwBvh,
+}
+
+/// Builder collecting shapes before the BVH is built.
+#[derive(Default)]
+pub struct SceneBuilder {
+    prims: Vec<Prim>,
+    prim_shape: Vec<u32>,
+    shapes: Vec<Shape>,
+    materials: Vec<Material>,
+}
+
+impl SceneBuilder {
+    /// Adds a material and returns its index.
+    pub fn material(&mut self, m: Material) -> u32 {
+        self.materials.push(m);
+        (self.materials.len() - 1) as u32
+    }
+
+    /// Adds a shape made of `prims`.
+    pub fn shape(&mut self, prims: Vec<Prim>, material: u32, emission: Option<Vec3>) {
+        let id = self.shapes.len() as u32;
+        self.shapes.push(Shape { material, emission });
+        self.prim_shape.extend(std::iter::repeat_n(id, prims.len()));
+        self.prims.extend(prims);
+    }
+
+    /// Adds a quad `a b c d` (counter-clockwise seen from the side its normal points to).
+    pub fn quad(&mut self, q: [Vec3; 4], material: u32, emission: Option<Vec3>) {
+        self.shape(
+            vec![
+                Prim::Tri {
+                    p: [q[0], q[1], q[2]],
+                    n: None,
+                },
+                Prim::Tri {
+                    p: [q[0], q[2], q[3]],
+                    n: None,
+                },
+            ],
+            material,
+            emission,
+        );
+    }
+
+    /// Builds the BVH and light tables.
+    pub fn build(self, camera: Camera, settings: Settings) -> Result<Scene> {
+        if self.prims.is_empty() {
+            return Err(Error::Scene("the scene has no shapes".into()));
+        }
+        for (i, p) in self.prims.iter().enumerate() {
+            let ok = match *p {
+                Prim::Tri { p, .. } => p.iter().all(|v| v.is_finite()),
+                Prim::Sphere { center, radius, .. } => {
+                    center.is_finite() && radius.is_finite() && radius > 0.0
+                }
+            };
+            if !ok {
+                return Err(Error::Scene(format!(
+                    "primitive {i} has non-finite coordinates or a non-positive radius"
+                )));
+            }
+        }
+        let aabbs: Vec<Aabb> = self.prims.iter().map(Prim::aabb).collect();
+        let bvh = obvhs::cwbvh::builder::build_cwbvh(
+            &aabbs,
+            BvhBuildParams::medium_build(),
+            &mut Duration::default(),
+        );
+        // Reorder primitives into BVH leaf order so traversal indexes them directly.
+        let prims: Vec<Prim> = bvh
+            .primitive_indices
+            .iter()
+            .map(|&i| self.prims[i as usize])
+            .collect();
+        let prim_shape: Vec<u32> = bvh
+            .primitive_indices
+            .iter()
+            .map(|&i| self.prim_shape[i as usize])
+            .collect();
+        let mut shape_light = vec![u32::MAX; self.shapes.len()];
+        let mut lights = Vec::new();
+        for (s, shape) in self.shapes.iter().enumerate() {
+            if let Some(radiance) = shape.emission {
+                let mut l = Light {
+                    radiance,
+                    prims: Vec::new(),
+                    cdf: Vec::new(),
+                    area: 0.0,
+                };
+                for (i, p) in prims.iter().enumerate() {
+                    if prim_shape[i] as usize == s {
+                        l.area += p.area();
+                        l.prims.push(i as u32);
+                        l.cdf.push(l.area);
+                    }
+                }
+                if l.area > 0.0 && radiance.max_element() > 0.0 {
+                    shape_light[s] = lights.len() as u32;
+                    lights.push(l);
+                }
+            }
+        }
+        Ok(Scene {
+            prims,
+            prim_shape,
+            shapes: self.shapes,
+            materials: self.materials,
+            lights,
+            shape_light,
+            camera,
+            settings,
+            bvh,
+        })
+    }
+}
+
+impl Scene {
+    /// Closest hit along the unit-direction ray `o + t d`, `t` in `(tmin, tmax)`.
+    pub fn intersect(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<SurfaceHit> {
+        let ray = Ray::new(o.into(), d.into(), tmin, tmax);
+        let mut hit = RayHit::none();
+        let mut best = (0.0f32, 0.0f32);
+        let found = self.bvh.ray_traverse(ray, &mut hit, |r, id| {
+            match self.prims[id].intersect(o, d, r.tmin, r.tmax) {
+                Some((t, u, v)) => {
+                    best = (u, v);
+                    t
+                }
+                None => f32::INFINITY,
+            }
+        });
+        if !found {
+            return None;
+        }
+        // `best` holds the (u, v) of the last accepted (= closest) candidate.
+        let id = hit.primitive_id as usize;
+        let (u, v) = best;
+        let p = o + d * hit.t;
+        let (ng, ns) = match self.prims[id] {
+            Prim::Tri { p: v3, n } => {
+                let ng = (v3[1] - v3[0]).cross(v3[2] - v3[0]).normalize_or_zero();
+                let ns = match n {
+                    Some(n) => (n[0] * (1.0 - u - v) + n[1] * u + n[2] * v).normalize_or(ng),
+                    None => ng,
+                };
+                (ng, ns)
+            }
+            Prim::Sphere { center, flip, .. } => {
+                let n = (p - center).normalize_or_zero();
+                let n = if flip { -n } else { n };
+                (n, n)
+            }
+        };
+        Some(SurfaceHit {
+            p,
+            ng,
+            ns,
+            shape: self.prim_shape[id],
+            t: hit.t,
+        })
+    }
+
+    /// True if anything blocks the segment `o + t d`, `t` in `(tmin, tmax)`.
+    pub fn occluded(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
+        let ray = Ray::new(o.into(), d.into(), tmin, tmax);
+        !self.bvh.ray_traverse_miss(ray, |r, id| {
+            self.prims[id]
+                .intersect(o, d, r.tmin, r.tmax)
+                .map_or(f32::INFINITY, |h| h.0)
+        })
+    }
+
+    /// Samples a point uniformly by area on a uniformly chosen light.
+    pub fn sample_light(&self, u0: f32, u1: f32, u2: f32) -> Option<LightSample> {
+        let n = self.lights.len();
+        if n == 0 {
+            return None;
+        }
+        let li = ((u0 * n as f32) as usize).min(n - 1);
+        let l = &self.lights[li];
+        let target = u1 * l.area;
+        let k = l
+            .cdf
+            .partition_point(|&c| c < target)
+            .min(l.prims.len() - 1);
+        let lo = if k == 0 { 0.0 } else { l.cdf[k - 1] };
+        let width = l.cdf[k] - lo;
+        let u1 = if width > 0.0 {
+            ((target - lo) / width).clamp(0.0, 1.0)
+        } else {
+            0.5
+        };
+        let (p, nrm) = match self.prims[l.prims[k] as usize] {
+            Prim::Tri { p, n } => {
+                let su = u1.sqrt();
+                let (b1, b2) = (1.0 - su, u2 * su);
+                let b0 = 1.0 - b1 - b2;
+                let _ = b0;
+                // Barycentrics: point = p0 (1-b1-b2) + p1 b1 + p2 b2.
+                let pt = p[0] * (1.0 - b1 - b2) + p[1] * b1 + p[2] * b2;
+                let ng = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
+                let ns = match n {
+                    Some(n) => (n[0] * (1.0 - b1 - b2) + n[1] * b1 + n[2] * b2).normalize_or(ng),
+                    None => ng,
+                };
+                (pt, ns)
+            }
+            Prim::Sphere {
+                center,
+                radius,
+                flip,
+            } => {
+                let d = sample_uniform_sphere(u1, u2);
+                (center + d * radius, if flip { -d } else { d })
+            }
+        };
+        Some(LightSample {
+            p,
+            n: nrm,
+            radiance: l.radiance,
+            pdf_area: 1.0 / (n as f32 * l.area),
+        })
+    }
+
+    /// Area pdf (with selection probability) of sampling a point on the light of `shape`.
+    pub fn light_pdf_area(&self, shape: u32) -> f32 {
+        let li = self.shape_light[shape as usize];
+        if li == u32::MAX {
+            return 0.0;
+        }
+        1.0 / (self.lights.len() as f32 * self.lights[li as usize].area)
+    }
+
+    /// Shading frame at a hit.
+    pub fn frame(hit: &SurfaceHit) -> Frame {
+        Frame::new(hit.ns)
+    }
+}

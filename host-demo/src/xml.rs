@@ -1,0 +1,608 @@
+//! Loader for a subset of the Mitsuba 3 scene format.
+//!
+//! Supported: `integrator path` (max_depth, rr_depth), `sensor perspective` (fov, fov_axis,
+//! to_world, near/far_clip), `sampler independent` (sample_count), `film hdrfilm` (width,
+//! height, rfilter box), `bsdf diffuse` (rgb/float reflectance), `bsdf roughconductor` (GGX,
+//! isotropic alpha, rgb eta/k or material "none"), `shape obj|sphere|rectangle` (to_world,
+//! flip_normals, face_normals for obj), `emitter area` (rgb radiance) nested in a shape,
+//! `ref id`, and `transform` with matrix/lookat/translate/rotate/scale.
+//!
+//! Anything else (an unknown element, plugin type or property) is an error that names the
+//! element and its line: nothing is dropped silently.
+
+use crate::bsdf::Material;
+use crate::error::{Error, Result};
+use crate::obj::parse_obj;
+use crate::scene::{Camera, Prim, Scene, SceneBuilder, Settings};
+use glam::{Mat4, Vec3};
+use roxmltree::{Document, Node};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+/// Loads a Mitsuba 3 XML scene from disk (meshes are resolved relative to its folder).
+pub fn load_file(path: &Path) -> Result<Scene> {
+    let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    load_str(&text, &path.display().to_string(), &base)
+}
+
+/// Loads a Mitsuba 3 XML scene from a string; `file` names it in errors, `base` resolves meshes.
+pub fn load_str(text: &str, file: &str, base: &Path) -> Result<Scene> {
+    let doc = Document::parse(text).map_err(|source| Error::XmlSyntax {
+        file: file.to_string(),
+        source,
+    })?;
+    let mut ctx = Ctx {
+        doc: &doc,
+        file: file.to_string(),
+        base: base.to_path_buf(),
+        bsdfs: HashMap::new(),
+        builder: SceneBuilder::default(),
+        default_material: None,
+    };
+    ctx.scene(doc.root_element())
+}
+
+struct Ctx<'a, 'i> {
+    doc: &'a Document<'i>,
+    file: String,
+    base: PathBuf,
+    bsdfs: HashMap<String, u32>,
+    builder: SceneBuilder,
+    default_material: Option<u32>,
+}
+
+fn elements<'a, 'i>(n: Node<'a, 'i>) -> impl Iterator<Item = Node<'a, 'i>> {
+    n.children().filter(|c| c.is_element())
+}
+
+impl<'a, 'i> Ctx<'a, 'i> {
+    fn err(&self, n: Node, msg: impl Into<String>) -> Error {
+        let pos = self.doc.text_pos_at(n.range().start);
+        Error::Xml {
+            file: self.file.clone(),
+            line: pos.row,
+            col: pos.col,
+            msg: msg.into(),
+        }
+    }
+
+    fn attr<'n>(&self, n: Node<'n, 'i>, name: &str) -> Result<&'n str> {
+        n.attribute(name).ok_or_else(|| {
+            self.err(
+                n,
+                format!(
+                    "<{}> is missing the \"{name}\" attribute",
+                    n.tag_name().name()
+                ),
+            )
+        })
+    }
+
+    fn unsupported(&self, n: Node, what: &str) -> Error {
+        let ty = n
+            .attribute("type")
+            .or_else(|| n.attribute("name"))
+            .unwrap_or("");
+        self.err(
+            n,
+            format!(
+                "unsupported {what} <{} {}> (element \"{}\")",
+                n.tag_name().name(),
+                quoted(ty),
+                n.tag_name().name()
+            ),
+        )
+    }
+
+    fn floats(&self, n: Node, s: &str) -> Result<Vec<f32>> {
+        s.split(|c: char| c == ',' || c.is_whitespace())
+            .filter(|t| !t.is_empty())
+            .map(|t| {
+                t.parse::<f32>()
+                    .map_err(|_| self.err(n, format!("cannot parse number \"{t}\"")))
+            })
+            .collect()
+    }
+
+    fn float(&self, n: Node) -> Result<f32> {
+        let v = self.floats(n, self.attr(n, "value")?)?;
+        if v.len() != 1 {
+            return Err(self.err(n, "expected a single number"));
+        }
+        Ok(v[0])
+    }
+
+    fn integer(&self, n: Node) -> Result<i64> {
+        let s = self.attr(n, "value")?;
+        s.trim()
+            .parse()
+            .map_err(|_| self.err(n, format!("cannot parse integer \"{s}\"")))
+    }
+
+    fn boolean(&self, n: Node) -> Result<bool> {
+        match self.attr(n, "value")?.trim() {
+            "true" => Ok(true),
+            "false" => Ok(false),
+            s => Err(self.err(n, format!("cannot parse boolean \"{s}\""))),
+        }
+    }
+
+    /// `<rgb value="r, g, b"/>`, `<rgb value="v"/>` or `<float value="v"/>`.
+    fn color(&self, n: Node) -> Result<Vec3> {
+        match n.tag_name().name() {
+            "rgb" | "float" => {
+                let v = self.floats(n, self.attr(n, "value")?)?;
+                match v.len() {
+                    1 => Ok(Vec3::splat(v[0])),
+                    3 => Ok(Vec3::new(v[0], v[1], v[2])),
+                    _ => Err(self.err(n, "expected 1 or 3 numbers")),
+                }
+            }
+            _ => Err(self.unsupported(n, "colour value (only <rgb> and <float> are supported)")),
+        }
+    }
+
+    /// `<point x= y= z=/>` or `value="x, y, z"`.
+    fn vec3(&self, n: Node) -> Result<Vec3> {
+        if let Some(v) = n.attribute("value") {
+            let v = self.floats(n, v)?;
+            return match v.len() {
+                1 => Ok(Vec3::splat(v[0])),
+                3 => Ok(Vec3::new(v[0], v[1], v[2])),
+                _ => Err(self.err(n, "expected 1 or 3 numbers")),
+            };
+        }
+        let mut out = Vec3::ZERO;
+        for (i, k) in ["x", "y", "z"].iter().enumerate() {
+            if let Some(s) = n.attribute(*k) {
+                out[i] = self
+                    .floats(n, s)?
+                    .first()
+                    .copied()
+                    .ok_or_else(|| self.err(n, "empty number"))?;
+            }
+        }
+        Ok(out)
+    }
+
+    fn name<'n>(&self, n: Node<'n, 'i>) -> Result<&'n str> {
+        self.attr(n, "name")
+    }
+
+    fn transform(&self, n: Node) -> Result<Mat4> {
+        let mut m = Mat4::IDENTITY;
+        for op in elements(n) {
+            let t = match op.tag_name().name() {
+                "matrix" => {
+                    let v = self.floats(op, self.attr(op, "value")?)?;
+                    match v.len() {
+                        16 => Mat4::from_cols_slice(&v).transpose(),
+                        9 => Mat4::from_mat3(glam::Mat3::from_cols_slice(&v).transpose()),
+                        _ => return Err(self.err(op, "matrix needs 16 (or 9) numbers")),
+                    }
+                }
+                "translate" => Mat4::from_translation(self.vec3_xyz(op, 0.0)?),
+                "scale" => Mat4::from_scale(self.vec3_xyz(op, 1.0)?),
+                "rotate" => {
+                    let axis = if let Some(a) = op.attribute("axis") {
+                        let v = self.floats(op, a)?;
+                        if v.len() != 3 {
+                            return Err(self.err(op, "axis needs 3 numbers"));
+                        }
+                        Vec3::new(v[0], v[1], v[2])
+                    } else {
+                        self.vec3_xyz(op, 0.0)?
+                    };
+                    let angle: f32 = self
+                        .floats(op, self.attr(op, "angle")?)?
+                        .first()
+                        .copied()
+                        .unwrap_or(0.0);
+                    let axis = axis
+                        .try_normalize()
+                        .ok_or_else(|| self.err(op, "rotation axis is zero"))?;
+                    Mat4::from_axis_angle(axis, angle.to_radians())
+                }
+                "lookat" => {
+                    let get = |k: &str| -> Result<Vec3> {
+                        let v = self.floats(op, self.attr(op, k)?)?;
+                        if v.len() != 3 {
+                            return Err(self.err(op, format!("lookat {k} needs 3 numbers")));
+                        }
+                        Ok(Vec3::new(v[0], v[1], v[2]))
+                    };
+                    let (o, target) = (get("origin")?, get("target")?);
+                    let up = if op.attribute("up").is_some() {
+                        get("up")?
+                    } else {
+                        Vec3::Y
+                    };
+                    let dir = (target - o)
+                        .try_normalize()
+                        .ok_or_else(|| self.err(op, "lookat origin == target"))?;
+                    let left = up.cross(dir).try_normalize().ok_or_else(|| {
+                        self.err(op, "lookat up is parallel to the view direction")
+                    })?;
+                    let new_up = dir.cross(left);
+                    Mat4::from_cols(
+                        left.extend(0.0),
+                        new_up.extend(0.0),
+                        dir.extend(0.0),
+                        o.extend(1.0),
+                    )
+                }
+                _ => return Err(self.unsupported(op, "transform operation")),
+            };
+            m = t * m;
+        }
+        if !m.is_finite() {
+            return Err(self.err(n, "transform is not finite"));
+        }
+        Ok(m)
+    }
+
+    /// `x= y= z=` attributes (missing ones default to `def`) or `value="..."`.
+    fn vec3_xyz(&self, n: Node, def: f32) -> Result<Vec3> {
+        if let Some(v) = n.attribute("value") {
+            let v = self.floats(n, v)?;
+            return match v.len() {
+                1 => Ok(Vec3::splat(v[0])),
+                3 => Ok(Vec3::new(v[0], v[1], v[2])),
+                _ => Err(self.err(n, "expected 1 or 3 numbers")),
+            };
+        }
+        let mut out = Vec3::splat(def);
+        for (i, k) in ["x", "y", "z"].iter().enumerate() {
+            if let Some(s) = n.attribute(*k) {
+                out[i] = self.floats(n, s)?.first().copied().unwrap_or(def);
+            }
+        }
+        Ok(out)
+    }
+
+    fn scene(&mut self, root: Node<'a, 'i>) -> Result<Scene> {
+        if root.tag_name().name() != "scene" {
+            return Err(self.err(
+                root,
+                format!(
+                    "root element is <{}>, expected <scene>",
+                    root.tag_name().name()
+                ),
+            ));
+        }
+        let mut max_depth: Option<u32> = None;
+        let mut sensor: Option<(Camera, u32, u32, u32)> = None;
+        for n in elements(root) {
+            match n.tag_name().name() {
+                "integrator" => max_depth = Some(self.integrator(n)?),
+                "sensor" => {
+                    if sensor.is_some() {
+                        return Err(self.err(n, "more than one <sensor> is not supported"));
+                    }
+                    sensor = Some(self.sensor(n)?);
+                }
+                "bsdf" => {
+                    let id = self.attr(n, "id")?.to_string();
+                    let m = self.bsdf(n)?;
+                    let idx = self.builder.material(m);
+                    self.bsdfs.insert(id, idx);
+                }
+                "shape" => self.shape(n)?,
+                "emitter" => {
+                    return Err(self.unsupported(
+                        n,
+                        "top-level emitter (only area emitters inside shapes are supported)",
+                    ))
+                }
+                _ => return Err(self.unsupported(n, "scene element")),
+            }
+        }
+        let (camera, width, height, spp) =
+            sensor.ok_or_else(|| self.err(root, "the scene has no <sensor>"))?;
+        let settings = Settings {
+            width,
+            height,
+            spp,
+            max_depth: max_depth.unwrap_or(1024),
+        };
+        let builder = std::mem::take(&mut self.builder);
+        builder.build(camera, settings)
+    }
+
+    fn integrator(&self, n: Node) -> Result<u32> {
+        if n.attribute("type") != Some("path") {
+            return Err(self.unsupported(n, "integrator type"));
+        }
+        let mut depth = 1024;
+        for p in elements(n) {
+            match (p.tag_name().name(), self.name(p)?) {
+                ("integer", "max_depth") => {
+                    let d = self.integer(p)?;
+                    depth = if d < 0 { 1024 } else { d.min(1 << 20) as u32 };
+                }
+                // Russian roulette start depth: RR is unbiased, so it cannot change the expected image.
+                ("integer", "rr_depth") => {}
+                _ => return Err(self.unsupported(p, "integrator property")),
+            }
+        }
+        Ok(depth)
+    }
+
+    fn sensor(&self, n: Node) -> Result<(Camera, u32, u32, u32)> {
+        if n.attribute("type") != Some("perspective") {
+            return Err(self.unsupported(n, "sensor type"));
+        }
+        let (mut fov, mut axis, mut to_world) = (None, "x".to_string(), Mat4::IDENTITY);
+        let (mut w, mut h, mut spp) = (768u32, 576u32, 4u32);
+        for p in elements(n) {
+            match p.tag_name().name() {
+                "float" if self.name(p)? == "fov" => fov = Some(self.float(p)?),
+                // Clipping planes do not change the image of a closed-form pinhole for these scenes.
+                "float" if matches!(self.name(p)?, "near_clip" | "far_clip") => {}
+                "string" if self.name(p)? == "fov_axis" => {
+                    axis = self.attr(p, "value")?.to_string()
+                }
+                "transform" if self.name(p)? == "to_world" => to_world = self.transform(p)?,
+                "sampler" => {
+                    if p.attribute("type") != Some("independent") {
+                        return Err(self.unsupported(p, "sampler type"));
+                    }
+                    for q in elements(p) {
+                        match (q.tag_name().name(), self.name(q)?) {
+                            ("integer", "sample_count") => spp = self.positive(q)?,
+                            ("integer", "seed") => {}
+                            _ => return Err(self.unsupported(q, "sampler property")),
+                        }
+                    }
+                }
+                "film" => {
+                    if p.attribute("type") != Some("hdrfilm") {
+                        return Err(self.unsupported(p, "film type"));
+                    }
+                    for q in elements(p) {
+                        match q.tag_name().name() {
+                            "integer" if self.name(q)? == "width" => w = self.positive(q)?,
+                            "integer" if self.name(q)? == "height" => h = self.positive(q)?,
+                            "rfilter" => {
+                                if q.attribute("type") != Some("box") {
+                                    return Err(self.unsupported(q, "reconstruction filter"));
+                                }
+                            }
+                            _ => return Err(self.unsupported(q, "film property")),
+                        }
+                    }
+                }
+                _ => return Err(self.unsupported(p, "sensor property")),
+            }
+        }
+        let fov = fov.ok_or_else(|| self.err(n, "perspective sensor needs a \"fov\" float"))?;
+        if !(fov > 0.0 && fov < 180.0) {
+            return Err(self.err(n, format!("fov {fov} must be in (0, 180) degrees")));
+        }
+        let cam =
+            Camera::new(to_world, fov, &axis, w, h).map_err(|e| self.err(n, e.to_string()))?;
+        Ok((cam, w, h, spp))
+    }
+
+    fn positive(&self, n: Node) -> Result<u32> {
+        let v = self.integer(n)?;
+        if v <= 0 || v > 1 << 16 {
+            return Err(self.err(n, format!("value {v} out of range (1..=65536)")));
+        }
+        Ok(v as u32)
+    }
+
+    fn bsdf(&self, n: Node) -> Result<Material> {
+        match n.attribute("type") {
+            Some("diffuse") => {
+                let mut reflectance = Vec3::splat(0.5);
+                for p in elements(n) {
+                    match self.name(p)? {
+                        "reflectance" => reflectance = self.color(p)?,
+                        _ => return Err(self.unsupported(p, "diffuse property")),
+                    }
+                }
+                Ok(Material::Diffuse { reflectance })
+            }
+            Some("roughconductor") => {
+                let (mut alpha, mut eta, mut k) = (0.1f32, Vec3::ZERO, Vec3::ONE);
+                let mut distribution = "beckmann".to_string();
+                for p in elements(n) {
+                    match (p.tag_name().name(), self.name(p)?) {
+                        ("string", "distribution") => {
+                            distribution = self.attr(p, "value")?.to_string()
+                        }
+                        ("float", "alpha") => alpha = self.float(p)?,
+                        ("string", "material") => {
+                            if self.attr(p, "value")? != "none" {
+                                return Err(self.err(p, format!("named conductor material \"{}\" is not supported (use rgb eta/k, or \"none\")", self.attr(p, "value")?)));
+                            }
+                            eta = Vec3::ZERO;
+                            k = Vec3::ONE;
+                        }
+                        (_, "eta") => eta = self.color(p)?,
+                        (_, "k") => k = self.color(p)?,
+                        // Visible-normal sampling is what we do anyway; `false` would only change variance.
+                        ("boolean", "sample_visible") => {}
+                        _ => return Err(self.unsupported(p, "roughconductor property")),
+                    }
+                }
+                if distribution != "ggx" {
+                    return Err(self.err(n, format!("roughconductor distribution \"{distribution}\" is not supported (only \"ggx\"; Mitsuba's default is beckmann)")));
+                }
+                if !(alpha > 0.0 && alpha.is_finite()) {
+                    return Err(self.err(n, format!("alpha {alpha} must be positive")));
+                }
+                Ok(Material::RoughConductor {
+                    alpha: alpha.max(1e-4),
+                    eta,
+                    k,
+                })
+            }
+            _ => Err(self.unsupported(n, "bsdf type")),
+        }
+    }
+
+    fn shape(&mut self, n: Node<'a, 'i>) -> Result<()> {
+        let ty = n.attribute("type").unwrap_or("");
+        let mut to_world = Mat4::IDENTITY;
+        let (mut flip, mut face_normals) = (false, false);
+        let mut material = None;
+        let mut emission = None;
+        let mut filename = None;
+        let (mut center, mut radius) = (Vec3::ZERO, 1.0f32);
+        for p in elements(n) {
+            let tag = p.tag_name().name();
+            let pname = p.attribute("name").unwrap_or("");
+            match (tag, pname, ty) {
+                ("transform", "to_world", _) => to_world = self.transform(p)?,
+                ("boolean", "flip_normals", _) => flip = self.boolean(p)?,
+                ("boolean", "face_normals", "obj") => face_normals = self.boolean(p)?,
+                ("string", "filename", "obj") => {
+                    filename = Some(self.attr(p, "value")?.to_string())
+                }
+                ("point", "center", "sphere") => center = self.vec3(p)?,
+                ("float", "radius", "sphere") => radius = self.float(p)?,
+                ("ref", _, _) => {
+                    let id = self.attr(p, "id")?;
+                    let m = *self.bsdfs.get(id).ok_or_else(|| {
+                        self.err(p, format!("reference to unknown bsdf id \"{id}\""))
+                    })?;
+                    material = Some(m);
+                }
+                ("bsdf", _, _) => {
+                    let m = self.bsdf(p)?;
+                    material = Some(self.builder.material(m));
+                }
+                ("emitter", _, _) => {
+                    if p.attribute("type") != Some("area") {
+                        return Err(self.unsupported(p, "emitter type inside a shape"));
+                    }
+                    let mut radiance = Vec3::ONE;
+                    for q in elements(p) {
+                        match q.attribute("name") {
+                            Some("radiance") => radiance = self.color(q)?,
+                            _ => return Err(self.unsupported(q, "area emitter property")),
+                        }
+                    }
+                    emission = Some(radiance);
+                }
+                _ => return Err(self.unsupported(p, &format!("property of shape \"{ty}\""))),
+            }
+        }
+        let nmat = Mat4::from_mat3(glam::Mat3::from_mat4(to_world).inverse().transpose());
+        let xf_n = |v: Vec3| nmat.transform_vector3(v).normalize_or_zero();
+        let mut prims = match ty {
+            "obj" => {
+                let f =
+                    filename.ok_or_else(|| self.err(n, "obj shape needs a \"filename\" string"))?;
+                let path = self.base.join(&f);
+                let text = std::fs::read_to_string(&path).map_err(|source| Error::Io {
+                    path: path.clone(),
+                    source,
+                })?;
+                let mut tris = parse_obj(&text, &path.display().to_string())?;
+                for t in &mut tris {
+                    if let Prim::Tri { p, n } = t {
+                        *p = p.map(|v| to_world.transform_point3(v));
+                        *n = if face_normals {
+                            None
+                        } else {
+                            n.map(|n| n.map(xf_n))
+                        };
+                    }
+                }
+                tris
+            }
+            "sphere" => {
+                let m = to_world
+                    * Mat4::from_translation(center)
+                    * Mat4::from_scale(Vec3::splat(radius));
+                let c = m.transform_point3(Vec3::ZERO);
+                let axes = [
+                    m.x_axis.truncate().length(),
+                    m.y_axis.truncate().length(),
+                    m.z_axis.truncate().length(),
+                ];
+                if (axes[0] - axes[1]).abs() > 1e-4 * axes[0]
+                    || (axes[0] - axes[2]).abs() > 1e-4 * axes[0]
+                {
+                    return Err(self.err(n, "sphere with a non-uniform scale is not supported"));
+                }
+                if axes[0].is_nan() || axes[0] <= 0.0 {
+                    return Err(self.err(n, "sphere radius must be positive"));
+                }
+                vec![Prim::Sphere {
+                    center: c,
+                    radius: axes[0],
+                    flip: false,
+                }]
+            }
+            "rectangle" => {
+                let c = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
+                    .map(|(x, y)| to_world.transform_point3(Vec3::new(x, y, 0.0)));
+                let nz = xf_n(Vec3::Z);
+                let mut tris = vec![
+                    Prim::Tri {
+                        p: [c[0], c[1], c[2]],
+                        n: None,
+                    },
+                    Prim::Tri {
+                        p: [c[0], c[2], c[3]],
+                        n: None,
+                    },
+                ];
+                if (c[1] - c[0]).cross(c[2] - c[0]).dot(nz) < 0.0 {
+                    for t in &mut tris {
+                        if let Prim::Tri { p, .. } = t {
+                            p.swap(1, 2);
+                        }
+                    }
+                }
+                tris
+            }
+            _ => return Err(self.unsupported(n, "shape type")),
+        };
+        if flip {
+            for pr in &mut prims {
+                match pr {
+                    Prim::Tri { p, n } => {
+                        p.swap(1, 2);
+                        if let Some(n) = n {
+                            n.swap(1, 2);
+                            *n = n.map(|v| -v);
+                        }
+                    }
+                    Prim::Sphere { flip, .. } => *flip = !*flip,
+                }
+            }
+        }
+        let material = match material {
+            Some(m) => m,
+            None => match self.default_material {
+                Some(m) => m,
+                None => {
+                    let m = self.builder.material(Material::Diffuse {
+                        reflectance: Vec3::splat(0.5),
+                    });
+                    self.default_material = Some(m);
+                    m
+                }
+            },
+        };
+        self.builder.shape(prims, material, emission);
+        Ok(())
+    }
+}
+
+fn quoted(s: &str) -> String {
+    if s.is_empty() {
+        String::new()
+    } else {
+        format!("type=\"{s}\"")
+    }
+}
