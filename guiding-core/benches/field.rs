@@ -1,0 +1,284 @@
+//! Throughput of the CPU runtime ([`Field`]) with the paper-size models
+//! (NPM's dense grid, 4.1 M parameters, + each model's MLPs):
+//!
+//! - `field_inference`: guided-direction sampling (grid + MLP + decode +
+//!   sample) and pdf evaluation of 4096 queries on **one** thread —
+//!   queries/s per core;
+//! - `field_training`: one `add_samples` + `update` of 2¹⁴ samples (one Adam
+//!   step, default configuration) with one thread and with all threads —
+//!   training samples/s.
+//!
+//! After the Criterion groups a summary table repeats both measurements
+//! (median of a few runs, wall clock) and adds the implied GFLOP/s of the
+//! MLP part of inference (`2 · MACS` of the networks a `sample` runs, per
+//! query).
+//!
+//! Run: `cargo bench -p guiding-core --features std --bench field`
+//! (`-- field_inference` for one group; the summary always runs;
+//! `FIELD_BENCH_SUMMARY_ONLY=1` skips the Criterion groups).
+
+use criterion::{Criterion, Throughput};
+use guiding_core::field::{Field, FieldConfig};
+use guiding_core::glam::{Vec2, Vec3};
+use guiding_core::lobe::DirectionSample;
+use guiding_core::math::INV_FOUR_PI;
+use guiding_core::mlp::Mlp;
+use guiding_core::model::df::{DfRadiance, DF_CONDITIONAL_BINS, DF_MARGINAL_BINS};
+use guiding_core::model::nasg::{NasgProduct, NASG_OUTPUTS};
+use guiding_core::model::npm::{NpmRadiance, NPM_OUTPUTS};
+use guiding_core::model::{GuidingModel, QueryPoint};
+use guiding_core::pdf1d::Interpolation;
+use guiding_core::rng::Rng;
+use guiding_core::sample::TrainingSample;
+use guiding_core::sphere::square_to_uniform_sphere;
+use std::hint::black_box;
+use std::time::{Duration, Instant};
+
+const LO: [f32; 3] = [-1.0; 3];
+const HI: [f32; 3] = [1.0; 3];
+const QUERIES: usize = 4096;
+const TRAIN_BATCH: usize = 1 << 14;
+
+/// Multiply–adds of the networks one `sample` call evaluates.
+const NPM_MACS: usize = Mlp::<32, 64, NPM_OUTPUTS, 3>::MACS;
+const NASG_MACS: usize = Mlp::<64, 128, NASG_OUTPUTS, 4>::MACS;
+/// Marginal + conditional (once; the cache is not used for sampling).
+const DF_MACS: usize =
+    Mlp::<32, 64, DF_MARGINAL_BINS, 3>::MACS + Mlp::<44, 64, DF_CONDITIONAL_BINS, 3>::MACS;
+
+fn unit(rng: &mut Rng) -> Vec3 {
+    square_to_uniform_sphere(Vec2::new(rng.next_f32(), rng.next_f32()))
+}
+
+fn position(rng: &mut Rng) -> [f32; 3] {
+    core::array::from_fn(|_| 2.0 * rng.next_f32() - 1.0)
+}
+
+fn queries(seed: u32) -> (Vec<QueryPoint>, Vec<Vec2>, Vec<Vec3>) {
+    let mut rng = Rng::new(seed);
+    let mut qs = Vec::with_capacity(QUERIES);
+    let mut us = Vec::with_capacity(QUERIES);
+    let mut ds = Vec::with_capacity(QUERIES);
+    for _ in 0..QUERIES {
+        let n = unit(&mut rng);
+        let mut wo = unit(&mut rng);
+        if wo.dot(n) < 0.0 {
+            wo = -wo;
+        }
+        qs.push(QueryPoint {
+            position: position(&mut rng),
+            roughness: rng.next_f32(),
+            normal: n.to_array(),
+            pad0: 0.0,
+            wo: wo.to_array(),
+            pad1: 0.0,
+        });
+        us.push(Vec2::new(rng.next_f32(), rng.next_f32()));
+        ds.push(unit(&mut rng));
+    }
+    (qs, us, ds)
+}
+
+/// Valid training samples with a smooth synthetic radiance.
+fn training_samples(seed: u32, n: usize) -> Vec<TrainingSample> {
+    let mut rng = Rng::new(seed);
+    (0..n)
+        .map(|_| {
+            let p = position(&mut rng);
+            let normal = unit(&mut rng);
+            let mut wo = unit(&mut rng);
+            if wo.dot(normal) < 0.0 {
+                wo = -wo;
+            }
+            let wi = unit(&mut rng);
+            let l = (1.0 + wi.x * p[0] + wi.y).max(0.0);
+            let cos = wi.dot(normal).abs();
+            TrainingSample {
+                position: p,
+                roughness: 0.5,
+                normal: normal.to_array(),
+                sample_pdf: INV_FOUR_PI,
+                wo: wo.to_array(),
+                bsdf_pdf: cos * core::f32::consts::FRAC_1_PI,
+                wi: wi.to_array(),
+                pad0: 0.0,
+                radiance: [l; 3],
+                pad1: 0.0,
+                bsdf_cos: [0.3 * cos; 3],
+                pad2: 0.0,
+            }
+        })
+        .collect()
+}
+
+fn field<M: GuidingModel + Send + Sync>(model: M, threads: usize) -> Field<M> {
+    let config = FieldConfig::DEFAULT
+        .with_batch_size(TRAIN_BATCH)
+        .with_threads(threads);
+    Field::new(model, config).expect("valid configuration")
+}
+
+/// A field trained for two steps, so the EMA weights are not the init.
+fn warm_field<M: GuidingModel + Send + Sync>(model: M) -> Field<M> {
+    let mut f = field(model, 0);
+    for k in 0..2 {
+        f.add_samples(&training_samples(100 + k, 4096));
+        f.update();
+    }
+    let config = *f.config();
+    Field::from_params(model, config.with_threads(1), f.ema_params().to_vec())
+        .expect("finite parameters")
+}
+
+fn bench_inference<M: GuidingModel + Send + Sync>(c: &mut Criterion, name: &str, model: M) {
+    let f = warm_field(model);
+    let (qs, us, ds) = queries(1);
+    let mut out = vec![
+        DirectionSample {
+            direction: Vec3::Z,
+            pdf: 0.0
+        };
+        QUERIES
+    ];
+    let mut pdfs = vec![0.0f32; QUERIES];
+    let mut group = c.benchmark_group("field_inference");
+    group.throughput(Throughput::Elements(QUERIES as u64));
+    group.warm_up_time(Duration::from_secs(1));
+    group.measurement_time(Duration::from_secs(3));
+    group.sample_size(20);
+    group.bench_function(format!("{name}/sample_1_thread"), |b| {
+        b.iter(|| {
+            f.sample_batch(black_box(&qs), &us, &mut out);
+            black_box(&mut out);
+        });
+    });
+    group.bench_function(format!("{name}/pdf_1_thread"), |b| {
+        b.iter(|| {
+            f.pdf_batch(black_box(&qs), &ds, &mut pdfs);
+            black_box(&mut pdfs);
+        });
+    });
+    group.finish();
+}
+
+fn bench_training<M: GuidingModel + Send + Sync>(c: &mut Criterion, name: &str, model: M) {
+    let samples = training_samples(7, TRAIN_BATCH);
+    let mut group = c.benchmark_group("field_training");
+    group.throughput(Throughput::Elements(TRAIN_BATCH as u64));
+    group.warm_up_time(Duration::from_secs(1));
+    group.measurement_time(Duration::from_secs(5));
+    group.sample_size(10);
+    for threads in [1, 0] {
+        let mut f = field(model, threads);
+        let label = if threads == 1 {
+            "1_thread".to_string()
+        } else {
+            format!("{}_threads", f.threads())
+        };
+        group.bench_function(format!("{name}/{label}"), |b| {
+            b.iter(|| {
+                f.add_samples(black_box(&samples));
+                black_box(f.update());
+            });
+        });
+    }
+    group.finish();
+}
+
+/// Median wall-clock seconds of `runs` calls of `f`.
+fn median_seconds(runs: usize, mut f: impl FnMut()) -> f64 {
+    f();
+    let mut t: Vec<f64> = (0..runs)
+        .map(|_| {
+            let start = Instant::now();
+            f();
+            start.elapsed().as_secs_f64()
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    t[runs / 2]
+}
+
+fn summary_row<M: GuidingModel + Send + Sync>(name: &str, model: M, macs: usize) {
+    let f = warm_field(model);
+    let (qs, us, _) = queries(2);
+    let mut out = vec![
+        DirectionSample {
+            direction: Vec3::Z,
+            pdf: 0.0
+        };
+        QUERIES
+    ];
+    let s = median_seconds(7, || f.sample_batch(black_box(&qs), &us, &mut out));
+    let qps = QUERIES as f64 / s;
+    let gflops = qps * (2 * macs) as f64 * 1e-9;
+    let samples = training_samples(9, TRAIN_BATCH);
+    let train_rate = |threads: usize| {
+        let mut f = field(model, threads);
+        let t = median_seconds(3, || {
+            f.add_samples(&samples);
+            f.update();
+        });
+        (f.threads(), TRAIN_BATCH as f64 / t)
+    };
+    let (_, one) = train_rate(1);
+    let (n, all) = train_rate(0);
+    println!(
+        "{name:<6} {:>9}  {qps:>12.0}  {gflops:>9.2}  {one:>12.0}  {all:>12.0} ({n} thr)  {:>5.2}x",
+        model.param_count(),
+        all / one
+    );
+}
+
+fn summary() {
+    println!();
+    println!("field summary (median wall clock; one sample() = grid + MLP + decode + sample)");
+    println!(
+        "{:<6} {:>9}  {:>12}  {:>9}  {:>12}  {:>12}",
+        "model", "params", "queries/s/c", "MLP GF/s", "train 1 thr", "train all"
+    );
+    summary_row("NPM", NpmRadiance::paper(LO, HI), NPM_MACS);
+    summary_row("NASG", NasgProduct::paper(LO, HI), NASG_MACS);
+    summary_row(
+        "DF-N",
+        DfRadiance::paper(LO, HI, Interpolation::Nearest),
+        DF_MACS,
+    );
+    summary_row(
+        "DF-L",
+        DfRadiance::paper(LO, HI, Interpolation::Linear),
+        DF_MACS,
+    );
+}
+
+fn main() {
+    if std::env::var_os("FIELD_BENCH_SUMMARY_ONLY").is_none() {
+        let mut c = Criterion::default().configure_from_args();
+        bench_inference(&mut c, "npm", NpmRadiance::paper(LO, HI));
+        bench_inference(&mut c, "nasg", NasgProduct::paper(LO, HI));
+        bench_inference(
+            &mut c,
+            "df_n",
+            DfRadiance::paper(LO, HI, Interpolation::Nearest),
+        );
+        bench_inference(
+            &mut c,
+            "df_l",
+            DfRadiance::paper(LO, HI, Interpolation::Linear),
+        );
+        bench_training(&mut c, "npm", NpmRadiance::paper(LO, HI));
+        bench_training(&mut c, "nasg", NasgProduct::paper(LO, HI));
+        bench_training(
+            &mut c,
+            "df_n",
+            DfRadiance::paper(LO, HI, Interpolation::Nearest),
+        );
+        bench_training(
+            &mut c,
+            "df_l",
+            DfRadiance::paper(LO, HI, Interpolation::Linear),
+        );
+        c.final_summary();
+    }
+    summary();
+}
