@@ -119,7 +119,7 @@ pub struct VertexBatch {
 }
 
 impl VertexBatch {
-    fn clear(&mut self) {
+    pub(crate) fn clear(&mut self) {
         self.slot.clear();
         self.p.clear();
         self.ng.clear();
@@ -150,19 +150,19 @@ pub fn guiding_query(batch: &VertexBatch) {
 
 /// Paths in flight (structure-of-arrays).
 #[derive(Default)]
-struct PathQueue {
-    slot: Vec<u32>,
-    o: Vec<Vec3>,
-    d: Vec<Vec3>,
-    beta: Vec<Vec3>,
+pub(crate) struct PathQueue {
+    pub(crate) slot: Vec<u32>,
+    pub(crate) o: Vec<Vec3>,
+    pub(crate) d: Vec<Vec3>,
+    pub(crate) beta: Vec<Vec3>,
     /// Solid-angle pdf of the direction `d` (for MIS at an emitter hit).
-    pdf: Vec<f32>,
+    pub(crate) pdf: Vec<f32>,
     /// `d` came from the camera (no MIS).
-    from_camera: Vec<bool>,
+    pub(crate) from_camera: Vec<bool>,
 }
 
 impl PathQueue {
-    fn clear(&mut self) {
+    pub(crate) fn clear(&mut self) {
         self.slot.clear();
         self.o.clear();
         self.d.clear();
@@ -170,7 +170,15 @@ impl PathQueue {
         self.pdf.clear();
         self.from_camera.clear();
     }
-    fn push(&mut self, slot: u32, o: Vec3, d: Vec3, beta: Vec3, pdf: f32, from_camera: bool) {
+    pub(crate) fn push(
+        &mut self,
+        slot: u32,
+        o: Vec3,
+        d: Vec3,
+        beta: Vec3,
+        pdf: f32,
+        from_camera: bool,
+    ) {
         self.slot.push(slot);
         self.o.push(o);
         self.d.push(d);
@@ -182,27 +190,30 @@ impl PathQueue {
 
 /// Shadow rays of the NEE stage.
 #[derive(Default)]
-struct ShadowQueue {
-    slot: Vec<u32>,
-    o: Vec<Vec3>,
-    d: Vec<Vec3>,
-    tmax: Vec<f32>,
-    contrib: Vec<Vec3>,
+pub(crate) struct ShadowQueue {
+    pub(crate) slot: Vec<u32>,
+    pub(crate) o: Vec<Vec3>,
+    pub(crate) d: Vec<Vec3>,
+    pub(crate) tmax: Vec<f32>,
+    pub(crate) contrib: Vec<Vec3>,
+    /// `contrib` without the path throughput (training records only).
+    pub(crate) local: Vec<Vec3>,
 }
 
 impl ShadowQueue {
-    fn clear(&mut self) {
+    pub(crate) fn clear(&mut self) {
         self.slot.clear();
         self.o.clear();
         self.d.clear();
         self.tmax.clear();
         self.contrib.clear();
+        self.local.clear();
     }
 }
 
 /// Offsets `p` along the geometric normal to the side of `dir`, against self-intersection.
 #[inline]
-fn offset(p: Vec3, ng: Vec3, dir: Vec3) -> Vec3 {
+pub(crate) fn offset(p: Vec3, ng: Vec3, dir: Vec3) -> Vec3 {
     let eps = 1e-4 * (1.0 + p.abs().max_element());
     if ng.dot(dir) >= 0.0 {
         p + ng * eps
@@ -212,20 +223,99 @@ fn offset(p: Vec3, ng: Vec3, dir: Vec3) -> Vec3 {
 }
 
 /// Per-block worker state (queues are reused across bounces and samples).
-struct Worker<'s> {
-    scene: &'s Scene,
-    opts: RenderOptions,
-    paths: PathQueue,
-    next: PathQueue,
-    verts: VertexBatch,
-    shadow: ShadowQueue,
+pub(crate) struct Worker<'s> {
+    pub(crate) scene: &'s Scene,
+    pub(crate) opts: RenderOptions,
+    pub(crate) paths: PathQueue,
+    pub(crate) next: PathQueue,
+    pub(crate) verts: VertexBatch,
+    pub(crate) shadow: ShadowQueue,
     /// One RNG per slot; path slots are stable for the whole sample.
-    rng: Vec<Rng>,
+    pub(crate) rng: Vec<Rng>,
     /// Radiance of the current sample per slot.
-    radiance: Vec<Vec3>,
+    pub(crate) radiance: Vec<Vec3>,
+    /// Guided-integrator state (`None` for `pt` / `pt-nee`).
+    pub(crate) guided: Option<crate::guided::GuidedWorker<'s>>,
 }
 
-impl Worker<'_> {
+impl<'s> Worker<'s> {
+    /// A worker for `scene` with empty queues.
+    pub(crate) fn new(
+        scene: &'s Scene,
+        opts: RenderOptions,
+        guided: Option<crate::guided::GuidedWorker<'s>>,
+    ) -> Self {
+        Worker {
+            scene,
+            opts,
+            paths: PathQueue::default(),
+            next: PathQueue::default(),
+            verts: VertexBatch::default(),
+            shadow: ShadowQueue::default(),
+            rng: Vec::new(),
+            radiance: Vec::new(),
+            guided,
+        }
+    }
+
+    /// Traces sample `s` of pixels `[start, start + count)` into `self.radiance`.
+    pub(crate) fn trace_sample(
+        &mut self,
+        start: usize,
+        count: usize,
+        width: u32,
+        height: u32,
+        s: u32,
+    ) {
+        let max_depth = self.opts.max_depth;
+        self.paths.clear();
+        self.rng.clear();
+        self.radiance.clear();
+        self.radiance.resize(count, Vec3::ZERO);
+        if let Some(g) = &mut self.guided {
+            g.begin_sample(count);
+        }
+        for i in 0..count {
+            let pix = start + i;
+            let (x, y) = ((pix % width as usize) as f32, (pix / width as usize) as f32);
+            let mut rng = Rng::new(self.opts.seed, pix as u64, s as u64);
+            let (u, v) = (
+                (x + rng.next_f32()) / width as f32,
+                (y + rng.next_f32()) / height as f32,
+            );
+            let (o, d) = self.scene.camera.ray(u, v);
+            self.rng.push(rng);
+            self.paths.push(i as u32, o, d, Vec3::ONE, 0.0, true);
+        }
+        let nee = self.opts.integrator == IntegratorKind::PtNee;
+        let mut bounce = 0u32;
+        while !self.paths.slot.is_empty() && bounce < max_depth {
+            self.stage_intersect_and_emission(bounce);
+            if self.guided.is_some() {
+                // Guided: the batched guide query replaces the no-op hook and makes every
+                // sampling decision of the bounce (light samples, guide/BSDF selection).
+                crate::guided::stage_guide_query(self, nee);
+                if nee {
+                    crate::guided::stage_guided_nee(self);
+                    self.stage_shadow();
+                }
+                crate::guided::stage_guided_continue(self);
+            } else {
+                guiding_query(&self.verts);
+                if nee {
+                    self.stage_nee();
+                    self.stage_shadow();
+                }
+                self.stage_bsdf_sample();
+            }
+            std::mem::swap(&mut self.paths, &mut self.next);
+            bounce += 1;
+        }
+        if let Some(g) = &mut self.guided {
+            g.end_sample();
+        }
+    }
+
     /// Renders pixels `[start, start + count)` and returns per-pixel (sum, sum of squares).
     fn block(
         &mut self,
@@ -236,36 +326,8 @@ impl Worker<'_> {
     ) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
         let mut sum = vec![[0.0f64; 3]; count];
         let mut sum2 = vec![[0.0f64; 3]; count];
-        let max_depth = self.opts.max_depth;
         for s in 0..self.opts.spp {
-            self.paths.clear();
-            self.rng.clear();
-            self.radiance.clear();
-            self.radiance.resize(count, Vec3::ZERO);
-            for i in 0..count {
-                let pix = start + i;
-                let (x, y) = ((pix % width as usize) as f32, (pix / width as usize) as f32);
-                let mut rng = Rng::new(self.opts.seed, pix as u64, s as u64);
-                let (u, v) = (
-                    (x + rng.next_f32()) / width as f32,
-                    (y + rng.next_f32()) / height as f32,
-                );
-                let (o, d) = self.scene.camera.ray(u, v);
-                self.rng.push(rng);
-                self.paths.push(i as u32, o, d, Vec3::ONE, 0.0, true);
-            }
-            let mut bounce = 0u32;
-            while !self.paths.slot.is_empty() && bounce < max_depth {
-                self.stage_intersect_and_emission(bounce);
-                guiding_query(&self.verts);
-                if self.opts.integrator == IntegratorKind::PtNee {
-                    self.stage_nee();
-                    self.stage_shadow();
-                }
-                self.stage_bsdf_sample();
-                std::mem::swap(&mut self.paths, &mut self.next);
-                bounce += 1;
-            }
+            self.trace_sample(start, count, width, height, s);
             for i in 0..count {
                 let l = self.radiance[i];
                 for c in 0..3 {
@@ -279,7 +341,7 @@ impl Worker<'_> {
     }
 
     /// Stages 1 and 2: closest hit, emission (with MIS), compaction into the vertex batch.
-    fn stage_intersect_and_emission(&mut self, bounce: u32) {
+    pub(crate) fn stage_intersect_and_emission(&mut self, bounce: u32) {
         let scene = self.scene;
         self.verts.clear();
         let continue_path = bounce + 1 < self.opts.max_depth;
@@ -291,6 +353,7 @@ impl Worker<'_> {
             let slot = self.paths.slot[i];
             let beta = self.paths.beta[i];
             let shape = &scene.shapes[hit.shape as usize];
+            let (mut le_full, mut le_mis) = (Vec3::ZERO, Vec3::ZERO);
             if let Some(le) = shape.emission {
                 let cos_l = hit.ns.dot(-d);
                 if cos_l > 0.0 {
@@ -303,7 +366,11 @@ impl Worker<'_> {
                         power_heuristic(self.paths.pdf[i], pdf_light)
                     };
                     self.radiance[slot as usize] += beta * le * w;
+                    (le_full, le_mis) = (le, le * w);
                 }
+            }
+            if let Some(g) = &mut self.guided {
+                g.record_hit(slot, le_full, le_mis);
             }
             if !continue_path {
                 continue;
@@ -367,13 +434,17 @@ impl Worker<'_> {
     }
 
     /// Stage 5: trace shadow rays and accumulate unoccluded light.
-    fn stage_shadow(&mut self) {
+    pub(crate) fn stage_shadow(&mut self) {
         for i in 0..self.shadow.slot.len() {
             if !self
                 .scene
                 .occluded(self.shadow.o[i], self.shadow.d[i], 0.0, self.shadow.tmax[i])
             {
-                self.radiance[self.shadow.slot[i] as usize] += self.shadow.contrib[i];
+                let slot = self.shadow.slot[i];
+                self.radiance[slot as usize] += self.shadow.contrib[i];
+                if let Some(g) = &mut self.guided {
+                    g.record_nee(slot, self.shadow.local[i]);
+                }
             }
         }
     }
@@ -431,16 +502,7 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Image {
     std::thread::scope(|s| {
         for _ in 0..threads.min(nblocks) {
             s.spawn(|| {
-                let mut w = Worker {
-                    scene,
-                    opts: *opts,
-                    paths: PathQueue::default(),
-                    next: PathQueue::default(),
-                    verts: VertexBatch::default(),
-                    shadow: ShadowQueue::default(),
-                    rng: Vec::new(),
-                    radiance: Vec::new(),
-                };
+                let mut w = Worker::new(scene, *opts, None);
                 loop {
                     let b = next.fetch_add(1, Ordering::Relaxed);
                     if b >= nblocks {

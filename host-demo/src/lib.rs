@@ -4,10 +4,13 @@
 //!   `builtin:cornell-box`, `builtin:furnace` and `builtin:door` in code.
 //! * [`scene`] holds triangles and analytic spheres in an `obvhs` CWBVH.
 //! * [`integrator`] is the wavefront `pt` / `pt-nee` renderer, [`output`] writes EXR.
+//! * [`guided`] is the `guided` integrator (online-trained path guiding through [`guide`]).
 
 pub mod bsdf;
 pub mod builtin;
 pub mod error;
+pub mod guide;
+pub mod guided;
 pub mod integrator;
 pub mod math;
 pub mod obj;

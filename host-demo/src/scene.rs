@@ -369,6 +369,23 @@ impl SceneBuilder {
 }
 
 impl Scene {
+    /// Axis-aligned bounding box `(min, max)` of every primitive (the guiding grid's box);
+    /// `(0, 0)` for an empty scene.
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        let mut lo = Vec3::splat(f32::INFINITY);
+        let mut hi = Vec3::splat(f32::NEG_INFINITY);
+        for p in &self.prims {
+            let b = p.aabb();
+            lo = lo.min(Vec3::from(b.min));
+            hi = hi.max(Vec3::from(b.max));
+        }
+        if lo.cmple(hi).all() {
+            (lo, hi)
+        } else {
+            (Vec3::ZERO, Vec3::ZERO)
+        }
+    }
+
     /// Closest hit along the unit-direction ray `o + t d`, `t` in `(tmin, tmax)`.
     pub fn intersect(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<SurfaceHit> {
         let ray = Ray::new(o.into(), d.into(), tmin, tmax);
