@@ -103,6 +103,10 @@ fn distributions(c: &mut Criterion) {
         let s = nasg8.sample(u);
         (s.direction, s.pdf)
     });
+    bench_batch(c, "nasg_mixture_k8_pdf_only", |u| {
+        let d = square_to_uniform_sphere(u);
+        (d, nasg8.pdf(d))
+    });
 }
 
 fn factorised(c: &mut Criterion) {

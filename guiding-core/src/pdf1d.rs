@@ -145,6 +145,16 @@ pub fn linear_cdf(t: f32, a: f32, b: f32) -> f32 {
     (t * (a * (2.0 - t) + b * t) / (a + b)).clamp(0.0, 1.0)
 }
 
+/// `x` if it is positive, else 0 (also for NaN).
+#[inline]
+fn non_negative(x: f32) -> f32 {
+    if x > 0.0 {
+        x
+    } else {
+        0.0
+    }
+}
+
 /// `u` clamped to `[0, 1)`, NaN to 0.
 #[inline]
 fn clamp_unit(u: f32) -> f32 {
@@ -223,7 +233,9 @@ fn stencil<const N: usize>(
 #[inline]
 fn bin_index<const N: usize>(s: f32) -> usize {
     if s > 0.0 {
-        let i = s as usize;
+        // Through u32: the same saturating truncation for every s > 0 that
+        // can index a bin, and a cheaper conversion than f32 → u64.
+        let i = s as u32 as usize;
         if i < N {
             i
         } else {
@@ -361,9 +373,15 @@ impl<const N: usize> Pdf1d<N> {
     #[inline]
     #[must_use]
     pub fn pdf(&self, x: f32) -> f32 {
-        let boundary = self.boundary();
-        let x = reduce(x, boundary);
-        let (i, j, f) = stencil::<N>(x, self.interpolation(), boundary);
+        self.pdf_in_unit_interval(reduce(x, self.boundary()))
+    }
+
+    /// [`Self::pdf`] of an `x` already in `[0, 1]` (where the reduction is the
+    /// identity), for the samplers and the factorised density, whose `x`
+    /// always is.
+    #[inline]
+    pub(crate) fn pdf_in_unit_interval(&self, x: f32) -> f32 {
+        let (i, j, f) = stencil::<N>(x, self.interpolation(), self.boundary());
         (1.0 - f) * self.values[i] + f * self.values[j]
     }
 
@@ -384,6 +402,21 @@ impl<const N: usize> Pdf1d<N> {
         }
     }
 
+    /// The linear density's values at `x = 0` and `x = 1`: the seam average
+    /// for wrap, the end bins for clamp.
+    #[inline]
+    fn end_values(&self) -> (f32, f32) {
+        let first = self.values[0];
+        let last = self.values[N - 1];
+        match self.boundary() {
+            Boundary::Wrap => {
+                let e = 0.5 * (first + last);
+                (e, e)
+            }
+            Boundary::Clamp => (first, last),
+        }
+    }
+
     /// Piece `k` as `(start, width, value at start, value at end)`.
     #[inline]
     fn piece(&self, k: usize) -> (f32, f32, f32, f32) {
@@ -393,13 +426,7 @@ impl<const N: usize> Pdf1d<N> {
             Interpolation::Linear => {
                 let first = self.values[0];
                 let last = self.values[N - 1];
-                let (e0, e1) = match self.boundary() {
-                    Boundary::Wrap => {
-                        let e = 0.5 * (first + last);
-                        (e, e)
-                    }
-                    Boundary::Clamp => (first, last),
-                };
+                let (e0, e1) = self.end_values();
                 if k == 0 {
                     (0.0, 0.5 * inv_n, e0, first)
                 } else if k < N {
@@ -439,8 +466,17 @@ impl<const N: usize> Pdf1d<N> {
     /// Draws `x ∈ [0, 1)` from `u ∈ [0, 1)` (clamped; NaN reads as 0) by
     /// inverting the CDF, and returns `(x, p(x))`.
     ///
-    /// The pieces are scanned accumulating their masses; inside the chosen
-    /// piece, [`sample_linear`] inverts the quadratic CDF. The returned density
+    /// The running sums of the piece masses are formed in one tight pass
+    /// (specialised per interpolation, no per-piece dispatch), and the chosen
+    /// piece — the first whose running sum exceeds `u` times the total — is
+    /// the number of running sums not above that target (a branch-free
+    /// count, vectorised; pieces of zero mass are never chosen, as their
+    /// running sum equals the previous one). The choice and the position
+    /// within the piece are bit-identical to a scan accumulating the masses.
+    /// Inside the chosen piece, [`sample_linear`] inverts the quadratic CDF
+    /// (for nearest interpolation the piece is flat and its inverse is the
+    /// identity, which is exactly what `sample_linear` returns for equal end
+    /// values, so it is skipped). The returned density
     /// is [`Self::pdf`] at the returned `x`, so the two always agree exactly.
     /// Should rounding place `x` on a point of zero density (the zero end of a
     /// piece, or across the edge into an empty bin; probability ~2⁻²⁴), `x`
@@ -451,44 +487,76 @@ impl<const N: usize> Pdf1d<N> {
     #[must_use]
     pub fn sample(&self, u: f32) -> (f32, f32) {
         let u = clamp_unit(u);
-        let total = self.total_mass();
+        let linear = self.interpolation() == Interpolation::Linear;
+        let inv_n = 1.0 / N as f32;
+        // Running sums of the piece masses `w (a + b) / 2` (as `piece_mass`;
+        // negative and NaN masses, which no constructor produces, count as
+        // zero) over pieces 0..N; the linear end piece N is kept apart. One
+        // serial pass: the running sum is the only loop-carried dependency.
+        let mut ends = [0.0f32; N];
+        let mut acc = 0.0f32;
+        let mut last_mass = 0.0;
+        if linear {
+            let (e0, e1) = self.end_values();
+            let half = 0.5 * inv_n;
+            acc = non_negative(0.5 * half * (e0 + self.values[0]));
+            ends[0] = acc;
+            let mut k = 1;
+            while k < N {
+                acc += non_negative(0.5 * inv_n * (self.values[k - 1] + self.values[k]));
+                ends[k] = acc;
+                k += 1;
+            }
+            last_mass = non_negative(0.5 * half * (self.values[N - 1] + e1));
+        } else {
+            // `w (v + v) / 2 = v / N`, the same f32 (the factors ½ and 2 are
+            // exact) for every value below f32::MAX / 2.
+            let mut k = 0;
+            while k < N {
+                acc += non_negative(inv_n * self.values[k]);
+                ends[k] = acc;
+                k += 1;
+            }
+        }
+        let total = acc + last_mass;
         if !(total > 0.0 && total <= f32::MAX) {
             // Not a density built by the constructors (e.g. zeroed).
             return (u, self.pdf(u));
         }
         let target = u * total;
-        let count = self.piece_count();
-        let mut cum = 0.0;
-        let mut chosen = count;
-        let mut local = 0.0;
-        let mut last = count;
-        let mut last_cum = 0.0;
+        // First piece whose running sum exceeds the target: the count of
+        // running sums that do not (they are non-decreasing).
+        let mut chosen = 0;
         let mut k = 0;
-        while k < count {
-            let m = self.piece_mass(k);
-            if m > 0.0 {
-                if target < cum + m {
-                    chosen = k;
-                    local = (target - cum) / m;
-                    break;
-                }
-                last = k;
-                last_cum = cum;
-                cum += m;
-            }
+        while k < N {
+            chosen += usize::from(target >= ends[k]);
             k += 1;
         }
-        if chosen == count {
-            // Rounding left the target beyond the last partial sum: the last
-            // non-empty piece takes it (`last < count` as total > 0).
-            chosen = if last < count { last } else { 0 };
-            local = (target - last_cum) / self.piece_mass(chosen);
+        let count = if linear { N + 1 } else { N };
+        if chosen == N && !(linear && target < total) {
+            // Rounding left the target beyond the last running sum: the last
+            // non-empty piece takes it (one exists, as total > 0).
+            chosen = count;
+            while chosen > 0 {
+                chosen -= 1;
+                let below = if chosen > 0 { ends[chosen - 1] } else { 0.0 };
+                let end = if chosen < N { ends[chosen] } else { total };
+                if end > below {
+                    break;
+                }
+            }
         }
-        let local = clamp_unit(local);
+        let below = if chosen > 0 { ends[chosen - 1] } else { 0.0 };
+        let local = clamp_unit((target - below) / self.piece_mass(chosen));
         let (start, width, a, b) = self.piece(chosen);
-        let t = sample_linear(local, a, b);
+        let t = if linear {
+            sample_linear(local, a, b)
+        } else {
+            // A flat piece: `sample_linear(local, a, a)` is exactly `local`.
+            local
+        };
         let mut x = clamp_unit(start + width * t);
-        let mut p = self.pdf(x);
+        let mut p = self.pdf_in_unit_interval(x);
         // Rounding put x on zero density: step a few ulps into the piece …
         let mut step = 0;
         while (p <= 0.0 || p.is_nan()) && step < 4 {
@@ -498,14 +566,14 @@ impl<const N: usize> Pdf1d<N> {
                 x + (x * f32::EPSILON).max(f32::MIN_POSITIVE)
             };
             x = clamp_unit(x);
-            p = self.pdf(x);
+            p = self.pdf_in_unit_interval(x);
             step += 1;
         }
         // … and if the density there still underflows, 2⁻¹⁰ of the width.
         if p <= 0.0 || p.is_nan() {
             let t = t.clamp(1.0 / 1024.0, 1.0 - 1.0 / 1024.0);
             x = clamp_unit(start + width * t);
-            p = self.pdf(x);
+            p = self.pdf_in_unit_interval(x);
         }
         (x, p)
     }

@@ -210,3 +210,301 @@ fn copysign_matches_std() {
         assert!(math::copysign(f32::NAN, x).is_nan());
     }
 }
+
+// ---------------------------------------------------------------------------
+// The inlined, branch-free twins of libm (ln, ln_1p, expm1, sin/cos, atan2)
+// and the half-line exp/expm1 of the lobe loops, against f64 references.
+
+/// Error of `got` against the exact `want`, in ulps of the correctly rounded
+/// result (the spacing of f32 at `want`, subnormal spacing at the bottom).
+fn ulp_error(got: f32, want: f64) -> f64 {
+    let w = want as f32;
+    let a = w.abs();
+    let ulp = if a < f32::MAX {
+        f64::from(f32::from_bits(a.to_bits() + 1)) - f64::from(a)
+    } else {
+        f64::from(a) - f64::from(f32::from_bits(a.to_bits() - 1))
+    };
+    (f64::from(got) - want).abs() / ulp
+}
+
+/// ≥ 10⁶ inputs in `[lo, hi]` (finite, `lo < hi`): every `step`-th f32 bit
+/// pattern of the range (so every binade, subnormals included, is covered
+/// evenly) plus uniform random points.
+fn sweep(lo: f32, hi: f32, seed: u64) -> Vec<f32> {
+    let mut xs = Vec::new();
+    // Map f32 to a monotone integer line and walk it.
+    let key = |x: f32| {
+        let b = x.to_bits() as i64;
+        if b < 0x8000_0000 {
+            b
+        } else {
+            0x8000_0000 - b
+        }
+    };
+    let unkey = |k: i64| {
+        if k >= 0 {
+            f32::from_bits(k as u32)
+        } else {
+            f32::from_bits((0x8000_0000 - k) as u32)
+        }
+    };
+    let (a, b) = (key(lo), key(hi));
+    let step = ((b - a) / 1_000_000).max(1);
+    let mut k = a;
+    while k <= b {
+        xs.push(unkey(k));
+        k += step;
+    }
+    xs.push(hi);
+    let mut rng = Pcg32::new(seed, 7);
+    for _ in 0..200_000 {
+        xs.push(rng.uniform(lo, hi));
+    }
+    xs
+}
+
+/// Checks `f` against `reference` on `xs` wherever the reference is a
+/// finite f32 with |result| ≥ `floor` (below it, absolute error ≤
+/// `abs_tol`); returns the worst ulp error.
+fn check_ulps(
+    name: &str,
+    xs: &[f32],
+    f: impl Fn(f32) -> f32,
+    reference: impl Fn(f64) -> f64,
+    max_ulps: f64,
+    floor: f64,
+    abs_tol: f64,
+) -> f64 {
+    let mut worst = 0.0f64;
+    for &x in xs {
+        let want = reference(f64::from(x));
+        let got = f(x);
+        if !(want as f32).is_finite() {
+            continue;
+        }
+        if want.abs() < floor {
+            let err = (f64::from(got) - want).abs();
+            assert!(err <= abs_tol, "{name}({x:e}) = {got:e} vs {want:e}");
+            continue;
+        }
+        let e = ulp_error(got, want);
+        worst = worst.max(e);
+        assert!(
+            e <= max_ulps,
+            "{name}({x:e}) = {got:e} vs {want:e} ({e:.2} ulp)"
+        );
+    }
+    println!("{name}: worst {worst:.3} ulp over {} points", xs.len());
+    worst
+}
+
+#[test]
+fn ln_inline_is_within_two_ulp() {
+    let xs = sweep(f32::from_bits(1), f32::MAX, 11);
+    check_ulps("ln_inline", &xs, math::ln_inline, f64::ln, 2.0, 0.0, 0.0);
+    // Agrees with libm's ln to the same accuracy, and at the special values.
+    assert_eq!(math::ln_inline(1.0), 0.0);
+    assert_eq!(math::ln_inline(0.0), f32::NEG_INFINITY);
+    assert_eq!(math::ln_inline(-0.0), f32::NEG_INFINITY);
+    assert_eq!(math::ln_inline(f32::INFINITY), f32::INFINITY);
+    assert!(math::ln_inline(-1.0).is_nan());
+    assert!(math::ln_inline(f32::NEG_INFINITY).is_nan());
+    assert!(math::ln_inline(f32::NAN).is_nan());
+    assert!((math::ln_inline(f32::MIN_POSITIVE) - (-87.336_55)).abs() < 1e-5);
+}
+
+#[test]
+fn ln_1p_inline_is_within_two_ulp() {
+    let mut xs = sweep(-1.0 + f32::EPSILON / 2.0, -f32::from_bits(1), 12);
+    xs.extend(sweep(f32::from_bits(1), f32::MAX, 13));
+    check_ulps(
+        "ln_1p_inline",
+        &xs,
+        math::ln_1p_inline,
+        f64::ln_1p,
+        2.0,
+        0.0,
+        0.0,
+    );
+    assert_eq!(math::ln_1p_inline(-1.0), f32::NEG_INFINITY);
+    assert_eq!(math::ln_1p_inline(f32::INFINITY), f32::INFINITY);
+    assert!(math::ln_1p_inline(-1.5).is_nan());
+    assert!(math::ln_1p_inline(f32::NEG_INFINITY).is_nan());
+    assert!(math::ln_1p_inline(f32::NAN).is_nan());
+    assert_eq!(math::ln_1p_inline(0.0).to_bits(), 0.0f32.to_bits());
+    assert_eq!(math::ln_1p_inline(-0.0).to_bits(), (-0.0f32).to_bits());
+    assert_eq!(math::ln_1p_inline(1e-40), 1e-40);
+}
+
+#[test]
+fn expm1_inline_is_within_two_ulp() {
+    let mut xs = sweep(-104.0, -f32::from_bits(1), 14);
+    xs.extend(sweep(f32::from_bits(1), 88.7, 15));
+    check_ulps(
+        "expm1_inline",
+        &xs,
+        math::expm1_inline,
+        f64::exp_m1,
+        2.0,
+        0.0,
+        0.0,
+    );
+    let neg: Vec<f32> = xs.iter().copied().filter(|&x| x <= 0.0).collect();
+    check_ulps(
+        "expm1_nonpositive",
+        &neg,
+        math::expm1_nonpositive,
+        f64::exp_m1,
+        2.0,
+        0.0,
+        0.0,
+    );
+    for f in [math::expm1_inline, math::expm1_nonpositive] {
+        assert_eq!(f(0.0).to_bits(), 0.0f32.to_bits());
+        assert_eq!(f(-0.0).to_bits(), (-0.0f32).to_bits());
+        assert_eq!(f(-1e-40), -1e-40);
+        assert_eq!(f(-1e30), -1.0);
+        assert_eq!(f(f32::NEG_INFINITY), -1.0);
+        assert!(f(f32::NAN).is_nan());
+    }
+    assert_eq!(math::expm1_inline(88.8), f32::INFINITY);
+    assert_eq!(math::expm1_inline(f32::INFINITY), f32::INFINITY);
+    assert_eq!(math::expm1_nonpositive(5.0), 0.0);
+}
+
+#[test]
+fn exp_nonpositive_is_within_two_ulp() {
+    let xs = sweep(-87.3, -f32::from_bits(1), 16);
+    check_ulps(
+        "exp_nonpositive",
+        &xs,
+        math::exp_nonpositive,
+        f64::exp,
+        2.0,
+        0.0,
+        0.0,
+    );
+    // Agrees with `exp` within its own tolerance everywhere on the half-line.
+    for &x in &xs {
+        let (a, b) = (math::exp_nonpositive(x), math::exp(x));
+        assert!(ulp_distance(a, b) <= 2, "{x}: {a} vs {b}");
+    }
+    assert_eq!(math::exp_nonpositive(0.0), 1.0);
+    assert_eq!(math::exp_nonpositive(-0.0), 1.0);
+    assert_eq!(math::exp_nonpositive(3.0), 1.0);
+    assert_eq!(math::exp_nonpositive(-87.5), 0.0);
+    assert_eq!(math::exp_nonpositive(-1e30), 0.0);
+    assert_eq!(math::exp_nonpositive(f32::NEG_INFINITY), 0.0);
+    assert!(math::exp_nonpositive(f32::NAN).is_nan());
+}
+
+#[test]
+fn sin_cos_turns_matches_f64() {
+    // Every f32 in [−4, 4] is too many; a dense sweep of the bit patterns
+    // (all binades down to subnormals) plus random points.
+    let mut xs = sweep(-4.0, -f32::from_bits(1), 17);
+    xs.extend(sweep(0.0, 4.0, 18));
+    let tau = std::f64::consts::TAU;
+    // Within 2 ulp of the result, or 10⁻⁷ absolute where the result is
+    // below 2⁻¹⁰ (near its zeros, where ulps shrink but the argument's own
+    // resolution does not).
+    check_ulps(
+        "sin_cos_turns.0",
+        &xs,
+        |u| math::sin_cos_turns(u).0,
+        |u| (tau * u).sin(),
+        2.0,
+        1.0 / 1024.0,
+        1e-7,
+    );
+    check_ulps(
+        "sin_cos_turns.1",
+        &xs,
+        |u| math::sin_cos_turns(u).1,
+        |u| (tau * u).cos(),
+        2.0,
+        1.0 / 1024.0,
+        1e-7,
+    );
+    // Exact reduction: the quarter turns are exact.
+    for (u, s, c) in [
+        (0.0, 0.0, 1.0),
+        (0.25, 1.0, 0.0),
+        (0.5, 0.0, -1.0),
+        (0.75, -1.0, 0.0),
+        (1.0, 0.0, 1.0),
+        (-0.25, -1.0, 0.0),
+    ] {
+        let (gs, gc) = math::sin_cos_turns(u);
+        assert!(gs == s && gc == c, "{u}: ({gs}, {gc})");
+    }
+    assert_eq!(math::sin_cos_turns(1e20), (0.0, 1.0));
+    for u in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+        let (s, c) = math::sin_cos_turns(u);
+        assert!(s.is_nan() && c.is_nan());
+    }
+}
+
+#[test]
+fn atan2_turns_matches_f64() {
+    let mut rng = Pcg32::new(19, 7);
+    let tau = std::f64::consts::TAU;
+    let mut worst = 0.0f64;
+    let mut check = |y: f32, x: f32| {
+        let got = math::atan2_turns(y, x);
+        let want = f64::from(y).atan2(f64::from(x)) / tau;
+        // 4·10⁻⁹ absolute or 3 ulp of the result.
+        let err = (f64::from(got) - want).abs();
+        let e = if err <= 4e-9 {
+            0.0
+        } else {
+            ulp_error(got, want)
+        };
+        worst = worst.max(e);
+        assert!(
+            err <= 4e-9 || e <= 3.0,
+            "atan2_turns({y:e}, {x:e}) = {got:e} vs {want:e}"
+        );
+    };
+    // Angles dense on the circle at magnitudes from subnormal to huge.
+    for i in 0..1_000_000 {
+        let phi = tau * (i as f64 + 0.5) / 1e6;
+        let r = 10f64.powf(-40.0 + 78.0 * rng.next_f64());
+        check((r * phi.sin()) as f32, (r * phi.cos()) as f32);
+    }
+    // Independent random bit patterns.
+    for _ in 0..500_000 {
+        let y = f32::from_bits(rng.next_u32());
+        let x = f32::from_bits(rng.next_u32());
+        if y.is_finite() && x.is_finite() {
+            check(y, x);
+        }
+    }
+    println!("atan2_turns: worst {worst:.3} ulp beyond 4e-9");
+    // IEEE atan2 conventions for zeros and infinities.
+    let inf = f32::INFINITY;
+    for (y, x, want) in [
+        (0.0f32, 0.0f32, 0.0f32),
+        (-0.0, 0.0, -0.0),
+        (0.0, -0.0, 0.5),
+        (-0.0, -0.0, -0.5),
+        (0.0, -1.0, 0.5),
+        (-0.0, -1.0, -0.5),
+        (1.0, 0.0, 0.25),
+        (-1.0, 0.0, -0.25),
+        (inf, inf, 0.125),
+        (-inf, -inf, -0.375),
+        (1.0, inf, 0.0),
+        (1.0, -inf, 0.5),
+        (inf, 1.0, 0.25),
+    ] {
+        let got = math::atan2_turns(y, x);
+        assert!(
+            got.to_bits() == want.to_bits() || (got - want).abs() < 1e-7,
+            "atan2_turns({y}, {x}) = {got} vs {want}"
+        );
+    }
+    assert!(math::atan2_turns(f32::NAN, 1.0).is_nan());
+    assert!(math::atan2_turns(1.0, f32::NAN).is_nan());
+}

@@ -39,8 +39,9 @@
 
 use crate::frame::Frame;
 use crate::lobe::DirectionSample;
-use crate::math::{atan2, exp, expm1, ln, ln_1p, safe_sqrt, sanitize, sin_cos, sqrt};
-use crate::math::{x_over_one_minus_exp_neg, FOUR_PI, ONE_MINUS_EPSILON, PI};
+use crate::math::{atan2, exp, exp_nonpositive, expm1, expm1_nonpositive, ln};
+use crate::math::{ln_1p, ln_normal, safe_sqrt, sanitize, sin_cos, sin_cos_turns, sqrt};
+use crate::math::{x_over_one_minus_exp_neg, FOUR_PI, ONE_MINUS_EPSILON};
 use bytemuck::{Pod, Zeroable};
 use glam::{Vec2, Vec3};
 
@@ -203,6 +204,53 @@ pub(crate) fn log_eval(lambda: f32, a: f32, epsilon: f32, ln_t: f32, cos2_phi: f
     2.0 * lambda * expm1((1.0 + b_minus_1) * ln_t) + b_minus_1 * ln_t
 }
 
+/// `ln G` at the local coordinates `(v_x, v_y, v_z)` of a unit direction
+/// (`(0, 0, 0)`: the antipode convention), in one branch-free pass with
+/// inlined math only, so that the `K`-lobe loop of
+/// [`NasgMixture::pdf`](crate::mixture::nasg::NasgMixture::pdf) vectorises;
+/// also the density of [`NasgLobe::pdf`], so that a mixture and its lobes
+/// agree to the last bit per term.
+///
+/// The same quantities as [`local_coords`] + [`log_eval`], formed without
+/// their branches:
+/// - `cos²φ = v_x² / (v_x² + v_y²)` (`0` at the poles), with `v_x, v_y`
+///   scaled by `2⁶⁰` first when `v_x² + v_y² < 10⁻³⁰` (within 10⁻¹⁵ rad of
+///   a pole), so that the azimuth survives where the squares underflow;
+/// - `q = ½ sin²θ / (1 + |cos θ|)`: `1 − t` on the axis side (`v_z > 0`),
+///   `t` on the antipode side, each without cancellation;
+/// - `ln t = ln(1 − q)` (its rounding error recovered exactly and added as
+///   `e / (1 − q)`, i.e. `ln_1p(−q)`) or `ln max(q, f32::MIN_POSITIVE)`, by a
+///   single logarithm of the selected argument;
+/// - `ln G = 2λ expm1(b ln t) + (b − 1) ln t`.
+#[inline]
+pub(crate) fn log_g_local(vx: f32, vy: f32, vz: f32, lambda: f32, a: f32, epsilon: f32) -> f32 {
+    let sin2 = vx * vx + vy * vy;
+    // cos²φ; rescued from underflow near the poles by an exact power-of-two
+    // scale (2⁶⁰), and 0 at the poles themselves.
+    let tiny = sin2 < 1e-30;
+    let scale = if tiny { 1.152_921_5e18 } else { 1.0 };
+    let sx = vx * scale;
+    let sy = vy * scale;
+    let sx2 = sx * sx;
+    let s2 = sx2 + sy * sy;
+    let cos2_phi = if s2 > 0.0 { (sx2 / s2).min(1.0) } else { 0.0 };
+    let front = vz > 0.0;
+    let q = (0.5 * sin2 / (1.0 + vz.abs())).min(1.0);
+    // Axis side: ln(1 − q) = ln u + e/u with u = fl(1 − q) and its rounding
+    // error e = (1 − u) − q (exact, Fast2Sum); antipode side: ln q.
+    let one_minus_q = 1.0 - q;
+    let u = if front {
+        one_minus_q
+    } else {
+        q.max(f32::MIN_POSITIVE)
+    };
+    let err = if front { (1.0 - one_minus_q) - q } else { 0.0 };
+    // u ∈ [MIN_POSITIVE, 1] is normal: the raw logarithm needs no selects.
+    let ln_t = ln_normal(u, err / u);
+    let b_minus_1 = epsilon + a * cos2_phi;
+    2.0 * lambda * expm1_nonpositive((1.0 + b_minus_1) * ln_t) + b_minus_1 * ln_t
+}
+
 /// `−ln K = ln(2λ / (1 − e^{−2λ})) − ln 4π + ½ ln(1 + ε) + ½ ln(1 + ε + a)`
 /// (NASG eq. 19 with ε), accurate for every λ > 0 (the ratio is evaluated by
 /// [`x_over_one_minus_exp_neg`]).
@@ -358,8 +406,16 @@ impl NasgLobe {
     #[inline]
     #[must_use]
     pub fn log_eval(&self, direction: Vec3) -> f32 {
-        let l = self.local(direction);
-        log_eval(self.lambda, self.a, self.epsilon, l.ln_t, l.cos2_phi)
+        let (u, _) = unit_direction(direction);
+        // An invalid direction is (0, 0, 0): the antipode.
+        log_g_local(
+            u.dot(Vec3::from_array(self.x)),
+            u.dot(Vec3::from_array(self.y)),
+            u.dot(Vec3::from_array(self.z)),
+            self.lambda,
+            self.a,
+            self.epsilon,
+        )
     }
 
     /// Unnormalised value `G(direction) ∈ [0, 1]` (1 on the axis).
@@ -388,35 +444,42 @@ impl NasgLobe {
     fn sample_half(&self, w: f32, west: bool, xi: f32) -> DirectionSample {
         let (lambda, a, epsilon) = (self.lambda, self.a, self.epsilon);
         // Azimuth: tan φ₀ = c tan ψ, ψ = π(w − ½), taken as the direction
-        // (cos ψ, c sin ψ) so that no tangent is ever evaluated.
+        // (cos ψ, c sin ψ) so that no tangent is ever evaluated. ψ in turns
+        // is ½(w − ½) (the scaling by ½ is exact).
         let c = phi_stretch(a, epsilon);
-        let (s_psi, c_psi) = sin_cos(PI * (unit_interval(w) - 0.5));
+        let (s_psi, c_psi) = sin_cos_turns(0.5 * (unit_interval(w) - 0.5));
         let c_psi = c_psi.max(0.0);
         let y_psi = c * s_psi;
         // ≥ 1 up to rounding (c ≥ 1), never 0.
-        let n = sqrt(c_psi * c_psi + y_psi * y_psi);
-        let mut cos_phi = c_psi / n;
-        let mut sin_phi = y_psi / n;
+        let inv_n = 1.0 / sqrt(c_psi * c_psi + y_psi * y_psi);
+        let mut cos_phi = c_psi * inv_n;
+        let mut sin_phi = y_psi * inv_n;
         let cos2_phi = (cos_phi * cos_phi).min(1.0);
         if west {
             cos_phi = -cos_phi;
             sin_phi = -sin_phi;
         }
-        let b = 1.0 + epsilon + a * cos2_phi;
+        let b_minus_1 = epsilon + a * cos2_phi;
+        let b = 1.0 + b_minus_1;
         // u = t^b: 1 − u = −ln(1 − (1 − ξ)(1 − e^{−2λ})) / (2λ), with both tails
-        // cut at NASG_TAIL_CUT = 2⁻²⁴ (ONE_MINUS_EPSILON = 1 − 2⁻²⁴).
+        // cut at NASG_TAIL_CUT = 2⁻²⁴ (ONE_MINUS_EPSILON = 1 − 2⁻²⁴). The
+        // divisions by 2λ and b are multiplications by reciprocals formed off
+        // the dependency chain of the two logarithms.
         let one_minus_xi = (1.0 - unit_interval(xi)).min(ONE_MINUS_EPSILON);
         let one_minus_u =
-            (-ln_1p(-one_minus_xi * self.one_minus_e2l) / (2.0 * lambda)).min(ONE_MINUS_EPSILON);
-        let ln_t = ln_1p(-one_minus_u) / b;
-        let h = -expm1(ln_t);
-        let t = exp(ln_t);
+            (-ln_1p(-one_minus_xi * self.one_minus_e2l) * (0.5 / lambda)).min(ONE_MINUS_EPSILON);
+        let ln_t = ln_1p(-one_minus_u) * (1.0 / b);
+        let h = -expm1_nonpositive(ln_t);
+        let t = exp_nonpositive(ln_t);
         // sin θ = √((1 − cos θ)(1 + cos θ)) = 2 √(h t); cos θ = t − h.
         let sin_theta = 2.0 * safe_sqrt(h * t);
         let local = Vec3::new(sin_theta * cos_phi, sin_theta * sin_phi, t - h);
+        // ln G = 2λ (t^b − 1) + (b − 1) ln t with t^b = u exactly: the
+        // sampled 1 − u stands in for −expm1(b ln t).
+        let log_g = -2.0 * lambda * one_minus_u + b_minus_1 * ln_t;
         DirectionSample {
             direction: self.frame().to_world(local),
-            pdf: exp(log_eval(lambda, a, epsilon, ln_t, cos2_phi) + self.log_norm),
+            pdf: exp(log_g + self.log_norm),
         }
     }
 

@@ -17,9 +17,9 @@
 
 use crate::frame::{normalize_or, Frame};
 use crate::lobe::DirectionSample;
-use crate::math::{atan2, exp, expm1, ln_1p, safe_sqrt, x_over_one_minus_exp_neg, INV_FOUR_PI};
-use crate::math::{INV_TWO_PI, ONE_MINUS_EPSILON, TWO_PI};
-use crate::sphere::{one_minus_cos_angle, spherical_direction};
+use crate::math::{atan2_turns, exp, exp_nonpositive, expm1, expm1_inline, safe_sqrt};
+use crate::math::{ln_1p, x_over_one_minus_exp_neg, INV_FOUR_PI, ONE_MINUS_EPSILON};
+use crate::sphere::{one_minus_cos_angle, spherical_direction_turns};
 use bytemuck::{Pod, Zeroable};
 use glam::{Vec2, Vec3};
 
@@ -117,7 +117,9 @@ impl VmfLobe {
         // 1 − cos θ = −ln(1 − (1 − ξ)(1 − e^{−2κ})) / κ, ξ cut at VMF_TAIL_CUT
         // and the result capped at the antipode.
         let xi = u_theta.max(VMF_TAIL_CUT);
-        let t = -ln_1p(-(1.0 - xi) * self.one_minus_e2k) / self.kappa;
+        // × (1/κ) rather than / κ: the reciprocal is formed in parallel with
+        // the logarithm, leaving a multiplication on the dependency chain.
+        let t = -ln_1p(-(1.0 - xi) * self.one_minus_e2k) * (1.0 / self.kappa);
         t.min(2.0)
     }
 
@@ -129,7 +131,7 @@ impl VmfLobe {
         let (direction, t) = self.sample_with_one_minus_cos(u);
         DirectionSample {
             direction,
-            pdf: self.norm * exp(-self.kappa * t),
+            pdf: self.norm * exp_nonpositive(-self.kappa * t),
         }
     }
 
@@ -145,7 +147,7 @@ impl VmfLobe {
     fn sample_with_one_minus_cos(&self, u: Vec2) -> (Vec3, f32) {
         let t = self.sample_one_minus_cos(u.y);
         let sin_theta = safe_sqrt(t * (2.0 - t));
-        let local = spherical_direction(sin_theta, 1.0 - t, TWO_PI * u.x);
+        let local = spherical_direction_turns(sin_theta, 1.0 - t, u.x);
         (Frame::from_z(self.mean()).to_world(local), t)
     }
 
@@ -159,18 +161,19 @@ impl VmfLobe {
         }
         let mean = self.mean();
         let local = Frame::from_z(mean).to_local(direction);
-        let mut phi = atan2(local.y, local.x);
+        // φ / 2π.
+        let mut phi = atan2_turns(local.y, local.x);
         if phi < 0.0 {
-            phi += TWO_PI;
+            phi += 1.0;
         }
         let t = one_minus_cos_angle(mean, direction);
         let one_minus_u = if self.kappa < VMF_KAPPA_UNIFORM {
             0.5 * t
         } else {
-            -expm1(-self.kappa * t) / self.one_minus_e2k
+            -expm1_inline(-self.kappa * t) / self.one_minus_e2k
         };
         Vec2::new(
-            (phi * INV_TWO_PI).clamp(0.0, ONE_MINUS_EPSILON),
+            phi.clamp(0.0, ONE_MINUS_EPSILON),
             (1.0 - one_minus_u).clamp(0.0, ONE_MINUS_EPSILON),
         )
     }

@@ -32,34 +32,89 @@ pub fn softmax<const K: usize>(logits: &[f32; K], weights: &mut [f32; K]) {
     }
 }
 
+/// `Σ terms`, summed pairwise in place (`terms` is clobbered): a tree of
+/// depth `⌈log₂ K⌉` instead of a chain of `K − 1` dependent additions, and
+/// for `K = 8` two vector additions and a horizontal one. `0` for `K = 0`.
+#[inline]
+pub fn pairwise_sum<const K: usize>(terms: &mut [f32; K]) -> f32 {
+    if K == 0 {
+        return 0.0;
+    }
+    let mut n = K;
+    while n > 1 {
+        // Fold the upper part [half, n) onto [0, n − half).
+        let half = n.div_ceil(2);
+        let mut i = 0;
+        while i < n - half {
+            terms[i] += terms[i + half];
+            i += 1;
+        }
+        n = half;
+    }
+    terms[0]
+}
+
 /// Picks a component with probability `weights[k]` from `u ∈ [0, 1)` and
 /// returns it with `u` rescaled to `[0, 1)` within that component, so the same
 /// random number can be reused for the component's own sampling.
 ///
 /// Components of weight zero are never chosen, also when rounding leaves `u`
 /// beyond the last partial sum. Returns `None` only if every weight is zero.
+///
+/// Branch-free in the common case: the partial sums `end_k` of the positive
+/// weights are formed first, and the chosen component is the number of them
+/// that `u` is not below (the first `k` with `u < end_k`, which has a
+/// positive weight since the sums are non-decreasing) — a count LLVM
+/// vectorises, instead of a scan whose data-dependent exit the branch
+/// predictor misses about once per sample.
 #[inline]
 #[must_use]
 pub fn select_component<const K: usize>(weights: &[f32; K], u: f32) -> Option<(usize, f32)> {
-    let mut start = 0.0;
-    let mut last: Option<(usize, f32)> = None;
+    let mut ends = [0.0f32; K];
+    let mut acc = 0.0f32;
     let mut k = 0;
     while k < K {
+        // Non-positive and NaN weights add nothing.
         let w = weights[k];
-        if w > 0.0 {
-            let end = start + w;
-            if u < end {
-                let rescaled = ((u - start) / w).clamp(0.0, ONE_MINUS_EPSILON);
-                return Some((k, rescaled));
-            }
-            last = Some((k, start));
-            start = end;
-        }
+        acc += if w > 0.0 { w } else { 0.0 };
+        ends[k] = acc;
         k += 1;
     }
-    // Rounding: the partial sums ended below u; the last non-empty component takes it.
-    if let Some((k, s)) = last {
-        return Some((k, ((u - s) / weights[k]).clamp(0.0, ONE_MINUS_EPSILON)));
+    // Counted at max(u, 0), so that a negative u (out of contract) still
+    // lands on the first non-empty component, not on leading empty ones.
+    let u_count = u.max(0.0);
+    let mut chosen = 0;
+    k = 0;
+    while k < K {
+        chosen += usize::from(u_count >= ends[k]);
+        k += 1;
+    }
+    // A NaN `u` takes the fallback, like every `u` beyond the last sum.
+    if chosen < K && !u.is_nan() {
+        let start = if chosen > 0 { ends[chosen - 1] } else { 0.0 };
+        let rescaled = ((u - start) / weights[chosen]).clamp(0.0, ONE_MINUS_EPSILON);
+        return Some((chosen, rescaled));
+    }
+    select_last_component(weights, &ends, u)
+}
+
+/// The rare end of [`select_component`], kept out of line so that the common
+/// path inlines: rounding left `u` beyond the last partial sum (or `u` is
+/// NaN), and the last non-empty component takes it.
+#[cold]
+#[inline(never)]
+fn select_last_component<const K: usize>(
+    weights: &[f32; K],
+    ends: &[f32; K],
+    u: f32,
+) -> Option<(usize, f32)> {
+    let mut k = K;
+    while k > 0 {
+        k -= 1;
+        if weights[k] > 0.0 {
+            let start = if k > 0 { ends[k - 1] } else { 0.0 };
+            return Some((k, ((u - start) / weights[k]).clamp(0.0, ONE_MINUS_EPSILON)));
+        }
     }
     None
 }
