@@ -29,6 +29,37 @@ pub const INV_FOUR_PI: f32 = 0.25 * core::f32::consts::FRAC_1_PI;
 /// The largest `f32` below one, the upper end of `[0, 1)` random numbers.
 pub const ONE_MINUS_EPSILON: f32 = 1.0 - f32::EPSILON * 0.5;
 
+/// Cody–Waite range reduction shared by the exponential family:
+/// `x = n ln 2 + r` with `|r| ≤ ln 2 / 2` (ln 2 split into a high part exact
+/// in a few bits and a low correction). `n` is rounded to nearest by the
+/// `1.5·2²³` trick (exact for `|n| < 2²²`) and read back as an integer from
+/// the low mantissa bits, which avoids a float → int conversion (Rust's
+/// saturating `as` does not vectorise well). Returns `(n, r)`.
+#[inline(always)]
+fn reduce_ln2(x: f32) -> (i32, f32) {
+    const LOG2_E: f32 = core::f32::consts::LOG2_E;
+    const LN2_HI: f32 = 0.693_359_4;
+    const LN2_LO: f32 = -2.121_944_4e-4;
+    const ROUND: f32 = 12_582_912.0;
+    let shifted = x * LOG2_E + ROUND;
+    let n = shifted - ROUND;
+    let r = (x - n * LN2_HI) - n * LN2_LO;
+    (shifted.to_bits().wrapping_sub(ROUND.to_bits()) as i32, r)
+}
+
+/// `e^r` for a reduced `|r| ≤ ln 2 / 2`: the Cephes `expf` polynomial,
+/// evaluated by Estrin's scheme (depth 4 instead of 7, which shortens the
+/// dependency chain of every lobe loop).
+#[inline(always)]
+fn exp_reduced(r: f32) -> f32 {
+    let r2 = r * r;
+    let a = 0.5 + 1.666_666_5e-1 * r;
+    let b = 4.166_579_6e-2 + 8.333_452e-3 * r;
+    let c = 1.398_199_9e-3 + 1.987_569_2e-4 * r;
+    let p = a + r2 * (b + r2 * c);
+    (p * r2 + r) + 1.0
+}
+
 /// `e^x`, within 2 ulp of the correctly rounded result (checked against `f64`
 /// in the tests), `0` below `−87.34` (where `e^x` is no longer a normal `f32`),
 /// `+∞` above `88.72`, NaN for NaN.
@@ -43,35 +74,17 @@ pub const ONE_MINUS_EPSILON: f32 = 1.0 - f32::EPSILON * 0.5;
 #[inline]
 #[must_use]
 pub fn exp(x: f32) -> f32 {
-    const LOG2_E: f32 = core::f32::consts::LOG2_E;
-    const LN2_HI: f32 = 0.693_359_4;
-    const LN2_LO: f32 = -2.121_944_4e-4;
     const MAX_ARG: f32 = 88.722_83;
     const MIN_ARG: f32 = -87.336_55;
-    // Round-to-nearest of x·log2(e) by the 1.5·2²³ trick (exact for |n| < 2²²).
-    const ROUND: f32 = 12_582_912.0;
     // Arguments below the range are evaluated at 0 (and replaced by 0 below)
     // rather than clamped to MIN_ARG: there the result would sit at the edge of
     // the subnormal range, and every subnormal intermediate costs a microcode
     // assist — in a vectorised lobe loop, for every lane.
     let xc = if x < MIN_ARG { 0.0 } else { x.min(MAX_ARG) };
-    let shifted = xc * LOG2_E + ROUND;
-    let n = shifted - ROUND;
-    let r = (xc - n * LN2_HI) - n * LN2_LO;
-    // The Cephes polynomial by Estrin's scheme: depth 4 instead of 7, which
-    // shortens the dependency chain of every lobe loop.
-    let r2 = r * r;
-    let a = 0.5 + 1.666_666_5e-1 * r;
-    let b = 4.166_579_6e-2 + 8.333_452e-3 * r;
-    let c = 1.398_199_9e-3 + 1.987_569_2e-4 * r;
-    let p = a + r2 * (b + r2 * c);
-    let er = (p * r2 + r) + 1.0;
-    // n is also held, as an integer, in the low mantissa bits of `shifted`:
-    // reading it from there avoids a float → int conversion (which does not
-    // vectorise well with Rust's saturating `as`).
+    let (n_int, r) = reduce_ln2(xc);
+    let er = exp_reduced(r);
     // 2^n is applied as 2^(n/2) · 2^(n − n/2) so that both factors stay normal
     // over the whole range n ∈ [−126, 128].
-    let n_int = shifted.to_bits().wrapping_sub(ROUND.to_bits()) as i32;
     let n_half = n_int >> 1;
     let scale_a = f32::from_bits(((n_half + 127) as u32) << 23);
     let scale_b = f32::from_bits(((n_int - n_half + 127) as u32) << 23);
@@ -98,24 +111,12 @@ pub fn exp(x: f32) -> f32 {
 #[inline]
 #[must_use]
 pub fn exp_nonpositive(x: f32) -> f32 {
-    const LOG2_E: f32 = core::f32::consts::LOG2_E;
-    const LN2_HI: f32 = 0.693_359_4;
-    const LN2_LO: f32 = -2.121_944_4e-4;
     const MIN_ARG: f32 = -87.336_55;
-    const ROUND: f32 = 12_582_912.0;
     // Below the range: evaluated at 0 (no subnormal intermediates), replaced
     // by 0 at the end; `min` also maps NaN to 0 (restored at the end).
     let xc = if x < MIN_ARG { 0.0 } else { x.min(0.0) };
-    let shifted = xc * LOG2_E + ROUND;
-    let n = shifted - ROUND;
-    let r = (xc - n * LN2_HI) - n * LN2_LO;
-    let r2 = r * r;
-    let a = 0.5 + 1.666_666_5e-1 * r;
-    let b = 4.166_579_6e-2 + 8.333_452e-3 * r;
-    let c = 1.398_199_9e-3 + 1.987_569_2e-4 * r;
-    let p = a + r2 * (b + r2 * c);
-    let er = (p * r2 + r) + 1.0;
-    let n_int = shifted.to_bits().wrapping_sub(ROUND.to_bits()) as i32;
+    let (n_int, r) = reduce_ln2(xc);
+    let er = exp_reduced(r);
     let y = er * pow2i(n_int);
     // One select on the result path: below the range 0, NaN stays NaN (the
     // fallback is formed off the critical path).
@@ -242,17 +243,11 @@ pub fn ln_1p_inline(x: f32) -> f32 {
 #[inline]
 #[must_use]
 pub fn expm1_inline(x: f32) -> f32 {
-    const LOG2_E: f32 = core::f32::consts::LOG2_E;
-    const LN2_HI: f32 = 0.693_359_4;
-    const LN2_LO: f32 = -2.121_944_4e-4;
     const MAX_ARG: f32 = 88.722_83;
     // e^x < 2⁻²⁵ below this, so e^x − 1 rounds to −1.
     const MIN_ARG: f32 = -17.5;
-    const ROUND: f32 = 12_582_912.0;
     let xc = x.clamp(MIN_ARG, MAX_ARG);
-    let shifted = xc * LOG2_E + ROUND;
-    let n = shifted - ROUND;
-    let r = xc - n * LN2_HI - n * LN2_LO;
+    let (n_int, r) = reduce_ln2(xc);
     let q = 1.988_269e-4;
     let q = q * r + 1.392_617_6e-3;
     let q = q * r + 8.333_321e-3;
@@ -261,7 +256,6 @@ pub fn expm1_inline(x: f32) -> f32 {
     let r2 = r * r;
     // e^r − 1, relative error ~10⁻⁹ before rounding.
     let p = r + (0.5 * r2 + r2 * r * q);
-    let n_int = shifted.to_bits().wrapping_sub(ROUND.to_bits()) as i32;
     // n ∈ [−26, 128]: 2^min(n, 24) is normal; the large-n branch scales by
     // 2^(n − 1) · 2 so that n = 128 does not overflow the factor.
     let scale = pow2i(n_int.min(24));
@@ -286,23 +280,16 @@ pub fn expm1_inline(x: f32) -> f32 {
 #[inline]
 #[must_use]
 pub fn expm1_nonpositive(x: f32) -> f32 {
-    const LOG2_E: f32 = core::f32::consts::LOG2_E;
-    const LN2_HI: f32 = 0.693_359_4;
-    const LN2_LO: f32 = -2.121_944_4e-4;
     const MIN_ARG: f32 = -17.5;
-    const ROUND: f32 = 12_582_912.0;
     // NaN propagates through the arithmetic and is restored by the final select.
     let xc = x.clamp(MIN_ARG, 0.0);
-    let shifted = xc * LOG2_E + ROUND;
-    let n = shifted - ROUND;
-    let r = (xc - n * LN2_HI) - n * LN2_LO;
+    let (n_int, r) = reduce_ln2(xc);
     let r2 = r * r;
     // Q(r) by Estrin's scheme.
     let q01 = 1.666_666_7e-1 + 4.166_655_5e-2 * r;
     let q23 = 8.333_321e-3 + 1.392_617_6e-3 * r;
     let q = q01 + r2 * (q23 + r2 * 1.988_269e-4);
     let p = r + (0.5 * r2 + r2 * r * q);
-    let n_int = shifted.to_bits().wrapping_sub(ROUND.to_bits()) as i32;
     let scale = pow2i(n_int);
     // n = 0: scale·p + 0 = p exactly, so no select is needed for it.
     let y = scale * p + (scale - 1.0);

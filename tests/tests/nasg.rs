@@ -26,11 +26,11 @@ use guiding_core::lobe::nasg::{
 use guiding_core::lobe::vmf::VmfLobe;
 use guiding_core::math::ONE_MINUS_EPSILON;
 use guiding_core::mixture::nasg::{
-    decode_selection, NasgMixture, NASG_LN_A_MAX, NASG_LN_A_MIN, NASG_LN_LAMBDA_MAX,
-    NASG_LN_LAMBDA_MIN, NASG_RAW_PER_LOBE, NASG_SELECTION_MAX, NASG_SELECTION_MIN,
+    decode_selection, NasgMixture, NASG_RAW_PER_LOBE, NASG_SELECTION_MAX, NASG_SELECTION_MIN,
 };
 use guiding_tests::cases::nasg::{random_direction, random_frame_lobe, rotation_safe};
 use guiding_tests::gradcheck::{central_difference, GradientErrors};
+use guiding_tests::oracles;
 use guiding_tests::rng::Pcg32;
 use proptest::prelude::*;
 use std::f64::consts::PI;
@@ -61,32 +61,6 @@ const AXIS_FRAMES: [(Vec3, Vec3); 4] = [
 
 fn dvec(a: [f32; 3]) -> DVec3 {
     Vec3::from_array(a).as_dvec3()
-}
-
-/// `ln p` of a lobe with frame `(x, y, z)` at direction `d`, in `f64` from the
-/// definition, with the half-angle forms `t = cos²(θ/2) = |d̂ + z|²/4` and
-/// `1 − t = |d̂ − z|²/4` (accurate at both poles), `ln G = 2λ (t^b − 1) +
-/// (b − 1) ln t`, and NASG eq. 19. `ln t` is floored at `ln(f32::MIN_POSITIVE)`
-/// as documented for the `f32` lobe (below that `t` is not representable).
-#[allow(clippy::many_single_char_names)]
-fn oracle_ln_pdf(frame: (DVec3, DVec3, DVec3), lambda: f64, a: f64, eps: f64, d: DVec3) -> f64 {
-    let (x, y, z) = frame;
-    let dn = d.normalize();
-    let t = 0.25 * (dn + z).length_squared();
-    let h = 0.25 * (dn - z).length_squared();
-    let ln_t = if h < 0.5 { (-h).ln_1p() } else { t.ln() };
-    let ln_t = ln_t.max(f64::from(f32::MIN_POSITIVE).ln());
-    let (vx, vy) = (dn.dot(x), dn.dot(y));
-    let c2 = if vx == 0.0 && vy == 0.0 {
-        0.0
-    } else {
-        vx * vx / (vx * vx + vy * vy)
-    };
-    let b = 1.0 + eps + a * c2;
-    let ln_g = 2.0 * lambda * (b * ln_t).exp_m1() + (b - 1.0) * ln_t;
-    let k =
-        2.0 * PI * (-(-2.0 * lambda).exp_m1()) / (lambda * ((1.0 + eps) * (1.0 + eps + a)).sqrt());
-    ln_g - k.ln()
 }
 
 fn lobe_frame64(lobe: &NasgLobe) -> (DVec3, DVec3, DVec3) {
@@ -218,7 +192,7 @@ fn density_matches_f64_oracle() {
                 }
                 for d in dirs {
                     let p = lobe.pdf(d);
-                    let ln_p64 = oracle_ln_pdf(
+                    let ln_p64 = oracles::nasg_lobe_ln_pdf(
                         frame,
                         f64::from(lambda),
                         f64::from(a),
@@ -573,35 +547,6 @@ proptest! {
 
 const GK: usize = 4;
 
-fn sigmoid64(x: f64) -> f64 {
-    1.0 / (1.0 + (-x).exp())
-}
-
-/// Decode (our reading of NASG Table 2) + `ln p` in `f64`, from the formulas.
-fn oracle_mixture_ln_pdf(raw: &[f64], d: DVec3) -> f64 {
-    let k_lobes = raw.len() / R;
-    let max = (0..k_lobes).map(|k| raw[k * R]).fold(f64::MIN, f64::max);
-    let z: f64 = (0..k_lobes).map(|k| (raw[k * R] - max).exp()).sum();
-    let d = d.normalize();
-    let mut p = 0.0;
-    for k in 0..k_lobes {
-        let r = &raw[k * R..(k + 1) * R];
-        let w = (r[0] - max).exp() / z;
-        let lambda = r[1]
-            .clamp(f64::from(NASG_LN_LAMBDA_MIN), f64::from(NASG_LN_LAMBDA_MAX))
-            .exp();
-        let a = r[2]
-            .clamp(f64::from(NASG_LN_A_MIN), f64::from(NASG_LN_A_MAX))
-            .exp();
-        let rot = rz(2.0 * PI * sigmoid64(r[3]))
-            * DMat3::from_rotation_y(PI * sigmoid64(r[4]))
-            * rz(PI * sigmoid64(r[5]));
-        let frame = (rot.x_axis, rot.y_axis, rot.z_axis);
-        p += w * oracle_ln_pdf(frame, lambda, a, f64::from(NASG_EPSILON), d).exp();
-    }
-    p.ln()
-}
-
 fn random_grad_raw(rng: &mut Pcg32) -> [[f32; R]; GK] {
     core::array::from_fn(|_| {
         [
@@ -642,7 +587,7 @@ fn gradient_matches_f64_oracle() {
         let lp = NasgMixture::grad_log_pdf(&raw, d, &mut grad);
         let raw64: Vec<f64> = raw.iter().flatten().map(|&x| f64::from(x)).collect();
         let d64 = d.as_dvec3();
-        let lp64 = oracle_mixture_ln_pdf(&raw64, d64);
+        let lp64 = oracles::nasg_ln_pdf(&raw64, d64);
         assert!(
             (f64::from(lp) - lp64).abs() <= 1e-5 * (1.0 + lp64.abs()),
             "trial {trial}: ln p {lp} vs {lp64}"
@@ -652,7 +597,7 @@ fn gradient_matches_f64_oracle() {
             "log_pdf {} vs grad_log_pdf {lp}",
             m.log_pdf(d)
         );
-        let numeric = central_difference(|x| oracle_mixture_ln_pdf(x, d64), &raw64, 1e-6);
+        let numeric = central_difference(|x| oracles::nasg_ln_pdf(x, d64), &raw64, 1e-6);
         let analytic: Vec<f64> = grad.iter().flatten().map(|&g| f64::from(g)).collect();
         errors.push_all(&format!("trial {trial}"), &analytic, &numeric);
     }
@@ -706,7 +651,7 @@ fn selection_probability_and_derivative() {
             "{r}: {c}"
         );
         let s = |x: f64| {
-            sigmoid64(x).clamp(f64::from(NASG_SELECTION_MIN), f64::from(NASG_SELECTION_MAX))
+            oracles::sigmoid(x).clamp(f64::from(NASG_SELECTION_MIN), f64::from(NASG_SELECTION_MAX))
         };
         // NaN is sanitised to 0.
         let r = if r.is_nan() { 0.0 } else { r };

@@ -29,6 +29,7 @@ use guiding_tests::cases::vmf::{mixture_warp, random_direction, random_mixture, 
 use guiding_tests::cases::Case;
 use guiding_tests::chi2::{run_chi2, Chi2Config, Warp};
 use guiding_tests::gradcheck::{central_difference, GradientErrors};
+use guiding_tests::oracles;
 use guiding_tests::quadrature::integrate;
 use guiding_tests::rng::Pcg32;
 use guiding_tests::SphereDistribution;
@@ -81,23 +82,14 @@ fn angle64(a: DVec3, b: DVec3) -> f64 {
     a.cross(b).length().atan2(a.dot(b))
 }
 
-fn sigmoid64(x: f64) -> f64 {
-    if x >= 0.0 {
-        1.0 / (1.0 + (-x).exp())
-    } else {
-        let e = x.exp();
-        e / (1.0 + e)
-    }
-}
-
 /// One lobe of the f64 decoder (NPM Table 1, same activations as
 /// `VmfMixture::decode`): `(weight logit, κ, μ)`.
 fn decode_lobe64(raw: &[f64]) -> (f64, f64, DVec3) {
     let kappa = raw[1]
         .clamp(f64::from(VMF_LOG_KAPPA_MIN), f64::from(VMF_LOG_KAPPA_MAX))
         .exp();
-    let theta = PI * sigmoid64(raw[2]);
-    let phi = 2.0 * PI * sigmoid64(raw[3]);
+    let theta = PI * oracles::sigmoid(raw[2]);
+    let phi = 2.0 * PI * oracles::sigmoid(raw[3]);
     let mean = DVec3::new(
         theta.sin() * phi.cos(),
         theta.sin() * phi.sin(),
@@ -106,28 +98,18 @@ fn decode_lobe64(raw: &[f64]) -> (f64, f64, DVec3) {
     (raw[0], kappa, mean)
 }
 
-fn log_sum_exp(x: &[f64]) -> f64 {
-    let max = x.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    max + x.iter().map(|v| (v - max).exp()).sum::<f64>().ln()
-}
-
 /// Per-lobe `ln(w_k f_k(ω))` of the mixture decoded from `raw` (flattened,
 /// 4 entries per lobe), in f64.
 fn log_terms64(raw: &[f64], d: DVec3) -> Vec<f64> {
     let lobes: Vec<_> = raw.chunks(VMF_RAW_PER_LOBE).map(decode_lobe64).collect();
     let logits: Vec<f64> = lobes.iter().map(|l| l.0).collect();
-    let lse = log_sum_exp(&logits);
+    let lse = oracles::log_sum_exp(&logits);
     lobes
         .iter()
         .map(|&(logit, kappa, mean)| {
             logit - lse + ln_norm64(kappa) - kappa * one_minus_cos64(mean, d)
         })
         .collect()
-}
-
-/// `ln p(ω)` of the mixture decoded from `raw`, in f64.
-fn ln_pdf64(raw: &[f64], d: DVec3) -> f64 {
-    log_sum_exp(&log_terms64(raw, d))
 }
 
 fn flatten(raw: &Raw) -> Vec<f64> {
@@ -658,10 +640,10 @@ fn random_grad_raw(rng: &mut Pcg32) -> Raw {
 /// weighted by the responsibilities `r_k`.
 fn ln_pdf_tolerance(raw: &[f64], d: DVec3) -> f64 {
     let terms = log_terms64(raw, d);
-    let lnp = log_sum_exp(&terms);
+    let lnp = oracles::log_sum_exp(&terms);
     let lobes: Vec<_> = raw.chunks(VMF_RAW_PER_LOBE).map(decode_lobe64).collect();
     let logits: Vec<f64> = lobes.iter().map(|l| l.0).collect();
-    let lse = log_sum_exp(&logits);
+    let lse = oracles::log_sum_exp(&logits);
     let weighted: f64 = lobes
         .iter()
         .zip(&terms)
@@ -686,7 +668,7 @@ fn compare_gradient(raw: &Raw, d: Vec3, label: &str, errors: &mut GradientErrors
     let lnp = VmfMixture::<K>::grad_log_pdf(raw, d, &mut grad);
     let x = flatten(raw);
     let d64 = d.as_dvec3();
-    let numeric = central_difference(|x| ln_pdf64(x, d64), &x, 1e-6);
+    let numeric = central_difference(|x| oracles::vmf_ln_pdf(x, d64), &x, 1e-6);
     let analytic: Vec<f64> = grad.iter().flatten().map(|&g| f64::from(g)).collect();
     errors.push_all(label, &analytic, &numeric);
     lnp
@@ -725,7 +707,7 @@ fn grad_log_pdf_matches_finite_differences() {
             let lnp = compare_gradient(&raw, d, &format!("raw {i} dir {j}"), &mut errors);
             let pdf = m.pdf(d);
             let tol = ln_pdf_tolerance(&x, d.as_dvec3());
-            let oracle = ln_pdf64(&x, d.as_dvec3());
+            let oracle = oracles::vmf_ln_pdf(&x, d.as_dvec3());
             assert!(lnp.is_finite(), "raw {i}: ln p {lnp}");
             assert!(
                 (f64::from(lnp) - oracle).abs() <= tol,
@@ -775,7 +757,7 @@ fn grad_log_pdf_survives_underflow() {
         assert_eq!(m.pdf(d), 0.0, "raw {i}: expected the f32 pdf to underflow");
         let lnp = compare_gradient(&raw, d, &format!("raw {i}"), &mut errors);
         let x = flatten(&raw);
-        let oracle = ln_pdf64(&x, d.as_dvec3());
+        let oracle = oracles::vmf_ln_pdf(&x, d.as_dvec3());
         let tol = ln_pdf_tolerance(&x, d.as_dvec3());
         assert!(
             lnp.is_finite() && (f64::from(lnp) - oracle).abs() <= tol,
