@@ -19,7 +19,7 @@ pub fn spherical_direction(sin_theta: f32, cos_theta: f32, phi: f32) -> Vec3 {
 
 /// [`spherical_direction`] with the azimuth given in turns, `φ = 2π u`: the
 /// form every warp uses, evaluated by the inlined
-/// [`sin_cos_turns`](crate::math::sin_cos_turns) (exact reduction, no
+/// [`sin_cos_turns`] (exact reduction, no
 /// rounding of `2πu`, no libm call).
 #[inline]
 #[must_use]

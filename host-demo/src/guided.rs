@@ -5,17 +5,17 @@
 //!
 //! 1. **intersect + emission** (shared with `pt`/`pt-nee`; emission MIS uses the path's
 //!    combined directional density),
-//! 2. **guide query** ([`stage_guide_query`]): for every vertex, the NEE light sample is drawn
+//! 2. **guide query** (`stage_guide_query`): for every vertex, the NEE light sample is drawn
 //!    (pt-nee mode) and the continuation technique is chosen; *guidable* vertices (non-delta
 //!    and not near-specular: diffuse always, rough conductors with `alpha ≥`
 //!    [`GuidedOptions::min_alpha`]) pick the guide with probability `c` (else the BSDF). Then
 //!    one batched selection query (NASG only), one batched `sample` query (guide-picked
 //!    vertices) and one batched `pdf` query (BSDF-picked directions and NEE directions) run
 //!    over all guidable vertices of the bounce,
-//! 3. **NEE** ([`stage_guided_nee`]): shadow rays with the power heuristic between the light
+//! 3. **NEE** (`stage_guided_nee`): shadow rays with the power heuristic between the light
 //!    pdf and the combined density `p(ω) = c·q(ω) + (1 − c)·p_bsdf(ω)`,
 //! 4. **shadow** (shared),
-//! 5. **continue** ([`stage_guided_continue`]): throughput `f·cos / p(ω)` with the same
+//! 5. **continue** (`stage_guided_continue`): throughput `f·cos / p(ω)` with the same
 //!    combined density (one-sample MIS of guide and BSDF), so every pass is unbiased whatever
 //!    the state of the guide.
 //!

@@ -8,7 +8,7 @@
 //!    the surviving hits into a [`VertexBatch`],
 //! 3. **guiding query**: [`guiding_query`] receives the whole batch (the plug-in point for the
 //!    batched path-guiding model; a no-op today),
-//! 4. **NEE** (`pt-nee`): sample area lights and emit a [`ShadowQueue`],
+//! 4. **NEE** (`pt-nee`): sample area lights and emit a `ShadowQueue`,
 //! 5. **shadow**: trace the shadow queue and add the unoccluded contributions,
 //! 6. **BSDF sampling**: continue the paths into the next bounce's queue.
 //!

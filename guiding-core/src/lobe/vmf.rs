@@ -12,7 +12,7 @@
 //! `cos θ = 1 + ln(ξ + (1 − ξ) e^{−2κ}) / κ`, evaluated here as
 //! `1 − cos θ = −ln(1 − (1 − ξ)(1 − e^{−2κ})) / κ` with `ln_1p` / `expm1`, and
 //! the angular distance `1 − μ·ω` is computed by
-//! [`one_minus_cos_angle`](crate::sphere::one_minus_cos_angle) so that lobes as
+//! [`one_minus_cos_angle`] so that lobes as
 //! sharp as κ = 10⁷ keep full precision. κ = 0 is the uniform sphere.
 
 use crate::frame::{normalize_or, Frame};
