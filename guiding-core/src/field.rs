@@ -497,6 +497,24 @@ struct TrainState {
     clipped_steps: u64,
 }
 
+/// The resumable training state of a [`Field`] ([`Field::state`],
+/// [`Field::from_state`]); what a save file stores.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FieldState {
+    /// Trained parameters.
+    pub params: Vec<f32>,
+    /// Their exponential moving average (what inference uses).
+    pub ema: Vec<f32>,
+    /// Adam's first moment.
+    pub adam_m: Vec<f32>,
+    /// Adam's second moment (`≥ 0`).
+    pub adam_v: Vec<f32>,
+    /// Applied steps.
+    pub steps: u64,
+    /// Updates that trained (seeds the minibatch shuffles).
+    pub updates: u64,
+}
+
 /// Outcome of one training step.
 enum StepOutcome {
     Applied {
@@ -592,6 +610,69 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
             });
         }
         Ok(Self::with_state(model, config, params))
+    }
+
+    /// A field resuming from a saved training state: parameters, their EMA,
+    /// both Adam moments, the applied step count (Adam's bias correction
+    /// and the EMA debiasing continue from `steps`) and the update count
+    /// (the minibatch shuffles continue their sequence), so that training
+    /// goes on bit-identically. Sample counters, loss history, plateau state
+    /// and the sample buffer start empty.
+    ///
+    /// # Errors
+    /// As [`Self::new`], and if any of the four vectors does not have
+    /// `model.param_count()` values or contains a non-finite one (or a
+    /// negative second moment).
+    pub fn from_state(
+        model: M,
+        config: FieldConfig,
+        state: FieldState,
+    ) -> Result<Self, FieldError> {
+        let FieldState {
+            params,
+            ema,
+            adam_m,
+            adam_v,
+            steps,
+            updates,
+        } = state;
+        let mut field = Self::from_params(model, config, params)?;
+        let n = field.state.params.len();
+        for v in [&ema, &adam_m, &adam_v] {
+            let finite = crate::optim::all_finite(v);
+            if v.len() != n || !finite {
+                return Err(FieldError::InvalidParams {
+                    expected: n,
+                    got: v.len(),
+                    finite,
+                });
+            }
+        }
+        if adam_v.iter().any(|&x| x < 0.0) {
+            return Err(FieldError::InvalidParams {
+                expected: n,
+                got: n,
+                finite: false,
+            });
+        }
+        field.state.ema = ema;
+        field.state.adam_m = adam_m;
+        field.state.adam_v = adam_v;
+        field.state.steps = steps;
+        field.updates = updates;
+        Ok(field)
+    }
+
+    /// A copy of the training state that [`Self::from_state`] resumes from.
+    pub fn state(&self) -> FieldState {
+        FieldState {
+            params: self.state.params.clone(),
+            ema: self.state.ema.clone(),
+            adam_m: self.state.adam_m.clone(),
+            adam_v: self.state.adam_v.clone(),
+            steps: self.state.steps,
+            updates: self.updates,
+        }
     }
 
     fn with_state(model: M, config: FieldConfig, params: Vec<f32>) -> Self {

@@ -19,7 +19,7 @@ use glam::{Vec2, Vec3};
 ///
 /// `repr(C)`, `Pod`, 48 bytes.
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct QueryPoint {
     /// World-space position.
     pub position: [f32; 3],

@@ -1,0 +1,222 @@
+//! What kind of field to build: representation, training target, model size
+//! and training hyper-parameters, as one `Copy` value with `const fn` presets.
+
+use crate::error::GuidingError;
+use guiding_core::encoding::GridConfig;
+use guiding_core::field::FieldConfig;
+pub use guiding_core::loss::Target;
+
+/// The directional representation the network decodes.
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Representation {
+    /// Neural Parametric Mixtures (Dong et al. 2023): 8 von Mises–Fisher
+    /// lobes, constant guide-selection probability.
+    Npm = 0,
+    /// Normalised anisotropic spherical Gaussians (Huang et al. 2024): 8 NASG
+    /// lobes plus a learned guide-selection probability.
+    Nasg = 1,
+    /// Distribution factorisation (Figueiredo et al. 2025), piecewise-constant
+    /// marginal × conditional.
+    DfNearest = 2,
+    /// Distribution factorisation, piecewise-linear reconstruction.
+    DfLinear = 3,
+}
+
+impl Representation {
+    /// Every representation, in code order.
+    pub const ALL: [Self; 4] = [Self::Npm, Self::Nasg, Self::DfNearest, Self::DfLinear];
+
+    /// The representation with this stable code (the `repr(u32)` value).
+    #[must_use]
+    pub const fn from_code(code: u32) -> Option<Self> {
+        match code {
+            0 => Some(Self::Npm),
+            1 => Some(Self::Nasg),
+            2 => Some(Self::DfNearest),
+            3 => Some(Self::DfLinear),
+            _ => None,
+        }
+    }
+
+    /// Whether the guide-selection probability is learned (NASG) rather than
+    /// [`GuidingConfig::selection_probability`].
+    #[must_use]
+    pub const fn learns_selection(self) -> bool {
+        matches!(self, Self::Nasg)
+    }
+}
+
+/// Network and grid size.
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ModelSize {
+    /// Tiny (2-level grid, MLP 2 × 16, a few thousand parameters): tests and
+    /// toy scenes.
+    Small = 0,
+    /// A 4-level dense grid (4, 8, 16, 32 cells per axis, 4 features each:
+    /// 166 816 grid parameters) and MLPs of 2 hidden layers × 32 (the DF
+    /// radiance cache 2 × 32): about 25× fewer parameters than the papers',
+    /// the default, sized for CPU rendering.
+    Compact = 1,
+    /// The papers' sizes (NPM/NASG/DF grids of 4.1 M parameters; MLPs
+    /// 3 × 64 for NPM, 4 × 128 for NASG, 3 × 64 for DF).
+    Paper = 2,
+}
+
+impl ModelSize {
+    /// Every size, in code order.
+    pub const ALL: [Self; 3] = [Self::Small, Self::Compact, Self::Paper];
+
+    /// The size with this stable code (the `repr(u32)` value).
+    #[must_use]
+    pub const fn from_code(code: u32) -> Option<Self> {
+        match code {
+            0 => Some(Self::Small),
+            1 => Some(Self::Compact),
+            2 => Some(Self::Paper),
+            _ => None,
+        }
+    }
+}
+
+/// The [`ModelSize::Compact`] grid: 4 levels (4, 8, 16, 32 cells per axis), 4
+/// features per vertex, over `[bbox_min, bbox_max]`.
+#[must_use]
+pub const fn compact_grid(bbox_min: [f32; 3], bbox_max: [f32; 3]) -> GridConfig {
+    GridConfig::new(bbox_min, bbox_max, 4, 4, 2.0, 4)
+}
+
+/// Training defaults of the presets: Adam with learning rate `3·10⁻²`,
+/// batches of 8192 samples, 32 steps per [`crate::GuidingField::update`]
+/// (the settings host-demo's guided integrator is measured with), the other
+/// values of [`FieldConfig::DEFAULT`].
+pub const PRESET_TRAINING: FieldConfig = FieldConfig::DEFAULT
+    .with_learning_rate(3e-2)
+    .with_batch_size(8192)
+    .with_steps_per_update(32);
+
+/// Everything needed to build a [`crate::GuidingField`] except the scene
+/// bounds. Build one from a preset and adjust it with the `with_*` methods:
+///
+/// ```
+/// use guiding::{GuidingConfig, ModelSize};
+/// const CONFIG: GuidingConfig = GuidingConfig::npm_product().with_size(ModelSize::Small);
+/// assert!(CONFIG.validate().is_ok());
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GuidingConfig {
+    /// Directional representation.
+    pub representation: Representation,
+    /// What the guide learns to be proportional to.
+    pub target: Target,
+    /// Grid and network size.
+    pub size: ModelSize,
+    /// Probability of sampling the guide rather than the BSDF, in `[0, 1]`
+    /// (NPM and DF; NASG learns its own and ignores this).
+    pub selection_probability: f32,
+    /// Online training: optimiser, batch size, steps per update, EMA,
+    /// threads, convergence.
+    pub training: FieldConfig,
+}
+
+impl GuidingConfig {
+    const fn preset(representation: Representation, target: Target) -> Self {
+        Self {
+            representation,
+            target,
+            size: ModelSize::Compact,
+            selection_probability: 0.5,
+            training: PRESET_TRAINING,
+        }
+    }
+
+    /// NPM learning incident radiance (the guide is multiplied by the BSDF
+    /// by the renderer's MIS, not by the network).
+    #[must_use]
+    pub const fn npm_radiance() -> Self {
+        Self::preset(Representation::Npm, Target::Radiance)
+    }
+
+    /// NPM learning the full product `f · L_i · |cos|` (needs normal, ωo and
+    /// roughness in every query).
+    #[must_use]
+    pub const fn npm_product() -> Self {
+        Self::preset(Representation::Npm, Target::Product)
+    }
+
+    /// NASG learning incident radiance, with a learned selection probability.
+    #[must_use]
+    pub const fn nasg() -> Self {
+        Self::preset(Representation::Nasg, Target::Radiance)
+    }
+
+    /// NASG learning the product.
+    #[must_use]
+    pub const fn nasg_product() -> Self {
+        Self::preset(Representation::Nasg, Target::Product)
+    }
+
+    /// Factorised piecewise-constant PDFs (DF-N), radiance target.
+    #[must_use]
+    pub const fn df_nearest() -> Self {
+        Self::preset(Representation::DfNearest, Target::Radiance)
+    }
+
+    /// Factorised piecewise-linear PDFs (DF-L), radiance target.
+    #[must_use]
+    pub const fn df_linear() -> Self {
+        Self::preset(Representation::DfLinear, Target::Radiance)
+    }
+
+    /// `self` with another training target.
+    #[must_use]
+    pub const fn with_target(mut self, target: Target) -> Self {
+        self.target = target;
+        self
+    }
+
+    /// `self` with another model size.
+    #[must_use]
+    pub const fn with_size(mut self, size: ModelSize) -> Self {
+        self.size = size;
+        self
+    }
+
+    /// `self` with another constant selection probability (NPM, DF).
+    #[must_use]
+    pub const fn with_selection_probability(mut self, p: f32) -> Self {
+        self.selection_probability = p;
+        self
+    }
+
+    /// `self` with other training settings.
+    #[must_use]
+    pub const fn with_training(mut self, training: FieldConfig) -> Self {
+        self.training = training;
+        self
+    }
+
+    /// Checks every value against its documented range.
+    ///
+    /// # Errors
+    /// [`GuidingError::InvalidConfig`] for a selection probability outside
+    /// `[0, 1]`, [`GuidingError::Field`] for invalid training settings.
+    pub fn validate(&self) -> Result<(), GuidingError> {
+        if !(0.0..=1.0).contains(&self.selection_probability) {
+            return Err(GuidingError::InvalidConfig(format!(
+                "selection_probability {} is not in [0, 1]",
+                self.selection_probability
+            )));
+        }
+        self.training.validate()?;
+        Ok(())
+    }
+}
+
+impl Default for GuidingConfig {
+    /// [`GuidingConfig::npm_product`].
+    fn default() -> Self {
+        Self::npm_product()
+    }
+}

@@ -1,0 +1,406 @@
+//! [`GuidingField`]: the non-generic guiding field a renderer embeds, and
+//! [`Distribution`], the decoded distribution at one shading point.
+
+use crate::config::GuidingConfig;
+use crate::error::GuidingError;
+use crate::models::{self, with_field, AnyField, Decode, Decoded};
+use glam::{Vec2, Vec3};
+use guiding_core::field::{FieldState, UpdateReport};
+use guiding_core::lobe::DirectionSample;
+use guiding_core::model::{GuidingModel, QueryPoint};
+use guiding_core::sample::{TrainingSample, REJECTION_KINDS};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+static NEXT_FIELD_ID: AtomicU64 = AtomicU64::new(1);
+
+/// Counters of a field's training, for the renderer's statistics.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FieldStats {
+    /// Adam steps applied.
+    pub steps: u64,
+    /// Steps skipped for a non-finite gradient.
+    pub skipped_steps: u64,
+    /// Training samples accepted into the buffer.
+    pub accepted_samples: u64,
+    /// Rejected samples per kind (non-finite, negative, non-positive pdf,
+    /// non-unit direction).
+    pub rejected_samples: [u64; REJECTION_KINDS],
+    /// Samples dropped because training had stopped.
+    pub ignored_samples: u64,
+    /// Valid samples dropped because the buffer was full.
+    pub overflowed_samples: u64,
+    /// Samples waiting for the next update.
+    pub buffered_samples: u64,
+    /// Number of updates that changed the parameters ([`GuidingField::generation`]).
+    pub generation: u64,
+    /// Parameters of the model.
+    pub param_count: u64,
+    /// `1` once training is over, else `0`.
+    pub converged: u32,
+    /// Padding.
+    pub pad: u32,
+}
+
+/// A guiding field: a neural model of the incident radiance (or product)
+/// over the scene's bounding box, trained online from the renderer's path
+/// samples.
+///
+/// Queries (`&self`) may run from many threads at once; training
+/// ([`Self::add_samples`], [`Self::update`]) needs `&mut self`, so a
+/// renderer alternates render passes and updates (as with Open PGL's
+/// `Field::Update`).
+pub struct GuidingField {
+    config: GuidingConfig,
+    bounds: ([f32; 3], [f32; 3]),
+    id: u64,
+    generation: u64,
+    inner: AnyField,
+}
+
+impl std::fmt::Debug for GuidingField {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GuidingField")
+            .field("config", &self.config)
+            .field("bounds", &self.bounds)
+            .field("id", &self.id)
+            .field("generation", &self.generation)
+            .field("stats", &self.stats())
+            .finish()
+    }
+}
+
+/// Pads the box by 1 % of its extent (at least `10⁻⁵`) on every side, so
+/// surface points on the scene's bounding box never sit on the grid's edge.
+fn padded(min: [f32; 3], max: [f32; 3]) -> Result<([f32; 3], [f32; 3]), GuidingError> {
+    let err = GuidingError::InvalidBounds { min, max };
+    let (lo, hi) = (Vec3::from_array(min), Vec3::from_array(max));
+    if !(lo.is_finite() && hi.is_finite() && lo.cmplt(hi).all()) {
+        return Err(err);
+    }
+    let pad = ((hi - lo) * 0.01).max(Vec3::splat(1e-5));
+    let (plo, phi) = (lo - pad, hi + pad);
+    if !(plo.is_finite() && phi.is_finite()) {
+        return Err(err);
+    }
+    Ok((plo.to_array(), phi.to_array()))
+}
+
+impl GuidingField {
+    /// A freshly initialised field over the scene box `[bounds_min,
+    /// bounds_max]` (padded by 1 %).
+    ///
+    /// # Errors
+    /// An invalid `config` or non-finite / empty bounds.
+    pub fn new(
+        config: GuidingConfig,
+        bounds_min: [f32; 3],
+        bounds_max: [f32; 3],
+    ) -> Result<Self, GuidingError> {
+        Self::with_state(config, bounds_min, bounds_max, None)
+    }
+
+    pub(crate) fn with_state(
+        config: GuidingConfig,
+        bounds_min: [f32; 3],
+        bounds_max: [f32; 3],
+        state: Option<FieldState>,
+    ) -> Result<Self, GuidingError> {
+        config.validate()?;
+        let (lo, hi) = padded(bounds_min, bounds_max)?;
+        let inner = models::build(&config, lo, hi, state)?;
+        Ok(Self {
+            config,
+            bounds: (bounds_min, bounds_max),
+            id: NEXT_FIELD_ID.fetch_add(1, Ordering::Relaxed),
+            generation: 0,
+            inner,
+        })
+    }
+
+    /// The configuration it was built with.
+    pub fn config(&self) -> &GuidingConfig {
+        &self.config
+    }
+
+    /// The scene bounds it was built with (before padding).
+    pub fn bounds(&self) -> ([f32; 3], [f32; 3]) {
+        self.bounds
+    }
+
+    /// Number of updates so far that changed the parameters; a
+    /// [`DecodedDistribution`] is only valid for the generation that
+    /// decoded it.
+    pub fn generation(&self) -> u64 {
+        self.generation
+    }
+
+    /// Number of `f32` parameters of the model.
+    pub fn param_count(&self) -> usize {
+        with_field!(&self.inner, f => f.model().param_count())
+    }
+
+    /// Training counters.
+    pub fn stats(&self) -> FieldStats {
+        with_field!(&self.inner, f => FieldStats {
+            steps: f.steps(),
+            skipped_steps: f.skipped_steps(),
+            accepted_samples: f.accepted(),
+            rejected_samples: f.rejected(),
+            ignored_samples: f.ignored(),
+            overflowed_samples: f.overflowed(),
+            buffered_samples: f.buffered() as u64,
+            generation: self.generation,
+            param_count: f.model().param_count() as u64,
+            converged: u32::from(f.is_converged()),
+            pad: 0,
+        })
+    }
+
+    /// Validates and buffers training samples for the next [`Self::update`];
+    /// invalid ones (NaN/∞, negative radiance, pdf ≤ 0, non-unit directions)
+    /// are counted in [`FieldStats::rejected_samples`] and dropped.
+    pub fn add_samples(&mut self, samples: &[TrainingSample]) {
+        with_field!(&mut self.inner, f => f.add_samples(samples));
+    }
+
+    /// Runs one iteration of training ([`GuidingConfig::training`]'s
+    /// `steps_per_update` Adam steps) on the buffered samples, then clears
+    /// the buffer. Does nothing once converged.
+    pub fn update(&mut self) -> UpdateReport {
+        let report = with_field!(&mut self.inner, f => f.update());
+        if report.steps > 0 {
+            self.generation += 1;
+        }
+        report
+    }
+
+    /// Whether training is over (stopped, plateaued or at its step limit).
+    pub fn is_converged(&self) -> bool {
+        with_field!(&self.inner, f => f.is_converged())
+    }
+
+    /// Stops training for good and frees the training memory; the field
+    /// keeps answering queries.
+    pub fn stop_training(&mut self) {
+        with_field!(&mut self.inner, f => f.stop_training());
+    }
+
+    /// The distribution at one shading point (one network pass for NPM and
+    /// NASG; DF evaluates its conditional network per sample / pdf call).
+    pub fn distribution(&self, query: &QueryPoint) -> Distribution<'_> {
+        let decoded = with_field!(&self.inner, f => f.model().decode_at(f.ema_params(), query));
+        Distribution {
+            field: self,
+            decoded,
+        }
+    }
+
+    /// [`Self::distribution`] for every query, spread over the field's
+    /// threads; `out` is cleared first.
+    pub fn query_into<'f>(&'f self, queries: &[QueryPoint], out: &mut Vec<Distribution<'f>>) {
+        out.clear();
+        let threads = with_field!(&self.inner, f => f.threads()).max(1);
+        let chunk = queries.len().div_ceil(threads).max(256);
+        if threads == 1 || queries.len() <= chunk {
+            out.extend(queries.iter().map(|q| self.distribution(q)));
+            return;
+        }
+        std::thread::scope(|scope| {
+            let handles: Vec<_> = queries
+                .chunks(chunk)
+                .map(|part| {
+                    scope.spawn(move || {
+                        part.iter()
+                            .map(|q| self.distribution(q))
+                            .collect::<Vec<_>>()
+                    })
+                })
+                .collect();
+            for h in handles {
+                match h.join() {
+                    Ok(part) => out.extend(part),
+                    Err(payload) => std::panic::resume_unwind(payload),
+                }
+            }
+        });
+    }
+
+    /// [`Self::query_into`] into a new vector.
+    pub fn query(&self, queries: &[QueryPoint]) -> Vec<Distribution<'_>> {
+        let mut out = Vec::with_capacity(queries.len());
+        self.query_into(queries, &mut out);
+        out
+    }
+
+    /// Samples one direction per query (`u[i] ∈ [0, 1)²`), spread over the
+    /// field's threads.
+    ///
+    /// # Errors
+    /// [`GuidingError::LengthMismatch`] if the three lengths differ.
+    pub fn sample_batch(
+        &self,
+        queries: &[QueryPoint],
+        u: &[Vec2],
+        out: &mut [DirectionSample],
+    ) -> Result<(), GuidingError> {
+        if queries.len() != u.len() || queries.len() != out.len() {
+            return Err(GuidingError::LengthMismatch {
+                what: format!(
+                    "{} queries, {} random pairs, {} outputs",
+                    queries.len(),
+                    u.len(),
+                    out.len()
+                ),
+            });
+        }
+        with_field!(&self.inner, f => f.sample_batch(queries, u, out));
+        Ok(())
+    }
+
+    /// Density of `directions[i]` at `queries[i]`, spread over the threads.
+    ///
+    /// # Errors
+    /// [`GuidingError::LengthMismatch`] if the three lengths differ.
+    pub fn pdf_batch(
+        &self,
+        queries: &[QueryPoint],
+        directions: &[Vec3],
+        out: &mut [f32],
+    ) -> Result<(), GuidingError> {
+        if queries.len() != directions.len() || queries.len() != out.len() {
+            return Err(GuidingError::LengthMismatch {
+                what: format!(
+                    "{} queries, {} directions, {} outputs",
+                    queries.len(),
+                    directions.len(),
+                    out.len()
+                ),
+            });
+        }
+        with_field!(&self.inner, f => f.pdf_batch(queries, directions, out));
+        Ok(())
+    }
+
+    /// Guide-selection probability per query.
+    ///
+    /// # Errors
+    /// [`GuidingError::LengthMismatch`] if the lengths differ.
+    pub fn selection_probability_batch(
+        &self,
+        queries: &[QueryPoint],
+        out: &mut [f32],
+    ) -> Result<(), GuidingError> {
+        if queries.len() != out.len() {
+            return Err(GuidingError::LengthMismatch {
+                what: format!("{} queries, {} outputs", queries.len(), out.len()),
+            });
+        }
+        with_field!(&self.inner, f => f.selection_probability_batch(queries, out));
+        Ok(())
+    }
+
+    /// Re-attaches a [`DecodedDistribution`] (e.g. kept in a renderer's
+    /// per-lane storage) to this field.
+    ///
+    /// # Errors
+    /// [`GuidingError::StaleDistribution`] if it was decoded by another field
+    /// or before this field's latest update.
+    pub fn attach(&self, decoded: DecodedDistribution) -> Result<Distribution<'_>, GuidingError> {
+        if decoded.field_id != self.id || decoded.generation != self.generation {
+            return Err(GuidingError::StaleDistribution {
+                field_id: decoded.field_id,
+                generation: decoded.generation,
+                used_id: self.id,
+                used_generation: self.generation,
+            });
+        }
+        Ok(Distribution {
+            field: self,
+            decoded: decoded.decoded,
+        })
+    }
+
+    /// The resumable training state (for [`crate::file`]).
+    pub(crate) fn state(&self) -> FieldState {
+        with_field!(&self.inner, f => f.state())
+    }
+
+    pub(crate) fn model_bytes(&self) -> Vec<u8> {
+        models::model_bytes(&self.inner)
+    }
+
+    fn sample_df(&self, query: &QueryPoint, u: Vec2) -> DirectionSample {
+        with_field!(&self.inner, f => f.sample(query, u))
+    }
+
+    fn pdf_df(&self, query: &QueryPoint, direction: Vec3) -> f32 {
+        with_field!(&self.inner, f => f.pdf(query, direction))
+    }
+}
+
+/// The guiding distribution at one shading point, borrowed from its field.
+///
+/// `sample` returns a unit direction and its density (finite, `> 0`);
+/// `pdf` is the density of any direction (finite, `≥ 0`); both in solid
+/// angle. Combine with BSDF sampling by one-sample MIS with
+/// [`Self::selection_probability`] `c`: sample the guide with probability
+/// `c`, and use `c · p_guide + (1 − c) · p_bsdf` as the path pdf.
+#[derive(Clone, Copy, Debug)]
+pub struct Distribution<'f> {
+    field: &'f GuidingField,
+    decoded: Decoded,
+}
+
+impl<'f> Distribution<'f> {
+    /// Draws a direction from `u ∈ [0, 1)²`.
+    pub fn sample(&self, u: Vec2) -> DirectionSample {
+        match &self.decoded {
+            Decoded::Vmf { mixture, .. } => mixture.sample(u),
+            Decoded::Nasg(mixture) => mixture.sample(u),
+            Decoded::Df { query, .. } => self.field.sample_df(query, u),
+        }
+    }
+
+    /// Density of `direction` (unit) in solid angle.
+    pub fn pdf(&self, direction: Vec3) -> f32 {
+        match &self.decoded {
+            Decoded::Vmf { mixture, .. } => mixture.pdf(direction),
+            Decoded::Nasg(mixture) => mixture.pdf(direction),
+            Decoded::Df { query, .. } => self.field.pdf_df(query, direction),
+        }
+    }
+
+    /// Probability of sampling the guide rather than the BSDF (learned by
+    /// NASG, the configured constant otherwise).
+    pub fn selection_probability(&self) -> f32 {
+        match &self.decoded {
+            Decoded::Vmf { selection, .. } | Decoded::Df { selection, .. } => *selection,
+            Decoded::Nasg(mixture) => mixture.selection_probability,
+        }
+    }
+
+    /// The field it was decoded from.
+    pub fn field(&self) -> &'f GuidingField {
+        self.field
+    }
+
+    /// An owned copy that can be stored without borrowing the field and
+    /// re-attached with [`GuidingField::attach`].
+    pub fn detach(&self) -> DecodedDistribution {
+        DecodedDistribution {
+            field_id: self.field.id,
+            generation: self.field.generation,
+            decoded: self.decoded,
+        }
+    }
+}
+
+/// A [`Distribution`] detached from its field ([`Distribution::detach`]):
+/// `'static`, `Copy`, valid for the field generation that decoded it.
+#[derive(Clone, Copy, Debug)]
+pub struct DecodedDistribution {
+    field_id: u64,
+    generation: u64,
+    decoded: Decoded,
+}

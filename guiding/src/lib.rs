@@ -1,0 +1,64 @@
+//! Path guiding for renderers: the embedding API.
+//!
+//! [`GuidingField`] is one non-generic type over every representation and
+//! size of `guiding-core` (NPM vMF mixtures, NASG mixtures, factorised
+//! DF-N / DF-L PDFs), built from a [`GuidingConfig`] preset and the scene
+//! bounds. A renderer:
+//!
+//! 1. per shading vertex, asks [`GuidingField::distribution`] (or the
+//!    batched [`GuidingField::query`]) and samples / evaluates it with
+//!    one-sample MIS against its BSDF;
+//! 2. records each path with a [`PathRecorder`], which turns it into
+//!    training samples;
+//! 3. between passes, hands the samples over ([`PathRecorder::flush_into`])
+//!    and calls [`GuidingField::update`] until [`GuidingField::is_converged`]
+//!    (or its own budget) says stop;
+//! 4. optionally [saves](GuidingField::save) the trained field and
+//!    [loads](GuidingField::load) it in a later run.
+//!
+//! ```
+//! use guiding::{GuidingConfig, GuidingField, ModelSize, PathRecorder, PathVertex, QueryPoint};
+//! use glam::{Vec2, Vec3};
+//!
+//! let config = GuidingConfig::npm_radiance().with_size(ModelSize::Small);
+//! let mut field = GuidingField::new(config, [-1.0; 3], [1.0; 3])?;
+//! let mut recorder = PathRecorder::new();
+//! // A one-vertex path that saw a light of radiance 2 along +z.
+//! recorder.start_path();
+//! recorder.add_vertex(PathVertex {
+//!     normal: [0.0, 0.0, 1.0],
+//!     wo: [0.0, 0.0, 1.0],
+//!     wi: [0.0, 0.0, 1.0],
+//!     sample_pdf: 0.25 / std::f32::consts::PI,
+//!     bsdf_cos: [0.3; 3],
+//!     ..PathVertex::default()
+//! });
+//! recorder.add_escaped_radiance([2.0; 3], 1.0);
+//! recorder.end_path();
+//! recorder.flush_into(&mut field);
+//! field.update();
+//!
+//! let query = QueryPoint { position: [0.1, 0.2, 0.3], ..QueryPoint::default() };
+//! let dist = field.distribution(&query);
+//! let s = dist.sample(Vec2::new(0.3, 0.7));
+//! assert!((s.direction.length() - 1.0).abs() < 1e-5 && s.pdf > 0.0);
+//! assert!((dist.pdf(s.direction) / s.pdf - 1.0).abs() < 1e-3);
+//! # Ok::<(), guiding::GuidingError>(())
+//! ```
+
+pub mod config;
+pub mod error;
+pub mod field;
+pub mod file;
+mod models;
+pub mod recorder;
+
+pub use config::{GuidingConfig, ModelSize, Representation, Target};
+pub use error::GuidingError;
+pub use field::{DecodedDistribution, Distribution, FieldStats, GuidingField};
+pub use guiding_core::field::{FieldConfig, PlateauConfig, UpdateReport};
+pub use guiding_core::lobe::DirectionSample;
+pub use guiding_core::model::QueryPoint;
+pub use guiding_core::optim::AdamConfig;
+pub use guiding_core::sample::{Rejection, TrainingSample};
+pub use recorder::{PathRecorder, PathVertex};

@@ -1,0 +1,276 @@
+//! The concrete model types behind [`crate::GuidingField`], one enum variant
+//! per (representation family, target, size), dispatched with a `match`
+//! (no `dyn`), and the per-family decode into a [`Decoded`] distribution.
+
+use crate::config::{compact_grid, GuidingConfig, ModelSize, Representation, Target};
+use crate::error::GuidingError;
+use guiding_core::field::{Field, FieldState};
+use guiding_core::mixture::nasg::NasgMixture;
+use guiding_core::mixture::vmf::VmfMixture;
+use guiding_core::model::df::{Df, DfProduct, DfRadiance, DfSmallProduct, DfSmallRadiance};
+use guiding_core::model::nasg::{
+    Nasg, NasgProduct, NasgRadiance, NasgSmallProduct, NasgSmallRadiance, NASG_LOBES,
+};
+use guiding_core::model::npm::{
+    Npm, NpmProduct, NpmRadiance, NpmSmallProduct, NpmSmallRadiance, NPM_LOBES,
+};
+use guiding_core::model::{GuidingModel, QueryPoint};
+use guiding_core::pdf1d::Interpolation;
+
+/// [`ModelSize::Compact`] NPM, radiance target (16 grid features in).
+pub type NpmCompactRadiance = Npm<16, 32, 2>;
+/// [`ModelSize::Compact`] NPM, product target (16 + 32 product inputs).
+pub type NpmCompactProduct = Npm<48, 32, 2>;
+/// [`ModelSize::Compact`] NASG, radiance target.
+pub type NasgCompactRadiance = Nasg<16, 32, 2>;
+/// [`ModelSize::Compact`] NASG, product target.
+pub type NasgCompactProduct = Nasg<48, 32, 2>;
+/// [`ModelSize::Compact`] DF, radiance target (`IN_C = IN_M + 12`, cache input 16 + 16).
+pub type DfCompactRadiance = Df<16, 28, 32, 32, 2, 32, 2>;
+/// [`ModelSize::Compact`] DF, product target.
+pub type DfCompactProduct = Df<48, 60, 32, 32, 2, 32, 2>;
+
+const B0: [f32; 3] = [0.0; 3];
+const B1: [f32; 3] = [1.0; 3];
+const _: () =
+    assert!(NpmCompactRadiance::new(compact_grid(B0, B1), Target::Radiance).is_consistent());
+const _: () =
+    assert!(NpmCompactProduct::new(compact_grid(B0, B1), Target::Product).is_consistent());
+const _: () =
+    assert!(NasgCompactRadiance::new(compact_grid(B0, B1), Target::Radiance).is_consistent());
+const _: () =
+    assert!(NasgCompactProduct::new(compact_grid(B0, B1), Target::Product).is_consistent());
+const _: () = assert!(DfCompactRadiance::new(
+    compact_grid(B0, B1),
+    Target::Radiance,
+    Interpolation::Linear
+)
+.is_consistent());
+const _: () =
+    assert!(
+        DfCompactProduct::new(compact_grid(B0, B1), Target::Product, Interpolation::Linear)
+            .is_consistent()
+    );
+
+/// A distribution decoded at one query point: the mixtures are kept whole
+/// (sampling and evaluating them again costs no network pass); DF keeps the
+/// query, because its conditional network depends on the direction.
+///
+/// Kept by value (a few hundred bytes) in the renderer's per-lane storage;
+/// boxing the larger NASG variant would allocate once per query.
+#[allow(clippy::large_enum_variant)]
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Decoded {
+    Vmf {
+        mixture: VmfMixture<NPM_LOBES>,
+        selection: f32,
+    },
+    Nasg(NasgMixture<NASG_LOBES>),
+    Df {
+        query: QueryPoint,
+        selection: f32,
+    },
+}
+
+/// Per-family decode of a model at a query.
+pub(crate) trait Decode: GuidingModel {
+    fn decode_at(&self, params: &[f32], query: &QueryPoint) -> Decoded;
+}
+
+impl<const IN: usize, const W: usize, const H: usize> Decode for Npm<IN, W, H> {
+    fn decode_at(&self, params: &[f32], query: &QueryPoint) -> Decoded {
+        Decoded::Vmf {
+            mixture: self.decode(params, query),
+            selection: self.selection_probability(params, query),
+        }
+    }
+}
+
+impl<const IN: usize, const W: usize, const H: usize> Decode for Nasg<IN, W, H> {
+    fn decode_at(&self, params: &[f32], query: &QueryPoint) -> Decoded {
+        Decoded::Nasg(self.decode(params, query))
+    }
+}
+
+impl<
+        const IN_M: usize,
+        const IN_C: usize,
+        const IN_R: usize,
+        const W: usize,
+        const H: usize,
+        const WR: usize,
+        const HR: usize,
+    > Decode for Df<IN_M, IN_C, IN_R, W, H, WR, HR>
+{
+    fn decode_at(&self, params: &[f32], query: &QueryPoint) -> Decoded {
+        Decoded::Df {
+            query: *query,
+            selection: self.selection_probability(params, query),
+        }
+    }
+}
+
+macro_rules! any_field {
+    ($($variant:ident($ty:ty)),* $(,)?) => {
+        /// One [`Field`] of any supported model type.
+        pub(crate) enum AnyField {
+            $($variant(Field<$ty>),)*
+        }
+
+        /// Runs `$body` with `$f` bound to the inner `Field<M>` (by
+        /// reference or mutable reference, as `$value` is).
+        macro_rules! with_field {
+            ($value:expr, $f:ident => $body:expr) => {
+                match $value {
+                    $(crate::models::AnyField::$variant($f) => $body,)*
+                }
+            };
+        }
+        pub(crate) use with_field;
+    };
+}
+
+any_field! {
+    NpmSmallRadiance(NpmSmallRadiance),
+    NpmSmallProduct(NpmSmallProduct),
+    NpmCompactRadiance(NpmCompactRadiance),
+    NpmCompactProduct(NpmCompactProduct),
+    NpmPaperRadiance(NpmRadiance),
+    NpmPaperProduct(NpmProduct),
+    NasgSmallRadiance(NasgSmallRadiance),
+    NasgSmallProduct(NasgSmallProduct),
+    NasgCompactRadiance(NasgCompactRadiance),
+    NasgCompactProduct(NasgCompactProduct),
+    NasgPaperRadiance(NasgRadiance),
+    NasgPaperProduct(NasgProduct),
+    DfSmallRadiance(DfSmallRadiance),
+    DfSmallProduct(DfSmallProduct),
+    DfCompactRadiance(DfCompactRadiance),
+    DfCompactProduct(DfCompactProduct),
+    DfPaperRadiance(DfRadiance),
+    DfPaperProduct(DfProduct),
+}
+
+/// Builds the field of `config` over `[lo, hi]`, from `state` if given
+/// (a loaded file) or from the model's deterministic initialisation.
+pub(crate) fn build(
+    config: &GuidingConfig,
+    lo: [f32; 3],
+    hi: [f32; 3],
+    state: Option<FieldState>,
+) -> Result<AnyField, GuidingError> {
+    fn make<M: GuidingModel + Send + Sync>(
+        model: M,
+        config: &GuidingConfig,
+        state: Option<FieldState>,
+    ) -> Result<Field<M>, GuidingError> {
+        Ok(match state {
+            Some(state) => Field::from_state(model, config.training, state)?,
+            None => Field::new(model, config.training)?,
+        })
+    }
+    let c = config.selection_probability;
+    let interp = if config.representation == Representation::DfLinear {
+        Interpolation::Linear
+    } else {
+        Interpolation::Nearest
+    };
+    use AnyField as A;
+    use ModelSize::{Compact, Paper, Small};
+    use Representation::{DfLinear, DfNearest, Nasg as NasgRep, Npm as NpmRep};
+    use Target::{Product, Radiance};
+    let s = state;
+    Ok(match (config.representation, config.size, config.target) {
+        (NpmRep, Small, Radiance) => A::NpmSmallRadiance(make(
+            NpmSmallRadiance::small(lo, hi).with_selection_probability(c),
+            config,
+            s,
+        )?),
+        (NpmRep, Small, Product) => A::NpmSmallProduct(make(
+            NpmSmallProduct::small(lo, hi).with_selection_probability(c),
+            config,
+            s,
+        )?),
+        (NpmRep, Compact, Radiance) => A::NpmCompactRadiance(make(
+            NpmCompactRadiance::new(compact_grid(lo, hi), Radiance).with_selection_probability(c),
+            config,
+            s,
+        )?),
+        (NpmRep, Compact, Product) => A::NpmCompactProduct(make(
+            NpmCompactProduct::new(compact_grid(lo, hi), Product).with_selection_probability(c),
+            config,
+            s,
+        )?),
+        (NpmRep, Paper, Radiance) => A::NpmPaperRadiance(make(
+            NpmRadiance::paper(lo, hi).with_selection_probability(c),
+            config,
+            s,
+        )?),
+        (NpmRep, Paper, Product) => A::NpmPaperProduct(make(
+            NpmProduct::paper(lo, hi).with_selection_probability(c),
+            config,
+            s,
+        )?),
+        (NasgRep, Small, Radiance) => {
+            A::NasgSmallRadiance(make(NasgSmallRadiance::small(lo, hi), config, s)?)
+        }
+        (NasgRep, Small, Product) => {
+            A::NasgSmallProduct(make(NasgSmallProduct::small(lo, hi), config, s)?)
+        }
+        (NasgRep, Compact, Radiance) => A::NasgCompactRadiance(make(
+            NasgCompactRadiance::new(compact_grid(lo, hi), Radiance),
+            config,
+            s,
+        )?),
+        (NasgRep, Compact, Product) => A::NasgCompactProduct(make(
+            NasgCompactProduct::new(compact_grid(lo, hi), Product),
+            config,
+            s,
+        )?),
+        (NasgRep, Paper, Radiance) => {
+            A::NasgPaperRadiance(make(NasgRadiance::paper(lo, hi), config, s)?)
+        }
+        (NasgRep, Paper, Product) => {
+            A::NasgPaperProduct(make(NasgProduct::paper(lo, hi), config, s)?)
+        }
+        (DfNearest | DfLinear, Small, Radiance) => A::DfSmallRadiance(make(
+            DfSmallRadiance::small(lo, hi, interp).with_selection_probability(c),
+            config,
+            s,
+        )?),
+        (DfNearest | DfLinear, Small, Product) => A::DfSmallProduct(make(
+            DfSmallProduct::small(lo, hi, interp).with_selection_probability(c),
+            config,
+            s,
+        )?),
+        (DfNearest | DfLinear, Compact, Radiance) => A::DfCompactRadiance(make(
+            DfCompactRadiance::new(compact_grid(lo, hi), Radiance, interp)
+                .with_selection_probability(c),
+            config,
+            s,
+        )?),
+        (DfNearest | DfLinear, Compact, Product) => A::DfCompactProduct(make(
+            DfCompactProduct::new(compact_grid(lo, hi), Product, interp)
+                .with_selection_probability(c),
+            config,
+            s,
+        )?),
+        (DfNearest | DfLinear, Paper, Radiance) => A::DfPaperRadiance(make(
+            DfRadiance::paper(lo, hi, interp).with_selection_probability(c),
+            config,
+            s,
+        )?),
+        (DfNearest | DfLinear, Paper, Product) => A::DfPaperProduct(make(
+            DfProduct::paper(lo, hi, interp).with_selection_probability(c),
+            config,
+            s,
+        )?),
+    })
+}
+
+/// The model's bytes (`repr(C)` Pod): its grid box, layer offsets and
+/// constants, stored in save files to detect a file written for another
+/// model layout.
+pub(crate) fn model_bytes(field: &AnyField) -> Vec<u8> {
+    with_field!(field, f => bytemuck::bytes_of(f.model()).to_vec())
+}

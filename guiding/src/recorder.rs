@@ -1,0 +1,197 @@
+//! The path recorder: the renderer records every vertex of a path as it
+//! traces it, and at the end of the path the recorder propagates the
+//! radiance back along it into one [`TrainingSample`] per guidable vertex
+//! (the role of Open PGL's `PathSegmentStorage`).
+//!
+//! # Propagation
+//!
+//! For vertices `0 … n−1` (0 nearest the camera), with the continuation
+//! weight `β_k = s_k · f_k cos θ_k / p_k` (`bsdf_cos / sample_pdf`, times
+//! the Russian-roulette scale `s_k`), the radiance leaving vertex `k`
+//! towards `k − 1` is
+//!
+//! `L_o(k) = w_k L_e(k) + D_k + β_k L_i(k)`, with `L_i(k) = L_o(k + 1)`
+//!
+//! where `L_e(k)` is the emission seen at `k` (MIS weight `w_k`), `D_k` the
+//! already weighted next-event contribution at `k`, and `L_i(n−1)` the
+//! radiance of an escaped ray ([`PathRecorder::add_escaped_radiance`]) or
+//! zero. `L_i(k)` is the incident radiance estimate along the sampled
+//! direction `ω_i` of vertex `k`: the training target of that vertex. No
+//! sample is made for delta vertices (no guiding there) or vertices whose
+//! path ended (`sample_pdf = 0`). [`PathRecorder::end_path`] returns
+//! `L_o(0)`, the path's contribution to its pixel (divided by the camera
+//! weight), so a renderer can check its own estimator against it.
+
+use crate::field::GuidingField;
+use guiding_core::sample::TrainingSample;
+
+/// One path vertex as the renderer saw it. All vectors in world space; RGB
+/// values linear.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PathVertex {
+    /// Surface position.
+    pub position: [f32; 3],
+    /// Unit shading normal (zero if unknown; product models need it).
+    pub normal: [f32; 3],
+    /// Unit direction towards the previous vertex (the camera for vertex 0).
+    pub wo: [f32; 3],
+    /// Surface roughness in `[0, 1]` (product models).
+    pub roughness: f32,
+    /// Radiance emitted at this vertex towards `wo`.
+    pub emitted: [f32; 3],
+    /// MIS weight of `emitted` against next-event estimation at the
+    /// previous vertex (1 without NEE).
+    pub emitted_mis_weight: f32,
+    /// Next-event estimation at this vertex, scattered towards `wo`, already
+    /// weighted: `f · L_light · |cos| · w_mis / p_light`.
+    pub direct: [f32; 3],
+    /// Unit sampled continuation direction (ignored if `sample_pdf = 0`).
+    pub wi: [f32; 3],
+    /// Density with which `wi` was sampled (the one-sample MIS density of
+    /// BSDF and guide); `0` if the path ends here.
+    pub sample_pdf: f32,
+    /// Density of `wi` under BSDF sampling alone (NASG's loss), `0` if unknown.
+    pub bsdf_pdf: f32,
+    /// `f(wo, wi) |cos θ_i|` (not divided by the pdf).
+    pub bsdf_cos: [f32; 3],
+    /// Extra factor on the continuation weight, e.g. `1 / q` after a
+    /// Russian-roulette survival with probability `q`; `1` otherwise.
+    pub continuation_scale: f32,
+    /// Whether the BSDF at this vertex is a delta (specular) one: radiance
+    /// is propagated through it but no training sample is made.
+    pub is_delta: bool,
+}
+
+impl Default for PathVertex {
+    fn default() -> Self {
+        Self {
+            position: [0.0; 3],
+            normal: [0.0; 3],
+            wo: [0.0; 3],
+            roughness: 1.0,
+            emitted: [0.0; 3],
+            emitted_mis_weight: 1.0,
+            direct: [0.0; 3],
+            wi: [0.0; 3],
+            sample_pdf: 0.0,
+            bsdf_pdf: 0.0,
+            bsdf_cos: [0.0; 3],
+            continuation_scale: 1.0,
+            is_delta: false,
+        }
+    }
+}
+
+fn add(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+
+fn scale(a: [f32; 3], s: f32) -> [f32; 3] {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+
+fn mul(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] * b[0], a[1] * b[1], a[2] * b[2]]
+}
+
+/// Records paths and turns them into training samples. Use one per render
+/// thread; hand the samples to the field between passes with
+/// [`Self::flush_into`].
+#[derive(Clone, Debug, Default)]
+pub struct PathRecorder {
+    vertices: Vec<PathVertex>,
+    escaped: [f32; 3],
+    samples: Vec<TrainingSample>,
+}
+
+impl PathRecorder {
+    /// An empty recorder.
+    #[must_use]
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Starts a new path (an unfinished previous path is discarded).
+    pub fn start_path(&mut self) {
+        self.vertices.clear();
+        self.escaped = [0.0; 3];
+    }
+
+    /// Records the next vertex of the current path.
+    pub fn add_vertex(&mut self, vertex: PathVertex) {
+        self.vertices.push(vertex);
+    }
+
+    /// Radiance arriving along the last vertex's `wi` from outside the scene
+    /// (an environment), already MIS-weighted; adds up over calls.
+    pub fn add_escaped_radiance(&mut self, radiance: [f32; 3], mis_weight: f32) {
+        self.escaped = add(self.escaped, scale(radiance, mis_weight));
+    }
+
+    /// Vertices recorded on the current path.
+    pub fn path_len(&self) -> usize {
+        self.vertices.len()
+    }
+
+    /// Ends the path: propagates radiance back along it (see the [module
+    /// docs](self)), appends its training samples and returns `L_o(0)`.
+    pub fn end_path(&mut self) -> [f32; 3] {
+        let mut incident = self.escaped;
+        let first_new = self.samples.len();
+        for v in self.vertices.iter().rev() {
+            let continues = v.sample_pdf > 0.0;
+            if continues && !v.is_delta {
+                self.samples.push(TrainingSample {
+                    position: v.position,
+                    roughness: v.roughness,
+                    normal: v.normal,
+                    sample_pdf: v.sample_pdf,
+                    wo: v.wo,
+                    bsdf_pdf: v.bsdf_pdf,
+                    wi: v.wi,
+                    pad0: 0.0,
+                    radiance: incident,
+                    pad1: 0.0,
+                    bsdf_cos: v.bsdf_cos,
+                    pad2: 0.0,
+                });
+            }
+            let scattered = if continues {
+                mul(
+                    scale(v.bsdf_cos, v.continuation_scale / v.sample_pdf),
+                    incident,
+                )
+            } else {
+                [0.0; 3]
+            };
+            incident = add(
+                add(scale(v.emitted, v.emitted_mis_weight), v.direct),
+                scattered,
+            );
+        }
+        // Samples were pushed from the last vertex back; keep path order.
+        self.samples[first_new..].reverse();
+        self.vertices.clear();
+        self.escaped = [0.0; 3];
+        incident
+    }
+
+    /// Training samples of the finished paths so far.
+    pub fn samples(&self) -> &[TrainingSample] {
+        &self.samples
+    }
+
+    /// Hands every finished path's samples to `field` and clears them;
+    /// returns how many were handed over.
+    pub fn flush_into(&mut self, field: &mut GuidingField) -> usize {
+        let n = self.samples.len();
+        field.add_samples(&self.samples);
+        self.samples.clear();
+        n
+    }
+
+    /// Drops the finished paths' samples.
+    pub fn clear_samples(&mut self) {
+        self.samples.clear();
+    }
+}
