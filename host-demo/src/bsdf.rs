@@ -166,6 +166,11 @@ impl Material {
         }
     }
 
+    /// True for the Lambertian BSDF.
+    pub fn is_diffuse(&self) -> bool {
+        matches!(self, Material::Diffuse { .. })
+    }
+
     /// True if the material reflects nothing (e.g. the black "Null" BSDF of area lights).
     pub fn is_black(&self) -> bool {
         match *self {

@@ -164,6 +164,7 @@ pub fn cornell_box() -> Result<Scene> {
             height: 256,
             spp: 64,
             max_depth: 8,
+            rr_depth: 5,
         },
     )
 }
@@ -200,6 +201,7 @@ pub fn furnace() -> Result<Scene> {
             height: 32,
             spp: 16,
             max_depth: 8,
+            rr_depth: 5,
         },
     )
 }
@@ -264,6 +266,7 @@ pub fn door() -> Result<Scene> {
             height: 240,
             spp: 64,
             max_depth: 8,
+            rr_depth: 5,
         },
     )
 }

@@ -52,6 +52,9 @@ pub enum Error {
     /// Writing the EXR file failed.
     #[error("EXR output: {0}")]
     Exr(String),
+    /// Reading an image or writing the PNG preview failed, or two images do not match.
+    #[error("image: {0}")]
+    Image(String),
 }
 
 /// Convenience alias.

@@ -48,7 +48,9 @@
 
 use crate::bsdf::Material;
 use crate::guide::Guide;
-use crate::integrator::{offset, Image, IntegratorKind, RenderOptions, Worker};
+use crate::integrator::{
+    accumulate, finish_image, offset, Image, IntegratorKind, RenderOptions, Worker,
+};
 use crate::math::{power_heuristic, Frame};
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
@@ -120,6 +122,8 @@ pub struct GuidedStats {
     pub query: Duration,
     /// Wall time of recording back-propagation + `add_samples` + `update`.
     pub training: Duration,
+    /// Rays traced (closest-hit and shadow).
+    pub rays: u64,
 }
 
 impl std::fmt::Display for GuidedStats {
@@ -170,6 +174,8 @@ struct Node {
     weight: Vec3,
     /// Training record of the continuation (guidable vertices only), radiance still empty.
     sample: Option<TrainingSample>,
+    /// Russian-roulette factor `1/q` applied at this vertex (1 without RR).
+    rr: f32,
 }
 
 /// Per-render-thread state of the guided integrator.
@@ -269,7 +275,16 @@ impl<'g> GuidedWorker<'g> {
                 nee: Vec3::ZERO,
                 weight: Vec3::ZERO,
                 sample: None,
+                rr: 1.0,
             });
+        }
+    }
+
+    pub(crate) fn record_rr(&mut self, slot: u32, inv_q: f32) {
+        if self.record {
+            if let Some(n) = self.chains[slot as usize].last_mut() {
+                n.rr = inv_q;
+            }
         }
     }
 
@@ -303,7 +318,7 @@ impl<'g> GuidedWorker<'g> {
                     s.radiance = next.0.to_array();
                     self.train.push(s);
                 }
-                let r = n.nee + n.weight * next.1;
+                let r = (n.nee + n.weight * next.1) * n.rr;
                 next = (n.le_full + r, n.le_mis + r);
             }
         }
@@ -591,52 +606,34 @@ pub fn render_guided(
     } else {
         IntegratorKind::Pt
     };
-    let width = if opts.width > 0 {
-        opts.width
-    } else {
-        scene.settings.width
-    };
-    let height = if opts.height > 0 {
-        opts.height
-    } else {
-        scene.settings.height
-    };
+    let (width, height) = opts.resolution(scene);
     let npix = width as usize * height as usize;
-    let threads = if opts.threads == 0 {
-        std::thread::available_parallelism().map_or(1, |n| n.get())
-    } else {
-        opts.threads
-    };
+    let threads = opts.thread_count();
     let block = npix.div_ceil(threads * 8).clamp(64, 4096);
     let nblocks = npix.div_ceil(block);
-    let spp = opts.spp.max(1);
-    let frac = if gopts.train_fraction.is_finite() {
-        gopts.train_fraction.clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    let train_passes = ((frac as f64 * spp as f64).round() as u32).min(spp);
     let mut stats = GuidedStats {
-        nee: gopts.nee,
+        nee: gopts.nee && scene.has_samplable_emitter(),
         model: guide.describe(),
-        passes: spp,
-        training_passes: train_passes,
         last_loss: f64::NAN,
         ..Default::default()
     };
     let mut sum = vec![[0.0f64; 3]; npix];
     let mut sum2 = vec![[0.0f64; 3]; npix];
-    for s in 0..spp {
-        let record = s < train_passes;
-        if s == train_passes {
+    let mut sched = crate::schedule::Schedule::new(&opts, gopts.train_fraction);
+    let mut stopped = false;
+    while let Some(pass) = sched.next_pass() {
+        let (s, record) = (pass.index, pass.train);
+        if !record && !stopped {
             guide.stop_training();
+            stopped = true;
         }
+        stats.training_passes += u32::from(record);
         let t_pass = Instant::now();
         let next = AtomicUsize::new(0);
         // Per block: radiance of this pass and its training samples (kept in block order).
         let results: Mutex<Vec<Option<BlockResult>>> =
             Mutex::new((0..nblocks).map(|_| None).collect());
-        let counters = Mutex::new((0u64, 0u64, Duration::ZERO));
+        let counters = Mutex::new((0u64, 0u64, Duration::ZERO, 0u64));
         let guide_ref: &dyn Guide = &*guide;
         std::thread::scope(|sc| {
             for _ in 0..threads.min(nblocks) {
@@ -666,10 +663,12 @@ pub fn render_guided(
                         c.1 += g.guided_vertices;
                         c.2 += g.query_time;
                     }
+                    counters.lock().unwrap_or_else(|e| e.into_inner()).3 += w.rays;
                 });
             }
         });
-        let (q, gv, qt) = counters.into_inner().unwrap_or_else(|e| e.into_inner());
+        let (q, gv, qt, rays) = counters.into_inner().unwrap_or_else(|e| e.into_inner());
+        stats.rays += rays;
         stats.guide_queries += q;
         if record {
             stats.guide_queries_training += q;
@@ -685,13 +684,7 @@ pub fn render_guided(
                 continue;
             };
             let start = b * block;
-            for (k, l) in rad.iter().enumerate() {
-                for c in 0..3 {
-                    let v = if l[c].is_finite() { l[c] as f64 } else { 0.0 };
-                    sum[start + k][c] += v;
-                    sum2[start + k][c] += v * v;
-                }
-            }
+            accumulate(&mut sum[start..], &mut sum2[start..], &rad);
             train.extend(t);
         }
         stats.samples_recorded += train.len() as u64;
@@ -711,43 +704,19 @@ pub fn render_guided(
             stats.training += t_train.elapsed();
         }
     }
-    if train_passes == spp {
+    if !stopped {
         guide.stop_training();
     }
+    stats.passes = sched.passes();
+    sched.finish();
     stats.training_steps = guide.steps();
     stats.rejected_samples = guide.rejected();
     stats.overflowed_samples = guide.overflowed();
-    (finish_image(width, height, spp, &sum, &sum2), stats)
+    (
+        finish_image(width, height, stats.passes, &sum, &sum2),
+        stats,
+    )
 }
 
 /// One block's pass: per-pixel radiance and the block's training samples.
 type BlockResult = (Vec<Vec3>, Vec<TrainingSample>);
-
-/// Per-pixel mean and variance of the mean from the running sums.
-fn finish_image(width: u32, height: u32, spp: u32, sum: &[[f64; 3]], sum2: &[[f64; 3]]) -> Image {
-    let n = spp.max(1) as f64;
-    let pixels = sum.iter().map(|s| s.map(|v| (v / n) as f32)).collect();
-    let var_of_mean = sum
-        .iter()
-        .zip(sum2)
-        .map(|(s, s2)| {
-            let mut v = [0.0f32; 3];
-            for c in 0..3 {
-                let mean = s[c] / n;
-                let var = if n > 1.0 {
-                    ((s2[c] - n * mean * mean) / (n - 1.0)).max(0.0)
-                } else {
-                    0.0
-                };
-                v[c] = (var / n) as f32;
-            }
-            v
-        })
-        .collect();
-    Image {
-        width,
-        height,
-        pixels,
-        var_of_mean,
-    }
-}

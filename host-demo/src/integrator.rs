@@ -38,8 +38,16 @@ pub enum IntegratorKind {
 pub struct RenderOptions {
     /// Estimator.
     pub integrator: IntegratorKind,
-    /// Samples per pixel.
+    /// Samples per pixel (passes) when `time_budget` is `None`.
     pub spp: u32,
+    /// Render passes until this much wall time is used instead of a fixed spp
+    /// (see [`crate::schedule`]).
+    pub time_budget: Option<std::time::Duration>,
+    /// Russian roulette from the scene's `rr_depth` on (Mitsuba's rule: survival probability
+    /// `min(max(throughput), 0.95)`). Off by default; unbiased either way.
+    pub rr: bool,
+    /// Show a progress bar on stderr (only when stderr is a terminal).
+    pub progress: bool,
     /// Mitsuba max_depth.
     pub max_depth: u32,
     /// Worker threads (0 = all cores).
@@ -50,6 +58,63 @@ pub struct RenderOptions {
     pub width: u32,
     /// Override the image height (0 = scene's).
     pub height: u32,
+}
+
+impl Default for RenderOptions {
+    /// `pt-nee`, 16 spp, depth 8, all cores, seed 0, the scene's image size, no RR, no bar.
+    fn default() -> Self {
+        Self {
+            integrator: IntegratorKind::PtNee,
+            spp: 16,
+            time_budget: None,
+            rr: false,
+            progress: false,
+            max_depth: 8,
+            threads: 0,
+            seed: 0,
+            width: 0,
+            height: 0,
+        }
+    }
+}
+
+impl RenderOptions {
+    /// Image size: the override, else the scene's.
+    pub fn resolution(&self, scene: &Scene) -> (u32, u32) {
+        let w = if self.width > 0 {
+            self.width
+        } else {
+            scene.settings.width
+        };
+        let h = if self.height > 0 {
+            self.height
+        } else {
+            scene.settings.height
+        };
+        (w, h)
+    }
+
+    /// Worker threads (`0` = all cores).
+    pub fn thread_count(&self) -> usize {
+        if self.threads == 0 {
+            std::thread::available_parallelism().map_or(1, |n| n.get())
+        } else {
+            self.threads
+        }
+    }
+}
+
+/// What an unguided render did (the guided integrator reports [`crate::guided::GuidedStats`]).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RenderStats {
+    /// Passes (samples per pixel) rendered.
+    pub passes: u32,
+    /// Wall time of the passes.
+    pub wall: std::time::Duration,
+    /// Rays traced: camera and continuation rays plus shadow rays.
+    pub rays: u64,
+    /// The NEE stage ran (`pt-nee` on a scene with an emitter NEE can sample).
+    pub nee: bool,
 }
 
 /// A rendered image plus per-pixel variance information for statistical tests.
@@ -226,6 +291,8 @@ pub(crate) fn offset(p: Vec3, ng: Vec3, dir: Vec3) -> Vec3 {
 pub(crate) struct Worker<'s> {
     pub(crate) scene: &'s Scene,
     pub(crate) opts: RenderOptions,
+    /// NEE runs: `pt-nee` and the scene has an emitter NEE can sample.
+    pub(crate) nee: bool,
     pub(crate) paths: PathQueue,
     pub(crate) next: PathQueue,
     pub(crate) verts: VertexBatch,
@@ -234,6 +301,8 @@ pub(crate) struct Worker<'s> {
     pub(crate) rng: Vec<Rng>,
     /// Radiance of the current sample per slot.
     pub(crate) radiance: Vec<Vec3>,
+    /// Rays traced by this worker (closest-hit and shadow).
+    pub(crate) rays: u64,
     /// Guided-integrator state (`None` for `pt` / `pt-nee`).
     pub(crate) guided: Option<crate::guided::GuidedWorker<'s>>,
 }
@@ -248,12 +317,14 @@ impl<'s> Worker<'s> {
         Worker {
             scene,
             opts,
+            nee: opts.integrator == IntegratorKind::PtNee && scene.has_samplable_emitter(),
             paths: PathQueue::default(),
             next: PathQueue::default(),
             verts: VertexBatch::default(),
             shadow: ShadowQueue::default(),
             rng: Vec::new(),
             radiance: Vec::new(),
+            rays: 0,
             guided,
         }
     }
@@ -287,7 +358,7 @@ impl<'s> Worker<'s> {
             self.rng.push(rng);
             self.paths.push(i as u32, o, d, Vec3::ONE, 0.0, true);
         }
-        let nee = self.opts.integrator == IntegratorKind::PtNee;
+        let nee = self.nee;
         let mut bounce = 0u32;
         while !self.paths.slot.is_empty() && bounce < max_depth {
             self.stage_intersect_and_emission(bounce);
@@ -316,50 +387,26 @@ impl<'s> Worker<'s> {
         }
     }
 
-    /// Renders pixels `[start, start + count)` and returns per-pixel (sum, sum of squares).
-    fn block(
-        &mut self,
-        start: usize,
-        count: usize,
-        width: u32,
-        height: u32,
-    ) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
-        let mut sum = vec![[0.0f64; 3]; count];
-        let mut sum2 = vec![[0.0f64; 3]; count];
-        for s in 0..self.opts.spp {
-            self.trace_sample(start, count, width, height, s);
-            for i in 0..count {
-                let l = self.radiance[i];
-                for c in 0..3 {
-                    let v = if l[c].is_finite() { l[c] as f64 } else { 0.0 };
-                    sum[i][c] += v;
-                    sum2[i][c] += v * v;
-                }
-            }
-        }
-        (sum, sum2)
-    }
-
     /// Stages 1 and 2: closest hit, emission (with MIS), compaction into the vertex batch.
     pub(crate) fn stage_intersect_and_emission(&mut self, bounce: u32) {
         let scene = self.scene;
         self.verts.clear();
         let continue_path = bounce + 1 < self.opts.max_depth;
+        let rr = self.opts.rr && bounce + 1 >= scene.settings.rr_depth;
+        self.rays += self.paths.slot.len() as u64;
         for i in 0..self.paths.slot.len() {
             let (o, d) = (self.paths.o[i], self.paths.d[i]);
             let Some(hit) = scene.intersect(o, d, 0.0, f32::INFINITY) else {
                 continue;
             };
             let slot = self.paths.slot[i];
-            let beta = self.paths.beta[i];
+            let mut beta = self.paths.beta[i];
             let shape = &scene.shapes[hit.shape as usize];
             let (mut le_full, mut le_mis) = (Vec3::ZERO, Vec3::ZERO);
             if let Some(le) = shape.emission {
                 let cos_l = hit.ns.dot(-d);
                 if cos_l > 0.0 {
-                    let w = if self.paths.from_camera[i]
-                        || self.opts.integrator == IntegratorKind::Pt
-                    {
+                    let w = if self.paths.from_camera[i] || !self.nee {
                         1.0
                     } else {
                         let pdf_light = scene.light_pdf_area(hit.shape) * hit.t * hit.t / cos_l;
@@ -378,6 +425,18 @@ impl<'s> Worker<'s> {
             let mat = &scene.materials[shape.material as usize];
             if mat.is_black() || hit.ns.dot(-d) <= 0.0 {
                 continue; // absorbed, or the back of a one-sided BSDF
+            }
+            if rr {
+                // Russian roulette (Mitsuba: q = min(max(throughput), 0.95)); the survivors'
+                // throughput is divided by q, which keeps the estimator unbiased.
+                let q = beta.max_element().min(0.95);
+                if q.is_nan() || q <= 0.0 || self.rng[slot as usize].next_f32() >= q {
+                    continue;
+                }
+                beta /= q;
+                if let Some(g) = &mut self.guided {
+                    g.record_rr(slot, 1.0 / q);
+                }
             }
             self.verts.slot.push(slot);
             self.verts.p.push(hit.p);
@@ -435,6 +494,7 @@ impl<'s> Worker<'s> {
 
     /// Stage 5: trace shadow rays and accumulate unoccluded light.
     pub(crate) fn stage_shadow(&mut self) {
+        self.rays += self.shadow.slot.len() as u64;
         for i in 0..self.shadow.slot.len() {
             if !self
                 .scene
@@ -479,51 +539,85 @@ impl<'s> Worker<'s> {
 
 /// Renders `scene` with the given options.
 pub fn render(scene: &Scene, opts: &RenderOptions) -> Image {
-    let width = if opts.width > 0 {
-        opts.width
-    } else {
-        scene.settings.width
-    };
-    let height = if opts.height > 0 {
-        opts.height
-    } else {
-        scene.settings.height
-    };
+    render_with_stats(scene, opts).0
+}
+
+/// Renders `scene` pass by pass (one sample per pixel over the whole image per pass, for the
+/// spp or time budget of `opts`, see [`crate::schedule`]) and reports what ran.
+///
+/// Pixel sums are accumulated in pass order, so the image is bit-identical for any thread
+/// count and for any block size.
+pub fn render_with_stats(scene: &Scene, opts: &RenderOptions) -> (Image, RenderStats) {
+    let (width, height) = opts.resolution(scene);
     let npix = width as usize * height as usize;
-    let threads = if opts.threads == 0 {
-        std::thread::available_parallelism().map_or(1, |n| n.get())
-    } else {
-        opts.threads
-    };
+    let threads = opts.thread_count();
     let block = npix.div_ceil(threads * 8).clamp(64, 4096);
     let nblocks = npix.div_ceil(block);
-    let next = AtomicUsize::new(0);
-    let out = Mutex::new((vec![[0.0f64; 3]; npix], vec![[0.0f64; 3]; npix]));
-    std::thread::scope(|s| {
-        for _ in 0..threads.min(nblocks) {
-            s.spawn(|| {
-                let mut w = Worker::new(scene, *opts, None);
-                loop {
-                    let b = next.fetch_add(1, Ordering::Relaxed);
-                    if b >= nblocks {
-                        break;
+    let mut sum = vec![[0.0f64; 3]; npix];
+    let mut sum2 = vec![[0.0f64; 3]; npix];
+    let mut sched = crate::schedule::Schedule::new(opts, 0.0);
+    let mut stats = RenderStats {
+        nee: opts.integrator == IntegratorKind::PtNee && scene.has_samplable_emitter(),
+        ..RenderStats::default()
+    };
+    while let Some(pass) = sched.next_pass() {
+        let next = AtomicUsize::new(0);
+        let acc = Mutex::new((&mut sum, &mut sum2, 0u64));
+        std::thread::scope(|s| {
+            for _ in 0..threads.min(nblocks) {
+                s.spawn(|| {
+                    let mut w = Worker::new(scene, *opts, None);
+                    loop {
+                        let b = next.fetch_add(1, Ordering::Relaxed);
+                        if b >= nblocks {
+                            break;
+                        }
+                        let start = b * block;
+                        let count = block.min(npix - start);
+                        w.trace_sample(start, count, width, height, pass.index);
+                        let mut g = acc.lock().unwrap_or_else(|e| e.into_inner());
+                        let (s1, s2, _) = &mut *g;
+                        accumulate(&mut s1[start..], &mut s2[start..], &w.radiance);
                     }
-                    let start = b * block;
-                    let count = block.min(npix - start);
-                    let (s1, s2) = w.block(start, count, width, height);
-                    let mut g = out.lock().unwrap_or_else(|e| e.into_inner());
-                    g.0[start..start + count].copy_from_slice(&s1);
-                    g.1[start..start + count].copy_from_slice(&s2);
-                }
-            });
+                    acc.lock().unwrap_or_else(|e| e.into_inner()).2 += w.rays;
+                });
+            }
+        });
+        stats.rays += acc.into_inner().unwrap_or_else(|e| e.into_inner()).2;
+    }
+    stats.passes = sched.passes();
+    stats.wall = sched.elapsed();
+    sched.finish();
+    (
+        finish_image(width, height, stats.passes, &sum, &sum2),
+        stats,
+    )
+}
+
+/// Adds one pass's radiance of a block to the per-pixel sums (non-finite samples count as 0).
+pub(crate) fn accumulate(sum: &mut [[f64; 3]], sum2: &mut [[f64; 3]], radiance: &[Vec3]) {
+    for (k, l) in radiance.iter().enumerate() {
+        for c in 0..3 {
+            let v = if l[c].is_finite() { l[c] as f64 } else { 0.0 };
+            sum[k][c] += v;
+            sum2[k][c] += v * v;
         }
-    });
-    let (sum, sum2) = out.into_inner().unwrap_or_else(|e| e.into_inner());
-    let n = opts.spp.max(1) as f64;
+    }
+}
+
+/// Per-pixel mean and variance of the mean from the running sums over `passes` samples.
+pub(crate) fn finish_image(
+    width: u32,
+    height: u32,
+    passes: u32,
+    sum: &[[f64; 3]],
+    sum2: &[[f64; 3]],
+) -> Image {
+    let n = passes.max(1) as f64;
     let pixels = sum.iter().map(|s| s.map(|v| (v / n) as f32)).collect();
     let var_of_mean = sum
         .iter()
-        .zip(&sum2)
+        .zip(sum2)
         .map(|(s, s2)| {
             let mut v = [0.0f32; 3];
             for c in 0..3 {

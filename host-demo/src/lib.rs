@@ -5,9 +5,12 @@
 //! * [`scene`] holds triangles and analytic spheres in an `obvhs` CWBVH.
 //! * [`integrator`] is the wavefront `pt` / `pt-nee` renderer, [`output`] writes EXR.
 //! * [`guided`] is the `guided` integrator (online-trained path guiding through [`guide`]).
+//! * [`schedule`] decides the passes (spp or time budget) and draws the progress bar;
+//!   [`compare`] computes relMSE / MAPE between two images.
 
 pub mod bsdf;
 pub mod builtin;
+pub mod compare;
 pub mod error;
 pub mod guide;
 pub mod guided;
@@ -16,6 +19,7 @@ pub mod math;
 pub mod obj;
 pub mod output;
 pub mod scene;
+pub mod schedule;
 pub mod xml;
 
 pub use error::{Error, Result};

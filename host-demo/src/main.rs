@@ -1,17 +1,20 @@
-//! `host-demo render --scene builtin:cornell-box|PATH --integrator pt|pt-nee|guided ...`
+//! `host-demo render SCENE --integrator pt|pt-nee|guided (--spp N | --time SECONDS) --out FILE.exr
+//! [--stats FILE.json] ...` and `host-demo compare IMAGE.exr REFERENCE.exr`.
 //!
 //! Guided example (about a minute on 2 cores):
-//! `host-demo render --scene builtin:door --integrator guided --guide npm --spp 64 --out door-guided.exr`
+//! `host-demo render builtin:door --integrator guided --guide npm --spp 64 --out door-guided.exr`
 
 use clap::{Parser, Subcommand, ValueEnum};
 use guiding_core::field::FieldConfig;
 use guiding_core::loss::Target;
 use host_demo::guide::{build_guide, GuideKind, ModelSize};
 use host_demo::guided::{render_guided, GuidedOptions};
-use host_demo::integrator::{render, IntegratorKind, RenderOptions};
-use std::path::PathBuf;
+use host_demo::integrator::{render_with_stats, RenderStats};
+use host_demo::integrator::{IntegratorKind, RenderOptions};
+use serde_json::json;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 #[derive(Parser)]
 #[command(
@@ -23,7 +26,7 @@ struct Cli {
     cmd: Cmd,
 }
 
-#[derive(Clone, Copy, ValueEnum)]
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
 enum Integrator {
     /// BSDF sampling only.
     Pt,
@@ -73,17 +76,31 @@ enum OnOff {
 
 #[derive(Subcommand)]
 enum Cmd {
-    /// Render a scene to an EXR file and print the image mean.
+    /// Render a scene to an EXR file (plus a PNG preview next to it) and print the image mean.
     Render {
         /// `builtin:cornell-box`, `builtin:furnace`, `builtin:door`, or a Mitsuba 3 XML path.
-        #[arg(long)]
-        scene: String,
+        #[arg(value_name = "SCENE", required_unless_present = "scene_flag")]
+        scene: Option<String>,
+        /// The scene, as an option (alias of the positional SCENE).
+        #[arg(long = "scene", value_name = "SCENE", conflicts_with = "scene")]
+        scene_flag: Option<String>,
         /// Estimator.
         #[arg(long, value_enum, default_value = "pt-nee")]
         integrator: Integrator,
         /// Samples per pixel (default: the scene's).
-        #[arg(long)]
+        #[arg(long, conflicts_with = "time")]
         spp: Option<u32>,
+        /// Time budget in seconds instead of a fixed spp: passes run until it is used up
+        /// (a pass starts only if it is expected to end within the budget; at least one runs).
+        /// `--train-fraction` applies to this budget.
+        #[arg(long, value_name = "SECONDS")]
+        time: Option<f64>,
+        /// Russian roulette from the scene's rr_depth on (default off, like the papers).
+        #[arg(long)]
+        rr: bool,
+        /// Write run statistics (spp, time split, rays/s, training samples, stages) as JSON.
+        #[arg(long, value_name = "FILE.json")]
+        stats: Option<PathBuf>,
         /// Worker threads (0 = all cores).
         #[arg(long, default_value_t = 0)]
         threads: usize,
@@ -99,7 +116,7 @@ enum Cmd {
         /// Override height.
         #[arg(long)]
         height: Option<u32>,
-        /// Output EXR path.
+        /// Output EXR path (the PNG preview goes next to it, same name with `.png`).
         #[arg(long, default_value = "image.exr")]
         out: PathBuf,
         /// Guiding model (`--integrator guided`).
@@ -111,7 +128,7 @@ enum Cmd {
         /// Model size preset (`--integrator guided`).
         #[arg(long, value_enum, default_value = "demo")]
         model_size: SizeArg,
-        /// Fraction of the spp passes used for training, in [0, 1].
+        /// Fraction of the budget (spp passes or time) used for training, in [0, 1].
         #[arg(long, default_value_t = 0.3)]
         train_fraction: f32,
         /// Guide-selection probability c in [0, 1] (NASG uses its learned value).
@@ -127,9 +144,16 @@ enum Cmd {
         /// Learning rate of the guide's Adam optimiser.
         #[arg(long, default_value_t = 3e-2)]
         learning_rate: f32,
-        /// NEE in the guided integrator (default: on when the scene has area lights).
+        /// NEE in the guided integrator (default: on when the scene has an emitter NEE can sample).
         #[arg(long, value_enum)]
         nee: Option<OnOff>,
+    },
+    /// Compare an image with a reference: prints relMSE (trimmed 0.1 %) and MAPE as JSON.
+    Compare {
+        /// The image to evaluate (EXR).
+        image: PathBuf,
+        /// The reference (EXR).
+        reference: PathBuf,
     },
 }
 
@@ -145,10 +169,42 @@ fn main() -> ExitCode {
 }
 
 fn run(cli: Cli) -> host_demo::Result<()> {
+    match cli.cmd {
+        Cmd::Compare { image, reference } => compare(&image, &reference),
+        Cmd::Render { .. } => render_cmd(cli.cmd),
+    }
+}
+
+fn compare(image: &Path, reference: &Path) -> host_demo::Result<()> {
+    let (a, b) = (
+        host_demo::output::read_exr(image)?,
+        host_demo::output::read_exr(reference)?,
+    );
+    let m = host_demo::compare::compare(&a, &b)?;
+    let out = json!({
+        "image": image.display().to_string(),
+        "reference": reference.display().to_string(),
+        "width": a.width,
+        "height": a.height,
+        "relmse": m.relmse,
+        "relmse_untrimmed": m.relmse_untrimmed,
+        "relmse_trimmed_pixels": m.trimmed,
+        "mape": m.mape,
+        "epsilon": host_demo::compare::EPSILON,
+    });
+    println!("{out:#}");
+    Ok(())
+}
+
+fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
     let Cmd::Render {
         scene,
+        scene_flag,
         integrator,
         spp,
+        time,
+        rr,
+        stats: stats_path,
         threads,
         seed,
         max_depth,
@@ -164,8 +220,19 @@ fn run(cli: Cli) -> host_demo::Result<()> {
         batch_size,
         learning_rate,
         nee,
-    } = cli.cmd;
+    } = cmd
+    else {
+        unreachable!("render_cmd is only called for `render`");
+    };
     let bad = |m: String| Err(host_demo::Error::Scene(m));
+    let Some(scene) = scene.or(scene_flag) else {
+        return bad("no scene given (positional SCENE or --scene)".into());
+    };
+    let time_budget = match time {
+        None => None,
+        Some(t) if t.is_finite() && (0.0..=1e7).contains(&t) => Some(Duration::from_secs_f64(t)),
+        Some(t) => return bad(format!("--time {t} is not a number of seconds in [0, 1e7]")),
+    };
     if !(0.0..=1.0).contains(&train_fraction) {
         return bad(format!(
             "--train-fraction {train_fraction} is not in [0, 1]"
@@ -211,6 +278,9 @@ fn run(cli: Cli) -> host_demo::Result<()> {
             Integrator::PtNee | Integrator::Guided => IntegratorKind::PtNee,
         },
         spp: spp.unwrap_or(sc.settings.spp).max(1),
+        time_budget,
+        rr,
+        progress: true,
         max_depth: max_depth.unwrap_or(sc.settings.max_depth),
         threads,
         seed,
@@ -219,12 +289,13 @@ fn run(cli: Cli) -> host_demo::Result<()> {
     };
     let t1 = Instant::now();
     let mut guided_stats = None;
+    let mut plain_stats = None;
     let img = if let Integrator::Guided = integrator {
         let gopts = GuidedOptions {
             nee: match nee {
                 Some(OnOff::On) => true,
                 Some(OnOff::Off) => false,
-                None => !sc.lights.is_empty(),
+                None => sc.has_samplable_emitter(),
             },
             train_fraction,
             selection_probability,
@@ -260,23 +331,27 @@ fn run(cli: Cli) -> host_demo::Result<()> {
             config,
         )?;
         let (img, stats) = render_guided(&sc, &opts, &gopts, &mut *g);
-        guided_stats = Some(stats);
+        guided_stats = Some((stats, target, gopts));
         img
     } else {
-        render(&sc, &opts)
+        let (img, stats) = render_with_stats(&sc, &opts);
+        plain_stats = Some(stats);
+        img
     };
     let render_s = t1.elapsed().as_secs_f64();
     host_demo::output::write_exr(&img, &out)?;
+    let png = out.with_extension("png");
+    host_demo::output::write_png(&img, &png)?;
     let m = img.mean();
     let se = img.mean_std_error();
     println!(
-        "{scene}: {}x{} {} spp max_depth {} ({} prims, {} lights)",
+        "{scene}: {}x{} {} spp max_depth {} ({} prims, {} emitters)",
         w,
         h,
-        opts.spp,
+        img_spp(&plain_stats, &guided_stats),
         opts.max_depth,
         sc.prims.len(),
-        sc.lights.len()
+        sc.emitter_count()
     );
     println!(
         "mean RGB = ({:.4}, {:.4}, {:.4})  std.err = ({:.4}, {:.4}, {:.4})",
@@ -289,12 +364,142 @@ fn run(cli: Cli) -> host_demo::Result<()> {
         .sum::<f64>()
         / (3.0 * img.var_of_mean.len().max(1) as f64);
     println!("mean per-pixel variance of the estimate = {var:.4e}");
-    if let Some(st) = guided_stats {
+    if let Some((st, _, _)) = &guided_stats {
         println!("{st}");
     }
     println!(
-        "load {load_s:.3} s, render {render_s:.3} s, wrote {}",
-        out.display()
+        "load {load_s:.3} s, render {render_s:.3} s, wrote {} and {}",
+        out.display(),
+        png.display()
     );
+    if let Some(path) = stats_path {
+        let threads = opts.thread_count();
+        let mut doc = json!({
+            "scene": scene,
+            "integrator": match integrator {
+                Integrator::Pt => "pt",
+                Integrator::PtNee => "pt-nee",
+                Integrator::Guided => "guided",
+            },
+            "width": w,
+            "height": h,
+            "max_depth": opts.max_depth,
+            "seed": seed,
+            "threads": threads,
+            "budget": match time_budget {
+                Some(t) => json!({"time_s": t.as_secs_f64()}),
+                None => json!({"spp": opts.spp}),
+            },
+            "load_s": load_s,
+            "mean_rgb": m,
+            "mean_std_error_rgb": se,
+            "output": {"exr": out.display().to_string(), "png": png.display().to_string()},
+        });
+        let all_diffuse = sc.materials.iter().all(|m| m.is_diffuse());
+        let (nee_ran, nee_asked) = match (&plain_stats, &guided_stats) {
+            (Some(p), _) => (p.nee, integrator == Integrator::PtNee),
+            (_, Some((g, _, go))) => (g.nee, go.nee),
+            _ => (false, false),
+        };
+        let nee_reason = if nee_ran {
+            "NEE + MIS on every non-delta vertex (delta BSDFs are not connected)"
+        } else if !nee_asked {
+            "not requested (integrator pt or --nee off)"
+        } else {
+            "skipped: the scene has no emitter NEE can sample"
+        };
+        let rr_stage = json!({"ran": rr, "rr_depth": sc.settings.rr_depth});
+        if let Some(p) = &plain_stats {
+            let wall = p.wall.as_secs_f64();
+            doc["spp"] = json!(p.passes);
+            doc["time_s"] =
+                json!({"wall": wall, "tracing": wall, "inference": 0.0, "training": 0.0});
+            doc["rays"] = json!(p.rays);
+            doc["rays_per_second"] = json!(p.rays as f64 / wall.max(1e-9));
+            doc["training_samples_used"] = json!(0);
+            doc["stages"] = json!({
+                "nee": {"ran": nee_ran, "reason": nee_reason},
+                "guiding": {"ran": false, "reason": "unguided integrator"},
+                "product_inputs": {"ran": false, "reason": "unguided integrator"},
+                "training": {"ran": false, "reason": "unguided integrator"},
+                "russian_roulette": rr_stage,
+            });
+        }
+        if let Some((g, target, _)) = &guided_stats {
+            let trace = g.trace.as_secs_f64();
+            // Guide queries run inside the render threads: their thread-seconds divided by
+            // the thread count estimate their share of the tracing wall time.
+            let inference = (g.query.as_secs_f64() / threads as f64).min(trace);
+            let training = g.training.as_secs_f64();
+            let wall = trace + training;
+            let used = g
+                .samples_recorded
+                .saturating_sub(g.rejected_samples + g.overflowed_samples);
+            let product = matches!(target, Target::Product);
+            doc["spp"] = json!(g.passes);
+            doc["guide"] = json!(g.model);
+            doc["time_s"] = json!({
+                "wall": wall,
+                "tracing": trace - inference,
+                "inference": inference,
+                "inference_thread_s": g.query.as_secs_f64(),
+                "training": training,
+            });
+            doc["rays"] = json!(g.rays);
+            doc["rays_per_second"] = json!(g.rays as f64 / wall.max(1e-9));
+            doc["training_samples_used"] = json!(used);
+            doc["training_samples"] = json!({
+                "recorded": g.samples_recorded,
+                "rejected": g.rejected_samples,
+                "overflowed": g.overflowed_samples,
+                "recorded_after_training": g.samples_recorded_after_training,
+            });
+            doc["stages"] = json!({
+                "nee": {"ran": nee_ran, "reason": nee_reason},
+                "guiding": {
+                    "ran": g.guided_vertices > 0,
+                    "guided_vertices": g.guided_vertices,
+                    "guide_queries": g.guide_queries,
+                    "reason": "delta, smooth-coated and near-specular vertices use BSDF sampling only",
+                },
+                "product_inputs": {
+                    "ran": product,
+                    "all_materials_diffuse": all_diffuse,
+                    "reason": if !product {
+                        "radiance target"
+                    } else if all_diffuse {
+                        "product target requested; every material is diffuse, but the guide facade has no switch to drop the product inputs yet"
+                    } else {
+                        "product target"
+                    },
+                },
+                "training": {
+                    "ran": g.training_passes > 0,
+                    "passes": g.training_passes,
+                    "stopped_after_pass": g.training_passes,
+                    "steps": g.training_steps,
+                    "steps_after_stop": g.training_steps_after_training,
+                    "last_loss": if g.last_loss.is_finite() { json!(g.last_loss) } else { json!(null) },
+                },
+                "russian_roulette": rr_stage,
+            });
+        }
+        let text = format!("{doc:#}\n");
+        std::fs::write(&path, text).map_err(|source| host_demo::Error::Io {
+            path: path.clone(),
+            source,
+        })?;
+    }
     Ok(())
+}
+
+fn img_spp(
+    plain: &Option<RenderStats>,
+    guided: &Option<(host_demo::guided::GuidedStats, Target, GuidedOptions)>,
+) -> u32 {
+    match (plain, guided) {
+        (Some(p), _) => p.passes,
+        (_, Some((g, _, _))) => g.passes,
+        _ => 0,
+    }
 }

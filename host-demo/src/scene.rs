@@ -205,6 +205,8 @@ pub struct Settings {
     pub spp: u32,
     /// Mitsuba max_depth (1 = directly visible emission only).
     pub max_depth: u32,
+    /// Mitsuba rr_depth: with `--rr`, Russian roulette starts at this path depth (default 5).
+    pub rr_depth: u32,
 }
 
 /// An area light: a shape with emission and an area-weighted CDF over its primitives.
@@ -491,6 +493,16 @@ impl Scene {
             radiance: l.radiance,
             pdf_area: 1.0 / (n as f32 * l.area),
         })
+    }
+
+    /// Number of emitters (area lights count one per emitting shape).
+    pub fn emitter_count(&self) -> usize {
+        self.lights.len()
+    }
+
+    /// True if NEE has something to sample (the NEE stage is skipped otherwise).
+    pub fn has_samplable_emitter(&self) -> bool {
+        !self.lights.is_empty()
     }
 
     /// Area pdf (with selection probability) of sampling a point on the light of `shape`.

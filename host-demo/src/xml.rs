@@ -274,7 +274,7 @@ impl<'a, 'i> Ctx<'a, 'i> {
                 ),
             ));
         }
-        let mut max_depth: Option<u32> = None;
+        let mut max_depth: Option<(u32, u32)> = None;
         let mut sensor: Option<(Camera, u32, u32, u32)> = None;
         for n in elements(root) {
             match n.tag_name().name() {
@@ -307,29 +307,33 @@ impl<'a, 'i> Ctx<'a, 'i> {
             width,
             height,
             spp,
-            max_depth: max_depth.unwrap_or(1024),
+            max_depth: max_depth.map_or(1024, |d| d.0),
+            rr_depth: max_depth.map_or(5, |d| d.1),
         };
         let builder = std::mem::take(&mut self.builder);
         builder.build(camera, settings)
     }
 
-    fn integrator(&self, n: Node) -> Result<u32> {
+    /// `(max_depth, rr_depth)` of `<integrator type="path">`.
+    fn integrator(&self, n: Node) -> Result<(u32, u32)> {
         if n.attribute("type") != Some("path") {
             return Err(self.unsupported(n, "integrator type"));
         }
-        let mut depth = 1024;
+        let (mut depth, mut rr_depth) = (1024, 5);
         for p in elements(n) {
             match (p.tag_name().name(), self.name(p)?) {
                 ("integer", "max_depth") => {
                     let d = self.integer(p)?;
                     depth = if d < 0 { 1024 } else { d.min(1 << 20) as u32 };
                 }
-                // Russian roulette start depth: RR is unbiased, so it cannot change the expected image.
-                ("integer", "rr_depth") => {}
+                // Russian roulette start depth (used with `--rr`; RR is off by default).
+                ("integer", "rr_depth") => {
+                    rr_depth = self.integer(p)?.clamp(1, 1 << 20) as u32;
+                }
                 _ => return Err(self.unsupported(p, "integrator property")),
             }
         }
-        Ok(depth)
+        Ok((depth, rr_depth))
     }
 
     fn sensor(&self, n: Node) -> Result<(Camera, u32, u32, u32)> {

@@ -41,6 +41,7 @@ fn opts(
         seed,
         width: w,
         height: h,
+        ..RenderOptions::default()
     }
 }
 

@@ -32,6 +32,7 @@ fn opts(kind: IntegratorKind, spp: u32, w: u32, h: u32, seed: u64) -> RenderOpti
         seed,
         width: w,
         height: h,
+        ..RenderOptions::default()
     }
 }
 

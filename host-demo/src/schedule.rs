@@ -1,0 +1,176 @@
+//! Pass scheduling: how many passes (one sample per pixel over the whole image) a render runs,
+//! which of them train the guide, and the progress bar.
+//!
+//! * **spp budget** (`RenderOptions::time_budget == None`): exactly `spp` passes; the first
+//!   `round(train_fraction · spp)` train.
+//! * **time budget**: passes run while the budget lasts. A new pass starts only if the time
+//!   used so far plus the mean pass time measured so far fits into the budget (so the render
+//!   ends at or slightly before the budget, not one pass after it); the first pass always runs.
+//!   Training passes are those that *start* before `train_fraction · budget` has elapsed; once
+//!   one pass starts after that point no later pass trains.
+//!
+//! The progress bar (indicatif, on stderr) counts passes (spp budget) or elapsed milliseconds
+//! (time budget); it is hidden when `RenderOptions::progress` is off or stderr is not a terminal.
+
+use crate::integrator::RenderOptions;
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use std::io::IsTerminal;
+use std::time::{Duration, Instant};
+
+/// Upper bound on the passes of a time-budget render (the per-pixel sums are exact far beyond).
+pub const MAX_PASSES: u32 = 1 << 20;
+
+/// One pass to render.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Pass {
+    /// Pass index = sample index of every pixel (seeds the per-path RNG).
+    pub index: u32,
+    /// The pass records training samples.
+    pub train: bool,
+}
+
+/// Decides the passes of one render; see the [module docs](self).
+pub struct Schedule {
+    start: Instant,
+    spp: u32,
+    budget: Option<Duration>,
+    train_fraction: f64,
+    done: u32,
+    training_over: bool,
+    bar: Option<ProgressBar>,
+}
+
+impl Schedule {
+    /// Schedule for `opts` (spp or time budget) with `train_fraction` in `[0, 1]` (0 for
+    /// unguided renders; non-finite values count as 0).
+    pub fn new(opts: &RenderOptions, train_fraction: f32) -> Self {
+        let train_fraction = if train_fraction.is_finite() {
+            f64::from(train_fraction.clamp(0.0, 1.0))
+        } else {
+            0.0
+        };
+        let budget = opts.time_budget;
+        let bar = (opts.progress && std::io::stderr().is_terminal()).then(|| {
+            let (len, template) = match budget {
+                Some(b) => (
+                    b.as_millis().max(1) as u64,
+                    "{elapsed_precise} [{bar:40}] {percent:>3}% of the time budget {msg}",
+                ),
+                None => (
+                    u64::from(opts.spp.max(1)),
+                    "{elapsed_precise} [{bar:40}] {pos}/{len} passes (eta {eta}) {msg}",
+                ),
+            };
+            let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::stderr());
+            if let Ok(style) = ProgressStyle::with_template(template) {
+                bar.set_style(style.progress_chars("=> "));
+            }
+            bar
+        });
+        Self {
+            start: Instant::now(),
+            spp: opts.spp.max(1),
+            budget,
+            train_fraction,
+            done: 0,
+            training_over: false,
+            bar,
+        }
+    }
+
+    /// Number of training passes of an spp-budget render.
+    fn spp_train_passes(&self) -> u32 {
+        ((self.train_fraction * f64::from(self.spp)).round() as u32).min(self.spp)
+    }
+
+    /// The next pass, or `None` when the budget is used up. Call once per pass, after the
+    /// previous pass finished.
+    pub fn next_pass(&mut self) -> Option<Pass> {
+        let elapsed = self.start.elapsed();
+        if let Some(bar) = &self.bar {
+            match self.budget {
+                Some(_) => bar.set_position(elapsed.as_millis() as u64),
+                None => bar.set_position(u64::from(self.done)),
+            }
+        }
+        let index = self.done;
+        let train = match self.budget {
+            None => {
+                if index >= self.spp {
+                    return None;
+                }
+                index < self.spp_train_passes()
+            }
+            Some(budget) => {
+                if index >= MAX_PASSES {
+                    return None;
+                }
+                if index > 0 {
+                    let mean_pass = elapsed / index;
+                    if elapsed + mean_pass > budget {
+                        return None;
+                    }
+                }
+                let t = elapsed.as_secs_f64() < self.train_fraction * budget.as_secs_f64();
+                !self.training_over && t
+            }
+        };
+        if !train {
+            self.training_over = true;
+        }
+        if let Some(bar) = &self.bar {
+            bar.set_message(if train { "(training)" } else { "" });
+        }
+        self.done += 1;
+        Some(Pass { index, train })
+    }
+
+    /// Passes handed out so far.
+    pub fn passes(&self) -> u32 {
+        self.done
+    }
+
+    /// Wall time since the schedule was created.
+    pub fn elapsed(&self) -> Duration {
+        self.start.elapsed()
+    }
+
+    /// Removes the progress bar.
+    pub fn finish(self) {
+        if let Some(bar) = self.bar {
+            bar.finish_and_clear();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spp_schedule_counts_and_trains_first_fraction() {
+        let opts = RenderOptions {
+            spp: 10,
+            ..RenderOptions::default()
+        };
+        let mut s = Schedule::new(&opts, 0.3);
+        let passes: Vec<Pass> = std::iter::from_fn(|| s.next_pass()).collect();
+        assert_eq!(passes.len(), 10);
+        assert_eq!(passes.iter().filter(|p| p.train).count(), 3);
+        assert!(passes[..3].iter().all(|p| p.train));
+        assert_eq!(passes[9].index, 9);
+    }
+
+    #[test]
+    fn zero_time_budget_runs_one_pass() {
+        let opts = RenderOptions {
+            time_budget: Some(Duration::ZERO),
+            ..RenderOptions::default()
+        };
+        let mut s = Schedule::new(&opts, 0.5);
+        let first = s.next_pass().expect("first pass always runs");
+        assert!(!first.train, "no training time in a zero budget");
+        std::thread::sleep(Duration::from_millis(1));
+        assert_eq!(s.next_pass(), None);
+    }
+}

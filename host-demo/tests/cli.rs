@@ -1,0 +1,293 @@
+//! End-to-end tests of the `host-demo` binary (`render`, `compare`) and the image metrics.
+//! Run with `cargo test --release -p host-demo --test cli` (a few seconds).
+
+use host_demo::compare::compare;
+use host_demo::integrator::Image;
+use host_demo::output::{read_exr, write_exr, RgbImage};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_host-demo"))
+}
+
+/// A fresh scratch directory under the target dir (removed at the start of each run).
+fn scratch(name: &str) -> PathBuf {
+    let d = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("cli-{name}"));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).expect("scratch dir");
+    d
+}
+
+fn run_ok(cmd: &mut Command) -> String {
+    let out = cmd.output().expect("runs");
+    let (so, se) = (
+        String::from_utf8_lossy(&out.stdout).to_string(),
+        String::from_utf8_lossy(&out.stderr).to_string(),
+    );
+    assert!(
+        out.status.success(),
+        "{cmd:?} failed\nstdout:\n{so}\nstderr:\n{se}"
+    );
+    so
+}
+
+fn read_json(p: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}\n{text}", p.display()))
+}
+
+/// Decodes a PNG and returns (width, height, bytes per pixel).
+fn png_info(p: &Path) -> (u32, u32, usize) {
+    let dec = png::Decoder::new(std::fs::File::open(p).expect("png exists"));
+    let mut reader = dec.read_info().expect("png header");
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).expect("png data");
+    assert!(
+        buf[..info.buffer_size()].iter().any(|&b| b > 0),
+        "black png"
+    );
+    (info.width, info.height, info.color_type.samples())
+}
+
+fn rgb(width: usize, height: usize, f: impl Fn(usize) -> [f32; 3]) -> RgbImage {
+    RgbImage {
+        width,
+        height,
+        pixels: (0..width * height).map(f).collect(),
+    }
+}
+
+/// Hand-computed case: 2 pixels, nothing trimmed (⌊0.001·2⌋ = 0).
+#[test]
+fn compare_metrics_by_hand() {
+    let r = rgb(2, 1, |i| if i == 0 { [1.0; 3] } else { [0.0; 3] });
+    let i = rgb(2, 1, |i| if i == 0 { [2.0, 1.0, 1.0] } else { [0.125; 3] });
+    let m = compare(&i, &r).expect("same size");
+    // Pixel 0: ((2-1)²/(1+0.01) + 0 + 0)/3; pixel 1: each channel 0.125²/(0+0.01) = 1.5625.
+    let expect_rel = ((1.0 / 1.01) / 3.0 + 1.5625) / 2.0;
+    // MAPE: (1/1.01 + 0 + 0 + 3 · 0.125/0.01) / 6.
+    let expect_mape = (1.0 / 1.01 + 37.5) / 6.0;
+    assert!((m.relmse - expect_rel).abs() < 1e-12, "{m:?}");
+    assert!((m.relmse_untrimmed - expect_rel).abs() < 1e-12, "{m:?}");
+    assert!((m.mape - expect_mape).abs() < 1e-12, "{m:?}");
+    assert_eq!(m.trimmed, 0);
+}
+
+/// 50 × 40 = 2000 pixels: the two largest pixel errors (0.1 %) are dropped. The expected
+/// values are computed here without sorting: the outliers are planted at known pixels.
+#[test]
+fn compare_trims_the_top_tenth_percent() {
+    let (w, h) = (50usize, 40usize);
+    let refv = |i: usize| [0.2 + 0.001 * (i % 7) as f32, 0.5, 1.5];
+    let r = rgb(w, h, refv);
+    // Small relative error 5 % everywhere, huge errors at pixels 17 and 1234.
+    let img = rgb(w, h, |i| {
+        let v = refv(i);
+        if i == 17 || i == 1234 {
+            [v[0] + 100.0, v[1], v[2]]
+        } else {
+            v.map(|c| c * 1.05)
+        }
+    });
+    let m = compare(&img, &r).expect("same size");
+    assert_eq!(m.trimmed, 2);
+    let mut kept = 0.0f64;
+    let mut all = 0.0f64;
+    let mut ape = 0.0f64;
+    for i in 0..w * h {
+        let (a, b) = (img.pixels[i], r.pixels[i]);
+        let mut e = 0.0;
+        for c in 0..3 {
+            let (x, y) = (a[c] as f64, b[c] as f64);
+            e += (x - y).powi(2) / (y * y + 0.01) / 3.0;
+            ape += (x - y).abs() / (y + 0.01);
+        }
+        all += e;
+        if i != 17 && i != 1234 {
+            kept += e;
+        }
+    }
+    let n = (w * h) as f64;
+    assert!(
+        (m.relmse - kept / (n - 2.0)).abs() < 1e-12 * m.relmse.max(1.0),
+        "{m:?}"
+    );
+    assert!((m.relmse_untrimmed - all / n).abs() < 1e-9, "{m:?}");
+    assert!((m.mape - ape / (3.0 * n)).abs() < 1e-12, "{m:?}");
+    // The trimmed number is the small relative error only: 0.05² · R²/(R² + 0.01) per channel.
+    assert!(m.relmse < 0.0025 && m.relmse_untrimmed > 1.0, "{m:?}");
+}
+
+#[test]
+fn compare_rejects_bad_input() {
+    let a = rgb(2, 2, |_| [1.0; 3]);
+    let b = rgb(4, 1, |_| [1.0; 3]);
+    assert!(compare(&a, &b).is_err());
+    let nan = rgb(2, 2, |i| if i == 3 { [f32::NAN; 3] } else { [1.0; 3] });
+    let e = compare(&nan, &a).unwrap_err().to_string();
+    assert!(e.contains("(1, 1)"), "{e}");
+}
+
+#[test]
+fn exr_roundtrip_is_exact() {
+    let dir = scratch("exr");
+    let img = Image {
+        width: 3,
+        height: 2,
+        pixels: (0..6).map(|i| [i as f32, 0.5 * i as f32, 1e3]).collect(),
+        var_of_mean: vec![[0.0; 3]; 6],
+    };
+    let p = dir.join("x.exr");
+    write_exr(&img, &p).expect("write");
+    let back = read_exr(&p).expect("read");
+    assert_eq!((back.width, back.height), (3, 2));
+    assert_eq!(back.pixels, img.pixels);
+}
+
+/// `render SCENE` writes the EXR, the PNG preview and the stats JSON; `--scene` (the README's
+/// spelling) and `--time` work; `compare` prints JSON.
+#[test]
+fn render_and_compare_end_to_end() {
+    let dir = scratch("render");
+    let (exr_a, stats_a) = (dir.join("a.exr"), dir.join("a.json"));
+    run_ok(
+        bin()
+            .args(["render", "builtin:cornell-box", "--integrator", "pt-nee"])
+            .args([
+                "--spp",
+                "3",
+                "--width",
+                "24",
+                "--height",
+                "16",
+                "--threads",
+                "2",
+                "--seed",
+                "5",
+                "--max-depth",
+                "4",
+                "--out",
+            ])
+            .arg(&exr_a)
+            .arg("--stats")
+            .arg(&stats_a),
+    );
+    let img = read_exr(&exr_a).expect("exr parses");
+    assert_eq!((img.width, img.height), (24, 16));
+    assert_eq!(png_info(&exr_a.with_extension("png")), (24, 16, 3));
+    let s = read_json(&stats_a);
+    assert_eq!(s["spp"], 3);
+    assert_eq!(s["max_depth"], 4);
+    assert_eq!(s["stages"]["nee"]["ran"], true);
+    assert_eq!(s["stages"]["training"]["ran"], false);
+    assert!(s["rays"].as_u64().expect("rays") >= 3 * 24 * 16);
+    assert!(s["rays_per_second"].as_f64().expect("rays/s") > 0.0);
+    for k in ["wall", "tracing", "inference", "training"] {
+        assert!(s["time_s"][k].as_f64().is_some(), "time_s.{k}");
+    }
+
+    // README spelling (`--scene`), guided, time budget with a training fraction.
+    let (exr_b, stats_b) = (dir.join("b.exr"), dir.join("b.json"));
+    run_ok(
+        bin()
+            .args([
+                "render",
+                "--scene",
+                "builtin:cornell-box",
+                "--integrator",
+                "guided",
+            ])
+            .args([
+                "--guide",
+                "npm",
+                "--model-size",
+                "small",
+                "--time",
+                "1.0",
+                "--width",
+                "24",
+                "--height",
+                "16",
+                "--threads",
+                "2",
+                "--train-fraction",
+                "0.5",
+                "--batch-size",
+                "256",
+                "--steps-per-pass",
+                "1",
+                "--rr",
+                "--out",
+            ])
+            .arg(&exr_b)
+            .arg("--stats")
+            .arg(&stats_b),
+    );
+    let s = read_json(&stats_b);
+    let spp = s["spp"].as_u64().expect("spp");
+    let train = s["stages"]["training"]["passes"]
+        .as_u64()
+        .expect("training passes");
+    assert!(spp >= 1 && train <= spp, "{s}");
+    assert_eq!(s["stages"]["training"]["steps_after_stop"], 0);
+    assert_eq!(s["stages"]["russian_roulette"]["ran"], true);
+    assert_eq!(s["stages"]["product_inputs"]["all_materials_diffuse"], true);
+    assert!(s["training_samples_used"].as_u64().is_some());
+    assert!(s["time_s"]["inference"].as_f64().expect("inference") >= 0.0);
+    assert!(exr_b.with_extension("png").exists());
+
+    let out = run_ok(bin().arg("compare").arg(&exr_a).arg(&exr_b));
+    let m: serde_json::Value = serde_json::from_str(&out).expect("compare prints JSON");
+    assert!(m["relmse"].as_f64().expect("relmse").is_finite());
+    assert!(m["mape"].as_f64().expect("mape") > 0.0);
+    let same = run_ok(bin().arg("compare").arg(&exr_a).arg(&exr_a));
+    let m: serde_json::Value = serde_json::from_str(&same).expect("JSON");
+    assert_eq!(m["relmse"], 0.0);
+
+    // Usage errors are errors, not renders.
+    for bad in [
+        vec!["render", "builtin:furnace", "--spp", "2", "--time", "1"],
+        vec!["render", "builtin:furnace", "--scene", "builtin:door"],
+        vec!["render"],
+        vec!["render", "builtin:nope", "--spp", "1"],
+    ] {
+        let o = bin()
+            .args(&bad)
+            .arg("--out")
+            .arg(dir.join("bad.exr"))
+            .output()
+            .expect("runs");
+        assert!(!o.status.success(), "{bad:?} should fail");
+    }
+}
+
+/// A scene with no emitter NEE can sample skips the NEE stage and says so.
+#[test]
+fn stats_report_skipped_nee() {
+    let dir = scratch("nolight");
+    let xml = dir.join("dark.xml");
+    std::fs::write(
+        &xml,
+        r#"<scene version="3.0.0"><sensor type="perspective"><float name="fov" value="40"/>
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film></sensor>
+        <shape type="sphere"/></scene>"#,
+    )
+    .expect("write");
+    let stats = dir.join("s.json");
+    run_ok(
+        bin()
+            .arg("render")
+            .arg(&xml)
+            .args(["--integrator", "pt-nee", "--spp", "1", "--out"])
+            .arg(dir.join("d.exr"))
+            .arg("--stats")
+            .arg(&stats),
+    );
+    let s = read_json(&stats);
+    assert_eq!(s["stages"]["nee"]["ran"], false);
+    assert!(s["stages"]["nee"]["reason"]
+        .as_str()
+        .expect("reason")
+        .contains("no emitter"));
+}
