@@ -55,6 +55,9 @@ pub enum Error {
     /// Reading an image or writing the PNG preview failed, or two images do not match.
     #[error("image: {0}")]
     Image(String),
+    /// The benchmark suite could not run (bad arguments, a failed child render, I/O).
+    #[error("bench: {0}")]
+    Bench(String),
 }
 
 /// Convenience alias.

@@ -8,6 +8,7 @@
 //! * [`schedule`] decides the passes (spp or time budget) and draws the progress bar;
 //!   [`compare`] computes relMSE / MAPE between two images.
 
+pub mod bench;
 pub mod bsdf;
 pub mod builtin;
 pub mod compare;

@@ -1,0 +1,341 @@
+//! Micro-benchmarks of the benchmark report: ns per sample+pdf of each
+//! distribution (ratio to the uniform-sphere warp measured in the same
+//! process), queries/s and training samples/s of each guiding model through
+//! the embedding facade, and MLP GFLOP/s against the core's nominal peak.
+//!
+//! Timing: each measurement is the median of `repeats` wall-clock runs of a
+//! fixed workload after one warm-up run. Wall clock on a shared machine is
+//! noisy; the ratios against a baseline run in the same process are the
+//! numbers to compare across machines.
+
+use glam::{Vec2, Vec3};
+use guiding::{
+    FieldConfig, GuidingConfig, GuidingField, ModelSize, Representation, TrainingSample,
+};
+use guiding_core::factorised::FactorisedTable;
+use guiding_core::math::INV_FOUR_PI;
+use guiding_core::mixture::nasg::{NasgMixture, NASG_RAW_PER_LOBE};
+use guiding_core::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
+use guiding_core::mlp::Mlp;
+use guiding_core::model::npm::NPM_OUTPUTS;
+use guiding_core::model::QueryPoint;
+use guiding_core::pdf1d::Interpolation;
+use guiding_core::rng::Rng;
+use guiding_core::sphere::{square_to_uniform_sphere, UNIFORM_SPHERE_PDF};
+use std::hint::black_box;
+use std::time::Instant;
+
+/// One measured quantity of the report.
+#[derive(Clone, Debug)]
+pub struct MicroResult {
+    /// Group: `distribution`, `model`, `mlp`.
+    pub group: &'static str,
+    /// What was measured.
+    pub name: String,
+    /// The value.
+    pub value: f64,
+    /// Its unit.
+    pub unit: &'static str,
+    /// Ratio to the group's baseline (same process), where there is one.
+    pub ratio: Option<f64>,
+    /// What the ratio or value is relative to.
+    pub note: String,
+}
+
+const TABLE: usize = 4096;
+
+fn table(seed: u32) -> Vec<Vec2> {
+    let mut rng = Rng::new(seed);
+    (0..TABLE)
+        .map(|_| Vec2::new(rng.next_f32(), rng.next_f32()))
+        .collect()
+}
+
+/// Median seconds of `repeats` runs of `f` (after one warm-up).
+fn median_secs(repeats: usize, mut f: impl FnMut()) -> f64 {
+    f();
+    let mut t: Vec<f64> = (0..repeats.max(1))
+        .map(|_| {
+            let t0 = Instant::now();
+            f();
+            t0.elapsed().as_secs_f64()
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    t[t.len() / 2]
+}
+
+/// ns per sample+pdf of `f` over the random table, `rounds` passes per run.
+fn ns_per_call(repeats: usize, rounds: usize, us: &[Vec2], f: impl Fn(Vec2) -> (Vec3, f32)) -> f64 {
+    let secs = median_secs(repeats, || {
+        let mut acc = 0.0f32;
+        for _ in 0..rounds {
+            for &u in us {
+                let (d, p) = f(black_box(u));
+                acc += d.x + p;
+            }
+        }
+        black_box(acc);
+    });
+    secs * 1e9 / (rounds * us.len()) as f64
+}
+
+fn random_raw<const K: usize, const R: usize>(seed: u32, offset_of_1: f32) -> [[f32; R]; K] {
+    let mut rng = Rng::new(seed);
+    let mut raw = [[0.0; R]; K];
+    for lobe in &mut raw {
+        for v in lobe.iter_mut() {
+            *v = 4.0 * (rng.next_f32() - 0.5);
+        }
+        lobe[1] += offset_of_1;
+    }
+    raw
+}
+
+fn distributions(quick: bool) -> Vec<MicroResult> {
+    let (repeats, rounds) = if quick { (3, 8) } else { (7, 64) };
+    let us = table(7);
+    let base = ns_per_call(repeats, rounds, &us, |u| {
+        (square_to_uniform_sphere(u), UNIFORM_SPHERE_PDF)
+    });
+    let vmf = VmfMixture::<8>::decode(&random_raw::<8, VMF_RAW_PER_LOBE>(11, 3.0));
+    let nasg = NasgMixture::<8>::decode(&random_raw::<8, NASG_RAW_PER_LOBE>(13, 0.0), 0.0);
+    let mut rng = Rng::new(17);
+    let marginal: [f32; 32] = core::array::from_fn(|_| 3.0 * rng.next_f32());
+    let conditional: [[f32; 16]; 32] =
+        core::array::from_fn(|_| core::array::from_fn(|_| 3.0 * rng.next_f32()));
+    let df_n = FactorisedTable::from_logits(&marginal, &conditional, Interpolation::Nearest);
+    let df_l = FactorisedTable::from_logits(&marginal, &conditional, Interpolation::Linear);
+    let mut out = vec![MicroResult {
+        group: "distribution",
+        name: "uniform sphere (baseline)".into(),
+        value: base,
+        unit: "ns/sample+pdf",
+        ratio: Some(1.0),
+        note: "baseline".into(),
+    }];
+    let cases: [(&str, f64); 4] = [
+        (
+            "vMF mixture K=8",
+            ns_per_call(repeats, rounds, &us, |u| {
+                let s = vmf.sample(u);
+                (s.direction, vmf.pdf(s.direction))
+            }),
+        ),
+        (
+            "NASG mixture K=8",
+            ns_per_call(repeats, rounds, &us, |u| {
+                let s = nasg.sample(u);
+                (s.direction, nasg.pdf(s.direction))
+            }),
+        ),
+        (
+            "DF-N table 32x16",
+            ns_per_call(repeats, rounds, &us, |u| {
+                let s = df_n.sample(u);
+                (s.direction, df_n.pdf(s.direction))
+            }),
+        ),
+        (
+            "DF-L table 32x16",
+            ns_per_call(repeats, rounds, &us, |u| {
+                let s = df_l.sample(u);
+                (s.direction, df_l.pdf(s.direction))
+            }),
+        ),
+    ];
+    for (name, ns) in cases {
+        out.push(MicroResult {
+            group: "distribution",
+            name: name.into(),
+            value: ns,
+            unit: "ns/sample+pdf",
+            ratio: Some(ns / base),
+            note: "× uniform sphere".into(),
+        });
+    }
+    out
+}
+
+fn query(rng: &mut Rng) -> QueryPoint {
+    let n = square_to_uniform_sphere(Vec2::new(rng.next_f32(), rng.next_f32()));
+    let wo = square_to_uniform_sphere(Vec2::new(rng.next_f32(), rng.next_f32()));
+    QueryPoint {
+        position: [
+            2.0 * rng.next_f32() - 1.0,
+            2.0 * rng.next_f32() - 1.0,
+            2.0 * rng.next_f32() - 1.0,
+        ],
+        roughness: rng.next_f32(),
+        normal: n.to_array(),
+        wo: wo.to_array(),
+        ..QueryPoint::default()
+    }
+}
+
+fn training_samples(n: usize, seed: u32) -> Vec<TrainingSample> {
+    let mut rng = Rng::new(seed);
+    (0..n)
+        .map(|_| {
+            let q = query(&mut rng);
+            let wi = square_to_uniform_sphere(Vec2::new(rng.next_f32(), rng.next_f32()));
+            let l = if wi.z > 0.9 { 10.0 } else { 0.1 };
+            TrainingSample {
+                position: q.position,
+                roughness: q.roughness,
+                normal: q.normal,
+                sample_pdf: INV_FOUR_PI,
+                wo: q.wo,
+                bsdf_pdf: INV_FOUR_PI,
+                wi: wi.to_array(),
+                pad0: 0.0,
+                radiance: [l; 3],
+                pad1: 0.0,
+                bsdf_cos: [0.3; 3],
+                pad2: 0.0,
+            }
+        })
+        .collect()
+}
+
+fn models(quick: bool) -> Result<Vec<MicroResult>, guiding::GuidingError> {
+    let sizes: &[ModelSize] = if quick {
+        &[ModelSize::Compact]
+    } else {
+        &[ModelSize::Compact, ModelSize::Paper]
+    };
+    let (repeats, nq, batch) = if quick {
+        (3, 1024, 2048)
+    } else {
+        (5, 4096, 8192)
+    };
+    let mut rng = Rng::new(3);
+    let queries: Vec<QueryPoint> = (0..nq).map(|_| query(&mut rng)).collect();
+    let us = table(5);
+    let samples = training_samples(batch, 9);
+    let mut out = Vec::new();
+    for &size in sizes {
+        for rep in Representation::ALL {
+            let config = GuidingConfig {
+                representation: rep,
+                ..GuidingConfig::npm_product()
+            }
+            .with_size(size)
+            .with_training(
+                FieldConfig::DEFAULT
+                    .with_batch_size(batch)
+                    .with_steps_per_update(1)
+                    .with_threads(1),
+            );
+            let mut field = GuidingField::new(config, [-1.0; 3], [1.0; 3])?;
+            let secs = median_secs(repeats, || {
+                let mut acc = 0.0f32;
+                for (i, q) in queries.iter().enumerate() {
+                    let d = field.distribution(q);
+                    let s = d.sample(us[i % us.len()]);
+                    acc += s.pdf + d.pdf(Vec3::Z) + d.selection_probability();
+                }
+                black_box(acc);
+            });
+            out.push(MicroResult {
+                group: "model",
+                name: format!("{rep:?} {size:?} product: decode+sample+pdf"),
+                value: nq as f64 / secs,
+                unit: "queries/s (1 thread)",
+                ratio: None,
+                note: format!("{} parameters", field.param_count()),
+            });
+            let secs = median_secs(repeats, || {
+                field.add_samples(&samples);
+                field.update();
+            });
+            out.push(MicroResult {
+                group: "model",
+                name: format!("{rep:?} {size:?} product: training"),
+                value: batch as f64 / secs,
+                unit: "samples/s (1 thread)",
+                ratio: None,
+                note: format!("batch {batch}, one Adam step"),
+            });
+        }
+    }
+    Ok(out)
+}
+
+/// Nominal single-core f32 peak: clock (from `/proc/cpuinfo`, the first
+/// `cpu MHz` line) × 32 flop/cycle (two 256-bit FMA pipes × 8 lanes × 2).
+/// `None` where the clock cannot be read.
+fn nominal_peak_gflops() -> Option<(f64, f64)> {
+    let info = std::fs::read_to_string("/proc/cpuinfo").ok()?;
+    let mhz: f64 = info
+        .lines()
+        .find(|l| l.starts_with("cpu MHz"))?
+        .split(':')
+        .nth(1)?
+        .trim()
+        .parse()
+        .ok()?;
+    Some((mhz, mhz * 1e-3 * 32.0))
+}
+
+fn mlp(quick: bool) -> Vec<MicroResult> {
+    type Net = Mlp<32, 64, NPM_OUTPUTS, 3>;
+    let (repeats, n) = if quick { (3, 4096) } else { (7, 16384) };
+    let mut rng = Rng::new(21);
+    let params: Vec<f32> = (0..Net::PARAM_COUNT)
+        .map(|_| 0.2 * (rng.next_f32() - 0.5))
+        .collect();
+    let inputs: Vec<[f32; 32]> = (0..n)
+        .map(|_| core::array::from_fn(|_| rng.next_f32()))
+        .collect();
+    let flops = 2.0 * Net::MACS as f64 * n as f64;
+    let per_query = median_secs(repeats, || {
+        let mut acc = 0.0f32;
+        for x in &inputs {
+            acc += Net::infer(&params, 0, black_box(x))[0];
+        }
+        black_box(acc);
+    });
+    let mut outputs = vec![[0.0f32; NPM_OUTPUTS]; n];
+    let batched = median_secs(repeats, || {
+        Net::infer_batch(&params, 0, &inputs, &mut outputs);
+        black_box(&outputs);
+    });
+    let peak = nominal_peak_gflops();
+    let note = match peak {
+        Some((mhz, g)) => {
+            format!("nominal 1-core peak {g:.0} GFLOP/s ({mhz:.0} MHz × 32 flop/cycle)")
+        }
+        None => "peak unknown (no /proc/cpuinfo clock)".into(),
+    };
+    let mut out = Vec::new();
+    for (name, secs, ratio_base) in [
+        ("MLP 32→3×64→32 per-query (baseline)", per_query, per_query),
+        ("MLP 32→3×64→32 batched", batched, per_query),
+    ] {
+        let gflops = flops / secs * 1e-9;
+        out.push(MicroResult {
+            group: "mlp",
+            name: name.into(),
+            value: gflops,
+            unit: "GFLOP/s (1 thread)",
+            ratio: Some(ratio_base / secs),
+            note: match peak {
+                Some((_, g)) => format!("{:.0} % of {note}", 100.0 * gflops / g),
+                None => note.clone(),
+            },
+        });
+    }
+    out
+}
+
+/// Runs every micro-benchmark (`quick`: fewer repeats, compact models only).
+///
+/// # Errors
+/// If a guiding field cannot be built (never with the built-in configurations).
+pub fn run(quick: bool) -> Result<Vec<MicroResult>, guiding::GuidingError> {
+    let mut out = distributions(quick);
+    out.extend(models(quick)?);
+    out.extend(mlp(quick));
+    Ok(out)
+}

@@ -1,0 +1,383 @@
+//! `host-demo bench`: the run-time-against-error benchmark suite.
+//!
+//! For every scene × method × budget × seed it runs `host-demo render` **as a child process**
+//! (the same binary, so each run starts cold, with its own memory, exactly as a user would run
+//! it) with `--stats`, compares the image with the scene's reference (relMSE trimmed at 0.1 %
+//! and MAPE, [`crate::compare`]) and writes into the output directory:
+//!
+//! * `runs.csv`: every run (scene, method, seed, budget, spp, time split, errors);
+//! * `report.md`: per scene and budget the mean ± standard deviation over seeds of relMSE and
+//!   MAPE, and the speed-up over `pt` (`relMSE_pt / relMSE_method` at equal budget, as NPM's
+//!   Table 2), then the micro-benchmarks;
+//! * `<scene>.svg` / `<scene>.png`: relMSE against wall time, log-log, one curve per method;
+//! * `micro.csv`: the micro-benchmarks ([`micro`]).
+//!
+//! References: `--reference NAME=FILE.exr` (e.g. rendered by Mitsuba 3 from the same XML), or a
+//! long `pt-nee` render cached under `--cache` keyed by the scene's bytes, resolution, depth and
+//! reference spp, so it is rendered once per machine.
+
+pub mod micro;
+pub mod plot;
+pub mod report;
+
+use crate::compare::{compare, Metrics};
+use crate::error::{Error, Result};
+use crate::output::read_exr;
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// A rendering method of the matrix.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Method {
+    /// Short name used in tables and plots (`pt`, `pt-nee`, `npm-product`, …).
+    pub name: String,
+    /// Arguments passed to `render`.
+    pub args: Vec<String>,
+}
+
+impl Method {
+    /// Parses `pt`, `pt-nee`, or `GUIDE-TARGET` with GUIDE in npm|nasg|df-n|df-l and TARGET in
+    /// radiance|product (e.g. `npm-product`).
+    pub fn parse(name: &str) -> Result<Self> {
+        let args: Vec<&str> = match name {
+            "pt" => vec!["--integrator", "pt"],
+            "pt-nee" => vec!["--integrator", "pt-nee"],
+            _ => {
+                let (guide, target) = name
+                    .rsplit_once('-')
+                    .filter(|(g, t)| {
+                        ["npm", "nasg", "df-n", "df-l"].contains(g)
+                            && ["radiance", "product"].contains(t)
+                    })
+                    .ok_or_else(|| {
+                        Error::Bench(format!(
+                            "unknown method '{name}': use pt, pt-nee or GUIDE-TARGET with GUIDE \
+                             npm|nasg|df-n|df-l and TARGET radiance|product"
+                        ))
+                    })?;
+                vec![
+                    "--integrator",
+                    "guided",
+                    "--guide",
+                    guide,
+                    "--target",
+                    target,
+                ]
+            }
+        };
+        Ok(Self {
+            name: name.to_string(),
+            args: args.into_iter().map(String::from).collect(),
+        })
+    }
+}
+
+/// A budget: wall-clock seconds (equal time) or samples per pixel (equal spp).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Budget {
+    /// `--time S`.
+    Seconds(f64),
+    /// `--spp N`.
+    Spp(u32),
+}
+
+impl Budget {
+    /// `10` or `10s` → seconds, `64spp` → spp.
+    pub fn parse(s: &str) -> Result<Self> {
+        let bad = || {
+            Error::Bench(format!(
+                "budget '{s}': use seconds (10, 10s) or spp (64spp)"
+            ))
+        };
+        if let Some(n) = s.strip_suffix("spp") {
+            return n.parse().map(Self::Spp).map_err(|_| bad());
+        }
+        let v: f64 = s.trim_end_matches('s').parse().map_err(|_| bad())?;
+        if v.is_finite() && v > 0.0 {
+            Ok(Self::Seconds(v))
+        } else {
+            Err(bad())
+        }
+    }
+
+    /// `budget_kind` column of the CSV.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Self::Seconds(_) => "time_s",
+            Self::Spp(_) => "spp",
+        }
+    }
+
+    /// `budget` column of the CSV.
+    pub fn value(&self) -> f64 {
+        match *self {
+            Self::Seconds(s) => s,
+            Self::Spp(n) => f64::from(n),
+        }
+    }
+
+    fn args(&self) -> Vec<String> {
+        match *self {
+            Self::Seconds(s) => vec!["--time".into(), format!("{s}")],
+            Self::Spp(n) => vec!["--spp".into(), n.to_string()],
+        }
+    }
+}
+
+/// Everything `host-demo bench` was asked to do.
+#[derive(Clone, Debug)]
+pub struct BenchOptions {
+    /// Scene specs (`builtin:NAME` or XML paths).
+    pub scenes: Vec<String>,
+    /// Methods.
+    pub methods: Vec<Method>,
+    /// Budgets.
+    pub budgets: Vec<Budget>,
+    /// Seeds per configuration.
+    pub seeds: u32,
+    /// Image width (height keeps the aspect ratio).
+    pub width: u32,
+    /// Render threads per run (0 = all).
+    pub threads: usize,
+    /// spp of the cached `pt-nee` references.
+    pub reference_spp: u32,
+    /// Given references, by scene spec.
+    pub references: Vec<(String, PathBuf)>,
+    /// Output directory.
+    pub out: PathBuf,
+    /// Reference cache directory.
+    pub cache: PathBuf,
+    /// Fewer repeats and smaller workloads in the micro-benchmarks.
+    pub quick_micro: bool,
+    /// Skip the micro-benchmarks.
+    pub no_micro: bool,
+}
+
+/// One finished run (a row of `runs.csv`).
+#[derive(Clone, Debug)]
+pub struct RunRecord {
+    /// Scene spec.
+    pub scene: String,
+    /// Method name.
+    pub method: String,
+    /// Seed.
+    pub seed: u32,
+    /// Budget.
+    pub budget: Budget,
+    /// Samples per pixel rendered.
+    pub spp: u64,
+    /// Wall time of rendering (tracing + training), seconds.
+    pub wall_s: f64,
+    /// Tracing share.
+    pub tracing_s: f64,
+    /// Guide inference share.
+    pub inference_s: f64,
+    /// Training share.
+    pub training_s: f64,
+    /// Error against the reference.
+    pub metrics: Metrics,
+}
+
+/// FNV-1a 64 of `bytes`, continuing from `h` (cache keys; not cryptographic).
+fn fnv1a(mut h: u64, bytes: &[u8]) -> u64 {
+    for &b in bytes {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
+/// File-name-safe short name of a scene spec.
+pub fn scene_slug(scene: &str) -> String {
+    let base = scene
+        .strip_prefix("builtin:")
+        .map(String::from)
+        .unwrap_or_else(|| {
+            let p = Path::new(scene);
+            let stem = p.file_stem().and_then(|s| s.to_str()).unwrap_or("scene");
+            match p
+                .parent()
+                .and_then(|d| d.file_name())
+                .and_then(|s| s.to_str())
+            {
+                Some(dir) if stem == "scene" => dir.to_string(),
+                _ => stem.to_string(),
+            }
+        });
+    base.chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}
+
+fn render(args: &[String]) -> Result<serde_json::Value> {
+    let exe = std::env::current_exe().map_err(|e| Error::Bench(format!("current_exe: {e}")))?;
+    let stats = args
+        .iter()
+        .position(|a| a == "--stats")
+        .and_then(|i| args.get(i + 1))
+        .cloned()
+        .ok_or_else(|| Error::Bench("internal: render without --stats".into()))?;
+    let output = Command::new(&exe)
+        .arg("render")
+        .args(args)
+        .output()
+        .map_err(|e| Error::Bench(format!("cannot run {}: {e}", exe.display())))?;
+    if !output.status.success() {
+        return Err(Error::Bench(format!(
+            "render {} failed ({}): {}",
+            args.join(" "),
+            output.status,
+            String::from_utf8_lossy(&output.stderr).trim()
+        )));
+    }
+    let text =
+        std::fs::read_to_string(&stats).map_err(|e| Error::Bench(format!("{stats}: {e}")))?;
+    serde_json::from_str(&text).map_err(|e| Error::Bench(format!("{stats}: {e}")))
+}
+
+fn reference_for(opts: &BenchOptions, scene: &str, pb: &ProgressBar) -> Result<PathBuf> {
+    if let Some((_, p)) = opts.references.iter().find(|(s, _)| s == scene) {
+        return Ok(p.clone());
+    }
+    let mut key = fnv1a(0xcbf2_9ce4_8422_2325, scene.as_bytes());
+    if !scene.starts_with("builtin:") {
+        let bytes = std::fs::read(scene).map_err(|e| Error::Bench(format!("{scene}: {e}")))?;
+        key = fnv1a(key, &bytes);
+    }
+    key = fnv1a(
+        key,
+        format!(
+            "w{} spp{} v{}",
+            opts.width,
+            opts.reference_spp,
+            env!("CARGO_PKG_VERSION")
+        )
+        .as_bytes(),
+    );
+    std::fs::create_dir_all(&opts.cache)
+        .map_err(|e| Error::Bench(format!("{}: {e}", opts.cache.display())))?;
+    let path = opts
+        .cache
+        .join(format!("{}-{key:016x}.exr", scene_slug(scene)));
+    if path.exists() {
+        return Ok(path);
+    }
+    pb.set_message(format!(
+        "reference {scene} ({} spp pt-nee)",
+        opts.reference_spp
+    ));
+    let stats = opts
+        .cache
+        .join(format!("{}-{key:016x}.json", scene_slug(scene)));
+    let args: Vec<String> = [
+        scene,
+        "--integrator",
+        "pt-nee",
+        "--spp",
+        &opts.reference_spp.to_string(),
+        "--width",
+        &opts.width.to_string(),
+        "--seed",
+        "1000003",
+        "--threads",
+        &opts.threads.to_string(),
+        "--stats",
+        stats.to_str().unwrap_or("reference.json"),
+        "--out",
+        path.to_str().unwrap_or("reference.exr"),
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    render(&args)?;
+    Ok(path)
+}
+
+fn num(v: &serde_json::Value, path: &[&str]) -> f64 {
+    let mut v = v;
+    for p in path {
+        v = &v[*p];
+    }
+    v.as_f64().unwrap_or(0.0)
+}
+
+/// Runs the whole matrix and writes the report; returns the runs.
+pub fn run(opts: &BenchOptions) -> Result<Vec<RunRecord>> {
+    let io = |e: std::io::Error| Error::Bench(format!("{}: {e}", opts.out.display()));
+    std::fs::create_dir_all(opts.out.join("runs")).map_err(io)?;
+    let total = opts.scenes.len() * opts.methods.len() * opts.budgets.len() * opts.seeds as usize;
+    let pb = ProgressBar::with_draw_target(Some(total as u64), ProgressDrawTarget::stderr());
+    pb.set_style(
+        ProgressStyle::with_template(
+            "{bar:30} {pos}/{len} runs, {elapsed} elapsed, ~{eta} left  {msg}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let mut records = Vec::with_capacity(total);
+    for scene in &opts.scenes {
+        let reference = read_exr(&reference_for(opts, scene, &pb)?)?;
+        let slug = scene_slug(scene);
+        for budget in &opts.budgets {
+            for method in &opts.methods {
+                for seed in 0..opts.seeds {
+                    pb.set_message(format!("{slug} {} {:?} seed {seed}", method.name, budget));
+                    let stem = opts.out.join("runs").join(format!(
+                        "{slug}-{}-{}{}-s{seed}",
+                        method.name,
+                        budget.kind(),
+                        budget.value()
+                    ));
+                    let exr = stem.with_extension("exr");
+                    let json = stem.with_extension("json");
+                    let mut args = vec![scene.clone()];
+                    args.extend(method.args.iter().cloned());
+                    args.extend(budget.args());
+                    for (k, v) in [
+                        ("--width", opts.width.to_string()),
+                        ("--seed", seed.to_string()),
+                        ("--threads", opts.threads.to_string()),
+                        ("--stats", json.display().to_string()),
+                        ("--out", exr.display().to_string()),
+                    ] {
+                        args.push(k.into());
+                        args.push(v);
+                    }
+                    let stats = render(&args)?;
+                    let metrics = compare(&read_exr(&exr)?, &reference)?;
+                    records.push(RunRecord {
+                        scene: scene.clone(),
+                        method: method.name.clone(),
+                        seed,
+                        budget: *budget,
+                        spp: num(&stats, &["spp"]) as u64,
+                        wall_s: num(&stats, &["time_s", "wall"]),
+                        tracing_s: num(&stats, &["time_s", "tracing"]),
+                        inference_s: num(&stats, &["time_s", "inference"]),
+                        training_s: num(&stats, &["time_s", "training"]),
+                        metrics,
+                    });
+                    pb.inc(1);
+                }
+            }
+        }
+    }
+    pb.finish_and_clear();
+    let micro = if opts.no_micro {
+        Vec::new()
+    } else {
+        eprintln!("micro-benchmarks…");
+        micro::run(opts.quick_micro).map_err(|e| Error::Bench(format!("micro-benchmarks: {e}")))?
+    };
+    report::write_all(opts, &records, &micro)?;
+    for scene in &opts.scenes {
+        plot::error_vs_time(&opts.out, scene, &records)?;
+    }
+    Ok(records)
+}
