@@ -1,11 +1,45 @@
-//! Materials: Lambertian diffuse and GGX rough conductor (Mitsuba 3 semantics).
+//! Materials with Mitsuba 3 semantics: `diffuse`, `conductor`, `roughconductor`, `dielectric`,
+//! `roughdielectric`, `plastic`, `roughplastic` and `twosided`.
 //!
-//! All functions work in the local shading frame (z = shading normal). Both BSDFs are
-//! one-sided like Mitsuba's: if either direction is below the surface the value is zero.
+//! All functions work in the local shading frame (z = shading normal). The opaque BSDFs are
+//! one-sided like Mitsuba's (zero if either direction is below the surface); the dielectrics
+//! see both sides (`wi.z < 0` means the ray arrives from inside, the relative IOR is inverted).
+//! `twosided` is resolved by the integrator: a hit on the back flips the frame and uses the
+//! back material ([`Material::TwoSided`] is never evaluated itself).
+//!
+//! # Delta lobes
+//!
+//! Smooth `conductor` and `dielectric` are pure delta BSDFs: [`Material::eval`] returns zero
+//! and [`Material::sample`] returns `pdf = ∞` (the emitter hit after a delta bounce then gets
+//! the MIS weight 1, as in Mitsuba). `plastic` mixes a delta coating reflection (sampled with
+//! `pdf = ∞`) with a diffuse base that `eval` / `pdf` describe. Delta vertices get no NEE
+//! connection and no guiding ([`Material::nee_connectable`], [`Material::guidable`]).
+//!
+//! # Sources
+//!
+//! * Fresnel, dielectric refraction and the radiance scaling `η_t/i²` on transmission: Mitsuba 3
+//!   `fresnel()` / `dielectric`.
+//! * Rough dielectric: Walter et al. 2007, *Microfacet Models for Refraction through Rough
+//!   Surfaces* (GGX, generalised half vector, Jacobians), sampled with Heitz 2018's visible
+//!   normals; Fresnel-weighted choice of reflection or refraction per microfacet (Mitsuba 3
+//!   `roughdielectric`, sample_visible).
+//! * Plastics: Mitsuba 3 `plastic` / `roughplastic`, a diffuse base under a dielectric
+//!   coating. Approximations of that model, kept on purpose to match Mitsuba: the light that
+//!   bounces between base and coating is summed as the geometric series
+//!   `ρ / (1 − F_dr,int)` (or `ρ / (1 − ρ·F_dr,int)` with `nonlinear`), with the diffuse
+//!   Fresnel reflectance `F_dr` from the fits of Egan & Hilgeman 1973 (η < 1) and d'Eon &
+//!   Irving 2011 (η ≥ 1) (Mitsuba's `fresnel_diffuse_reflectance`); the coating transmits
+//!   `(1 − F(θi))(1 − F(θo))/η²` (smooth) or `t(θi) t(θo)/η²` with `t = 1 −` the directional
+//!   albedo of the rough GGX interface, tabulated over 64 cosines (rough). Deviation: our
+//!   table is integrated with a 64 × 64 stratified visible-normal rule instead of Mitsuba's
+//!   quadrature (differences ≈ 10⁻³).
 
 use crate::math::sample_cosine_hemisphere;
 use glam::Vec3;
 use std::f32::consts::{FRAC_1_PI, PI};
+
+/// Resolution of the rough plastic transmittance table (Mitsuba's `MTS_ROUGH_TRANSMITTANCE_RES`).
+pub const ROUGH_TRANSMITTANCE_RES: usize = 64;
 
 /// A material.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -24,6 +58,132 @@ pub enum Material {
         /// Imaginary part (absorption).
         k: Vec3,
     },
+    /// Smooth conductor (delta reflection with the conductor Fresnel term).
+    Conductor {
+        /// Real part of the IOR.
+        eta: Vec3,
+        /// Imaginary part (absorption).
+        k: Vec3,
+        /// Multiplier of the reflection (Mitsuba's `specular_reflectance`).
+        specular: Vec3,
+    },
+    /// Smooth dielectric interface (delta reflection and refraction).
+    Dielectric {
+        /// Relative IOR `int_ior / ext_ior`.
+        eta: f32,
+        /// Multiplier of the reflection.
+        reflectance: Vec3,
+        /// Multiplier of the transmission.
+        transmittance: Vec3,
+    },
+    /// Rough GGX dielectric interface (Walter et al. 2007).
+    RoughDielectric {
+        /// GGX roughness alpha.
+        alpha: f32,
+        /// Relative IOR `int_ior / ext_ior`.
+        eta: f32,
+        /// Multiplier of the reflection.
+        reflectance: Vec3,
+        /// Multiplier of the transmission.
+        transmittance: Vec3,
+    },
+    /// Smooth plastic: diffuse base under a smooth dielectric coating (Mitsuba 3 `plastic`).
+    Plastic(Coating),
+    /// Rough plastic: diffuse base under a rough GGX coating (Mitsuba 3 `roughplastic`).
+    RoughPlastic(Coating),
+    /// Two-sided wrapper: material indices for the front and the back (resolved per hit).
+    TwoSided {
+        /// Material of the front side.
+        front: u32,
+        /// Material of the back side (seen with a flipped frame).
+        back: u32,
+    },
+}
+
+/// Parameters of the plastic models (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Coating {
+    /// Diffuse base albedo.
+    pub diffuse: Vec3,
+    /// Coating reflection multiplier.
+    pub specular: Vec3,
+    /// Relative IOR of the coating.
+    pub eta: f32,
+    /// Mitsuba's `nonlinear` (the base albedo enters the internal-scattering series).
+    pub nonlinear: bool,
+    /// GGX alpha (rough plastic only; 0 for smooth).
+    pub alpha: f32,
+    /// Probability weight of sampling the coating, `mean(specular) / (mean(diffuse) + mean(specular))`.
+    pub spec_weight: f32,
+    /// Internal diffuse reflectance of the coating (`F_dr(1/η)` smooth, tabulated rough).
+    pub internal: f32,
+    /// Rough only: external transmittance `1 − albedo(μ)` at `μ = i / 63`.
+    pub ext_t: [f32; ROUGH_TRANSMITTANCE_RES],
+}
+
+impl Coating {
+    /// Smooth plastic (Mitsuba 3 `plastic`).
+    pub fn smooth(diffuse: Vec3, specular: Vec3, eta: f32, nonlinear: bool) -> Self {
+        Self {
+            diffuse,
+            specular,
+            eta,
+            nonlinear,
+            alpha: 0.0,
+            spec_weight: spec_weight(diffuse, specular),
+            internal: fresnel_diffuse_reflectance(1.0 / eta),
+            ext_t: [0.0; ROUGH_TRANSMITTANCE_RES],
+        }
+    }
+
+    /// Rough plastic (Mitsuba 3 `roughplastic`, GGX): tabulates the coating's external
+    /// transmittance and internal reflectance.
+    pub fn rough(diffuse: Vec3, specular: Vec3, eta: f32, nonlinear: bool, alpha: f32) -> Self {
+        let mut ext_t = [0.0; ROUGH_TRANSMITTANCE_RES];
+        let mut internal = 0.0f64;
+        for (i, t) in ext_t.iter_mut().enumerate() {
+            let mu = (i as f32 / (ROUGH_TRANSMITTANCE_RES - 1) as f32).max(1e-6);
+            *t = 1.0 - rough_dielectric_albedo(mu, alpha, eta);
+            internal += f64::from(rough_dielectric_albedo(mu, alpha, 1.0 / eta) * mu);
+        }
+        Self {
+            diffuse,
+            specular,
+            eta,
+            nonlinear,
+            alpha,
+            spec_weight: spec_weight(diffuse, specular),
+            internal: (2.0 * internal / ROUGH_TRANSMITTANCE_RES as f64) as f32,
+            ext_t,
+        }
+    }
+
+    /// Linear interpolation of the transmittance table at `cos` (Mitsuba's `lerp_gather`).
+    fn transmittance(&self, cos: f32) -> f32 {
+        let x = cos.clamp(0.0, 1.0) * (ROUGH_TRANSMITTANCE_RES - 1) as f32;
+        let i = (x as usize).min(ROUGH_TRANSMITTANCE_RES - 2);
+        let w = x - i as f32;
+        (1.0 - w) * self.ext_t[i] + w * self.ext_t[i + 1]
+    }
+
+    /// The diffuse base after the internal-scattering series.
+    fn base(&self) -> Vec3 {
+        let denom = if self.nonlinear {
+            Vec3::ONE - self.diffuse * self.internal
+        } else {
+            Vec3::splat(1.0 - self.internal)
+        };
+        self.diffuse / denom
+    }
+}
+
+fn spec_weight(diffuse: Vec3, specular: Vec3) -> f32 {
+    let (d, s) = (diffuse.element_sum() / 3.0, specular.element_sum() / 3.0);
+    if d + s > 0.0 {
+        s / (d + s)
+    } else {
+        0.5
+    }
 }
 
 /// Result of sampling a BSDF.
@@ -31,10 +191,80 @@ pub enum Material {
 pub struct BsdfSample {
     /// Sampled outgoing direction (local frame).
     pub wo: Vec3,
-    /// `f * cos(wo) / pdf`.
+    /// `f * |cos(wo)| / pdf` (for a delta lobe: the lobe's weight over its selection probability).
     pub weight: Vec3,
-    /// Solid-angle pdf of `wo`.
+    /// Solid-angle pdf of `wo`; `f32::INFINITY` for a delta lobe.
     pub pdf: f32,
+}
+
+/// Unpolarised Fresnel reflectance of a dielectric interface with relative IOR `eta`
+/// (Mitsuba 3 `fresnel`): returns `(F, cos θt, η_it, η_ti)`. `cos_i < 0` means the ray arrives
+/// from inside (η inverted); `cos θt` has the opposite sign of `cos_i`; total internal
+/// reflection gives `F = 1`, `cos θt = 0`.
+pub fn fresnel_dielectric(cos_i: f32, eta: f32) -> (f32, f32, f32, f32) {
+    let outside = cos_i >= 0.0;
+    let eta_it = if outside { eta } else { 1.0 / eta };
+    let eta_ti = 1.0 / eta_it;
+    let cos_t_sqr = 1.0 - eta_ti * eta_ti * (1.0 - cos_i * cos_i);
+    if eta == 1.0 {
+        return (0.0, -cos_i, 1.0, 1.0);
+    }
+    if cos_t_sqr <= 0.0 {
+        return (1.0, 0.0, eta_it, eta_ti);
+    }
+    let ci = cos_i.abs();
+    let ct = cos_t_sqr.sqrt();
+    let a_s = (ci - eta_it * ct) / (ci + eta_it * ct);
+    let a_p = (ct - eta_it * ci) / (ct + eta_it * ci);
+    let f = 0.5 * (a_s * a_s + a_p * a_p);
+    let cos_t = if outside { -ct } else { ct };
+    (f.clamp(0.0, 1.0), cos_t, eta_it, eta_ti)
+}
+
+/// Mitsuba 3 `fresnel_diffuse_reflectance`: the cosine-weighted hemispherical average of the
+/// dielectric Fresnel reflectance, `F_dr(η) = 2 ∫₀¹ F(μ, η) μ dμ`, by the fits of Egan &
+/// Hilgeman 1973 (η < 1) and d'Eon & Irving 2011 (η ≥ 1).
+pub fn fresnel_diffuse_reflectance(eta: f32) -> f32 {
+    if eta < 1.0 {
+        0.0636 / eta + eta * (eta * -1.4399 + 0.7099) + 0.6681
+    } else {
+        let i1 = 1.0 / eta;
+        let (i2, i3, i4, i5) = (
+            i1 * i1,
+            i1 * i1 * i1,
+            i1 * i1 * i1 * i1,
+            i1 * i1 * i1 * i1 * i1,
+        );
+        0.919317 - 3.4793 * i1 + 6.75335 * i2 - 7.80989 * i3 + 4.98554 * i4 - 1.36881 * i5
+    }
+}
+
+/// Directional albedo of the reflection off a rough GGX dielectric interface at `cos θi = mu`,
+/// `∫ F D G / (4 cos θi) dωo`, estimated as `E[F(ωi·m) G1(ωo, m)]` over visible normals `m`
+/// with a 64 × 64 stratified (midpoint) rule.
+pub fn rough_dielectric_albedo(mu: f32, alpha: f32, eta: f32) -> f32 {
+    let wi = Vec3::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu);
+    const N: usize = 64;
+    let mut acc = 0.0f64;
+    for a in 0..N {
+        for b in 0..N {
+            let (u1, u2) = ((a as f32 + 0.5) / N as f32, (b as f32 + 0.5) / N as f32);
+            let m = sample_ggx_vndf(wi, alpha, u1, u2);
+            let wo = 2.0 * wi.dot(m) * m - wi;
+            if wo.z <= 0.0 {
+                continue;
+            }
+            let f = fresnel_dielectric(wi.dot(m), eta).0;
+            acc += f64::from(f * ggx_g1(wo, m, alpha));
+        }
+    }
+    (acc / (N * N) as f64) as f32
+}
+
+/// Mirror reflection about the local normal.
+#[inline]
+fn reflect_z(wi: Vec3) -> Vec3 {
+    Vec3::new(-wi.x, -wi.y, wi.z)
 }
 
 /// Unpolarised Fresnel reflectance of a conductor, per channel (same formula as Mitsuba 3).
@@ -105,8 +335,21 @@ pub fn sample_ggx_vndf(wi: Vec3, alpha: f32, u1: f32, u2: f32) -> Vec3 {
 }
 
 impl Material {
-    /// Evaluates `f(wi, wo) * cos(wo)` and the solid-angle pdf of sampling `wo` given `wi`.
+    /// Evaluates `f(wi, wo) · |cos(wo)|` and the solid-angle pdf of sampling `wo` given `wi`
+    /// (non-delta parts only; zero for pure delta BSDFs).
     pub fn eval(&self, wi: Vec3, wo: Vec3) -> (Vec3, f32) {
+        match *self {
+            Material::RoughDielectric {
+                alpha,
+                eta,
+                reflectance,
+                transmittance,
+            } => return rough_dielectric_eval(wi, wo, alpha, eta, reflectance, transmittance),
+            Material::Conductor { .. }
+            | Material::Dielectric { .. }
+            | Material::TwoSided { .. } => return (Vec3::ZERO, 0.0),
+            _ => {}
+        }
         if wi.z <= 0.0 || wo.z <= 0.0 {
             return (Vec3::ZERO, 0.0);
         }
@@ -124,11 +367,83 @@ impl Material {
                 let pdf = g1i * wi.dot(m).max(0.0) * d / wi.z / (4.0 * wo.dot(m));
                 (value, pdf)
             }
+            Material::Plastic(c) => {
+                let (f_i, f_o) = (
+                    fresnel_dielectric(wi.z, c.eta).0,
+                    fresnel_dielectric(wo.z, c.eta).0,
+                );
+                let value =
+                    c.base() * (FRAC_1_PI * wo.z * (1.0 - f_i) * (1.0 - f_o) / (c.eta * c.eta));
+                let ps = f_i * c.spec_weight;
+                let pd = (1.0 - f_i) * (1.0 - c.spec_weight);
+                let prob_diffuse = if ps + pd > 0.0 { pd / (ps + pd) } else { 1.0 };
+                (value, prob_diffuse * FRAC_1_PI * wo.z)
+            }
+            Material::RoughPlastic(c) => {
+                let h = (wi + wo).normalize();
+                let d = ggx_d(h, c.alpha);
+                let g1i = ggx_g1(wi, h, c.alpha);
+                let g = g1i * ggx_g1(wo, h, c.alpha);
+                let f = fresnel_dielectric(wi.dot(h), c.eta).0;
+                let spec = c.specular * (f * d * g / (4.0 * wi.z));
+                let (t_i, t_o) = (c.transmittance(wi.z), c.transmittance(wo.z));
+                let diff = c.base() * (FRAC_1_PI * wo.z * t_i * t_o / (c.eta * c.eta));
+                let prob_spec = rough_plastic_spec_prob(&c, t_i);
+                let pdf = prob_spec * d * g1i / (4.0 * wi.z) + (1.0 - prob_spec) * FRAC_1_PI * wo.z;
+                (spec + diff, pdf)
+            }
+            _ => (Vec3::ZERO, 0.0),
         }
     }
 
-    /// Samples an outgoing direction. Returns `None` when the sample is absorbed or invalid.
-    pub fn sample(&self, wi: Vec3, u1: f32, u2: f32) -> Option<BsdfSample> {
+    /// Samples an outgoing direction from three uniform numbers (`u0` picks the lobe where
+    /// there is a choice, `u1, u2` the direction). `None` when absorbed or invalid.
+    pub fn sample(&self, wi: Vec3, u0: f32, u1: f32, u2: f32) -> Option<BsdfSample> {
+        match *self {
+            Material::Dielectric {
+                eta,
+                reflectance,
+                transmittance,
+            } => {
+                if wi.z == 0.0 {
+                    return None;
+                }
+                let (f, cos_t, _, eta_ti) = fresnel_dielectric(wi.z, eta);
+                return Some(if u0 < f {
+                    BsdfSample {
+                        wo: reflect_z(wi),
+                        weight: reflectance,
+                        pdf: f32::INFINITY,
+                    }
+                } else {
+                    BsdfSample {
+                        wo: Vec3::new(-eta_ti * wi.x, -eta_ti * wi.y, cos_t),
+                        // Radiance is scaled by (η_t/i)² across the interface.
+                        weight: transmittance * (eta_ti * eta_ti),
+                        pdf: f32::INFINITY,
+                    }
+                });
+            }
+            Material::RoughDielectric {
+                alpha,
+                eta,
+                reflectance,
+                transmittance,
+            } => {
+                return rough_dielectric_sample(
+                    wi,
+                    alpha,
+                    eta,
+                    reflectance,
+                    transmittance,
+                    u0,
+                    u1,
+                    u2,
+                )
+            }
+            Material::TwoSided { .. } => return None,
+            _ => {}
+        }
         if wi.z <= 0.0 {
             return None;
         }
@@ -163,6 +478,61 @@ impl Material {
                 }
                 Some(BsdfSample { wo, weight, pdf })
             }
+            Material::Conductor { eta, k, specular } => Some(BsdfSample {
+                wo: reflect_z(wi),
+                weight: specular * fresnel_conductor(wi.z, eta, k),
+                pdf: f32::INFINITY,
+            }),
+            Material::Plastic(c) => {
+                let f_i = fresnel_dielectric(wi.z, c.eta).0;
+                let ps = f_i * c.spec_weight;
+                let pd = (1.0 - f_i) * (1.0 - c.spec_weight);
+                let prob_spec = if ps + pd > 0.0 { ps / (ps + pd) } else { 0.0 };
+                if u0 < prob_spec {
+                    return Some(BsdfSample {
+                        wo: reflect_z(wi),
+                        weight: c.specular * (f_i / prob_spec),
+                        pdf: f32::INFINITY,
+                    });
+                }
+                let wo = sample_cosine_hemisphere(u1, u2);
+                if wo.z <= 0.0 {
+                    return None;
+                }
+                let (f, pdf) = self.eval(wi, wo);
+                (pdf > 0.0).then(|| BsdfSample {
+                    wo,
+                    weight: f / pdf,
+                    pdf,
+                })
+            }
+            Material::RoughPlastic(c) => {
+                let prob_spec = rough_plastic_spec_prob(&c, c.transmittance(wi.z));
+                let wo = if u0 < prob_spec {
+                    let m = sample_ggx_vndf(wi, c.alpha, u1, u2);
+                    2.0 * wi.dot(m) * m - wi
+                } else {
+                    sample_cosine_hemisphere(u1, u2)
+                };
+                if wo.z <= 0.0 {
+                    return None;
+                }
+                let (f, pdf) = self.eval(wi, wo);
+                (pdf > 0.0 && pdf.is_finite() && f.is_finite()).then(|| BsdfSample {
+                    wo,
+                    weight: f / pdf,
+                    pdf,
+                })
+            }
+            _ => None,
+        }
+    }
+
+    /// True if the material reflects nothing (e.g. the black "Null" BSDF of area lights).
+    pub fn is_black(&self) -> bool {
+        match *self {
+            Material::Diffuse { reflectance } => reflectance.max_element() <= 0.0,
+            _ => false,
         }
     }
 
@@ -171,13 +541,149 @@ impl Material {
         matches!(self, Material::Diffuse { .. })
     }
 
-    /// True if the material reflects nothing (e.g. the black "Null" BSDF of area lights).
-    pub fn is_black(&self) -> bool {
+    /// Pure delta BSDF (smooth conductor or dielectric): `eval` is zero everywhere.
+    pub fn is_delta(&self) -> bool {
+        matches!(
+            self,
+            Material::Conductor { .. } | Material::Dielectric { .. }
+        )
+    }
+
+    /// NEE may connect to a light here: the BSDF has a non-delta part.
+    pub fn nee_connectable(&self) -> bool {
+        !self.is_delta() && !matches!(self, Material::TwoSided { .. })
+    }
+
+    /// The BSDF is one-sided (zero when `wi` is below the shading normal): everything but
+    /// the dielectrics.
+    pub fn one_sided(&self) -> bool {
+        !matches!(
+            self,
+            Material::Dielectric { .. } | Material::RoughDielectric { .. }
+        )
+    }
+
+    /// Guiding applies here: diffuse always; rough conductors and rough plastics with GGX
+    /// `alpha ≥ min_alpha`. Never at delta or smooth-coated vertices (their BSDF density has
+    /// a delta part, which a one-sample mixture with the guide cannot represent) and not on
+    /// dielectrics (transmission is not guided).
+    pub fn guidable(&self, min_alpha: f32) -> bool {
         match *self {
-            Material::Diffuse { reflectance } => reflectance.max_element() <= 0.0,
-            Material::RoughConductor { .. } => false,
+            Material::Diffuse { .. } => true,
+            Material::RoughConductor { alpha, .. } => alpha >= min_alpha,
+            Material::RoughPlastic(c) => c.alpha >= min_alpha,
+            _ => false,
         }
     }
+
+    /// Roughness input of the product guides in `[0, 1]` (1 = diffuse, GGX alpha otherwise).
+    pub fn roughness(&self) -> f32 {
+        match *self {
+            Material::RoughConductor { alpha, .. } | Material::RoughDielectric { alpha, .. } => {
+                alpha.clamp(0.0, 1.0)
+            }
+            Material::RoughPlastic(c) => c.alpha.clamp(0.0, 1.0),
+            Material::Conductor { .. } | Material::Dielectric { .. } => 0.0,
+            _ => 1.0,
+        }
+    }
+}
+
+/// Probability of sampling the coating lobe of a rough plastic (Mitsuba 3).
+fn rough_plastic_spec_prob(c: &Coating, t_i: f32) -> f32 {
+    let ps = (1.0 - t_i) * c.spec_weight;
+    let pd = t_i * (1.0 - c.spec_weight);
+    if ps + pd > 0.0 {
+        ps / (ps + pd)
+    } else {
+        0.0
+    }
+}
+
+/// Rough dielectric `f·|cos θo|` and pdf (Walter et al. 2007 with visible-normal sampling).
+fn rough_dielectric_eval(
+    wi: Vec3,
+    wo: Vec3,
+    alpha: f32,
+    eta: f32,
+    reflectance: Vec3,
+    transmittance: Vec3,
+) -> (Vec3, f32) {
+    let (ci, co) = (wi.z, wo.z);
+    if ci == 0.0 || co == 0.0 {
+        return (Vec3::ZERO, 0.0);
+    }
+    let reflect = ci * co > 0.0;
+    let eta_rel = if ci > 0.0 { eta } else { 1.0 / eta };
+    let m = (wi + wo * if reflect { 1.0 } else { eta_rel }).normalize_or_zero();
+    let m = if m.z < 0.0 { -m } else { m };
+    if m == Vec3::ZERO {
+        return (Vec3::ZERO, 0.0);
+    }
+    let (wim, wom) = (wi.dot(m), wo.dot(m));
+    // Microfacet orientation must agree with the macro surface for both directions.
+    if wim * ci <= 0.0 || wom * co <= 0.0 {
+        return (Vec3::ZERO, 0.0);
+    }
+    let d = ggx_d(m, alpha);
+    let g1i = ggx_g1(wi, m, alpha);
+    let g = g1i * ggx_g1(wo, m, alpha);
+    let f = fresnel_dielectric(wim, eta).0;
+    // Visible-normal density of m, for the wi flipped to the upper hemisphere.
+    let pdf_m = g1i * wim.abs() * d / ci.abs();
+    if reflect {
+        let value = reflectance * (f * d * g / (4.0 * ci.abs()));
+        let pdf = f * pdf_m / (4.0 * wom.abs());
+        (value, pdf)
+    } else {
+        let denom = wim + eta_rel * wom;
+        let denom2 = denom * denom;
+        // (η² from the Jacobian) × (1/η² radiance scaling) cancel.
+        let value = transmittance * ((1.0 - f) * d * g * (wim * wom / (ci * denom2))).abs();
+        let pdf = ((1.0 - f) * pdf_m * eta_rel * eta_rel * wom / denom2).abs();
+        (value, pdf)
+    }
+}
+
+#[allow(clippy::too_many_arguments)] // the material's fields plus three random numbers
+fn rough_dielectric_sample(
+    wi: Vec3,
+    alpha: f32,
+    eta: f32,
+    reflectance: Vec3,
+    transmittance: Vec3,
+    u0: f32,
+    u1: f32,
+    u2: f32,
+) -> Option<BsdfSample> {
+    let ci = wi.z;
+    if ci == 0.0 {
+        return None;
+    }
+    let flip = if ci > 0.0 { 1.0 } else { -1.0 };
+    let m = sample_ggx_vndf(wi * flip, alpha, u1, u2);
+    let wim = wi.dot(m);
+    let (f, cos_t, _, eta_ti) = fresnel_dielectric(wim, eta);
+    let reflect = u0 < f;
+    let wo = if reflect {
+        2.0 * wim * m - wi
+    } else {
+        m * (wim * eta_ti + cos_t) - wi * eta_ti
+    };
+    let wo = wo.normalize_or_zero();
+    // The sampled lobe must leave on its side of the macro surface.
+    if wo == Vec3::ZERO || (wo.z * ci > 0.0) != reflect || wo.z == 0.0 {
+        return None;
+    }
+    let (v, pdf) = rough_dielectric_eval(wi, wo, alpha, eta, reflectance, transmittance);
+    if !(pdf > 0.0 && pdf.is_finite() && v.is_finite()) {
+        return None;
+    }
+    Some(BsdfSample {
+        wo,
+        weight: v / pdf,
+        pdf,
+    })
 }
 
 #[cfg(test)]
@@ -185,35 +691,131 @@ mod tests {
     use super::*;
     use crate::math::Rng;
 
-    /// Sampling weight must equal eval/pdf (consistency between `sample` and `eval`).
-    #[test]
-    fn sample_matches_eval() {
-        let mats = [
-            Material::Diffuse {
-                reflectance: Vec3::new(0.5, 0.6, 0.7),
-            },
+    fn non_delta_materials() -> Vec<Material> {
+        let (d, s) = (Vec3::new(0.5, 0.6, 0.7), Vec3::splat(0.9));
+        vec![
+            Material::Diffuse { reflectance: d },
             Material::RoughConductor {
                 alpha: 0.3,
                 eta: Vec3::new(0.2, 0.92, 1.1),
                 k: Vec3::new(3.9, 2.45, 2.14),
             },
-        ];
+            Material::RoughDielectric {
+                alpha: 0.3,
+                eta: 1.5,
+                reflectance: Vec3::ONE,
+                transmittance: Vec3::ONE,
+            },
+            Material::Plastic(Coating::smooth(d, s, 1.49, false)),
+            Material::RoughPlastic(Coating::rough(d, s, 1.49, true, 0.2)),
+        ]
+    }
+
+    /// Sampling weight must equal eval/pdf (consistency between `sample` and `eval`), from
+    /// outside and (for the dielectric) from inside.
+    #[test]
+    fn sample_matches_eval() {
         let mut rng = Rng::new(1, 2, 3);
-        let wi = Vec3::new(0.3, -0.2, 0.8).normalize();
-        for m in mats {
-            for _ in 0..1000 {
-                let Some(s) = m.sample(wi, rng.next_f32(), rng.next_f32()) else {
-                    continue;
-                };
-                let (f, pdf) = m.eval(wi, s.wo);
-                assert!(
-                    (pdf - s.pdf).abs() <= 1e-3 * pdf.max(1.0),
-                    "{pdf} {}",
-                    s.pdf
-                );
-                let w = f / pdf;
-                assert!((w - s.weight).abs().max_element() < 1e-3 * w.max_element().max(1.0));
+        for wi in [
+            Vec3::new(0.3, -0.2, 0.8).normalize(),
+            Vec3::new(-0.6, 0.1, -0.5).normalize(),
+        ] {
+            for m in non_delta_materials() {
+                for _ in 0..2000 {
+                    let Some(s) = m.sample(wi, rng.next_f32(), rng.next_f32(), rng.next_f32())
+                    else {
+                        continue;
+                    };
+                    if s.pdf.is_infinite() {
+                        continue; // the plastic coating's delta lobe
+                    }
+                    let (f, pdf) = m.eval(wi, s.wo);
+                    assert!(
+                        (pdf - s.pdf).abs() <= 1e-3 * pdf.max(1.0),
+                        "{pdf} {}",
+                        s.pdf
+                    );
+                    let w = f / pdf;
+                    assert!((w - s.weight).abs().max_element() < 1e-3 * w.max_element().max(1.0));
+                }
             }
+        }
+    }
+
+    /// `∫ pdf dω` over the sphere equals the fraction of samples that are accepted and not
+    /// delta, for every non-delta BSDF, from both sides. The Monte Carlo integral (uniform
+    /// directions, 4·10⁵) has a relative standard error below 1 %; the tolerance is 0.03.
+    #[test]
+    fn pdf_integrates_to_acceptance() {
+        for wi in [
+            Vec3::new(0.5, 0.0, 0.8).normalize(),
+            Vec3::new(0.1, 0.9, 0.2).normalize(),
+            Vec3::new(0.3, 0.2, -0.9).normalize(),
+        ] {
+            for m in non_delta_materials() {
+                if wi.z < 0.0 && m.one_sided() {
+                    continue;
+                }
+                let mut rng = Rng::new(11, 0, 0);
+                let n = 400_000;
+                let (mut acc, mut accepted) = (0.0f64, 0usize);
+                for _ in 0..n {
+                    let wo = crate::math::sample_uniform_sphere(rng.next_f32(), rng.next_f32());
+                    acc += m.eval(wi, wo).1 as f64 * 4.0 * std::f64::consts::PI;
+                    let s = m.sample(wi, rng.next_f32(), rng.next_f32(), rng.next_f32());
+                    accepted += s.is_some_and(|s| s.pdf.is_finite()) as usize;
+                }
+                let (integral, frac) = (acc / n as f64, accepted as f64 / n as f64);
+                assert!(
+                    (integral - frac).abs() < 0.03,
+                    "{m:?} wi {wi}: ∫pdf {integral} vs accepted {frac}"
+                );
+            }
+        }
+    }
+
+    /// A smooth dielectric conserves energy exactly: the reflection weight is 1, and the
+    /// transmission weight times the inverse scaling on the way back is 1.
+    #[test]
+    fn smooth_dielectric_weights() {
+        let m = Material::Dielectric {
+            eta: 1.5,
+            reflectance: Vec3::ONE,
+            transmittance: Vec3::ONE,
+        };
+        let wi = Vec3::new(0.6, 0.0, 0.8);
+        let r = m.sample(wi, 0.0, 0.5, 0.5).expect("reflects");
+        assert_eq!(r.wo, Vec3::new(-0.6, 0.0, 0.8));
+        assert_eq!(r.weight, Vec3::ONE);
+        let t = m.sample(wi, 0.999, 0.5, 0.5).expect("refracts");
+        // Snell: sin θt = sin θi / η.
+        assert!((t.wo.length() - 1.0).abs() < 1e-5 && t.wo.z < 0.0);
+        assert!((t.wo.x + 0.6 / 1.5).abs() < 1e-6);
+        assert!((t.weight.x - 1.0 / 2.25).abs() < 1e-6);
+        // Reversibility: arriving from inside along the refracted ray leaves along wi.
+        let back = m.sample(t.wo, 0.999, 0.5, 0.5).expect("refracts back");
+        assert!((back.wo - wi).length() < 1e-5, "{}", back.wo);
+        assert!((back.weight.x * t.weight.x - 1.0).abs() < 1e-5);
+        // Total internal reflection from inside beyond the critical angle.
+        let (f, ..) = fresnel_dielectric(-0.3, 1.5);
+        assert_eq!(f, 1.0);
+    }
+
+    /// Mitsuba's F_dr fits agree with `2 ∫ F(μ) μ dμ` (midpoint rule, 10⁵ steps) to 1 %.
+    #[test]
+    fn fresnel_diffuse_reflectance_fits() {
+        for eta in [1.0 / 1.5, 1.0 / 1.33, 1.33, 1.49, 1.5, 2.0] {
+            let n = 100_000;
+            let mut acc = 0.0f64;
+            for i in 0..n {
+                let mu = (i as f64 + 0.5) / n as f64;
+                acc += 2.0 * fresnel_dielectric(mu as f32, eta).0 as f64 * mu / n as f64;
+            }
+            let fit = fresnel_diffuse_reflectance(eta) as f64;
+            assert!(
+                (fit - acc).abs() <= 0.01 * acc,
+                "eta {eta}: fit {fit} vs {acc}"
+            );
         }
     }
 
@@ -234,7 +836,9 @@ mod tests {
         for _ in 0..n {
             let wo = crate::math::sample_uniform_sphere(rng.next_f32(), rng.next_f32());
             acc += m.eval(wi, wo).1 as f64 * 4.0 * std::f64::consts::PI;
-            accepted += m.sample(wi, rng.next_f32(), rng.next_f32()).is_some() as usize;
+            accepted += m
+                .sample(wi, rng.next_f32(), rng.next_f32(), rng.next_f32())
+                .is_some() as usize;
         }
         let integral = acc / n as f64;
         let frac = accepted as f64 / n as f64;

@@ -38,6 +38,14 @@ pub enum Error {
         /// What is wrong.
         msg: String,
     },
+    /// A malformed or unsupported PLY file.
+    #[error("{file}: PLY: {msg}")]
+    Ply {
+        /// PLY file.
+        file: String,
+        /// What is wrong (with the header line or the element).
+        msg: String,
+    },
     /// Reading or writing a file failed.
     #[error("{path}: {source}")]
     Io {

@@ -47,9 +47,11 @@
 //! less efficient on glossy surfaces.
 
 use crate::bsdf::Material;
+use crate::emitter::EmitterSample;
 use crate::guide::Guide;
 use crate::integrator::{
-    accumulate, finish_image, offset, Image, IntegratorKind, RenderOptions, Worker,
+    accumulate, finish_image, offset, shadow_ray, side_ok, Image, IntegratorKind, RenderOptions,
+    Worker,
 };
 use crate::math::{power_heuristic, Frame};
 use crate::scene::Scene;
@@ -215,15 +217,11 @@ pub(crate) struct GuidedWorker<'g> {
 /// Light sample drawn for a vertex in the guide-query stage.
 #[derive(Clone, Copy)]
 struct NeeCandidate {
-    wo: Vec3,
     f: Vec3,
     pdf_bsdf: f32,
-    pdf_light: f32,
-    /// Guide pdf of `wo` (guidable vertices).
+    /// Guide pdf of `es.wo` (guidable vertices).
     qpdf: f32,
-    radiance: Vec3,
-    lp: Vec3,
-    ln: Vec3,
+    es: EmitterSample,
 }
 
 const NONE: u32 = u32::MAX;
@@ -325,19 +323,14 @@ impl<'g> GuidedWorker<'g> {
     }
 }
 
-/// Guidable: diffuse always, rough conductors unless near-specular.
+/// Guidable: diffuse always, rough conductors / plastics unless near-specular; never delta,
+/// smooth-coated or dielectric vertices ([`Material::guidable`]).
 fn guidable(m: &Material, min_alpha: f32) -> bool {
-    match *m {
-        Material::Diffuse { .. } => true,
-        Material::RoughConductor { alpha, .. } => alpha >= min_alpha,
-    }
+    m.guidable(min_alpha)
 }
 
 fn roughness(m: &Material) -> f32 {
-    match *m {
-        Material::Diffuse { .. } => 1.0,
-        Material::RoughConductor { alpha, .. } => alpha.clamp(0.0, 1.0),
-    }
+    m.roughness()
 }
 
 /// Guide-query stage: NEE light samples, technique selection and the batched guide queries.
@@ -400,34 +393,21 @@ pub(crate) fn stage_guide_query(w: &mut Worker<'_>, nee: bool) {
         let qi = g.v_query[i];
         // NEE light sample (same draws as pt-nee).
         let mut cand = None;
-        if nee {
+        if nee && mat.nee_connectable() {
             let (u0, u1, u2) = (rng.next_f32(), rng.next_f32(), rng.next_f32());
-            if let Some(ls) = scene.sample_light(u0, u1, u2) {
-                let to = ls.p - verts.p[i];
-                let dist2 = to.length_squared();
-                if dist2 > 0.0 && dist2.is_finite() {
-                    let wo = to / dist2.sqrt();
-                    let cos_l = ls.n.dot(-wo);
-                    if cos_l > 0.0 {
-                        let (f, pdf_bsdf) = mat.eval(wi_l, frame.to_local(wo));
-                        let pdf_light = ls.pdf_area * dist2 / cos_l;
-                        if f.max_element() > 0.0 && pdf_light > 0.0 && pdf_light.is_finite() {
-                            cand = Some(NeeCandidate {
-                                wo,
-                                f,
-                                pdf_bsdf,
-                                pdf_light,
-                                qpdf: 0.0,
-                                radiance: ls.radiance,
-                                lp: ls.p,
-                                ln: ls.n,
-                            });
-                            if qi != NONE {
-                                g.p_query.push(g.g_query[qi as usize]);
-                                g.p_dir.push(wo);
-                                g.p_vert.push(i as u32 | NEE_BIT);
-                            }
-                        }
+            if let Some(es) = scene.sample_emitter(verts.p[i], u0, u1, u2) {
+                let (f, pdf_bsdf) = mat.eval(wi_l, frame.to_local(es.wo));
+                if f.max_element() > 0.0 {
+                    cand = Some(NeeCandidate {
+                        f,
+                        pdf_bsdf,
+                        qpdf: 0.0,
+                        es,
+                    });
+                    if qi != NONE && !es.delta {
+                        g.p_query.push(g.g_query[qi as usize]);
+                        g.p_dir.push(es.wo);
+                        g.p_vert.push(i as u32 | NEE_BIT);
                     }
                 }
             }
@@ -440,12 +420,12 @@ pub(crate) fn stage_guide_query(w: &mut Worker<'_>, nee: bool) {
         } else {
             false
         };
-        let (u1, u2) = (rng.next_f32(), rng.next_f32());
+        let (u0, u1, u2) = (rng.next_f32(), rng.next_f32(), rng.next_f32());
         if pick_guide {
             g.s_query.push(g.g_query[qi as usize]);
             g.s_u.push(Vec2::new(u1, u2));
             g.s_vert.push(i as u32);
-        } else if let Some(bs) = mat.sample(wi_l, u1, u2) {
+        } else if let Some(bs) = mat.sample(wi_l, u0, u1, u2) {
             let dir = frame.to_world(bs.wo).normalize();
             g.v_dir[i] = dir;
             g.v_weight[i] = bs.weight;
@@ -513,20 +493,19 @@ pub(crate) fn stage_guided_nee(w: &mut Worker<'_>) {
             let sel = g.g_c[qi as usize];
             sel * c.qpdf + (1.0 - sel) * c.pdf_bsdf
         };
-        let weight = power_heuristic(c.pdf_light, pdf_dir);
-        let local = c.f * c.radiance * (weight / c.pdf_light);
-        let p = w.verts.p[i];
-        let o = offset(p, w.verts.ng[i], c.wo);
-        let target = offset(c.lp, c.ln, -c.wo);
-        let seg = target - o;
-        let len = seg.length();
-        if !(len > 0.0 && len.is_finite()) {
+        let weight = if c.es.delta {
+            1.0
+        } else {
+            power_heuristic(c.es.pdf, pdf_dir)
+        };
+        let local = c.f * c.es.radiance * (weight / c.es.pdf);
+        let Some((o, d, tmax)) = shadow_ray(w.verts.p[i], w.verts.ng[i], &c.es) else {
             continue;
-        }
+        };
         w.shadow.slot.push(w.verts.slot[i]);
         w.shadow.o.push(o);
-        w.shadow.d.push(seg / len);
-        w.shadow.tmax.push(len * (1.0 - 1e-4));
+        w.shadow.d.push(d);
+        w.shadow.tmax.push(tmax);
         w.shadow.contrib.push(w.verts.beta[i] * local);
         w.shadow.local.push(local);
     }
@@ -581,7 +560,7 @@ pub(crate) fn stage_guided_continue(w: &mut Worker<'_>) {
             (f / pdf, pdf)
         };
         let beta = w.verts.beta[i] * weight;
-        if beta.max_element() <= 0.0 || !beta.is_finite() || dir.dot(ng) * wi.dot(ng) <= 0.0 {
+        if beta.max_element() <= 0.0 || !beta.is_finite() || !side_ok(wi, dir, ng, ns) {
             g.record_continue(slot, Vec3::ZERO, None);
             continue;
         }

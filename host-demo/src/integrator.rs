@@ -18,6 +18,7 @@
 //! either way).
 
 use crate::bsdf::Material;
+use crate::emitter::EmitterSample;
 use crate::math::{power_heuristic, Frame, Rng};
 use crate::scene::Scene;
 use glam::Vec3;
@@ -287,6 +288,56 @@ pub(crate) fn offset(p: Vec3, ng: Vec3, dir: Vec3) -> Vec3 {
     }
 }
 
+/// Geometric-normal side test of a scattering event: a reflection (with respect to the
+/// shading normal) must stay on the geometric side it came from, a transmission must cross
+/// it. Rejects the light leaks of interpolated shading normals.
+#[inline]
+pub(crate) fn side_ok(wi: Vec3, wo: Vec3, ng: Vec3, ns: Vec3) -> bool {
+    let shading_reflect = wi.dot(ns) * wo.dot(ns) > 0.0;
+    let (gi, go) = (wi.dot(ng), wo.dot(ng));
+    go != 0.0 && (gi * go > 0.0) == shading_reflect
+}
+
+/// Resolves `twosided`: returns the material index to shade with and the (possibly flipped)
+/// geometric and shading normals, so that a two-sided BSDF always sees its front side.
+#[inline]
+pub(crate) fn resolve_side(
+    scene: &Scene,
+    material: u32,
+    ng: Vec3,
+    ns: Vec3,
+    d: Vec3,
+) -> (u32, Vec3, Vec3) {
+    match scene.materials[material as usize] {
+        Material::TwoSided { front, back } => {
+            if ns.dot(-d) < 0.0 {
+                (back, -ng, -ns)
+            } else {
+                (front, ng, ns)
+            }
+        }
+        _ => (material, ng, ns),
+    }
+}
+
+/// Shadow ray `(origin, unit direction, tmax)` from the vertex at `p` (geometric normal `ng`)
+/// to an emitter sample; unbounded for the environment, stopping just short of area and point
+/// lights. `None` if degenerate.
+pub(crate) fn shadow_ray(p: Vec3, ng: Vec3, es: &EmitterSample) -> Option<(Vec3, Vec3, f32)> {
+    let o = offset(p, ng, es.wo);
+    if es.dist.is_infinite() {
+        return Some((o, es.wo, f32::INFINITY));
+    }
+    let target = if es.n == Vec3::ZERO {
+        es.p
+    } else {
+        offset(es.p, es.n, -es.wo)
+    };
+    let seg = target - o;
+    let len = seg.length();
+    (len > 0.0 && len.is_finite()).then(|| (o, seg / len, len * (1.0 - 1e-4)))
+}
+
 /// Per-block worker state (queues are reused across bounces and samples).
 pub(crate) struct Worker<'s> {
     pub(crate) scene: &'s Scene,
@@ -397,6 +448,24 @@ impl<'s> Worker<'s> {
         for i in 0..self.paths.slot.len() {
             let (o, d) = (self.paths.o[i], self.paths.d[i]);
             let Some(hit) = scene.intersect(o, d, 0.0, f32::INFINITY) else {
+                if scene.env.is_some() {
+                    // The path leaves the scene: environment emission, MIS-weighted against
+                    // NEE's environment sampling.
+                    let le = scene.env_radiance(d);
+                    let w = if self.paths.from_camera[i]
+                        || !self.nee
+                        || self.paths.pdf[i].is_infinite()
+                    {
+                        1.0
+                    } else {
+                        power_heuristic(self.paths.pdf[i], scene.env_pdf(d))
+                    };
+                    let slot = self.paths.slot[i];
+                    self.radiance[slot as usize] += self.paths.beta[i] * le * w;
+                    if let Some(g) = &mut self.guided {
+                        g.record_hit(slot, le, le * w);
+                    }
+                }
                 continue;
             };
             let slot = self.paths.slot[i];
@@ -422,8 +491,9 @@ impl<'s> Worker<'s> {
             if !continue_path {
                 continue;
             }
-            let mat = &scene.materials[shape.material as usize];
-            if mat.is_black() || hit.ns.dot(-d) <= 0.0 {
+            let (mat_id, ng, ns) = resolve_side(scene, shape.material, hit.ng, hit.ns, d);
+            let mat = &scene.materials[mat_id as usize];
+            if mat.is_black() || (mat.one_sided() && ns.dot(-d) <= 0.0) {
                 continue; // absorbed, or the back of a one-sided BSDF
             }
             if rr {
@@ -440,11 +510,11 @@ impl<'s> Worker<'s> {
             }
             self.verts.slot.push(slot);
             self.verts.p.push(hit.p);
-            self.verts.ng.push(hit.ng);
-            self.verts.ns.push(hit.ns);
+            self.verts.ng.push(ng);
+            self.verts.ns.push(ns);
             self.verts.wi.push(-d);
             self.verts.beta.push(beta);
-            self.verts.material.push(shape.material);
+            self.verts.material.push(mat_id);
         }
     }
 
@@ -454,40 +524,34 @@ impl<'s> Worker<'s> {
         self.shadow.clear();
         for i in 0..self.verts.len() {
             let slot = self.verts.slot[i];
+            if !scene.materials[self.verts.material[i] as usize].nee_connectable() {
+                continue; // delta BSDF: no light connection
+            }
             let rng = &mut self.rng[slot as usize];
             let (u0, u1, u2) = (rng.next_f32(), rng.next_f32(), rng.next_f32());
-            let Some(ls) = scene.sample_light(u0, u1, u2) else {
+            let p = self.verts.p[i];
+            let Some(es) = scene.sample_emitter(p, u0, u1, u2) else {
                 continue;
             };
-            let p = self.verts.p[i];
-            let to = ls.p - p;
-            let dist2 = to.length_squared();
-            if dist2.is_nan() || dist2 <= 0.0 {
-                continue;
-            }
-            let dist = dist2.sqrt();
-            let wo = to / dist;
-            let cos_l = ls.n.dot(-wo);
-            if cos_l <= 0.0 {
-                continue;
-            }
             let frame = Frame::new(self.verts.ns[i]);
             let mat: &Material = &scene.materials[self.verts.material[i] as usize];
-            let (f, pdf_bsdf) = mat.eval(frame.to_local(self.verts.wi[i]), frame.to_local(wo));
+            let (f, pdf_bsdf) = mat.eval(frame.to_local(self.verts.wi[i]), frame.to_local(es.wo));
             if f.max_element() <= 0.0 {
                 continue;
             }
-            let pdf_light = ls.pdf_area * dist2 / cos_l;
-            let w = power_heuristic(pdf_light, pdf_bsdf);
-            let contrib = self.verts.beta[i] * f * ls.radiance * (w / pdf_light);
-            let o = offset(p, self.verts.ng[i], wo);
-            let target = offset(ls.p, ls.n, -wo);
-            let seg = target - o;
-            let len = seg.length();
+            let w = if es.delta {
+                1.0
+            } else {
+                power_heuristic(es.pdf, pdf_bsdf)
+            };
+            let contrib = self.verts.beta[i] * f * es.radiance * (w / es.pdf);
+            let Some((o, d, tmax)) = shadow_ray(p, self.verts.ng[i], &es) else {
+                continue;
+            };
             self.shadow.slot.push(slot);
             self.shadow.o.push(o);
-            self.shadow.d.push(seg / len);
-            self.shadow.tmax.push(len * (1.0 - 1e-4));
+            self.shadow.d.push(d);
+            self.shadow.tmax.push(tmax);
             self.shadow.contrib.push(contrib);
         }
     }
@@ -516,10 +580,10 @@ impl<'s> Worker<'s> {
         for i in 0..self.verts.len() {
             let slot = self.verts.slot[i];
             let rng = &mut self.rng[slot as usize];
-            let (u1, u2) = (rng.next_f32(), rng.next_f32());
+            let (u0, u1, u2) = (rng.next_f32(), rng.next_f32(), rng.next_f32());
             let frame = Frame::new(self.verts.ns[i]);
             let mat = &scene.materials[self.verts.material[i] as usize];
-            let Some(bs) = mat.sample(frame.to_local(self.verts.wi[i]), u1, u2) else {
+            let Some(bs) = mat.sample(frame.to_local(self.verts.wi[i]), u0, u1, u2) else {
                 continue;
             };
             let wo = frame.to_world(bs.wo).normalize();
@@ -527,8 +591,7 @@ impl<'s> Worker<'s> {
             if beta.max_element() <= 0.0 || !beta.is_finite() {
                 continue;
             }
-            // Geometric-normal side test: don't continue into the surface we just left.
-            if wo.dot(self.verts.ng[i]) * self.verts.wi[i].dot(self.verts.ng[i]) <= 0.0 {
+            if !side_ok(self.verts.wi[i], wo, self.verts.ng[i], self.verts.ns[i]) {
                 continue;
             }
             let o = offset(self.verts.p[i], self.verts.ng[i], wo);

@@ -1,6 +1,6 @@
 //! `host-demo`: a CPU wavefront path tracer used to exercise the path-guiding library.
 //!
-//! * [`xml`] loads a subset of Mitsuba 3 scenes (with [`obj`] meshes); [`builtin`] builds
+//! * [`xml`] loads a subset of Mitsuba 3 scenes (with [`obj`] and [`ply`] meshes); [`builtin`] builds
 //!   `builtin:cornell-box`, `builtin:furnace` and `builtin:door` in code.
 //! * [`scene`] holds triangles and analytic spheres in an `obvhs` CWBVH.
 //! * [`integrator`] is the wavefront `pt` / `pt-nee` renderer, [`output`] writes EXR.
@@ -12,6 +12,7 @@ pub mod bench;
 pub mod bsdf;
 pub mod builtin;
 pub mod compare;
+pub mod emitter;
 pub mod error;
 pub mod guide;
 pub mod guided;
@@ -19,6 +20,7 @@ pub mod integrator;
 pub mod math;
 pub mod obj;
 pub mod output;
+pub mod ply;
 pub mod scene;
 pub mod schedule;
 pub mod xml;

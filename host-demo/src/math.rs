@@ -87,6 +87,23 @@ pub fn sample_cosine_hemisphere(u1: f32, u2: f32) -> Vec3 {
     Vec3::new(r * phi.cos(), r * phi.sin(), (1.0 - u1).max(0.0).sqrt())
 }
 
+/// Shirley–Chiu concentric map of the unit square onto the unit disk (area preserving).
+pub fn sample_concentric_disk(u1: f32, u2: f32) -> (f32, f32) {
+    let (x, y) = (2.0 * u1 - 1.0, 2.0 * u2 - 1.0);
+    if x == 0.0 && y == 0.0 {
+        return (0.0, 0.0);
+    }
+    let (r, phi) = if x.abs() > y.abs() {
+        (x, std::f32::consts::FRAC_PI_4 * (y / x))
+    } else {
+        (
+            y,
+            std::f32::consts::FRAC_PI_2 - std::f32::consts::FRAC_PI_4 * (x / y),
+        )
+    };
+    (r * phi.cos(), r * phi.sin())
+}
+
 /// Uniform direction on the unit sphere.
 pub fn sample_uniform_sphere(u1: f32, u2: f32) -> Vec3 {
     let z = 1.0 - 2.0 * u1;

@@ -2,6 +2,7 @@
 //! and a Mitsuba-style perspective camera.
 
 use crate::bsdf::Material;
+use crate::emitter::{EmitterSample, Environment, PointLight};
 use crate::error::{Error, Result};
 use crate::math::{sample_uniform_sphere, Frame};
 use glam::{Mat4, Vec3, Vec3A};
@@ -32,6 +33,27 @@ pub enum Prim {
         /// Normals point inwards.
         flip: bool,
     },
+    /// Analytic disk (Mitsuba's `disk`: the unit disk of the local xy plane under an affine
+    /// `to_world`, i.e. an ellipse `center + s·a + t·b`, `s² + t² ≤ 1`).
+    Disk {
+        /// Centre.
+        center: Vec3,
+        /// Image of the local x axis.
+        a: Vec3,
+        /// Image of the local y axis.
+        b: Vec3,
+        /// Unit normal (the transformed local +z, negated by `flip_normals`).
+        n: Vec3,
+    },
+}
+
+/// Local disk coordinates `(s, t)` of `q = p - center` (dual basis of `a`, `b` in their plane).
+#[inline]
+fn disk_coords(q: Vec3, a: Vec3, b: Vec3) -> (f32, f32) {
+    let (aa, ab, bb) = (a.dot(a), a.dot(b), b.dot(b));
+    let det = aa * bb - ab * ab;
+    let (qa, qb) = (q.dot(a), q.dot(b));
+    ((bb * qa - ab * qb) / det, (aa * qb - ab * qa) / det)
 }
 
 impl Prim {
@@ -42,6 +64,11 @@ impl Prim {
                 Vec3A::from(center - Vec3::splat(radius)),
                 Vec3A::from(center + Vec3::splat(radius)),
             ),
+            Prim::Disk { center, a, b, .. } => {
+                // Extent of an ellipse along each axis: sqrt(a_i² + b_i²).
+                let e = (a * a + b * b).map(f32::sqrt);
+                Aabb::new(Vec3A::from(center - e), Vec3A::from(center + e))
+            }
         }
     }
 
@@ -50,6 +77,7 @@ impl Prim {
         match *self {
             Prim::Tri { p, .. } => 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length(),
             Prim::Sphere { radius, .. } => 4.0 * PI * radius * radius,
+            Prim::Disk { a, b, .. } => PI * a.cross(b).length(),
         }
     }
 
@@ -110,6 +138,18 @@ impl Prim {
                 } else {
                     None
                 }
+            }
+            Prim::Disk { center, a, b, n } => {
+                let denom = d.dot(n);
+                if denom.abs() < 1e-12 {
+                    return None;
+                }
+                let t = (center - o).dot(n) / denom;
+                if !(t > tmin && t < tmax) {
+                    return None;
+                }
+                let (s, u) = disk_coords(o + d * t - center, a, b);
+                (s * s + u * u <= 1.0).then_some((t, 0.0, 0.0))
             }
         }
     }
@@ -222,19 +262,6 @@ pub struct Light {
     pub area: f32,
 }
 
-/// A point sampled on a light.
-#[derive(Clone, Copy, Debug)]
-pub struct LightSample {
-    /// Position.
-    pub p: Vec3,
-    /// Emitting-side normal.
-    pub n: Vec3,
-    /// Radiance.
-    pub radiance: Vec3,
-    /// Area pdf including the light selection probability.
-    pub pdf_area: f32,
-}
-
 /// A complete renderable scene.
 pub struct Scene {
     /// Primitives, in BVH leaf order.
@@ -249,6 +276,10 @@ pub struct Scene {
     pub lights: Vec<Light>,
     /// Light index of each shape (`u32::MAX` if none).
     pub shape_light: Vec<u32>,
+    /// Point lights.
+    pub point_lights: Vec<PointLight>,
+    /// The environment (`constant` or `envmap` emitter), if any.
+    pub env: Option<Environment>,
     /// Camera.
     pub camera: Camera,
     /// Default settings.
@@ -263,9 +294,16 @@ pub struct SceneBuilder {
     prim_shape: Vec<u32>,
     shapes: Vec<Shape>,
     materials: Vec<Material>,
+    point_lights: Vec<PointLight>,
+    env: Option<Environment>,
 }
 
 impl SceneBuilder {
+    /// Materials added so far.
+    pub fn materials(&self) -> &[Material] {
+        &self.materials
+    }
+
     /// Adds a material and returns its index.
     pub fn material(&mut self, m: Material) -> u32 {
         self.materials.push(m);
@@ -278,6 +316,20 @@ impl SceneBuilder {
         self.shapes.push(Shape { material, emission });
         self.prim_shape.extend(std::iter::repeat_n(id, prims.len()));
         self.prims.extend(prims);
+    }
+
+    /// Adds a point light.
+    pub fn point_light(&mut self, light: PointLight) {
+        self.point_lights.push(light);
+    }
+
+    /// Sets the environment; returns `false` (and keeps the first) if one is already set.
+    pub fn environment(&mut self, env: Environment) -> bool {
+        if self.env.is_some() {
+            return false;
+        }
+        self.env = Some(env);
+        true
     }
 
     /// Adds a quad `a b c d` (counter-clockwise seen from the side its normal points to).
@@ -308,6 +360,12 @@ impl SceneBuilder {
                 Prim::Tri { p, .. } => p.iter().all(|v| v.is_finite()),
                 Prim::Sphere { center, radius, .. } => {
                     center.is_finite() && radius.is_finite() && radius > 0.0
+                }
+                Prim::Disk { center, a, b, n } => {
+                    center.is_finite()
+                        && n.is_finite()
+                        && a.cross(b).length() > 0.0
+                        && a.cross(b).is_finite()
                 }
             };
             if !ok {
@@ -356,6 +414,21 @@ impl SceneBuilder {
                 }
             }
         }
+        for (i, m) in self.materials.iter().enumerate() {
+            if let Material::TwoSided { front, back } = *m {
+                let n = self.materials.len() as u32;
+                if front >= n || back >= n {
+                    return Err(Error::Scene(format!(
+                        "material {i}: twosided refers to a missing material"
+                    )));
+                }
+            }
+        }
+        for s in &self.shapes {
+            if s.material as usize >= self.materials.len() {
+                return Err(Error::Scene("a shape refers to a missing material".into()));
+            }
+        }
         Ok(Scene {
             prims,
             prim_shape,
@@ -363,6 +436,8 @@ impl SceneBuilder {
             materials: self.materials,
             lights,
             shape_light,
+            point_lights: self.point_lights,
+            env: self.env,
             camera,
             settings,
             bvh,
@@ -423,6 +498,7 @@ impl Scene {
                 let n = if flip { -n } else { n };
                 (n, n)
             }
+            Prim::Disk { n, .. } => (n, n),
         };
         Some(SurfaceHit {
             p,
@@ -443,13 +519,8 @@ impl Scene {
         })
     }
 
-    /// Samples a point uniformly by area on a uniformly chosen light.
-    pub fn sample_light(&self, u0: f32, u1: f32, u2: f32) -> Option<LightSample> {
-        let n = self.lights.len();
-        if n == 0 {
-            return None;
-        }
-        let li = ((u0 * n as f32) as usize).min(n - 1);
+    /// Samples a point uniformly by area on area light `li`: `(point, emitting normal)`.
+    fn sample_area(&self, li: usize, u1: f32, u2: f32) -> (Vec3, Vec3) {
         let l = &self.lights[li];
         let target = u1 * l.area;
         let k = l
@@ -463,13 +534,11 @@ impl Scene {
         } else {
             0.5
         };
-        let (p, nrm) = match self.prims[l.prims[k] as usize] {
+        match self.prims[l.prims[k] as usize] {
             Prim::Tri { p, n } => {
                 let su = u1.sqrt();
+                // Barycentrics: point = p0 (1-b1-b2) + p1 b1 + p2 b2, uniform by area.
                 let (b1, b2) = (1.0 - su, u2 * su);
-                let b0 = 1.0 - b1 - b2;
-                let _ = b0;
-                // Barycentrics: point = p0 (1-b1-b2) + p1 b1 + p2 b2.
                 let pt = p[0] * (1.0 - b1 - b2) + p[1] * b1 + p[2] * b2;
                 let ng = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
                 let ns = match n {
@@ -486,23 +555,88 @@ impl Scene {
                 let d = sample_uniform_sphere(u1, u2);
                 (center + d * radius, if flip { -d } else { d })
             }
-        };
-        Some(LightSample {
-            p,
-            n: nrm,
-            radiance: l.radiance,
-            pdf_area: 1.0 / (n as f32 * l.area),
-        })
+            Prim::Disk { center, a, b, n } => {
+                // Uniform on the unit disk; the affine map keeps it uniform by area.
+                let (x, y) = crate::math::sample_concentric_disk(u1, u2);
+                (center + a * x + b * y, n)
+            }
+        }
     }
 
-    /// Number of emitters (area lights count one per emitting shape).
+    /// Number of emitters: area lights (one per emitting shape), point lights and the
+    /// environment. NEE picks one uniformly (as Mitsuba does).
     pub fn emitter_count(&self) -> usize {
-        self.lights.len()
+        self.lights.len() + self.point_lights.len() + usize::from(self.env.is_some())
     }
 
     /// True if NEE has something to sample (the NEE stage is skipped otherwise).
     pub fn has_samplable_emitter(&self) -> bool {
-        !self.lights.is_empty()
+        self.emitter_count() > 0
+    }
+
+    /// NEE: picks an emitter uniformly with `u0` and samples it from the shading point `p`
+    /// (area lights uniformly by area, the environment by its own sampler). `None` if there
+    /// is no emitter or the sample is degenerate (behind an area light, zero distance).
+    pub fn sample_emitter(&self, p: Vec3, u0: f32, u1: f32, u2: f32) -> Option<EmitterSample> {
+        let n = self.emitter_count();
+        if n == 0 {
+            return None;
+        }
+        let sel = 1.0 / n as f32;
+        let k = ((u0 * n as f32) as usize).min(n - 1);
+        if k < self.lights.len() {
+            let (lp, ln) = self.sample_area(k, u1, u2);
+            let to = lp - p;
+            let dist2 = to.length_squared();
+            if !(dist2 > 0.0 && dist2.is_finite()) {
+                return None;
+            }
+            let dist = dist2.sqrt();
+            let wo = to / dist;
+            let cos_l = ln.dot(-wo);
+            if cos_l <= 0.0 {
+                return None;
+            }
+            let pdf = sel / self.lights[k].area * dist2 / cos_l;
+            return (pdf > 0.0 && pdf.is_finite()).then_some(EmitterSample {
+                wo,
+                dist,
+                p: lp,
+                n: ln,
+                radiance: self.lights[k].radiance,
+                pdf,
+                delta: false,
+            });
+        }
+        let k = k - self.lights.len();
+        if let Some(pl) = self.point_lights.get(k) {
+            let to = pl.position - p;
+            let dist2 = to.length_squared();
+            if !(dist2 > 0.0 && dist2.is_finite()) {
+                return None;
+            }
+            let dist = dist2.sqrt();
+            return Some(EmitterSample {
+                wo: to / dist,
+                dist,
+                p: pl.position,
+                n: Vec3::ZERO,
+                radiance: pl.intensity / dist2,
+                pdf: sel,
+                delta: true,
+            });
+        }
+        let env = self.env.as_ref()?;
+        let (wo, radiance, pdf) = env.sample(u1, u2)?;
+        (pdf > 0.0 && pdf.is_finite()).then_some(EmitterSample {
+            wo,
+            dist: f32::INFINITY,
+            p,
+            n: Vec3::ZERO,
+            radiance,
+            pdf: pdf * sel,
+            delta: false,
+        })
     }
 
     /// Area pdf (with selection probability) of sampling a point on the light of `shape`.
@@ -511,7 +645,20 @@ impl Scene {
         if li == u32::MAX {
             return 0.0;
         }
-        1.0 / (self.lights.len() as f32 * self.lights[li as usize].area)
+        1.0 / (self.emitter_count() as f32 * self.lights[li as usize].area)
+    }
+
+    /// Radiance of the environment seen along `d` (zero without one).
+    pub fn env_radiance(&self, d: Vec3) -> Vec3 {
+        self.env.as_ref().map_or(Vec3::ZERO, |e| e.eval(d))
+    }
+
+    /// Solid-angle pdf (with selection probability) of NEE sampling direction `d` on the
+    /// environment.
+    pub fn env_pdf(&self, d: Vec3) -> f32 {
+        self.env
+            .as_ref()
+            .map_or(0.0, |e| e.pdf(d) / self.emitter_count() as f32)
     }
 
     /// Shading frame at a hit.

@@ -2,17 +2,21 @@
 //!
 //! Supported: `integrator path` (max_depth, rr_depth), `sensor perspective` (fov, fov_axis,
 //! to_world, near/far_clip), `sampler independent` (sample_count), `film hdrfilm` (width,
-//! height, rfilter box), `bsdf diffuse` (rgb/float reflectance), `bsdf roughconductor` (GGX,
-//! isotropic alpha, rgb eta/k or material "none"), `shape obj|sphere|rectangle` (to_world,
-//! flip_normals, face_normals for obj), `emitter area` (rgb radiance) nested in a shape,
-//! `ref id`, and `transform` with matrix/lookat/translate/rotate/scale.
+//! height, rfilter box); BSDFs `diffuse`, `conductor`, `roughconductor`, `dielectric`,
+//! `roughdielectric`, `plastic`, `roughplastic` (rough ones GGX only, isotropic alpha; IORs as
+//! numbers or Mitsuba's names) and `twosided`; shapes `obj`, `ply`, `sphere`, `rectangle`,
+//! `cube`, `disk` (to_world, flip_normals, face_normals for meshes); emitters `area` (nested in
+//! a shape), `point`, `constant` and `envmap` (EXR, to_world rotation, scale); `ref id`; and
+//! `transform` with matrix/lookat/translate/rotate/scale.
 //!
 //! Anything else (an unknown element, plugin type or property) is an error that names the
 //! element and its line: nothing is dropped silently.
 
-use crate::bsdf::Material;
+use crate::bsdf::{Coating, Material};
+use crate::emitter::{EnvMap, Environment, PointLight};
 use crate::error::{Error, Result};
 use crate::obj::parse_obj;
+use crate::ply::parse_ply;
 use crate::scene::{Camera, Prim, Scene, SceneBuilder, Settings};
 use glam::{Mat4, Vec3};
 use roxmltree::{Document, Node};
@@ -287,17 +291,11 @@ impl<'a, 'i> Ctx<'a, 'i> {
                 }
                 "bsdf" => {
                     let id = self.attr(n, "id")?.to_string();
-                    let m = self.bsdf(n)?;
-                    let idx = self.builder.material(m);
+                    let idx = self.bsdf(n)?;
                     self.bsdfs.insert(id, idx);
                 }
                 "shape" => self.shape(n)?,
-                "emitter" => {
-                    return Err(self.unsupported(
-                        n,
-                        "top-level emitter (only area emitters inside shapes are supported)",
-                    ))
-                }
+                "emitter" => self.emitter(n)?,
                 _ => return Err(self.unsupported(n, "scene element")),
             }
         }
@@ -400,9 +398,54 @@ impl<'a, 'i> Ctx<'a, 'i> {
         Ok(v as u32)
     }
 
-    fn bsdf(&self, n: Node) -> Result<Material> {
-        match n.attribute("type") {
-            Some("diffuse") => {
+    /// An index of refraction: `<float>` or a named material (Mitsuba's `lookup_ior` table).
+    fn ior(&self, p: Node) -> Result<f32> {
+        let v = match p.tag_name().name() {
+            "float" => self.float(p)?,
+            "string" => {
+                let name = self.attr(p, "value")?;
+                named_ior(name).ok_or_else(|| {
+                    self.err(p, format!("unknown index-of-refraction name \"{name}\""))
+                })?
+            }
+            _ => return Err(self.unsupported(p, "index of refraction (float or string)")),
+        };
+        if !(v.is_finite() && v > 0.0) {
+            return Err(self.err(p, format!("index of refraction {v} must be positive")));
+        }
+        Ok(v)
+    }
+
+    /// GGX roughness and distribution properties shared by the rough BSDFs; returns true if
+    /// the property was one of them.
+    fn rough_property(&self, p: Node, distribution: &mut String, alpha: &mut f32) -> Result<bool> {
+        match (p.tag_name().name(), self.name(p)?) {
+            ("string", "distribution") => *distribution = self.attr(p, "value")?.to_string(),
+            ("float", "alpha") => *alpha = self.float(p)?,
+            // Visible-normal sampling is what we do anyway; `false` would only change variance.
+            ("boolean", "sample_visible") => {}
+            _ => return Ok(false),
+        }
+        Ok(true)
+    }
+
+    fn check_rough(&self, n: Node, distribution: &str, alpha: f32) -> Result<f32> {
+        let ty = n.attribute("type").unwrap_or("");
+        if distribution != "ggx" {
+            return Err(self.err(n, format!("{ty} distribution \"{distribution}\" is not supported (only \"ggx\"; Mitsuba's default is beckmann)")));
+        }
+        if !(alpha > 0.0 && alpha.is_finite()) {
+            return Err(self.err(n, format!("alpha {alpha} must be positive")));
+        }
+        Ok(alpha.max(1e-4))
+    }
+
+    /// Parses a `<bsdf>` (nested ones of `twosided` first), adds it to the scene and returns
+    /// its material index.
+    fn bsdf(&mut self, n: Node<'a, 'i>) -> Result<u32> {
+        let ty = n.attribute("type").unwrap_or("");
+        let m = match ty {
+            "diffuse" => {
                 let mut reflectance = Vec3::splat(0.5);
                 for p in elements(n) {
                     match self.name(p)? {
@@ -410,17 +453,19 @@ impl<'a, 'i> Ctx<'a, 'i> {
                         _ => return Err(self.unsupported(p, "diffuse property")),
                     }
                 }
-                Ok(Material::Diffuse { reflectance })
+                Material::Diffuse { reflectance }
             }
-            Some("roughconductor") => {
+            "conductor" | "roughconductor" => {
                 let (mut alpha, mut eta, mut k) = (0.1f32, Vec3::ZERO, Vec3::ONE);
+                let mut specular = Vec3::ONE;
                 let mut distribution = "beckmann".to_string();
                 for p in elements(n) {
+                    if ty == "roughconductor"
+                        && self.rough_property(p, &mut distribution, &mut alpha)?
+                    {
+                        continue;
+                    }
                     match (p.tag_name().name(), self.name(p)?) {
-                        ("string", "distribution") => {
-                            distribution = self.attr(p, "value")?.to_string()
-                        }
-                        ("float", "alpha") => alpha = self.float(p)?,
                         ("string", "material") => {
                             if self.attr(p, "value")? != "none" {
                                 return Err(self.err(p, format!("named conductor material \"{}\" is not supported (use rgb eta/k, or \"none\")", self.attr(p, "value")?)));
@@ -430,25 +475,212 @@ impl<'a, 'i> Ctx<'a, 'i> {
                         }
                         (_, "eta") => eta = self.color(p)?,
                         (_, "k") => k = self.color(p)?,
-                        // Visible-normal sampling is what we do anyway; `false` would only change variance.
-                        ("boolean", "sample_visible") => {}
-                        _ => return Err(self.unsupported(p, "roughconductor property")),
+                        (_, "specular_reflectance") if ty == "conductor" => {
+                            specular = self.color(p)?
+                        }
+                        _ => return Err(self.unsupported(p, &format!("{ty} property"))),
                     }
                 }
-                if distribution != "ggx" {
-                    return Err(self.err(n, format!("roughconductor distribution \"{distribution}\" is not supported (only \"ggx\"; Mitsuba's default is beckmann)")));
+                if ty == "conductor" {
+                    Material::Conductor { eta, k, specular }
+                } else {
+                    let alpha = self.check_rough(n, &distribution, alpha)?;
+                    Material::RoughConductor { alpha, eta, k }
                 }
-                if !(alpha > 0.0 && alpha.is_finite()) {
-                    return Err(self.err(n, format!("alpha {alpha} must be positive")));
-                }
-                Ok(Material::RoughConductor {
-                    alpha: alpha.max(1e-4),
-                    eta,
-                    k,
-                })
             }
-            _ => Err(self.unsupported(n, "bsdf type")),
+            "dielectric" | "roughdielectric" => {
+                let (mut int_ior, mut ext_ior, mut alpha) = (1.5046f32, 1.000_277f32, 0.1f32);
+                let (mut reflectance, mut transmittance) = (Vec3::ONE, Vec3::ONE);
+                let mut distribution = "beckmann".to_string();
+                for p in elements(n) {
+                    if ty == "roughdielectric"
+                        && self.rough_property(p, &mut distribution, &mut alpha)?
+                    {
+                        continue;
+                    }
+                    match self.name(p)? {
+                        "int_ior" => int_ior = self.ior(p)?,
+                        "ext_ior" => ext_ior = self.ior(p)?,
+                        "specular_reflectance" => reflectance = self.color(p)?,
+                        "specular_transmittance" => transmittance = self.color(p)?,
+                        _ => return Err(self.unsupported(p, &format!("{ty} property"))),
+                    }
+                }
+                if int_ior == ext_ior {
+                    return Err(self.err(n, "int_ior and ext_ior must differ"));
+                }
+                let eta = int_ior / ext_ior;
+                if ty == "dielectric" {
+                    Material::Dielectric {
+                        eta,
+                        reflectance,
+                        transmittance,
+                    }
+                } else {
+                    let alpha = self.check_rough(n, &distribution, alpha)?;
+                    Material::RoughDielectric {
+                        alpha,
+                        eta,
+                        reflectance,
+                        transmittance,
+                    }
+                }
+            }
+            "plastic" | "roughplastic" => {
+                let (mut int_ior, mut ext_ior, mut alpha) = (1.49f32, 1.000_277f32, 0.1f32);
+                let (mut diffuse, mut specular) = (Vec3::splat(0.5), Vec3::ONE);
+                let mut nonlinear = false;
+                let mut distribution = "beckmann".to_string();
+                for p in elements(n) {
+                    if ty == "roughplastic"
+                        && self.rough_property(p, &mut distribution, &mut alpha)?
+                    {
+                        continue;
+                    }
+                    match (p.tag_name().name(), self.name(p)?) {
+                        (_, "int_ior") => int_ior = self.ior(p)?,
+                        (_, "ext_ior") => ext_ior = self.ior(p)?,
+                        (_, "diffuse_reflectance") => diffuse = self.color(p)?,
+                        (_, "specular_reflectance") => specular = self.color(p)?,
+                        ("boolean", "nonlinear") => nonlinear = self.boolean(p)?,
+                        _ => return Err(self.unsupported(p, &format!("{ty} property"))),
+                    }
+                }
+                if int_ior == ext_ior {
+                    return Err(self.err(n, "int_ior and ext_ior must differ"));
+                }
+                let eta = int_ior / ext_ior;
+                if ty == "plastic" {
+                    Material::Plastic(Coating::smooth(diffuse, specular, eta, nonlinear))
+                } else {
+                    let alpha = self.check_rough(n, &distribution, alpha)?;
+                    Material::RoughPlastic(Coating::rough(diffuse, specular, eta, nonlinear, alpha))
+                }
+            }
+            "twosided" => {
+                let mut sides = Vec::new();
+                for p in elements(n) {
+                    let idx = match p.tag_name().name() {
+                        "bsdf" => self.bsdf(p)?,
+                        "ref" => self.bsdf_ref(p)?,
+                        _ => return Err(self.unsupported(p, "twosided property")),
+                    };
+                    let inner = &self.builder.materials()[idx as usize];
+                    if !inner.one_sided() || matches!(inner, Material::TwoSided { .. }) {
+                        return Err(self.err(p, "twosided can only wrap opaque, one-sided BSDFs (not dielectrics or another twosided)"));
+                    }
+                    sides.push(idx);
+                }
+                match sides.as_slice() {
+                    [f] => Material::TwoSided {
+                        front: *f,
+                        back: *f,
+                    },
+                    [f, b] => Material::TwoSided {
+                        front: *f,
+                        back: *b,
+                    },
+                    _ => return Err(self.err(n, "twosided needs one or two nested BSDFs")),
+                }
+            }
+            _ => return Err(self.unsupported(n, "bsdf type")),
+        };
+        Ok(self.builder.material(m))
+    }
+
+    /// A top-level `<emitter>`: `point`, `constant` or `envmap` (area emitters live in shapes).
+    fn emitter(&mut self, n: Node) -> Result<()> {
+        let ty = n.attribute("type").unwrap_or("");
+        let mut to_world = None;
+        let mut value = Vec3::ONE;
+        let mut position = None;
+        let (mut filename, mut scale) = (None, 1.0f32);
+        for p in elements(n) {
+            let pname = p.attribute("name").unwrap_or("");
+            match (p.tag_name().name(), pname, ty) {
+                ("transform", "to_world", "point" | "envmap") => {
+                    to_world = Some(self.transform(p)?)
+                }
+                ("point", "position", "point") => position = Some(self.vec3(p)?),
+                (_, "intensity", "point") | (_, "radiance", "constant") => value = self.color(p)?,
+                ("string", "filename", "envmap") => {
+                    filename = Some(self.attr(p, "value")?.to_string())
+                }
+                ("float", "scale", "envmap") => scale = self.float(p)?,
+                ("string", "filter_type", "envmap") if p.attribute("value") == Some("bilinear") => {
+                }
+                ("boolean", "mis_compensation", "envmap")
+                    if p.attribute("value") == Some("false") => {}
+                _ => return Err(self.unsupported(p, &format!("property of emitter \"{ty}\""))),
+            }
         }
+        if !value.is_finite() || value.min_element() < 0.0 {
+            return Err(self.err(
+                n,
+                format!("emitter value {value} must be finite and non-negative"),
+            ));
+        }
+        let env = match ty {
+            "point" => {
+                let pos = match (position, to_world) {
+                    (Some(_), Some(_)) => {
+                        return Err(
+                            self.err(n, "point emitter: give position or to_world, not both")
+                        )
+                    }
+                    (Some(p), None) => p,
+                    (None, Some(m)) => m.transform_point3(Vec3::ZERO),
+                    (None, None) => Vec3::ZERO,
+                };
+                self.builder.point_light(PointLight {
+                    position: pos,
+                    intensity: value,
+                });
+                return Ok(());
+            }
+            "constant" => Environment::Constant(value),
+            "envmap" => {
+                let f =
+                    filename.ok_or_else(|| self.err(n, "envmap needs a \"filename\" string"))?;
+                let path = self.base.join(&f);
+                let img = crate::output::read_exr(&path)?;
+                let map = EnvMap::new(img.width, img.height, &img.pixels, scale)
+                    .map_err(|e| self.err(n, format!("envmap {}: {e}", path.display())))?;
+                let m = glam::Mat3::from_mat4(to_world.unwrap_or(Mat4::IDENTITY));
+                // The sampler's pdf assumes a rigid rotation (no Jacobian for scale or shear).
+                let rigid = (m.transpose() * m - glam::Mat3::IDENTITY)
+                    .to_cols_array()
+                    .iter()
+                    .all(|x| x.abs() < 1e-3)
+                    && m.determinant() > 0.0;
+                if !rigid {
+                    return Err(self.err(
+                        n,
+                        "envmap to_world must be a rotation (no scale, shear or mirroring)",
+                    ));
+                }
+                Environment::Map {
+                    map: Box::new(map),
+                    to_world: m,
+                }
+            }
+            _ => return Err(self.unsupported(n, "emitter type")),
+        };
+        if !self.builder.environment(env) {
+            return Err(self.err(
+                n,
+                "only one environment emitter (constant or envmap) is supported",
+            ));
+        }
+        Ok(())
+    }
+
+    fn bsdf_ref(&self, p: Node) -> Result<u32> {
+        let id = self.attr(p, "id")?;
+        self.bsdfs
+            .get(id)
+            .copied()
+            .ok_or_else(|| self.err(p, format!("reference to unknown bsdf id \"{id}\"")))
     }
 
     fn shape(&mut self, n: Node<'a, 'i>) -> Result<()> {
@@ -465,23 +697,14 @@ impl<'a, 'i> Ctx<'a, 'i> {
             match (tag, pname, ty) {
                 ("transform", "to_world", _) => to_world = self.transform(p)?,
                 ("boolean", "flip_normals", _) => flip = self.boolean(p)?,
-                ("boolean", "face_normals", "obj") => face_normals = self.boolean(p)?,
-                ("string", "filename", "obj") => {
+                ("boolean", "face_normals", "obj" | "ply") => face_normals = self.boolean(p)?,
+                ("string", "filename", "obj" | "ply") => {
                     filename = Some(self.attr(p, "value")?.to_string())
                 }
                 ("point", "center", "sphere") => center = self.vec3(p)?,
                 ("float", "radius", "sphere") => radius = self.float(p)?,
-                ("ref", _, _) => {
-                    let id = self.attr(p, "id")?;
-                    let m = *self.bsdfs.get(id).ok_or_else(|| {
-                        self.err(p, format!("reference to unknown bsdf id \"{id}\""))
-                    })?;
-                    material = Some(m);
-                }
-                ("bsdf", _, _) => {
-                    let m = self.bsdf(p)?;
-                    material = Some(self.builder.material(m));
-                }
+                ("ref", _, _) => material = Some(self.bsdf_ref(p)?),
+                ("bsdf", _, _) => material = Some(self.bsdf(p)?),
                 ("emitter", _, _) => {
                     if p.attribute("type") != Some("area") {
                         return Err(self.unsupported(p, "emitter type inside a shape"));
@@ -501,15 +724,23 @@ impl<'a, 'i> Ctx<'a, 'i> {
         let nmat = Mat4::from_mat3(glam::Mat3::from_mat4(to_world).inverse().transpose());
         let xf_n = |v: Vec3| nmat.transform_vector3(v).normalize_or_zero();
         let mut prims = match ty {
-            "obj" => {
-                let f =
-                    filename.ok_or_else(|| self.err(n, "obj shape needs a \"filename\" string"))?;
+            "obj" | "ply" => {
+                let f = filename.ok_or_else(|| {
+                    self.err(n, format!("{ty} shape needs a \"filename\" string"))
+                })?;
                 let path = self.base.join(&f);
-                let text = std::fs::read_to_string(&path).map_err(|source| Error::Io {
+                let bytes = std::fs::read(&path).map_err(|source| Error::Io {
                     path: path.clone(),
                     source,
                 })?;
-                let mut tris = parse_obj(&text, &path.display().to_string())?;
+                let name = path.display().to_string();
+                let mut tris = if ty == "obj" {
+                    let text = String::from_utf8(bytes)
+                        .map_err(|_| self.err(n, format!("{name} is not UTF-8 text")))?;
+                    parse_obj(&text, &name)?
+                } else {
+                    parse_ply(&bytes, &name)?
+                };
                 for t in &mut tris {
                     if let Prim::Tri { p, n } = t {
                         *p = p.map(|v| to_world.transform_point3(v));
@@ -569,6 +800,50 @@ impl<'a, 'i> Ctx<'a, 'i> {
                 }
                 tris
             }
+            "cube" => {
+                // Mitsuba's cube: [-1, 1]³, 12 triangles, outward face normals.
+                let mut tris = Vec::with_capacity(12);
+                for axis in 0..3 {
+                    for sign in [-1.0f32, 1.0] {
+                        let mut nl = Vec3::ZERO;
+                        nl[axis] = sign;
+                        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+                        let c =
+                            [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)].map(|(x, y)| {
+                                let mut q = nl;
+                                q[u] = x;
+                                q[v] = y;
+                                to_world.transform_point3(q)
+                            });
+                        let nw = xf_n(nl);
+                        let mut t = [[c[0], c[1], c[2]], [c[0], c[2], c[3]]];
+                        if (c[1] - c[0]).cross(c[2] - c[0]).dot(nw) < 0.0 {
+                            for p in &mut t {
+                                p.swap(1, 2);
+                            }
+                        }
+                        tris.extend(t.map(|p| Prim::Tri { p, n: None }));
+                    }
+                }
+                tris
+            }
+            "disk" => {
+                let center = to_world.transform_point3(Vec3::ZERO);
+                let (a, b) = (
+                    to_world.transform_vector3(Vec3::X),
+                    to_world.transform_vector3(Vec3::Y),
+                );
+                let area = a.cross(b).length();
+                if area.is_nan() || area <= 0.0 {
+                    return Err(self.err(n, "disk to_world is degenerate"));
+                }
+                vec![Prim::Disk {
+                    center,
+                    a,
+                    b,
+                    n: xf_n(Vec3::Z),
+                }]
+            }
             _ => return Err(self.unsupported(n, "shape type")),
         };
         if flip {
@@ -582,6 +857,7 @@ impl<'a, 'i> Ctx<'a, 'i> {
                         }
                     }
                     Prim::Sphere { flip, .. } => *flip = !*flip,
+                    Prim::Disk { n, .. } => *n = -*n,
                 }
             }
         }
@@ -609,4 +885,34 @@ fn quoted(s: &str) -> String {
     } else {
         format!("type=\"{s}\"")
     }
+}
+
+/// Mitsuba's named indices of refraction (`lookup_ior`).
+fn named_ior(name: &str) -> Option<f32> {
+    Some(match name {
+        "vacuum" => 1.0,
+        "helium" => 1.000_036,
+        "hydrogen" => 1.000_132,
+        "air" => 1.000_277,
+        "carbon dioxide" => 1.000_45,
+        "water" => 1.333,
+        "acetone" => 1.36,
+        "ethanol" => 1.361,
+        "carbon tetrachloride" => 1.461,
+        "glycerol" => 1.4729,
+        "benzene" => 1.501,
+        "silicone oil" => 1.520_45,
+        "bromine" => 1.661,
+        "water ice" => 1.31,
+        "fused quartz" => 1.458,
+        "pyrex" => 1.470,
+        "acrylic glass" => 1.49,
+        "polypropylene" => 1.49,
+        "bk7" => 1.5046,
+        "sodium chloride" => 1.544,
+        "amber" => 1.55,
+        "pet" => 1.575,
+        "diamond" => 2.419,
+        _ => return None,
+    })
 }

@@ -68,13 +68,13 @@ fn check_mean(name: &str, img: &Image, reference: [f64; 3], ref_se: [f64; 3], sl
 
 #[test]
 fn unsupported_plugin_error_names_element_and_line() {
-    let text = "<scene version=\"3.0.0\">\n  <integrator type=\"path\"/>\n  <bsdf type=\"plastic\" id=\"p\"/>\n</scene>\n";
+    let text = "<scene version=\"3.0.0\">\n  <integrator type=\"path\"/>\n  <bsdf type=\"principled\" id=\"p\"/>\n</scene>\n";
     let err = xml::load_str(text, "t.xml", std::path::Path::new("."))
         .err()
         .expect("must fail")
         .to_string();
     assert!(err.contains("t.xml:3:"), "{err}");
-    assert!(err.contains("plastic") && err.contains("bsdf"), "{err}");
+    assert!(err.contains("principled") && err.contains("bsdf"), "{err}");
 
     let text = "<scene version=\"3.0.0\">\n<sensor type=\"perspective\">\n<float name=\"fov\" value=\"40\"/>\n<film type=\"hdrfilm\"><rfilter type=\"gaussian\"/></film>\n</sensor>\n</scene>";
     let err = xml::load_str(text, "t.xml", std::path::Path::new("."))
