@@ -16,12 +16,10 @@
 //!   parameters) — fast, used by the tests.
 //! * [`ModelSize::Paper`]: the papers' sizes (4.1 M grid parameters; slow on a CPU).
 
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 use guiding::{GuidingConfig, GuidingField, Representation};
 use guiding_core::field::{FieldConfig, UpdateReport};
-use guiding_core::lobe::DirectionSample;
 use guiding_core::loss::Target;
-use guiding_core::model::QueryPoint;
 use guiding_core::sample::TrainingSample;
 
 /// Which guiding model.
@@ -54,12 +52,9 @@ pub trait Guide: Sync {
     fn describe(&self) -> String;
     /// Whether the model learns its selection probability (NASG).
     fn learned_selection(&self) -> bool;
-    /// Learned selection probability for every query.
-    fn selection_batch(&self, queries: &[QueryPoint], out: &mut [f32]);
-    /// Samples one direction per query (`u[i]` uniform in `[0,1)²`).
-    fn sample_batch(&self, queries: &[QueryPoint], u: &[Vec2], out: &mut [DirectionSample]);
-    /// Density of `dirs[i]` at `queries[i]`.
-    fn pdf_batch(&self, queries: &[QueryPoint], dirs: &[Vec3], out: &mut [f32]);
+    /// The field, for queries: [`GuidingField::distribution`] decodes the distribution at a
+    /// vertex once; selection, sampling and pdfs reuse it.
+    fn field(&self) -> &GuidingField;
     /// Hands training samples to the field.
     fn add_samples(&mut self, samples: &[TrainingSample]);
     /// Runs the configured number of training steps on the buffered samples.
@@ -90,20 +85,8 @@ impl Guide for GuidingField {
     fn learned_selection(&self) -> bool {
         self.config().representation.learns_selection()
     }
-    fn selection_batch(&self, queries: &[QueryPoint], out: &mut [f32]) {
-        for (o, q) in out.iter_mut().zip(queries) {
-            *o = self.distribution(q).selection_probability();
-        }
-    }
-    fn sample_batch(&self, queries: &[QueryPoint], u: &[Vec2], out: &mut [DirectionSample]) {
-        for ((o, q), u) in out.iter_mut().zip(queries).zip(u) {
-            *o = self.distribution(q).sample(*u);
-        }
-    }
-    fn pdf_batch(&self, queries: &[QueryPoint], dirs: &[Vec3], out: &mut [f32]) {
-        for ((o, q), d) in out.iter_mut().zip(queries).zip(dirs) {
-            *o = self.distribution(q).pdf(*d);
-        }
+    fn field(&self) -> &GuidingField {
+        self
     }
     fn add_samples(&mut self, samples: &[TrainingSample]) {
         GuidingField::add_samples(self, samples);

@@ -8,10 +8,10 @@
 //! 2. **guide query** (`stage_guide_query`): for every vertex, the NEE light sample is drawn
 //!    (pt-nee mode) and the continuation technique is chosen; *guidable* vertices (non-delta
 //!    and not near-specular: diffuse always, rough conductors with `alpha ≥`
-//!    [`GuidedOptions::min_alpha`]) pick the guide with probability `c` (else the BSDF). Then
-//!    one batched selection query (NASG only), one batched `sample` query (guide-picked
-//!    vertices) and one batched `pdf` query (BSDF-picked directions and NEE directions) run
-//!    over all guidable vertices of the bounce,
+//!    [`GuidedOptions::min_alpha`]) pick the guide with probability `c` (else the BSDF). The
+//!    guide distribution is decoded **once** per guidable vertex (one network pass for NPM /
+//!    NASG); its selection probability, the guide sample and the guide pdfs of BSDF-picked
+//!    and NEE directions all reuse it,
 //! 3. **NEE** (`stage_guided_nee`): shadow rays with the power heuristic between the light
 //!    pdf and the combined density `p(ω) = c·q(ω) + (1 − c)·p_bsdf(ω)`,
 //! 4. **shadow** (shared),
@@ -56,7 +56,7 @@ use crate::integrator::{
 use crate::math::{power_heuristic, Frame};
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
-use guiding_core::lobe::DirectionSample;
+use guiding::Distribution;
 use guiding_core::model::QueryPoint;
 use guiding_core::sample::TrainingSample;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -201,17 +201,17 @@ pub(crate) struct GuidedWorker<'g> {
     v_nee: Vec<Option<NeeCandidate>>,
     // Guidable vertices of a bounce.
     g_query: Vec<QueryPoint>,
+    /// The guide's distribution at each guidable vertex, decoded once per bounce.
+    g_dist: Vec<Distribution<'g>>,
     g_c: Vec<f32>,
-    // Batched sample query.
-    s_query: Vec<QueryPoint>,
+    // Guide samples: guidable-vertex index, random numbers, vertex.
+    s_query: Vec<u32>,
     s_u: Vec<Vec2>,
     s_vert: Vec<u32>,
-    s_out: Vec<DirectionSample>,
-    // Batched pdf query; `p_vert` high bit set = the NEE direction of the vertex.
-    p_query: Vec<QueryPoint>,
+    // Guide pdf evaluations; `p_vert` high bit set = the NEE direction of the vertex.
+    p_query: Vec<u32>,
     p_dir: Vec<Vec3>,
     p_vert: Vec<u32>,
-    p_out: Vec<f32>,
 }
 
 /// Light sample drawn for a vertex in the guide-query stage.
@@ -245,15 +245,14 @@ impl<'g> GuidedWorker<'g> {
             v_qpdf: Vec::new(),
             v_nee: Vec::new(),
             g_query: Vec::new(),
+            g_dist: Vec::new(),
             g_c: Vec::new(),
             s_query: Vec::new(),
             s_u: Vec::new(),
             s_vert: Vec::new(),
-            s_out: Vec::new(),
             p_query: Vec::new(),
             p_dir: Vec::new(),
             p_vert: Vec::new(),
-            p_out: Vec::new(),
         }
     }
 
@@ -360,13 +359,17 @@ pub(crate) fn stage_guide_query(w: &mut Worker<'_>, nee: bool) {
     }
     let nq = g.g_query.len();
     g.guided_vertices += nq as u64;
-    g.g_c.clear();
-    g.g_c.resize(nq, g.gopts.selection_probability);
+    // One network pass per guidable vertex: selection, sampling and every pdf below reuse
+    // the decoded distribution (DF evaluates its conditional network per sample / pdf).
     let t0 = Instant::now();
-    if g.guide.learned_selection() {
-        g.guide.selection_batch(&g.g_query, &mut g.g_c);
-        g.queries += nq as u64;
-    }
+    let field = g.guide.field();
+    g.g_dist.clear();
+    g.g_dist
+        .extend(g.g_query.iter().map(|q| field.distribution(q)));
+    g.g_c.clear();
+    g.g_c
+        .extend(g.g_dist.iter().map(|d| d.selection_probability()));
+    g.queries += nq as u64;
     g.query_time += t0.elapsed();
 
     g.v_dir.clear();
@@ -405,7 +408,7 @@ pub(crate) fn stage_guide_query(w: &mut Worker<'_>, nee: bool) {
                         es,
                     });
                     if qi != NONE && !es.delta {
-                        g.p_query.push(g.g_query[qi as usize]);
+                        g.p_query.push(qi);
                         g.p_dir.push(es.wo);
                         g.p_vert.push(i as u32 | NEE_BIT);
                     }
@@ -422,7 +425,7 @@ pub(crate) fn stage_guide_query(w: &mut Worker<'_>, nee: bool) {
         };
         let (u0, u1, u2) = (rng.next_f32(), rng.next_f32(), rng.next_f32());
         if pick_guide {
-            g.s_query.push(g.g_query[qi as usize]);
+            g.s_query.push(qi);
             g.s_u.push(Vec2::new(u1, u2));
             g.s_vert.push(i as u32);
         } else if let Some(bs) = mat.sample(wi_l, u0, u1, u2) {
@@ -431,41 +434,24 @@ pub(crate) fn stage_guide_query(w: &mut Worker<'_>, nee: bool) {
             g.v_weight[i] = bs.weight;
             g.v_pdf[i] = bs.pdf;
             if qi != NONE {
-                g.p_query.push(g.g_query[qi as usize]);
+                g.p_query.push(qi);
                 g.p_dir.push(dir);
                 g.p_vert.push(i as u32);
             }
         }
     }
-    // The batched queries.
+    // Guide samples and pdfs from the decoded distributions.
     let t0 = Instant::now();
-    g.s_out.clear();
-    g.s_out.resize(
-        g.s_query.len(),
-        DirectionSample {
-            direction: Vec3::Z,
-            pdf: 0.0,
-        },
-    );
-    g.guide.sample_batch(&g.s_query, &g.s_u, &mut g.s_out);
-    g.p_out.clear();
-    g.p_out.resize(g.p_query.len(), 0.0);
-    g.guide.pdf_batch(&g.p_query, &g.p_dir, &mut g.p_out);
-    g.queries += (g.s_query.len() + g.p_query.len()) as u64;
-    g.query_time += t0.elapsed();
     for (k, &i) in g.s_vert.iter().enumerate() {
-        let ds = g.s_out[k];
+        let ds = g.g_dist[g.s_query[k] as usize].sample(g.s_u[k]);
         if ds.direction.is_finite() && ds.pdf.is_finite() && ds.pdf > 0.0 {
             g.v_dir[i as usize] = ds.direction.normalize();
             g.v_qpdf[i as usize] = ds.pdf;
         }
     }
     for (k, &v) in g.p_vert.iter().enumerate() {
-        let q = if g.p_out[k].is_finite() {
-            g.p_out[k].max(0.0)
-        } else {
-            0.0
-        };
+        let p = g.g_dist[g.p_query[k] as usize].pdf(g.p_dir[k]);
+        let q = if p.is_finite() { p.max(0.0) } else { 0.0 };
         if v & NEE_BIT != 0 {
             if let Some(c) = g.v_nee[(v & !NEE_BIT) as usize].as_mut() {
                 c.qpdf = q;
@@ -474,6 +460,8 @@ pub(crate) fn stage_guide_query(w: &mut Worker<'_>, nee: bool) {
             g.v_qpdf[v as usize] = q;
         }
     }
+    g.queries += (g.s_query.len() + g.p_query.len()) as u64;
+    g.query_time += t0.elapsed();
 }
 
 /// NEE stage of the guided integrator: MIS between the light pdf and the combined density.
