@@ -74,6 +74,11 @@ pub use types::*;
 
 use std::ffi::c_char;
 
+/// `EMBEDDING.md`'s Rust example, compiled and run as a doctest.
+#[cfg(doctest)]
+#[doc = include_str!("../EMBEDDING.md")]
+pub struct EmbeddingDoctests;
+
 /// The library version, `"MAJOR.MINOR.PATCH"` (static storage, never freed).
 #[no_mangle]
 pub extern "C" fn pg_version() -> *const c_char {
