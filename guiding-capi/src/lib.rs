@@ -74,6 +74,15 @@ pub use types::*;
 
 use std::ffi::c_char;
 
+// The threading rules of the header rest on these.
+const _: () = {
+    const fn send_sync<T: Send + Sync>() {}
+    const fn send<T: Send>() {}
+    send_sync::<PgField>();
+    send_sync::<PgDistributions>();
+    send::<PgRecorder>();
+};
+
 /// `EMBEDDING.md`'s Rust example, compiled and run as a doctest.
 #[cfg(doctest)]
 #[doc = include_str!("../EMBEDDING.md")]
