@@ -1,0 +1,443 @@
+/*
+ * toy_renderer.c: a toy "renderer" that embeds the guiding library through
+ * its C ABI (include/guiding.h). Plain C99; built and run by
+ * guiding-capi/tests/c_example.rs:
+ *
+ *   cc -std=c99 -Wall -Wextra -Werror -pedantic -I guiding-capi/include \
+ *      guiding-capi/examples/toy_renderer.c target/release/libguiding_capi.a \
+ *      -lpthread -ldl -lm -o toy_renderer
+ *   ./toy_renderer [scratch-file-path [npm|nasg|df_nearest|df_linear]]
+ *
+ * Scene: shading points anywhere in the box [-1,1] x [-2,2] x [0,3]; the
+ * incident radiance is 10 inside a small light cone around +z (cos theta >
+ * 0.95) and a dim ambient 0.1 elsewhere, so the integral of the incident
+ * radiance over the sphere is known: 10 * 2pi(1 - 0.95) + 0.1 * (4pi -
+ * 2pi(1 - 0.95)).
+ *
+ * 1. Training: each iteration traces 4096 one-vertex paths with uniformly
+ *    sampled directions, records them with a PgRecorder, flushes them into
+ *    the field and runs one update (30 iterations).
+ * 2. Rendering: estimates the integral at 20000 random points with
+ *    one-sample MIS between the guide (probability c, the field's selection
+ *    probability) and uniform sampling, and with uniform sampling alone.
+ * 3. Checks (exit status 1 on any failure):
+ *    (a) sampled directions are unit vectors and pg_distributions_pdf of a
+ *        sampled direction equals the pdf the sample came with;
+ *    (b) the guided estimate is within 4 sigma of the exact integral and
+ *        its variance is below half that of uniform sampling;
+ *    (c) error paths: a NULL handle gives PG_NULL_POINTER and a message,
+ *        too large an n PG_SIZE_MISMATCH, distributions used after an
+ *        update PG_STALE, a missing file PG_IO and a corrupt one PG_FORMAT;
+ *        a saved and loaded field gives identical samples and pdfs.
+ */
+#include "guiding.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define PI_F 3.14159265358979f
+#define INV_FOUR_PI_F (1.0f / (4.0f * PI_F))
+#define ITERATIONS 30
+#define PATHS_PER_ITERATION 4096
+#define ESTIMATES 20000
+#define BATCH 1000
+
+static const float BOX_MIN[3] = {-1.0f, -2.0f, 0.0f};
+static const float BOX_MAX[3] = {1.0f, 2.0f, 3.0f};
+
+static int failures = 0;
+
+#define CHECK(cond, ...)                                                   \
+    do {                                                                   \
+        if (!(cond)) {                                                     \
+            fprintf(stderr, "FAILED %s:%d: %s: ", __FILE__, __LINE__, #cond); \
+            fprintf(stderr, __VA_ARGS__);                                  \
+            fprintf(stderr, "\n");                                         \
+            failures++;                                                    \
+        }                                                                  \
+    } while (0)
+
+/* A call that must succeed: on failure print the library's message and stop. */
+#define TRY(call)                                                          \
+    do {                                                                   \
+        PgStatus status_ = (call);                                         \
+        if (status_ != PG_OK) {                                            \
+            fprintf(stderr, "FAILED %s:%d: %s returned %d: %s\n", __FILE__, \
+                    __LINE__, #call, (int)status_, pg_last_error());       \
+            exit(1);                                                       \
+        }                                                                  \
+    } while (0)
+
+/* PCG32 (O'Neill 2014), the generator of the Rust tests. */
+typedef struct {
+    uint64_t state;
+    uint64_t inc;
+} Rng;
+
+static uint32_t rng_next(Rng *r) {
+    uint64_t old = r->state;
+    uint32_t xorshifted, rot;
+    r->state = old * 6364136223846793005ULL + r->inc;
+    xorshifted = (uint32_t)(((old >> 18u) ^ old) >> 27u);
+    rot = (uint32_t)(old >> 59u);
+    return (xorshifted >> rot) | (xorshifted << ((32u - rot) & 31u));
+}
+
+static Rng rng_new(uint64_t seed, uint64_t stream) {
+    Rng r;
+    r.state = 0;
+    r.inc = (stream << 1u) | 1u;
+    rng_next(&r);
+    r.state += seed;
+    rng_next(&r);
+    return r;
+}
+
+/* Uniform in [0, 1). */
+static float rng_float(Rng *r) { return (float)(rng_next(r) >> 8) * (1.0f / 16777216.0f); }
+
+static void uniform_sphere(float u1, float u2, float out[3]) {
+    float z = 1.0f - 2.0f * u1;
+    float r = sqrtf(fmaxf(0.0f, 1.0f - z * z));
+    float phi = 2.0f * PI_F * u2;
+    out[0] = r * cosf(phi);
+    out[1] = r * sinf(phi);
+    out[2] = z;
+}
+
+/* The scene's incident radiance: the light cone around +z and the ambient. */
+static float radiance(const float dir[3]) { return dir[2] > 0.95f ? 10.0f : 0.1f; }
+
+static double radiance_integral(void) {
+    const double pi = 3.14159265358979323846;
+    double cone = 2.0 * pi * 0.05;
+    return 10.0 * cone + 0.1 * (4.0 * pi - cone);
+}
+
+static PgQueryPoint random_query(Rng *rng) {
+    PgQueryPoint q;
+    int k;
+    memset(&q, 0, sizeof q);
+    for (k = 0; k < 3; k++) {
+        q.position[k] = BOX_MIN[k] + (BOX_MAX[k] - BOX_MIN[k]) * rng_float(rng);
+    }
+    q.roughness = 1.0f;
+    uniform_sphere(rng_float(rng), rng_float(rng), q.normal);
+    uniform_sphere(rng_float(rng), rng_float(rng), q.wo);
+    return q;
+}
+
+static float length3(const float v[3]) { return sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); }
+
+/* One training iteration: trace, record, flush, update. */
+static void train_iteration(PgField *field, PgRecorder *recorder, Rng *rng) {
+    int i;
+    size_t handed_over = 0;
+    PgUpdateReport report;
+    for (i = 0; i < PATHS_PER_ITERATION; i++) {
+        PgQueryPoint q = random_query(rng);
+        PgPathVertex v;
+        float escaped[3];
+        TRY(pg_path_vertex_set_defaults(&v));
+        memcpy(v.position, q.position, sizeof v.position);
+        memcpy(v.normal, q.normal, sizeof v.normal);
+        memcpy(v.wo, q.wo, sizeof v.wo);
+        uniform_sphere(rng_float(rng), rng_float(rng), v.wi);
+        v.sample_pdf = INV_FOUR_PI_F;
+        v.bsdf_pdf = INV_FOUR_PI_F;
+        v.bsdf_cos[0] = v.bsdf_cos[1] = v.bsdf_cos[2] = 1.0f;
+        escaped[0] = escaped[1] = escaped[2] = radiance(v.wi);
+        TRY(pg_recorder_start_path(recorder));
+        TRY(pg_recorder_add_vertex(recorder, &v));
+        TRY(pg_recorder_add_escaped_radiance(recorder, escaped, 1.0f));
+        TRY(pg_recorder_end_path(recorder, NULL));
+    }
+    TRY(pg_recorder_flush_into(recorder, field, &handed_over));
+    CHECK(handed_over == PATHS_PER_ITERATION, "%zu samples handed over", handed_over);
+    TRY(pg_field_update(field, &report));
+    CHECK(report.steps > 0 && report.skipped_steps == 0, "update: %u steps, %u skipped",
+          report.steps, report.skipped_steps);
+}
+
+/* Running sums of an estimator. */
+typedef struct {
+    double sum, sum2;
+    long n;
+} Moments;
+
+static void add(Moments *m, double x) {
+    m->sum += x;
+    m->sum2 += x * x;
+    m->n++;
+}
+static double mean(const Moments *m) { return m->sum / (double)m->n; }
+static double variance(const Moments *m) {
+    double mu = mean(m);
+    return m->sum2 / (double)m->n - mu * mu;
+}
+
+static PgQueryPoint queries[BATCH];
+static float u[2 * BATCH], guide_dirs[3 * BATCH], guide_pdfs[BATCH], check_pdfs[BATCH];
+static float selection[BATCH], dirs[3 * BATCH], pdfs[BATCH];
+
+/* Renders ESTIMATES one-sample estimates with the guide and with uniform
+ * sampling; checks (a) on every guided sample. */
+static void render(PgField *field, PgDistributions *dists, Rng *rng, Moments *guided,
+                   Moments *uniform) {
+    int start, i;
+    int bad_lanes = 0;
+    double worst_rel = 0.0, worst_len = 0.0;
+    for (start = 0; start < ESTIMATES; start += BATCH) {
+        size_t len = 0;
+        for (i = 0; i < BATCH; i++) {
+            queries[i] = random_query(rng);
+            u[2 * i] = rng_float(rng);
+            u[2 * i + 1] = rng_float(rng);
+        }
+        TRY(pg_field_query(field, BATCH, queries, dists));
+        TRY(pg_distributions_len(dists, &len));
+        CHECK(len == BATCH, "%zu distributions", len);
+        TRY(pg_distributions_selection_probability(dists, BATCH, selection));
+        TRY(pg_distributions_sample(dists, BATCH, u, guide_dirs, guide_pdfs));
+        /* (a) unit directions, and pdf(sampled direction) == sample pdf. */
+        TRY(pg_distributions_pdf(dists, BATCH, guide_dirs, check_pdfs));
+        for (i = 0; i < BATCH; i++) {
+            double rel = fabs((double)check_pdfs[i] / (double)guide_pdfs[i] - 1.0);
+            double len_err = fabs((double)length3(&guide_dirs[3 * i]) - 1.0);
+            /* Written so that NaN counts as bad. */
+            if (!(guide_pdfs[i] > 0.0f && rel < 1e-3 && len_err < 1e-5)) {
+                bad_lanes++;
+            }
+            worst_rel = rel > worst_rel ? rel : worst_rel;
+            worst_len = len_err > worst_len ? len_err : worst_len;
+        }
+        /* One-sample MIS: the guide with probability c, uniform otherwise. */
+        for (i = 0; i < BATCH; i++) {
+            if (rng_float(rng) < selection[i]) {
+                memcpy(&dirs[3 * i], &guide_dirs[3 * i], 3 * sizeof(float));
+            } else {
+                uniform_sphere(rng_float(rng), rng_float(rng), &dirs[3 * i]);
+            }
+        }
+        TRY(pg_distributions_pdf(dists, BATCH, dirs, pdfs));
+        for (i = 0; i < BATCH; i++) {
+            float c = selection[i];
+            float pdf = c * pdfs[i] + (1.0f - c) * INV_FOUR_PI_F;
+            float d[3];
+            add(guided, (double)(radiance(&dirs[3 * i]) / pdf));
+            uniform_sphere(rng_float(rng), rng_float(rng), d);
+            add(uniform, (double)(radiance(d) / INV_FOUR_PI_F));
+        }
+    }
+    printf("(a) %d guided samples: worst |pdf(dir)/pdf - 1| = %.2e, worst ||dir| - 1| = %.2e, "
+           "%d bad\n",
+           ESTIMATES, worst_rel, worst_len, bad_lanes);
+    CHECK(bad_lanes == 0, "%d samples with a non-unit direction or a pdf that pdf(dir) does not "
+          "reproduce within 1e-3", bad_lanes);
+}
+
+static int message_is_set(void) { return pg_last_error()[0] != '\0'; }
+
+/* (c) NULL handles and too large counts. */
+static void check_argument_errors(PgField *field, PgDistributions *dists) {
+    PgFieldStats stats;
+    float out[4];
+    size_t len = 0;
+    CHECK(pg_field_update(NULL, NULL) == PG_NULL_POINTER, "update(NULL)");
+    CHECK(message_is_set(), "no message after update(NULL)");
+    printf("(c) pg_field_update(NULL): \"%s\"\n", pg_last_error());
+    CHECK(pg_field_stats(field, NULL) == PG_NULL_POINTER && message_is_set(), "stats(.., NULL)");
+    CHECK(pg_field_stats(NULL, &stats) == PG_NULL_POINTER && message_is_set(), "stats(NULL, ..)");
+    CHECK(pg_distributions_sample(NULL, 0, NULL, NULL, NULL) == PG_NULL_POINTER,
+          "distributions_sample(NULL)");
+    /* n = 0 with NULL arrays is fine, and a success clears the message. */
+    CHECK(pg_field_sample(field, 0, NULL, NULL, NULL, NULL) == PG_OK, "n = 0");
+    CHECK(!message_is_set(), "message left after a success: %s", pg_last_error());
+    TRY(pg_distributions_len(dists, &len));
+    CHECK(pg_distributions_selection_probability(dists, len + 1, NULL) == PG_NULL_POINTER,
+          "NULL out with n > 0");
+    {
+        float *big = (float *)calloc(len + 1, sizeof(float));
+        CHECK(big != NULL, "out of memory");
+        if (big != NULL) {
+            CHECK(pg_distributions_selection_probability(dists, len + 1, big) ==
+                      PG_SIZE_MISMATCH,
+                  "n = len + 1");
+            printf("(c) n = len + 1: \"%s\"\n", pg_last_error());
+            free(big);
+        }
+    }
+    /* Overlapping outputs are refused. */
+    {
+        float uu[2] = {0.5f, 0.5f};
+        CHECK(pg_distributions_sample(dists, 1, uu, out, out + 2) == PG_INVALID_ARGUMENT,
+              "overlapping dirs and pdfs");
+    }
+}
+
+/* (c) Distributions decoded before an update are stale afterwards. */
+static void check_stale(PgField *field, PgRecorder *recorder, PgDistributions *dists, Rng *rng) {
+    float uu[2] = {0.25f, 0.75f}, d[3], p;
+    PgQueryPoint q = random_query(rng);
+    TRY(pg_field_query(field, 1, &q, dists));
+    TRY(pg_distributions_sample(dists, 1, uu, d, &p));
+    train_iteration(field, recorder, rng);
+    CHECK(pg_distributions_sample(dists, 1, uu, d, &p) == PG_STALE, "sample after update");
+    CHECK(message_is_set(), "no message for PG_STALE");
+    printf("(c) after update: \"%s\"\n", pg_last_error());
+    CHECK(pg_distributions_pdf(dists, 1, d, &p) == PG_STALE, "pdf after update");
+    TRY(pg_field_query(field, 1, &q, dists));
+    CHECK(pg_distributions_sample(dists, 1, uu, d, &p) == PG_OK, "sample after re-query");
+}
+
+/* (c) Save, load, identical answers; missing and corrupt files. */
+static void check_save_load(PgField *field, const char *path, Rng *rng) {
+    PgField *loaded = NULL;
+    PgField *missing = NULL;
+    FILE *f;
+    int i, same = 1;
+    static float dirs_a[3 * BATCH], dirs_b[3 * BATCH], pdf_a[BATCH], pdf_b[BATCH];
+    TRY(pg_field_save(field, path));
+    TRY(pg_field_load(path, &loaded));
+    for (i = 0; i < BATCH; i++) {
+        queries[i] = random_query(rng);
+        u[2 * i] = rng_float(rng);
+        u[2 * i + 1] = rng_float(rng);
+    }
+    TRY(pg_field_sample(field, BATCH, queries, u, dirs_a, pdf_a));
+    TRY(pg_field_sample(loaded, BATCH, queries, u, dirs_b, pdf_b));
+    same = memcmp(dirs_a, dirs_b, sizeof dirs_a) == 0 && memcmp(pdf_a, pdf_b, sizeof pdf_a) == 0;
+    TRY(pg_field_pdf(field, BATCH, queries, dirs_a, pdf_a));
+    TRY(pg_field_pdf(loaded, BATCH, queries, dirs_a, pdf_b));
+    same = same && memcmp(pdf_a, pdf_b, sizeof pdf_a) == 0;
+    CHECK(same, "the loaded field answers differently");
+    printf("(c) save + load: %d samples and pdfs %s\n", BATCH, same ? "identical" : "DIFFER");
+    pg_field_release(loaded);
+
+    /* A corrupt file: flip one byte in the middle. */
+    f = fopen(path, "r+b");
+    CHECK(f != NULL, "cannot reopen %s", path);
+    if (f != NULL) {
+        long size;
+        int c;
+        fseek(f, 0, SEEK_END);
+        size = ftell(f);
+        fseek(f, size / 2, SEEK_SET);
+        c = fgetc(f);
+        fseek(f, size / 2, SEEK_SET);
+        fputc(c ^ 0x10, f);
+        fclose(f);
+        CHECK(pg_field_load(path, &missing) == PG_FORMAT && missing == NULL, "corrupt file");
+        printf("(c) corrupt file: \"%s\"\n", pg_last_error());
+    }
+    remove(path);
+    CHECK(pg_field_load(path, &missing) == PG_IO && missing == NULL, "missing file");
+    CHECK(message_is_set(), "no message for PG_IO");
+}
+
+static int representation_of(const char *name, PgRepresentation *out) {
+    static const char *const names[4] = {"npm", "nasg", "df_nearest", "df_linear"};
+    static const PgRepresentation codes[4] = {PG_REPRESENTATION_NPM, PG_REPRESENTATION_NASG,
+                                              PG_REPRESENTATION_DF_NEAREST,
+                                              PG_REPRESENTATION_DF_LINEAR};
+    int i;
+    for (i = 0; i < 4; i++) {
+        if (strcmp(name, names[i]) == 0) {
+            *out = codes[i];
+            return 1;
+        }
+    }
+    return 0;
+}
+
+int main(int argc, char **argv) {
+    const char *scratch = argc > 1 ? argv[1] : "toy_renderer.guide";
+    const char *name = argc > 2 ? argv[2] : "npm";
+    PgRepresentation representation;
+    PgFieldArgs args;
+    PgField *field = NULL;
+    PgRecorder *recorder = NULL;
+    PgDistributions *dists = NULL;
+    PgFieldStats stats;
+    Moments guided = {0.0, 0.0, 0}, uniform = {0.0, 0.0, 0};
+    Rng rng = rng_new(11, 1);
+    double exact = radiance_integral();
+    double mean_g, var_g, var_u, sigma;
+    int it, k;
+
+    if (!representation_of(name, &representation)) {
+        fprintf(stderr, "unknown representation %s (npm, nasg, df_nearest, df_linear)\n", name);
+        return 2;
+    }
+    printf("guiding %s, representation %s\n", pg_version(), name);
+    TRY(pg_field_args_set_defaults(&args, representation));
+    args.size = PG_SIZE_SMALL;
+    args.selection_probability = 0.7f;
+    args.learning_rate = 2e-2f;
+    args.batch_size = 2048;
+    args.steps_per_update = 8;
+    args.threads = 2;
+    args.seed = 1;
+    for (k = 0; k < 3; k++) {
+        args.bounds_min[k] = BOX_MIN[k];
+        args.bounds_max[k] = BOX_MAX[k];
+    }
+    TRY(pg_field_new(&args, &field));
+    TRY(pg_recorder_new(&recorder));
+    TRY(pg_distributions_new(&dists));
+
+    /* 1. Training. */
+    for (it = 0; it < ITERATIONS; it++) {
+        train_iteration(field, recorder, &rng);
+    }
+    TRY(pg_field_stats(field, &stats));
+    printf("trained: %llu steps, %llu samples accepted, %llu rejected, generation %llu, "
+           "%llu parameters\n",
+           (unsigned long long)stats.steps, (unsigned long long)stats.accepted_samples,
+           (unsigned long long)(stats.rejected_samples[0] + stats.rejected_samples[1] +
+                                stats.rejected_samples[2] + stats.rejected_samples[3]),
+           (unsigned long long)stats.generation, (unsigned long long)stats.param_count);
+    CHECK(stats.accepted_samples == (uint64_t)ITERATIONS * PATHS_PER_ITERATION, "accepted %llu",
+          (unsigned long long)stats.accepted_samples);
+    CHECK(stats.generation == ITERATIONS, "generation %llu", (unsigned long long)stats.generation);
+
+    /* 2. Rendering, with check (a). */
+    render(field, dists, &rng, &guided, &uniform);
+
+    /* (b) Unbiased, and less than half the variance of uniform sampling. */
+    mean_g = mean(&guided);
+    var_g = variance(&guided);
+    var_u = variance(&uniform);
+    sigma = sqrt(var_g / (double)guided.n);
+    printf("(b) exact %.4f; guided mean %.4f (%.2f sigma) variance %.3f; uniform mean %.4f "
+           "variance %.3f; variance ratio %.3f\n",
+           exact, mean_g, fabs(mean_g - exact) / sigma, var_g, mean(&uniform), var_u,
+           var_g / var_u);
+    CHECK(fabs(mean_g - exact) < 4.0 * sigma, "guided estimate %.4f vs exact %.4f", mean_g, exact);
+    CHECK(var_g < 0.5 * var_u, "guided variance %.3f vs uniform %.3f", var_g, var_u);
+
+    /* (c) Error paths. */
+    check_argument_errors(field, dists);
+    check_stale(field, recorder, dists, &rng);
+    check_save_load(field, scratch, &rng);
+
+    /* The distributions keep the field alive: release the field first. */
+    pg_field_release(field);
+    {
+        float uu[2] = {0.5f, 0.5f}, d[3], p;
+        CHECK(pg_distributions_sample(dists, 1, uu, d, &p) == PG_OK,
+              "distributions outlive their field");
+    }
+    pg_distributions_release(dists);
+    pg_recorder_release(recorder);
+    pg_field_release(NULL);
+
+    if (failures > 0) {
+        printf("toy_renderer: %d check(s) FAILED\n", failures);
+        return 1;
+    }
+    printf("toy_renderer: all checks passed\n");
+    return 0;
+}

@@ -1,0 +1,196 @@
+//! `PgDistributions`: distributions decoded by `pg_field_query`, sampled
+//! and evaluated per lane without another network pass (NPM, NASG).
+
+use crate::field::{check_unit_square, read, unit_directions};
+use crate::ptr::{self, disjoint, region, times};
+use crate::status::{guard, guard_void, Failure, PgStatus};
+use guiding::{DecodedDistribution, Distribution, GuidingField, QueryPoint};
+use guiding_core::glam::Vec2;
+use std::sync::{Arc, RwLock};
+
+/// Decoded distributions (opaque), one per query of the latest
+/// `pg_field_query` into it. Create with `pg_distributions_new`, release
+/// with `pg_distributions_release`. Holds a reference to its field, so the
+/// field's memory lives as long as it does.
+#[derive(Default)]
+pub struct PgDistributions {
+    field: Option<Arc<RwLock<GuidingField>>>,
+    items: Vec<DecodedDistribution>,
+}
+
+impl PgDistributions {
+    /// Empties it (keeps the allocation, drops the field reference).
+    pub(crate) fn clear(&mut self) {
+        self.field = None;
+        self.items.clear();
+    }
+
+    /// Decodes `queries` with `field` into it.
+    pub(crate) fn fill(
+        &mut self,
+        field: &Arc<RwLock<GuidingField>>,
+        queries: &[QueryPoint],
+    ) -> Result<(), Failure> {
+        let f = read(field)?;
+        let decoded = f.query(queries);
+        self.items.extend(decoded.iter().map(Distribution::detach));
+        self.field = Some(Arc::clone(field));
+        Ok(())
+    }
+
+    /// Runs `body` with the first `n` distributions attached to their field
+    /// (`PG_SIZE_MISMATCH` if it holds fewer, `PG_STALE` if the field was
+    /// updated since they were decoded). Nothing is called on failure.
+    fn with_attached(
+        &self,
+        n: usize,
+        mut body: impl FnMut(usize, &Distribution<'_>),
+    ) -> Result<(), Failure> {
+        if n > self.items.len() {
+            return Err(Failure::new(
+                PgStatus::PG_SIZE_MISMATCH,
+                format!(
+                    "n = {n} but the distributions hold {} (from the latest pg_field_query)",
+                    self.items.len()
+                ),
+            ));
+        }
+        let Some(field) = (n > 0).then_some(()).and(self.field.as_ref()) else {
+            return Ok(());
+        };
+        let f = read(field)?;
+        // All items were decoded together (one field, one generation):
+        // checking the first decides for all, before any output is written.
+        f.attach(self.items[0])?;
+        for (i, item) in self.items[..n].iter().enumerate() {
+            body(i, &f.attach(*item)?);
+        }
+        Ok(())
+    }
+}
+
+/// Creates an empty distributions handle in `*out` (NULL on failure).
+///
+/// # Safety
+/// `out` must be NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn pg_distributions_new(out: *mut *mut PgDistributions) -> PgStatus {
+    guard("pg_distributions_new", || {
+        let out = unsafe { ptr::as_mut(out, "out") }?;
+        *out = Box::into_raw(Box::default());
+        Ok(())
+    })
+}
+
+/// Releases a distributions handle (NULL: no-op), and with it its
+/// reference to the field.
+///
+/// # Safety
+/// `distributions` must be NULL or a live handle from
+/// `pg_distributions_new` that no other call is using.
+#[no_mangle]
+pub unsafe extern "C" fn pg_distributions_release(distributions: *mut PgDistributions) {
+    guard_void("pg_distributions_release", || {
+        if !distributions.is_null() {
+            // SAFETY: made by Box::into_raw (caller's contract).
+            drop(unsafe { Box::from_raw(distributions) });
+        }
+    });
+}
+
+/// Writes the number of distributions held (the `n` of the latest
+/// successful `pg_field_query`, else 0) to `*out`.
+///
+/// # Safety
+/// `distributions` NULL or a live handle; `out` NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn pg_distributions_len(
+    distributions: *const PgDistributions,
+    out: *mut usize,
+) -> PgStatus {
+    guard("pg_distributions_len", || {
+        let d = unsafe { ptr::as_ref(distributions, "distributions") }?;
+        let out = unsafe { ptr::as_mut(out, "out") }?;
+        *out = d.items.len();
+        Ok(())
+    })
+}
+
+/// Samples the first `n` distributions, one direction each: `u` holds `2n`
+/// numbers in `[0, 1]`, `dirs` receives `3n` floats (unit vectors) and
+/// `pdfs` `n` densities (solid angle, `> 0`). Returns `PG_SIZE_MISMATCH` if
+/// `n` exceeds the number held and `PG_STALE` if the field was updated since
+/// the query (outputs untouched).
+///
+/// # Safety
+/// `distributions` NULL or a live handle; each array NULL or of the stated
+/// length.
+#[no_mangle]
+pub unsafe extern "C" fn pg_distributions_sample(
+    distributions: *const PgDistributions,
+    n: usize,
+    u: *const f32,
+    dirs: *mut f32,
+    pdfs: *mut f32,
+) -> PgStatus {
+    guard("pg_distributions_sample", || {
+        let d = unsafe { ptr::as_ref(distributions, "distributions") }?;
+        let (n2, n3) = (times(n, 2, "u")?, times(n, 3, "dirs")?);
+        disjoint(
+            &[region("dirs", dirs, n3), region("pdfs", pdfs, n)],
+            &[region("u", u, n2)],
+        )?;
+        let u = unsafe { ptr::slice(u, n2, "u") }?;
+        let dirs = unsafe { ptr::slice_mut(dirs, n3, "dirs") }?;
+        let pdfs = unsafe { ptr::slice_mut(pdfs, n, "pdfs") }?;
+        check_unit_square(u)?;
+        d.with_attached(n, |i, dist| {
+            let s = dist.sample(Vec2::new(u[2 * i], u[2 * i + 1]));
+            dirs[3 * i..3 * i + 3].copy_from_slice(&s.direction.to_array());
+            pdfs[i] = s.pdf;
+        })
+    })
+}
+
+/// Density (solid angle) of `dirs[3i..3i+3]` (finite unit vectors) under
+/// distribution `i`, for the first `n`, into `pdfs`. Errors as
+/// `pg_distributions_sample`.
+///
+/// # Safety
+/// `distributions` NULL or a live handle; each array NULL or of the stated
+/// length.
+#[no_mangle]
+pub unsafe extern "C" fn pg_distributions_pdf(
+    distributions: *const PgDistributions,
+    n: usize,
+    dirs: *const f32,
+    pdfs: *mut f32,
+) -> PgStatus {
+    guard("pg_distributions_pdf", || {
+        let d = unsafe { ptr::as_ref(distributions, "distributions") }?;
+        let n3 = times(n, 3, "dirs")?;
+        disjoint(&[region("pdfs", pdfs, n)], &[region("dirs", dirs, n3)])?;
+        let dirs = unsafe { ptr::slice(dirs, n3, "dirs") }?;
+        let pdfs = unsafe { ptr::slice_mut(pdfs, n, "pdfs") }?;
+        let dirs = unit_directions(dirs)?;
+        d.with_attached(n, |i, dist| pdfs[i] = dist.pdf(dirs[i]))
+    })
+}
+
+/// Guide-selection probability (in `[0, 1]`) of the first `n`
+/// distributions, into `out`. Errors as `pg_distributions_sample`.
+///
+/// # Safety
+/// `distributions` NULL or a live handle; `out` NULL or of length `n`.
+#[no_mangle]
+pub unsafe extern "C" fn pg_distributions_selection_probability(
+    distributions: *const PgDistributions,
+    n: usize,
+    out: *mut f32,
+) -> PgStatus {
+    guard("pg_distributions_selection_probability", || {
+        let d = unsafe { ptr::as_ref(distributions, "distributions") }?;
+        let out = unsafe { ptr::slice_mut(out, n, "out") }?;
+        d.with_attached(n, |i, dist| out[i] = dist.selection_probability())
+    })
+}

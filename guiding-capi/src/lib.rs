@@ -1,0 +1,103 @@
+//! C ABI of the [`guiding`] crate, for renderers written in C or C++ (or
+//! anything with a C FFI). The header `include/guiding.h` is generated from
+//! these declarations by cbindgen (`cbindgen.toml`) and committed; a test
+//! fails when it is out of date. `examples/toy_renderer.c` is a complete
+//! C99 program using it, and `EMBEDDING.md` maps Open PGL's calls to ours.
+//!
+//! # Conventions
+//!
+//! - Every `pg_*` function except [`pg_version`], [`pg_last_error`] and the
+//!   `*_release` functions returns a [`PgStatus`]. On anything but
+//!   `PG_OK`, [`pg_last_error`] returns a message naming the function and
+//!   what to change, valid until the next `pg_*` call on the same thread
+//!   (each call clears it; after a success it is `""`).
+//! - A pointer argument must not be NULL unless its documentation says "may
+//!   be NULL" (optional outputs); a NULL one returns `PG_NULL_POINTER`. An
+//!   array of `n` elements may be NULL when `n` is 0. Arrays must be aligned
+//!   for their element type, and outputs must not overlap each other or the
+//!   inputs (`PG_INVALID_ARGUMENT`).
+//! - No Rust panic crosses the boundary: each entry point catches it and
+//!   returns `PG_PANIC`.
+//!
+//! # Ownership
+//!
+//! - Each handle written to an `out` pointer (`PgField`, `PgDistributions`,
+//!   `PgRecorder`) belongs to the caller, who releases it exactly once with
+//!   its `*_release` function (NULL is a no-op). On failure the `out`
+//!   pointer is set to NULL. Using a handle after releasing it is undefined
+//!   behaviour, as with `free`.
+//! - A `PgDistributions` keeps its field alive: releasing the field first is
+//!   allowed, the distributions stay usable until released or refilled.
+//! - All other memory (arrays, strings, structs) stays the caller's; no
+//!   pointer is kept after a call returns.
+//!
+//! # Threading
+//!
+//! - `PgField` is internally synchronised by a read-write lock: queries
+//!   (`pg_field_query`, `_sample`, `_pdf`, `_selection_probability`,
+//!   `_stats`, `_save`, …) may run from many threads at once;
+//!   `pg_field_add_samples`, `pg_field_update`, `pg_field_stop_training` and
+//!   `pg_recorder_flush_into` take the field exclusively (they wait for
+//!   running queries and block new ones until they are done).
+//! - The reading `pg_distributions_*` functions may run from many threads on
+//!   one `PgDistributions`; `pg_field_query` into it must not overlap any
+//!   other use of it (use one per thread).
+//! - `PgRecorder` is not synchronised: one per render thread.
+//! - A `*_release` must not overlap any other use of its handle.
+//! - The field's own worker threads (`PgFieldArgs.threads`, 0 = all cores)
+//!   run updates and batched queries; set `threads = 1` when the renderer
+//!   calls queries from its own thread pool.
+//! - Distributions decoded before an update that applied a step are stale:
+//!   the `pg_distributions_*` functions return `PG_STALE`; query again.
+
+#![deny(unsafe_op_in_unsafe_fn)]
+
+// The header lists items in this module order; blank lines keep rustfmt
+// from sorting the declarations.
+pub mod status;
+
+pub mod types;
+
+pub mod field;
+
+pub mod distributions;
+
+pub mod recorder;
+
+mod ptr;
+
+pub use distributions::*;
+pub use field::*;
+pub use recorder::*;
+pub use status::PgStatus;
+pub use types::*;
+
+use std::ffi::c_char;
+
+// The threading rules of the header rest on these.
+const _: () = {
+    const fn send_sync<T: Send + Sync>() {}
+    const fn send<T: Send>() {}
+    send_sync::<PgField>();
+    send_sync::<PgDistributions>();
+    send::<PgRecorder>();
+};
+
+/// `EMBEDDING.md`'s Rust example, compiled and run as a doctest.
+#[cfg(doctest)]
+#[doc = include_str!("../EMBEDDING.md")]
+pub struct EmbeddingDoctests;
+
+/// The library version, `"MAJOR.MINOR.PATCH"` (static storage, never freed).
+#[no_mangle]
+pub extern "C" fn pg_version() -> *const c_char {
+    concat!(env!("CARGO_PKG_VERSION"), "\0").as_ptr().cast()
+}
+
+/// This thread's message for the last failed `pg_*` call: NUL-terminated,
+/// never NULL, `""` after a success, valid until the next `pg_*` call on
+/// this thread (copy it to keep it).
+#[no_mangle]
+pub extern "C" fn pg_last_error() -> *const c_char {
+    status::last_error_ptr()
+}

@@ -1,0 +1,1308 @@
+//! The C ABI called from Rust through its `extern "C"` functions: NULL
+//! pointers, wrong sizes, `n = 0`, NaN inputs, misaligned and overlapping
+//! arrays, release(NULL), double use, stale distributions, corrupt files,
+//! agreement with the Rust API, and concurrent queries during updates.
+
+use guiding::{GuidingConfig, GuidingField, ModelSize, PathRecorder, PathVertex};
+use guiding_capi::*;
+use guiding_core::glam::{Vec2, Vec3};
+use guiding_core::math::INV_FOUR_PI;
+use guiding_core::sphere::square_to_uniform_sphere;
+use guiding_tests::rng::Pcg32;
+use std::ffi::{CStr, CString};
+use std::path::PathBuf;
+use std::ptr::{null, null_mut};
+
+use PgStatus::*;
+
+const LO: [f32; 3] = [-1.0, -2.0, 0.0];
+const HI: [f32; 3] = [1.0, 2.0, 3.0];
+
+fn last() -> String {
+    // SAFETY: pg_last_error returns a valid NUL-terminated string.
+    unsafe { CStr::from_ptr(pg_last_error()) }
+        .to_string_lossy()
+        .into_owned()
+}
+
+/// Asserts `status` is `want` and, unless OK, that the message names
+/// `function` and contains `needle`.
+#[track_caller]
+fn expect(status: PgStatus, want: PgStatus, function: &str, needle: &str) {
+    let msg = last();
+    assert_eq!(status, want, "{function}: {msg}");
+    if want == PG_OK {
+        assert_eq!(msg, "", "{function}: message after success");
+    } else {
+        assert!(
+            msg.starts_with(&format!("{function}: ")) && msg.contains(needle),
+            "{function}: message {msg:?} lacks {needle:?}"
+        );
+    }
+}
+
+fn args(representation: PgRepresentation) -> PgFieldArgs {
+    let mut a = std::mem::MaybeUninit::<PgFieldArgs>::uninit();
+    // SAFETY: set_defaults writes the whole struct.
+    let a = unsafe {
+        assert_eq!(
+            pg_field_args_set_defaults(a.as_mut_ptr(), representation),
+            PG_OK
+        );
+        a.assume_init()
+    };
+    PgFieldArgs {
+        size: PG_SIZE_SMALL,
+        batch_size: 256,
+        steps_per_update: 2,
+        threads: 1,
+        bounds_min: LO,
+        bounds_max: HI,
+        ..a
+    }
+}
+
+/// The Rust configuration `args(representation)` stands for.
+fn rust_config(representation: PgRepresentation) -> GuidingConfig {
+    let base = match representation {
+        PG_REPRESENTATION_NPM => GuidingConfig::npm_radiance(),
+        PG_REPRESENTATION_NASG => GuidingConfig::nasg(),
+        PG_REPRESENTATION_DF_NEAREST => GuidingConfig::df_nearest(),
+        _ => GuidingConfig::df_linear(),
+    };
+    base.with_size(ModelSize::Small).with_training(
+        guiding::config::PRESET_TRAINING
+            .with_batch_size(256)
+            .with_steps_per_update(2)
+            .with_threads(1),
+    )
+}
+
+fn new_field(a: &PgFieldArgs) -> *mut PgField {
+    let mut f = null_mut();
+    // SAFETY: valid pointers.
+    let s = unsafe { pg_field_new(a, &mut f) };
+    assert_eq!(s, PG_OK, "{}", last());
+    assert!(!f.is_null());
+    f
+}
+
+fn new_distributions() -> *mut PgDistributions {
+    let mut d = null_mut();
+    // SAFETY: valid pointer.
+    assert_eq!(unsafe { pg_distributions_new(&mut d) }, PG_OK);
+    d
+}
+
+fn random_query(rng: &mut Pcg32) -> PgQueryPoint {
+    PgQueryPoint {
+        position: [
+            rng.uniform(LO[0], HI[0]),
+            rng.uniform(LO[1], HI[1]),
+            rng.uniform(LO[2], HI[2]),
+        ],
+        roughness: rng.next_f32(),
+        normal: square_to_uniform_sphere(rng.next_vec2()).to_array(),
+        wo: square_to_uniform_sphere(rng.next_vec2()).to_array(),
+        ..PgQueryPoint::default()
+    }
+}
+
+fn radiance(dir: Vec3) -> f32 {
+    if dir.z > 0.95 {
+        10.0
+    } else {
+        0.1
+    }
+}
+
+/// Uniformly sampled one-vertex paths as training samples.
+fn samples(rng: &mut Pcg32, n: usize) -> Vec<PgTrainingSample> {
+    (0..n)
+        .map(|_| {
+            let q = random_query(rng);
+            let wi = square_to_uniform_sphere(rng.next_vec2());
+            PgTrainingSample {
+                position: q.position,
+                roughness: q.roughness,
+                normal: q.normal,
+                sample_pdf: INV_FOUR_PI,
+                wo: q.wo,
+                bsdf_pdf: INV_FOUR_PI,
+                wi: wi.to_array(),
+                radiance: [radiance(wi); 3],
+                bsdf_cos: [1.0; 3],
+                ..PgTrainingSample::default()
+            }
+        })
+        .collect()
+}
+
+fn train(field: *mut PgField, rng: &mut Pcg32, n: usize) -> PgUpdateReport {
+    let s = samples(rng, n);
+    let mut report = PgUpdateReport::default();
+    // SAFETY: valid pointers and lengths.
+    unsafe {
+        assert_eq!(pg_field_add_samples(field, s.as_ptr(), s.len()), PG_OK);
+        assert_eq!(pg_field_update(field, &mut report), PG_OK);
+    }
+    report
+}
+
+fn stats(field: *const PgField) -> PgFieldStats {
+    let mut s = PgFieldStats::default();
+    // SAFETY: valid pointers.
+    assert_eq!(unsafe { pg_field_stats(field, &mut s) }, PG_OK);
+    s
+}
+
+#[test]
+fn version_and_last_error() {
+    // SAFETY: static NUL-terminated string.
+    let v = unsafe { CStr::from_ptr(pg_version()) };
+    assert_eq!(v.to_str().unwrap(), env!("CARGO_PKG_VERSION"));
+    // SAFETY: NULL is checked.
+    expect(
+        unsafe { pg_field_update(null_mut(), null_mut()) },
+        PG_NULL_POINTER,
+        "pg_field_update",
+        "field is NULL",
+    );
+    // The message is per thread.
+    let other = std::thread::spawn(last).join().unwrap();
+    assert_eq!(other, "");
+    assert!(last().contains("field is NULL"));
+    // A success clears it.
+    let mut d = null_mut();
+    // SAFETY: valid pointer.
+    expect(
+        unsafe { pg_distributions_new(&mut d) },
+        PG_OK,
+        "pg_distributions_new",
+        "",
+    );
+    // SAFETY: live handle.
+    unsafe { pg_distributions_release(d) };
+}
+
+/// Calls `$f(...)` and asserts `PG_NULL_POINTER` with the message
+/// "`$f`: `$arg` is NULL".
+macro_rules! refuses_null {
+    ($arg:literal, $f:ident($($a:expr),* $(,)?)) => {{
+        let status = $f($($a),*);
+        let msg = last();
+        assert_eq!(status, PG_NULL_POINTER, "{} with NULL {}: {msg}", stringify!($f), $arg);
+        assert_eq!(msg, format!("{}: {} is NULL", stringify!($f), $arg));
+    }};
+}
+
+#[test]
+fn every_null_pointer_is_refused_and_releases_accept_null() {
+    let a = args(PG_REPRESENTATION_NPM);
+    let field = new_field(&a);
+    let d = new_distributions();
+    let mut rec = null_mut();
+    let path = CString::new("unused.guide").unwrap();
+    let (mut out_f, mut flag, mut len) = (null_mut(), false, 0usize);
+    let (mut st, mut rep) = (PgFieldStats::default(), a);
+    let q = [PgQueryPoint::default()];
+    let (u, dir) = ([0.5f32; 2], [0.0f32, 0.0, 1.0]);
+    let (mut o3, mut o1) = ([0.0f32; 3], [0.0f32; 1]);
+    let (o3p, o1p, qp, up) = (o3.as_mut_ptr(), o1.as_mut_ptr(), q.as_ptr(), u.as_ptr());
+    let v = PgPathVertex::default();
+    // SAFETY: every non-NULL pointer is valid; NULL ones are the point.
+    unsafe {
+        assert_eq!(pg_recorder_new(&mut rec), PG_OK);
+        refuses_null!("args", pg_field_args_set_defaults(null_mut(), 0));
+        refuses_null!("args", pg_field_new(null(), &mut out_f));
+        refuses_null!("out", pg_field_new(&a, null_mut()));
+        refuses_null!("field", pg_field_get_args(null(), &mut rep));
+        refuses_null!("out", pg_field_get_args(field, null_mut()));
+        refuses_null!("field", pg_field_add_samples(null_mut(), null(), 0));
+        refuses_null!("samples", pg_field_add_samples(field, null(), 1));
+        refuses_null!("field", pg_field_update(null_mut(), null_mut()));
+        refuses_null!("field", pg_field_is_converged(null(), &mut flag));
+        refuses_null!("out", pg_field_is_converged(field, null_mut()));
+        refuses_null!("field", pg_field_stop_training(null_mut()));
+        refuses_null!("field", pg_field_stats(null(), &mut st));
+        refuses_null!("out", pg_field_stats(field, null_mut()));
+        refuses_null!("field", pg_field_save(null(), path.as_ptr()));
+        refuses_null!("path", pg_field_save(field, null()));
+        refuses_null!("path", pg_field_load(null(), &mut out_f));
+        refuses_null!("out", pg_field_load(path.as_ptr(), null_mut()));
+        refuses_null!("field", pg_field_query(null(), 1, qp, d));
+        refuses_null!("queries", pg_field_query(field, 1, null(), d));
+        refuses_null!("out", pg_field_query(field, 1, qp, null_mut()));
+        refuses_null!("field", pg_field_sample(null(), 1, qp, up, o3p, o1p));
+        refuses_null!("queries", pg_field_sample(field, 1, null(), up, o3p, o1p));
+        refuses_null!("u", pg_field_sample(field, 1, qp, null(), o3p, o1p));
+        refuses_null!("dirs", pg_field_sample(field, 1, qp, up, null_mut(), o1p));
+        refuses_null!("pdfs", pg_field_sample(field, 1, qp, up, o3p, null_mut()));
+        refuses_null!("field", pg_field_pdf(null(), 1, qp, dir.as_ptr(), o1p));
+        refuses_null!("queries", pg_field_pdf(field, 1, null(), dir.as_ptr(), o1p));
+        refuses_null!("dirs", pg_field_pdf(field, 1, qp, null(), o1p));
+        refuses_null!("pdfs", pg_field_pdf(field, 1, qp, dir.as_ptr(), null_mut()));
+        refuses_null!("field", pg_field_selection_probability(null(), 1, qp, o1p));
+        refuses_null!(
+            "queries",
+            pg_field_selection_probability(field, 1, null(), o1p)
+        );
+        refuses_null!(
+            "out",
+            pg_field_selection_probability(field, 1, qp, null_mut())
+        );
+        refuses_null!("out", pg_distributions_new(null_mut()));
+        refuses_null!("distributions", pg_distributions_len(null(), &mut len));
+        refuses_null!("out", pg_distributions_len(d, null_mut()));
+        refuses_null!(
+            "distributions",
+            pg_distributions_sample(null(), 0, null(), null_mut(), null_mut())
+        );
+        refuses_null!("u", pg_distributions_sample(d, 1, null(), o3p, o1p));
+        refuses_null!("dirs", pg_distributions_sample(d, 1, up, null_mut(), o1p));
+        refuses_null!("pdfs", pg_distributions_sample(d, 1, up, o3p, null_mut()));
+        refuses_null!(
+            "distributions",
+            pg_distributions_pdf(null(), 1, dir.as_ptr(), o1p)
+        );
+        refuses_null!("dirs", pg_distributions_pdf(d, 1, null(), o1p));
+        refuses_null!("pdfs", pg_distributions_pdf(d, 1, dir.as_ptr(), null_mut()));
+        refuses_null!(
+            "distributions",
+            pg_distributions_selection_probability(null(), 1, o1p)
+        );
+        refuses_null!(
+            "out",
+            pg_distributions_selection_probability(d, 1, null_mut())
+        );
+        refuses_null!("vertex", pg_path_vertex_set_defaults(null_mut()));
+        refuses_null!("out", pg_recorder_new(null_mut()));
+        refuses_null!("recorder", pg_recorder_start_path(null_mut()));
+        refuses_null!("recorder", pg_recorder_add_vertex(null_mut(), &v));
+        refuses_null!("vertex", pg_recorder_add_vertex(rec, null()));
+        refuses_null!(
+            "recorder",
+            pg_recorder_add_escaped_radiance(null_mut(), o3p, 1.0)
+        );
+        refuses_null!("rgb", pg_recorder_add_escaped_radiance(rec, null(), 1.0));
+        refuses_null!("recorder", pg_recorder_end_path(null_mut(), o3p));
+        refuses_null!("recorder", pg_recorder_sample_count(null(), &mut len));
+        refuses_null!("out", pg_recorder_sample_count(rec, null_mut()));
+        refuses_null!("recorder", pg_recorder_clear_samples(null_mut()));
+        refuses_null!(
+            "recorder",
+            pg_recorder_flush_into(null_mut(), field, null_mut())
+        );
+        refuses_null!("field", pg_recorder_flush_into(rec, null_mut(), null_mut()));
+        // Failed constructors leave NULL in their out pointer.
+        assert!(out_f.is_null());
+        // The optional outputs may be NULL.
+        assert_eq!(pg_field_update(field, null_mut()), PG_OK);
+        assert_eq!(pg_recorder_end_path(rec, null_mut()), PG_OK);
+        assert_eq!(pg_recorder_flush_into(rec, field, null_mut()), PG_OK);
+        // Releasing NULL is a no-op.
+        pg_field_release(null_mut());
+        pg_distributions_release(null_mut());
+        pg_recorder_release(null_mut());
+        pg_recorder_release(rec);
+        pg_distributions_release(d);
+        pg_field_release(field);
+    }
+}
+
+#[test]
+fn zero_counts_accept_null_arrays() {
+    let field = new_field(&args(PG_REPRESENTATION_NPM));
+    let d = new_distributions();
+    let mut len = 7;
+    // SAFETY: n = 0 with NULL arrays is allowed.
+    unsafe {
+        expect(pg_field_add_samples(field, null(), 0), PG_OK, "", "");
+        expect(pg_field_query(field, 0, null(), d), PG_OK, "", "");
+        assert_eq!(pg_distributions_len(d, &mut len), PG_OK);
+        assert_eq!(len, 0);
+        expect(
+            pg_field_sample(field, 0, null(), null(), null_mut(), null_mut()),
+            PG_OK,
+            "",
+            "",
+        );
+        expect(
+            pg_field_pdf(field, 0, null(), null(), null_mut()),
+            PG_OK,
+            "",
+            "",
+        );
+        expect(
+            pg_field_selection_probability(field, 0, null(), null_mut()),
+            PG_OK,
+            "",
+            "",
+        );
+        expect(
+            pg_distributions_sample(d, 0, null(), null_mut(), null_mut()),
+            PG_OK,
+            "",
+            "",
+        );
+        expect(
+            pg_distributions_pdf(d, 0, null(), null_mut()),
+            PG_OK,
+            "",
+            "",
+        );
+        expect(
+            pg_distributions_selection_probability(d, 0, null_mut()),
+            PG_OK,
+            "",
+            "",
+        );
+        // Nothing was buffered, nothing trained: no step, no new generation.
+        let mut report = PgUpdateReport::default();
+        assert_eq!(pg_field_update(field, &mut report), PG_OK);
+        assert_eq!(report.steps, 0);
+        assert_eq!(stats(field).generation, 0);
+        pg_distributions_release(d);
+        pg_field_release(field);
+    }
+}
+
+#[test]
+fn counts_beyond_a_handle_or_memory_are_refused() {
+    let field = new_field(&args(PG_REPRESENTATION_NPM));
+    let d = new_distributions();
+    let mut rng = Pcg32::new(1, 1);
+    let q: Vec<_> = (0..4).map(|_| random_query(&mut rng)).collect();
+    let (u, mut dirs, mut pdfs) = ([0.5f32; 10], [0.0f32; 15], [0.0f32; 5]);
+    let unit = [0.0f32, 0.0, 1.0].repeat(5);
+    // SAFETY: arrays hold at least n elements where a call may read them.
+    unsafe {
+        // A fresh handle holds nothing.
+        expect(
+            pg_distributions_sample(d, 1, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
+            PG_SIZE_MISMATCH,
+            "pg_distributions_sample",
+            "hold 0",
+        );
+        assert_eq!(pg_field_query(field, 4, q.as_ptr(), d), PG_OK);
+        expect(
+            pg_distributions_sample(d, 5, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
+            PG_SIZE_MISMATCH,
+            "pg_distributions_sample",
+            "n = 5 but the distributions hold 4",
+        );
+        expect(
+            pg_distributions_pdf(d, 5, unit.as_ptr(), pdfs.as_mut_ptr()),
+            PG_SIZE_MISMATCH,
+            "pg_distributions_pdf",
+            "hold 4",
+        );
+        expect(
+            pg_distributions_selection_probability(d, 5, pdfs.as_mut_ptr()),
+            PG_SIZE_MISMATCH,
+            "pg_distributions_selection_probability",
+            "hold 4",
+        );
+        // The outputs were not touched.
+        assert!(pdfs.iter().all(|&p| p == 0.0));
+        // Fewer than held is fine.
+        assert_eq!(
+            pg_distributions_sample(d, 3, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
+            PG_OK
+        );
+        assert!(pdfs[..3].iter().all(|&p| p > 0.0) && pdfs[3] == 0.0);
+        // Counts whose byte size overflows are refused before any access.
+        for n in [usize::MAX, usize::MAX / 2, usize::MAX / 8] {
+            expect(
+                pg_field_sample(
+                    field,
+                    n,
+                    q.as_ptr(),
+                    u.as_ptr(),
+                    dirs.as_mut_ptr(),
+                    pdfs.as_mut_ptr(),
+                ),
+                PG_INVALID_ARGUMENT,
+                "pg_field_sample",
+                "",
+            );
+            expect(
+                pg_field_add_samples(field, samples(&mut rng, 1).as_ptr(), n),
+                PG_INVALID_ARGUMENT,
+                "pg_field_add_samples",
+                "do not fit in memory",
+            );
+        }
+        pg_distributions_release(d);
+        pg_field_release(field);
+    }
+}
+
+#[test]
+fn invalid_arguments_are_refused_with_messages() {
+    let a = args(PG_REPRESENTATION_NPM);
+    // SAFETY: valid pointers throughout.
+    unsafe {
+        // An unknown representation leaves the struct as it was.
+        let mut b = a;
+        expect(
+            pg_field_args_set_defaults(&mut b, 4),
+            PG_INVALID_ARGUMENT,
+            "pg_field_args_set_defaults",
+            "representation 4",
+        );
+        assert_eq!(b, a);
+        let bad: Vec<(PgFieldArgs, &str)> = vec![
+            (
+                PgFieldArgs {
+                    representation: 9,
+                    ..a
+                },
+                "representation 9",
+            ),
+            (PgFieldArgs { target: 2, ..a }, "target 2"),
+            (PgFieldArgs { size: 3, ..a }, "size 3"),
+            (
+                PgFieldArgs {
+                    selection_probability: 1.5,
+                    ..a
+                },
+                "selection_probability",
+            ),
+            (
+                PgFieldArgs {
+                    selection_probability: f32::NAN,
+                    ..a
+                },
+                "selection_probability",
+            ),
+            (
+                PgFieldArgs {
+                    learning_rate: f32::NAN,
+                    ..a
+                },
+                "learning",
+            ),
+            (PgFieldArgs { batch_size: 0, ..a }, "batch"),
+            (
+                PgFieldArgs {
+                    steps_per_update: 0,
+                    ..a
+                },
+                "steps",
+            ),
+            (
+                PgFieldArgs {
+                    ema_decay: 1.0,
+                    ..a
+                },
+                "ema",
+            ),
+            (
+                PgFieldArgs {
+                    bounds_min: [0.0; 3],
+                    bounds_max: [0.0; 3],
+                    ..a
+                },
+                "bounds",
+            ),
+            (
+                PgFieldArgs {
+                    bounds_min: [f32::NAN, 0.0, 0.0],
+                    ..a
+                },
+                "bounds",
+            ),
+            (
+                PgFieldArgs {
+                    bounds_max: [f32::INFINITY; 3],
+                    ..a
+                },
+                "bounds",
+            ),
+        ];
+        for (b, needle) in bad {
+            let mut f = std::ptr::NonNull::<PgField>::dangling().as_ptr(); // not NULL: must be reset
+            let s = pg_field_new(&b, &mut f);
+            let msg = last();
+            assert_eq!(s, PG_INVALID_ARGUMENT, "{b:?}: {msg}");
+            assert!(
+                msg.to_lowercase().contains(needle),
+                "{needle:?} not in {msg:?}"
+            );
+            assert!(f.is_null());
+        }
+        // The defaults with bounds unset are refused (empty box).
+        let mut fresh = a;
+        assert_eq!(
+            pg_field_args_set_defaults(&mut fresh, PG_REPRESENTATION_NASG),
+            PG_OK
+        );
+        let mut f = null_mut();
+        expect(
+            pg_field_new(&fresh, &mut f),
+            PG_INVALID_ARGUMENT,
+            "pg_field_new",
+            "invalid scene bounds",
+        );
+
+        let field = new_field(&a);
+        let d = new_distributions();
+        let mut rng = Pcg32::new(2, 2);
+        let mut q: Vec<_> = (0..3).map(|_| random_query(&mut rng)).collect();
+        let (mut u, mut dirs, mut pdfs) = ([0.5f32; 6], [0.0f32; 9], [0.0f32; 3]);
+        // Non-finite queries: any field of any query.
+        q[2].position[1] = f32::NAN;
+        expect(
+            pg_field_query(field, 3, q.as_ptr(), d),
+            PG_INVALID_ARGUMENT,
+            "pg_field_query",
+            "queries[2]",
+        );
+        let mut len = 9;
+        assert_eq!(pg_distributions_len(d, &mut len), PG_OK);
+        assert_eq!(len, 0, "a failed query leaves the distributions empty");
+        q[2].position[1] = 0.0;
+        q[0].wo[2] = f32::INFINITY;
+        expect(
+            pg_field_sample(
+                field,
+                3,
+                q.as_ptr(),
+                u.as_ptr(),
+                dirs.as_mut_ptr(),
+                pdfs.as_mut_ptr(),
+            ),
+            PG_INVALID_ARGUMENT,
+            "pg_field_sample",
+            "queries[0]",
+        );
+        q[0].wo[2] = 1.0;
+        // Random numbers outside [0, 1] or NaN.
+        for bad in [f32::NAN, -0.1, 1.5] {
+            u[3] = bad;
+            expect(
+                pg_field_sample(
+                    field,
+                    3,
+                    q.as_ptr(),
+                    u.as_ptr(),
+                    dirs.as_mut_ptr(),
+                    pdfs.as_mut_ptr(),
+                ),
+                PG_INVALID_ARGUMENT,
+                "pg_field_sample",
+                "u[3]",
+            );
+        }
+        u[3] = 1.0; // the closed end is accepted
+        assert_eq!(
+            pg_field_sample(
+                field,
+                3,
+                q.as_ptr(),
+                u.as_ptr(),
+                dirs.as_mut_ptr(),
+                pdfs.as_mut_ptr()
+            ),
+            PG_OK,
+            "{}",
+            last()
+        );
+        // Directions that are not finite unit vectors.
+        assert_eq!(pg_field_query(field, 3, q.as_ptr(), d), PG_OK);
+        for bad in [[0.0, 0.0, 0.0], [0.0, 0.0, 1.1], [f32::NAN, 0.0, 1.0]] {
+            dirs[3..6].copy_from_slice(&bad);
+            expect(
+                pg_field_pdf(field, 3, q.as_ptr(), dirs.as_ptr(), pdfs.as_mut_ptr()),
+                PG_INVALID_ARGUMENT,
+                "pg_field_pdf",
+                "direction 1",
+            );
+            expect(
+                pg_distributions_pdf(d, 3, dirs.as_ptr(), pdfs.as_mut_ptr()),
+                PG_INVALID_ARGUMENT,
+                "pg_distributions_pdf",
+                "direction 1",
+            );
+        }
+        // Misaligned arrays.
+        let mut raw = [0.0f32; 8];
+        let misaligned = raw.as_mut_ptr().cast::<u8>().add(1).cast::<f32>();
+        expect(
+            pg_distributions_selection_probability(d, 1, misaligned),
+            PG_INVALID_ARGUMENT,
+            "pg_distributions_selection_probability",
+            "not aligned",
+        );
+        // Overlapping outputs, and an output overlapping an input.
+        let mut buf = [0.0f32; 12];
+        let p = buf.as_mut_ptr();
+        expect(
+            pg_distributions_sample(d, 3, u.as_ptr(), p, p.add(8)),
+            PG_INVALID_ARGUMENT,
+            "pg_distributions_sample",
+            "overlaps",
+        );
+        expect(
+            pg_distributions_pdf(d, 3, p, p.add(8)),
+            PG_INVALID_ARGUMENT,
+            "pg_distributions_pdf",
+            "overlaps",
+        );
+        assert_eq!(
+            pg_distributions_sample(d, 3, u.as_ptr(), p, p.add(9)),
+            PG_OK
+        );
+        // Paths: empty, and a directory that does not exist.
+        let empty = CString::new("").unwrap();
+        expect(
+            pg_field_save(field, empty.as_ptr()),
+            PG_INVALID_ARGUMENT,
+            "pg_field_save",
+            "empty",
+        );
+        let nowhere = CString::new("/nonexistent/dir/field.guide").unwrap();
+        expect(
+            pg_field_save(field, nowhere.as_ptr()),
+            PG_IO,
+            "pg_field_save",
+            "nonexistent",
+        );
+        let mut loaded = std::ptr::NonNull::<PgField>::dangling().as_ptr();
+        expect(
+            pg_field_load(nowhere.as_ptr(), &mut loaded),
+            PG_IO,
+            "pg_field_load",
+            "",
+        );
+        assert!(loaded.is_null());
+        pg_distributions_release(d);
+        pg_field_release(field);
+    }
+}
+
+#[test]
+fn invalid_training_samples_are_counted_not_errors() {
+    let field = new_field(&args(PG_REPRESENTATION_NPM));
+    let mut rng = Pcg32::new(3, 3);
+    let mut s = samples(&mut rng, 8);
+    s[0].radiance[1] = f32::NAN; // non-finite
+    s[1].position[0] = f32::INFINITY; // non-finite
+    s[2].radiance[0] = -1.0; // negative
+    s[3].sample_pdf = 0.0; // non-positive pdf
+    s[4].wi = [0.0, 0.0, 2.0]; // non-unit
+                               // SAFETY: valid arrays.
+    unsafe {
+        expect(
+            pg_field_add_samples(field, s.as_ptr(), s.len()),
+            PG_OK,
+            "",
+            "",
+        );
+    }
+    let st = stats(field);
+    assert_eq!(st.rejected_samples, [2, 1, 1, 1]);
+    assert_eq!(st.accepted_samples, 3);
+    assert_eq!(st.buffered_samples, 3);
+    // A recorded path with a NaN vertex yields a rejected sample.
+    // SAFETY: valid handles and pointers.
+    unsafe {
+        let mut rec = null_mut();
+        assert_eq!(pg_recorder_new(&mut rec), PG_OK);
+        let mut v = PgPathVertex::default();
+        assert_eq!(pg_path_vertex_set_defaults(&mut v), PG_OK);
+        v.wi = [0.0, 0.0, 1.0];
+        v.sample_pdf = f32::NAN;
+        v.bsdf_cos = [1.0; 3];
+        assert_eq!(pg_recorder_start_path(rec), PG_OK);
+        assert_eq!(pg_recorder_add_vertex(rec, &v), PG_OK);
+        // NaN > 0 is false: the path ends at this vertex, no sample.
+        let mut l = [9.0f32; 3];
+        assert_eq!(pg_recorder_end_path(rec, l.as_mut_ptr()), PG_OK);
+        assert_eq!(l, [0.0; 3]);
+        v.sample_pdf = 1.0;
+        v.bsdf_cos = [f32::NAN, 1.0, 1.0];
+        assert_eq!(pg_recorder_start_path(rec), PG_OK);
+        assert_eq!(pg_recorder_add_vertex(rec, &v), PG_OK);
+        assert_eq!(
+            pg_recorder_add_escaped_radiance(rec, [1.0f32; 3].as_ptr(), 1.0),
+            PG_OK
+        );
+        assert_eq!(pg_recorder_end_path(rec, l.as_mut_ptr()), PG_OK);
+        assert!(l[0].is_nan());
+        let mut handed = 0;
+        assert_eq!(pg_recorder_flush_into(rec, field, &mut handed), PG_OK);
+        assert_eq!(handed, 1);
+        assert_eq!(stats(field).rejected_samples, [3, 1, 1, 1]);
+        // An update on the valid samples never writes NaN: queries stay finite.
+        let mut report = PgUpdateReport::default();
+        assert_eq!(pg_field_update(field, &mut report), PG_OK);
+        assert_eq!((report.steps, report.skipped_steps), (2, 0));
+        let q = [random_query(&mut rng)];
+        let (u, mut dir, mut pdf) = ([0.3f32, 0.6], [0.0f32; 3], [0.0f32]);
+        assert_eq!(
+            pg_field_sample(
+                field,
+                1,
+                q.as_ptr(),
+                u.as_ptr(),
+                dir.as_mut_ptr(),
+                pdf.as_mut_ptr()
+            ),
+            PG_OK
+        );
+        assert!(pdf[0].is_finite() && pdf[0] > 0.0);
+        pg_recorder_release(rec);
+        pg_field_release(field);
+    }
+}
+
+#[test]
+fn c_results_equal_the_rust_api_for_every_representation() {
+    for rep in [
+        PG_REPRESENTATION_NPM,
+        PG_REPRESENTATION_NASG,
+        PG_REPRESENTATION_DF_NEAREST,
+        PG_REPRESENTATION_DF_LINEAR,
+    ] {
+        let a = args(rep);
+        let field = new_field(&a);
+        let mut rust = GuidingField::new(rust_config(rep), LO, HI).unwrap();
+        // The arguments come back as given, and mean the Rust config.
+        let mut back = args(PG_REPRESENTATION_NPM);
+        // SAFETY: valid pointers.
+        assert_eq!(unsafe { pg_field_get_args(field, &mut back) }, PG_OK);
+        assert_eq!(back, a);
+        // Train both on the same samples.
+        let mut rng = Pcg32::new(4, u64::from(rep));
+        for _ in 0..2 {
+            let s = samples(&mut rng, 300);
+            // SAFETY: valid array.
+            assert_eq!(
+                unsafe { pg_field_add_samples(field, s.as_ptr(), s.len()) },
+                PG_OK
+            );
+            let core: Vec<guiding::TrainingSample> = s.iter().map(|x| bytemuck::cast(*x)).collect();
+            rust.add_samples(&core);
+            // SAFETY: live handle.
+            assert_eq!(unsafe { pg_field_update(field, null_mut()) }, PG_OK);
+            rust.update();
+        }
+        let n = 64;
+        let q: Vec<_> = (0..n).map(|_| random_query(&mut rng)).collect();
+        let u: Vec<f32> = (0..2 * n).map(|_| rng.next_f32()).collect();
+        let (mut dirs, mut pdfs) = (vec![0.0f32; 3 * n], vec![0.0f32; n]);
+        let (mut d_dirs, mut d_pdfs, mut d_eval) =
+            (vec![0.0f32; 3 * n], vec![0.0f32; n], vec![0.0f32; n]);
+        let (mut sel, mut d_sel, mut f_eval) = (vec![0.0f32; n], vec![0.0f32; n], vec![0.0f32; n]);
+        let d = new_distributions();
+        // SAFETY: arrays of the stated lengths.
+        unsafe {
+            assert_eq!(
+                pg_field_sample(
+                    field,
+                    n,
+                    q.as_ptr(),
+                    u.as_ptr(),
+                    dirs.as_mut_ptr(),
+                    pdfs.as_mut_ptr()
+                ),
+                PG_OK
+            );
+            assert_eq!(
+                pg_field_pdf(field, n, q.as_ptr(), dirs.as_ptr(), f_eval.as_mut_ptr()),
+                PG_OK
+            );
+            assert_eq!(
+                pg_field_selection_probability(field, n, q.as_ptr(), sel.as_mut_ptr()),
+                PG_OK
+            );
+            assert_eq!(pg_field_query(field, n, q.as_ptr(), d), PG_OK);
+            assert_eq!(
+                pg_distributions_sample(d, n, u.as_ptr(), d_dirs.as_mut_ptr(), d_pdfs.as_mut_ptr()),
+                PG_OK
+            );
+            assert_eq!(
+                pg_distributions_pdf(d, n, dirs.as_ptr(), d_eval.as_mut_ptr()),
+                PG_OK
+            );
+            assert_eq!(
+                pg_distributions_selection_probability(d, n, d_sel.as_mut_ptr()),
+                PG_OK
+            );
+            pg_distributions_release(d);
+            pg_field_release(field);
+        }
+        assert_eq!(dirs, d_dirs, "rep {rep}");
+        assert_eq!(pdfs, d_pdfs, "rep {rep}");
+        assert_eq!(sel, d_sel, "rep {rep}");
+        assert_eq!(f_eval, d_eval, "rep {rep}");
+        for i in 0..n {
+            let dist = rust.distribution(&bytemuck::cast(q[i]));
+            let s = dist.sample(Vec2::new(u[2 * i], u[2 * i + 1]));
+            assert_eq!(
+                s.direction.to_array(),
+                dirs[3 * i..3 * i + 3],
+                "rep {rep} lane {i}"
+            );
+            assert_eq!(s.pdf, pdfs[i], "rep {rep} lane {i}");
+            assert_eq!(dist.pdf(s.direction), f_eval[i], "rep {rep} lane {i}");
+            assert_eq!(dist.selection_probability(), sel[i], "rep {rep} lane {i}");
+            assert!((0.0..=1.0).contains(&sel[i]));
+            assert!((f_eval[i] / pdfs[i] - 1.0).abs() < 1e-3);
+        }
+    }
+}
+
+#[test]
+fn recorder_matches_the_rust_path_recorder() {
+    let vertices = [
+        PathVertex {
+            position: [0.0, 0.0, 0.0],
+            normal: [0.0, 0.0, 1.0],
+            wo: [0.0, 0.0, 1.0],
+            emitted: [5.0; 3],
+            direct: [0.1, 0.2, 0.3],
+            wi: [1.0, 0.0, 0.0],
+            sample_pdf: 0.5,
+            bsdf_pdf: 0.4,
+            bsdf_cos: [0.2, 0.3, 0.4],
+            ..PathVertex::default()
+        },
+        PathVertex {
+            position: [1.0, 0.0, 0.0],
+            wi: [0.0, 1.0, 0.0],
+            sample_pdf: 1.0,
+            bsdf_cos: [0.9; 3],
+            is_delta: true,
+            ..PathVertex::default()
+        },
+        PathVertex {
+            position: [1.0, 1.0, 0.0],
+            emitted: [2.0, 4.0, 8.0],
+            emitted_mis_weight: 0.5,
+            wi: [0.0, 0.0, 1.0],
+            sample_pdf: 2.0,
+            bsdf_cos: [1.0, 0.5, 0.25],
+            continuation_scale: 2.0,
+            ..PathVertex::default()
+        },
+    ];
+    let mut rust = PathRecorder::new();
+    rust.start_path();
+    for v in vertices {
+        rust.add_vertex(v);
+    }
+    rust.add_escaped_radiance([3.0; 3], 0.5);
+    let want = rust.end_path();
+
+    let mut rust_field = GuidingField::new(rust_config(PG_REPRESENTATION_NPM), LO, HI).unwrap();
+    rust.flush_into(&mut rust_field);
+    let field = new_field(&args(PG_REPRESENTATION_NPM));
+    // SAFETY: valid handles and pointers.
+    unsafe {
+        let mut rec = null_mut();
+        assert_eq!(pg_recorder_new(&mut rec), PG_OK);
+        // Defaults mirror the Rust ones.
+        let mut def = PgPathVertex {
+            roughness: 7.0,
+            ..PgPathVertex::default()
+        };
+        assert_eq!(pg_path_vertex_set_defaults(&mut def), PG_OK);
+        let rd = PathVertex::default();
+        assert_eq!(
+            (
+                def.roughness,
+                def.emitted_mis_weight,
+                def.continuation_scale,
+                def.is_delta
+            ),
+            (
+                rd.roughness,
+                rd.emitted_mis_weight,
+                rd.continuation_scale,
+                0
+            )
+        );
+        // Twice: the second time without start_path after end_path (a
+        // finished path leaves the recorder empty) and with a discarded
+        // unfinished path before it.
+        for round in 0..2 {
+            if round == 0 {
+                assert_eq!(pg_recorder_start_path(rec), PG_OK);
+            } else {
+                assert_eq!(pg_recorder_add_vertex(rec, &def), PG_OK);
+                assert_eq!(pg_recorder_start_path(rec), PG_OK);
+            }
+            for v in &vertices {
+                let c = PgPathVertex {
+                    position: v.position,
+                    roughness: v.roughness,
+                    normal: v.normal,
+                    sample_pdf: v.sample_pdf,
+                    wo: v.wo,
+                    bsdf_pdf: v.bsdf_pdf,
+                    wi: v.wi,
+                    emitted_mis_weight: v.emitted_mis_weight,
+                    emitted: v.emitted,
+                    continuation_scale: v.continuation_scale,
+                    direct: v.direct,
+                    is_delta: u32::from(v.is_delta) * 5, // any non-zero
+                    bsdf_cos: v.bsdf_cos,
+                    pad: 0.0,
+                };
+                assert_eq!(pg_recorder_add_vertex(rec, &c), PG_OK);
+            }
+            // Escaped radiance adds up over calls.
+            assert_eq!(
+                pg_recorder_add_escaped_radiance(rec, [1.0f32; 3].as_ptr(), 0.5),
+                PG_OK
+            );
+            assert_eq!(
+                pg_recorder_add_escaped_radiance(rec, [2.0f32; 3].as_ptr(), 0.5),
+                PG_OK
+            );
+            let mut got = [0.0f32; 3];
+            assert_eq!(pg_recorder_end_path(rec, got.as_mut_ptr()), PG_OK);
+            assert_eq!(got, want);
+        }
+        let mut count = 0;
+        assert_eq!(pg_recorder_sample_count(rec, &mut count), PG_OK);
+        assert_eq!(
+            count, 4,
+            "two samples per path (the delta vertex makes none)"
+        );
+        // A path ended twice: the second end has no vertices.
+        let mut l = [1.0f32; 3];
+        assert_eq!(pg_recorder_end_path(rec, l.as_mut_ptr()), PG_OK);
+        assert_eq!(l, [0.0; 3]);
+        let mut handed = 0;
+        assert_eq!(pg_recorder_flush_into(rec, field, &mut handed), PG_OK);
+        assert_eq!(handed, 4);
+        // Flushing again hands over nothing.
+        assert_eq!(pg_recorder_flush_into(rec, field, &mut handed), PG_OK);
+        assert_eq!(handed, 0);
+        // Clearing drops recorded samples.
+        assert_eq!(pg_recorder_start_path(rec), PG_OK);
+        assert_eq!(
+            pg_recorder_add_vertex(
+                rec,
+                &PgPathVertex {
+                    wi: [0.0, 0.0, 1.0],
+                    sample_pdf: 1.0,
+                    ..def
+                }
+            ),
+            PG_OK
+        );
+        assert_eq!(pg_recorder_end_path(rec, null_mut()), PG_OK);
+        assert_eq!(pg_recorder_clear_samples(rec), PG_OK);
+        assert_eq!(pg_recorder_sample_count(rec, &mut count), PG_OK);
+        assert_eq!(count, 0);
+        pg_recorder_release(rec);
+    }
+    // The field got the same samples as the Rust one (twice).
+    let s = stats(field);
+    assert_eq!(s.accepted_samples, 2 * rust_field.stats().accepted_samples);
+    // Training on them gives the same parameters as the Rust field trained
+    // on the same samples twice.
+    let mut twice = PathRecorder::new();
+    for _ in 0..2 {
+        twice.start_path();
+        for v in vertices {
+            twice.add_vertex(v);
+        }
+        twice.add_escaped_radiance([3.0; 3], 0.5);
+        twice.end_path();
+    }
+    let mut rust_field = GuidingField::new(rust_config(PG_REPRESENTATION_NPM), LO, HI).unwrap();
+    twice.flush_into(&mut rust_field);
+    rust_field.update();
+    // SAFETY: live handle.
+    unsafe {
+        assert_eq!(pg_field_update(field, null_mut()), PG_OK);
+    }
+    let q = PgQueryPoint {
+        position: [0.5, 0.5, 0.5],
+        ..PgQueryPoint::default()
+    };
+    let (u, mut dir, mut pdf) = ([0.2f32, 0.9], [0.0f32; 3], [0.0f32]);
+    // SAFETY: arrays of length 1.
+    unsafe {
+        assert_eq!(
+            pg_field_sample(field, 1, &q, u.as_ptr(), dir.as_mut_ptr(), pdf.as_mut_ptr()),
+            PG_OK
+        );
+        pg_field_release(field);
+    }
+    let s = rust_field
+        .distribution(&bytemuck::cast(q))
+        .sample(Vec2::new(0.2, 0.9));
+    assert_eq!((s.direction.to_array(), s.pdf), (dir, pdf[0]));
+}
+
+#[test]
+fn stale_distributions_training_stop_and_field_lifetime() {
+    let a = args(PG_REPRESENTATION_DF_LINEAR);
+    let field = new_field(&a);
+    let other = new_field(&a);
+    let d = new_distributions();
+    let mut rng = Pcg32::new(5, 5);
+    let q: Vec<_> = (0..8).map(|_| random_query(&mut rng)).collect();
+    let (u, mut dirs, mut pdfs) = ([0.4f32; 16], [0.0f32; 24], [0.0f32; 8]);
+    // SAFETY: arrays of the stated lengths, live handles.
+    unsafe {
+        assert_eq!(pg_field_query(field, 8, q.as_ptr(), d), PG_OK);
+        // An update without samples applies no step: still valid.
+        let mut report = PgUpdateReport::default();
+        assert_eq!(pg_field_update(field, &mut report), PG_OK);
+        assert_eq!(report.steps, 0);
+        assert_eq!(
+            pg_distributions_sample(d, 8, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
+            PG_OK
+        );
+        // An update that applies steps makes them stale: every reader says so.
+        assert_eq!(train(field, &mut rng, 200).steps, 2);
+        pdfs = [0.0; 8];
+        expect(
+            pg_distributions_sample(d, 8, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
+            PG_STALE,
+            "pg_distributions_sample",
+            "stale",
+        );
+        assert_eq!(pdfs, [0.0; 8], "outputs untouched");
+        let unit = [0.0f32, 0.0, 1.0].repeat(8);
+        expect(
+            pg_distributions_pdf(d, 8, unit.as_ptr(), pdfs.as_mut_ptr()),
+            PG_STALE,
+            "pg_distributions_pdf",
+            "stale",
+        );
+        expect(
+            pg_distributions_selection_probability(d, 8, pdfs.as_mut_ptr()),
+            PG_STALE,
+            "pg_distributions_selection_probability",
+            "stale",
+        );
+        // n = 0 on stale distributions is still fine (nothing is read).
+        assert_eq!(
+            pg_distributions_sample(d, 0, null(), null_mut(), null_mut()),
+            PG_OK
+        );
+        // Re-querying (the same handle, twice, then from another field)
+        // replaces the contents.
+        assert_eq!(pg_field_query(field, 8, q.as_ptr(), d), PG_OK);
+        assert_eq!(pg_field_query(field, 3, q.as_ptr(), d), PG_OK);
+        let mut len = 0;
+        assert_eq!(pg_distributions_len(d, &mut len), PG_OK);
+        assert_eq!(len, 3);
+        assert_eq!(
+            pg_distributions_sample(d, 3, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
+            PG_OK
+        );
+        assert_eq!(pg_field_query(other, 8, q.as_ptr(), d), PG_OK);
+        assert_eq!(
+            pg_distributions_sample(d, 8, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
+            PG_OK
+        );
+        // Releasing the field first: the distributions keep it alive.
+        let before = pdfs;
+        pg_field_release(other);
+        assert_eq!(
+            pg_distributions_sample(d, 8, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
+            PG_OK
+        );
+        assert_eq!(pdfs, before);
+        // Stopping training: samples are ignored (counted), updates do
+        // nothing, queries go on.
+        let mut conv = false;
+        assert_eq!(pg_field_is_converged(field, &mut conv), PG_OK);
+        assert!(!conv);
+        assert_eq!(pg_field_stop_training(field), PG_OK);
+        assert_eq!(
+            pg_field_stop_training(field),
+            PG_OK,
+            "stopping twice is fine"
+        );
+        assert_eq!(pg_field_is_converged(field, &mut conv), PG_OK);
+        assert!(conv);
+        let gen = stats(field).generation;
+        let report = train(field, &mut rng, 100);
+        assert_eq!((report.steps, report.converged), (0, 1));
+        let s = stats(field);
+        assert_eq!(
+            (s.ignored_samples, s.generation, s.converged),
+            (100, gen, 1)
+        );
+        assert_eq!(pg_field_query(field, 8, q.as_ptr(), d), PG_OK);
+        assert_eq!(
+            pg_distributions_sample(d, 8, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
+            PG_OK
+        );
+        pg_field_release(field);
+        pg_distributions_release(d);
+    }
+}
+
+#[test]
+fn save_load_round_trip_and_corrupt_files() {
+    let dir =
+        PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("capi-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("field.guide");
+    let cpath = CString::new(path.to_str().unwrap()).unwrap();
+    let mut a = args(PG_REPRESENTATION_NASG);
+    a.target = PG_TARGET_PRODUCT;
+    let field = new_field(&a);
+    let mut rng = Pcg32::new(6, 6);
+    train(field, &mut rng, 300);
+    let n = 32;
+    let q: Vec<_> = (0..n).map(|_| random_query(&mut rng)).collect();
+    let u: Vec<f32> = (0..2 * n).map(|_| rng.next_f32()).collect();
+    let sample = |f: *const PgField| {
+        let (mut dirs, mut pdfs) = (vec![0.0f32; 3 * n], vec![0.0f32; n]);
+        // SAFETY: arrays of the stated lengths.
+        let s = unsafe {
+            pg_field_sample(
+                f,
+                n,
+                q.as_ptr(),
+                u.as_ptr(),
+                dirs.as_mut_ptr(),
+                pdfs.as_mut_ptr(),
+            )
+        };
+        assert_eq!(s, PG_OK);
+        (dirs, pdfs)
+    };
+    // SAFETY: live handles, NUL-terminated path.
+    unsafe {
+        expect(pg_field_save(field, cpath.as_ptr()), PG_OK, "", "");
+        let mut loaded = null_mut();
+        expect(pg_field_load(cpath.as_ptr(), &mut loaded), PG_OK, "", "");
+        assert_eq!(sample(field), sample(loaded));
+        let mut back = a;
+        assert_eq!(pg_field_get_args(loaded, &mut back), PG_OK);
+        assert_eq!(back, a);
+        assert_eq!(stats(loaded).steps, stats(field).steps);
+        pg_field_release(loaded);
+        // Corrupt copies: a flipped byte, a truncation, garbage, empty.
+        let bytes = std::fs::read(&path).unwrap();
+        let mut flipped = bytes.clone();
+        flipped[bytes.len() / 2] ^= 0x40;
+        let cases: [(&str, Vec<u8>); 4] = [
+            ("checksum", flipped),
+            ("", bytes[..bytes.len() - 7].to_vec()),
+            ("magic", b"this is not a guiding field at all".to_vec()),
+            ("too short", Vec::new()),
+        ];
+        for (needle, content) in cases {
+            std::fs::write(&path, &content).unwrap();
+            let mut f = std::ptr::NonNull::<PgField>::dangling().as_ptr();
+            expect(
+                pg_field_load(cpath.as_ptr(), &mut f),
+                PG_FORMAT,
+                "pg_field_load",
+                needle,
+            );
+            assert!(f.is_null());
+        }
+        pg_field_release(field);
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A raw pointer that may cross threads (the C ABI's contract allows
+/// concurrent use of a field and of distributions' readers).
+struct Shared<T>(*mut T);
+impl<T> Clone for Shared<T> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+impl<T> Copy for Shared<T> {}
+// SAFETY: the pointees are internally synchronised (documented contract).
+unsafe impl<T> Send for Shared<T> {}
+// SAFETY: as above.
+unsafe impl<T> Sync for Shared<T> {}
+
+#[test]
+fn queries_from_many_threads_during_updates() {
+    let field = Shared(new_field(&args(PG_REPRESENTATION_NPM)));
+    let d = Shared(new_distributions());
+    let mut rng = Pcg32::new(7, 7);
+    let q: Vec<_> = (0..64).map(|_| random_query(&mut rng)).collect();
+    let u: Vec<f32> = (0..128).map(|_| rng.next_f32()).collect();
+    // SAFETY: live handles.
+    assert_eq!(
+        unsafe { pg_field_query(field.0, 64, q.as_ptr(), d.0) },
+        PG_OK
+    );
+    let training: Vec<Vec<PgTrainingSample>> = (0..4).map(|_| samples(&mut rng, 256)).collect();
+    let (mut ok, mut stale) = (0, 0);
+    std::thread::scope(|s| {
+        let readers: Vec<_> = (0..3)
+            .map(|_| {
+                let (q, u) = (&q, &u);
+                s.spawn(move || {
+                    let (field, d) = (field, d);
+                    let (mut dirs, mut pdfs) = (vec![0.0f32; 192], vec![0.0f32; 64]);
+                    let mut counts = (0, 0);
+                    for _ in 0..20 {
+                        // SAFETY: live handles, arrays of the stated lengths.
+                        unsafe {
+                            let s = pg_field_sample(
+                                field.0,
+                                64,
+                                q.as_ptr(),
+                                u.as_ptr(),
+                                dirs.as_mut_ptr(),
+                                pdfs.as_mut_ptr(),
+                            );
+                            assert_eq!(s, PG_OK, "{}", last());
+                            assert!(pdfs.iter().all(|p| p.is_finite() && *p > 0.0));
+                            match pg_distributions_sample(
+                                d.0,
+                                64,
+                                u.as_ptr(),
+                                dirs.as_mut_ptr(),
+                                pdfs.as_mut_ptr(),
+                            ) {
+                                PG_OK => counts.0 += 1,
+                                PG_STALE => counts.1 += 1,
+                                other => panic!("{other:?}: {}", last()),
+                            }
+                        }
+                    }
+                    counts
+                })
+            })
+            .collect();
+        for t in &training {
+            // SAFETY: live handle, valid array.
+            unsafe {
+                assert_eq!(pg_field_add_samples(field.0, t.as_ptr(), t.len()), PG_OK);
+                assert_eq!(pg_field_update(field.0, null_mut()), PG_OK);
+            }
+        }
+        for r in readers {
+            let (a, b) = r.join().unwrap();
+            ok += a;
+            stale += b;
+        }
+    });
+    assert_eq!(ok + stale, 60);
+    assert_eq!(stats(field.0).generation, 4);
+    // After the updates the old distributions are stale for sure.
+    let (mut dirs, mut pdfs) = (vec![0.0f32; 192], vec![0.0f32; 64]);
+    // SAFETY: live handles.
+    unsafe {
+        assert_eq!(
+            pg_distributions_sample(d.0, 64, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
+            PG_STALE
+        );
+        pg_distributions_release(d.0);
+        pg_field_release(field.0);
+    }
+}
