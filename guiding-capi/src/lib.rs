@@ -2,7 +2,7 @@
 //! anything with a C FFI). The header `include/guiding.h` is generated from
 //! these declarations by cbindgen (`cbindgen.toml`) and committed; a test
 //! fails when it is out of date. `examples/toy_renderer.c` is a complete
-//! C99 program using it, and `EMBEDDING.md` maps Open PGL's calls to ours.
+//! C99 program using it, and the README section "Embedding in your renderer" maps Open PGL's calls to ours.
 //!
 //! # Conventions
 //!
@@ -82,11 +82,6 @@ const _: () = {
     send_sync::<PgDistributions>();
     send::<PgRecorder>();
 };
-
-/// `EMBEDDING.md`'s Rust example, compiled and run as a doctest.
-#[cfg(doctest)]
-#[doc = include_str!("../EMBEDDING.md")]
-pub struct EmbeddingDoctests;
 
 /// The library version, `"MAJOR.MINOR.PATCH"` (static storage, never freed).
 #[no_mangle]

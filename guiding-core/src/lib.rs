@@ -36,8 +36,3 @@ pub mod sample;
 pub mod sphere;
 
 pub use glam;
-
-/// The README's code examples, compiled and run as doctests.
-#[cfg(doctest)]
-#[doc = include_str!("../../README.md")]
-pub struct ReadmeDoctests;

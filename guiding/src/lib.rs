@@ -62,3 +62,9 @@ pub use guiding_core::model::QueryPoint;
 pub use guiding_core::optim::AdamConfig;
 pub use guiding_core::sample::{Rejection, TrainingSample};
 pub use recorder::{PathRecorder, PathVertex};
+
+/// The README's code examples (`guiding-core` kernels and the embedding API),
+/// compiled and run as doctests.
+#[cfg(doctest)]
+#[doc = include_str!("../../README.md")]
+pub struct ReadmeDoctests;
