@@ -367,7 +367,7 @@ impl Material {
                 let pdf = g1i * wi.dot(m).max(0.0) * d / wi.z / (4.0 * wo.dot(m));
                 (value, pdf)
             }
-            Material::Plastic(c) => {
+            Material::Plastic(ref c) => {
                 let (f_i, f_o) = (
                     fresnel_dielectric(wi.z, c.eta).0,
                     fresnel_dielectric(wo.z, c.eta).0,
@@ -379,7 +379,7 @@ impl Material {
                 let prob_diffuse = if ps + pd > 0.0 { pd / (ps + pd) } else { 1.0 };
                 (value, prob_diffuse * FRAC_1_PI * wo.z)
             }
-            Material::RoughPlastic(c) => {
+            Material::RoughPlastic(ref c) => {
                 let h = (wi + wo).normalize();
                 let d = ggx_d(h, c.alpha);
                 let g1i = ggx_g1(wi, h, c.alpha);
@@ -388,7 +388,7 @@ impl Material {
                 let spec = c.specular * (f * d * g / (4.0 * wi.z));
                 let (t_i, t_o) = (c.transmittance(wi.z), c.transmittance(wo.z));
                 let diff = c.base() * (FRAC_1_PI * wo.z * t_i * t_o / (c.eta * c.eta));
-                let prob_spec = rough_plastic_spec_prob(&c, t_i);
+                let prob_spec = rough_plastic_spec_prob(c, t_i);
                 let pdf = prob_spec * d * g1i / (4.0 * wi.z) + (1.0 - prob_spec) * FRAC_1_PI * wo.z;
                 (spec + diff, pdf)
             }
@@ -483,7 +483,7 @@ impl Material {
                 weight: specular * fresnel_conductor(wi.z, eta, k),
                 pdf: f32::INFINITY,
             }),
-            Material::Plastic(c) => {
+            Material::Plastic(ref c) => {
                 let f_i = fresnel_dielectric(wi.z, c.eta).0;
                 let ps = f_i * c.spec_weight;
                 let pd = (1.0 - f_i) * (1.0 - c.spec_weight);
@@ -506,8 +506,8 @@ impl Material {
                     pdf,
                 })
             }
-            Material::RoughPlastic(c) => {
-                let prob_spec = rough_plastic_spec_prob(&c, c.transmittance(wi.z));
+            Material::RoughPlastic(ref c) => {
+                let prob_spec = rough_plastic_spec_prob(c, c.transmittance(wi.z));
                 let wo = if u0 < prob_spec {
                     let m = sample_ggx_vndf(wi, c.alpha, u1, u2);
                     2.0 * wi.dot(m) * m - wi
@@ -571,7 +571,7 @@ impl Material {
         match *self {
             Material::Diffuse { .. } => true,
             Material::RoughConductor { alpha, .. } => alpha >= min_alpha,
-            Material::RoughPlastic(c) => c.alpha >= min_alpha,
+            Material::RoughPlastic(ref c) => c.alpha >= min_alpha,
             _ => false,
         }
     }
@@ -582,7 +582,7 @@ impl Material {
             Material::RoughConductor { alpha, .. } | Material::RoughDielectric { alpha, .. } => {
                 alpha.clamp(0.0, 1.0)
             }
-            Material::RoughPlastic(c) => c.alpha.clamp(0.0, 1.0),
+            Material::RoughPlastic(ref c) => c.alpha.clamp(0.0, 1.0),
             Material::Conductor { .. } | Material::Dielectric { .. } => 0.0,
             _ => 1.0,
         }

@@ -66,7 +66,7 @@ use std::time::{Duration, Instant};
 /// Options of the guided integrator (beyond [`RenderOptions`]).
 #[derive(Clone, Copy, Debug)]
 pub struct GuidedOptions {
-    /// Next-event estimation on area lights (pt-nee mode).
+    /// Next-event estimation on every emitter NEE can sample (pt-nee mode).
     pub nee: bool,
     /// Fraction of the passes (samples per pixel) used for training, in `[0, 1]`.
     pub train_fraction: f32,

@@ -1,21 +1,28 @@
 //! Wavefront path tracer.
 //!
-//! Each worker thread takes a block of pixels and, for every sample index, runs the block's
-//! paths through a per-bounce pipeline of structure-of-arrays queues:
+//! Rendering is pass-major (one sample per pixel over the whole image per pass, see
+//! [`crate::schedule`]); within a pass each worker thread takes blocks of pixels and runs the
+//! block's paths through a per-bounce pipeline of structure-of-arrays queues:
 //!
 //! 1. **intersect** the path queue (closest hit),
 //! 2. **emission**: add emitted radiance at the hits (MIS-weighted for `pt-nee`) and compact
 //!    the surviving hits into a [`VertexBatch`],
 //! 3. **guiding query**: [`guiding_query`] receives the whole batch (the plug-in point for the
 //!    batched path-guiding model; a no-op today),
-//! 4. **NEE** (`pt-nee`): sample area lights and emit a `ShadowQueue`,
+//! 4. **NEE** (`pt-nee`, skipped when the scene has no emitter NEE can sample, and at delta
+//!    vertices): sample one emitter (area, point or environment, picked uniformly) and emit a
+//!    `ShadowQueue`,
 //! 5. **shadow**: trace the shadow queue and add the unoccluded contributions,
 //! 6. **BSDF sampling**: continue the paths into the next bounce's queue.
 //!
 //! Depth follows Mitsuba: `max_depth = 1` only shows directly visible emission; a hit at
 //! bounce `b` (0 = camera hit) adds emission when `b < max_depth` and does NEE/continues when
-//! `b + 1 < max_depth`. No Russian roulette (keeps variance comparable; the estimator is unbiased
-//! either way).
+//! `b + 1 < max_depth`. No Russian roulette by default (keeps variance comparable; the estimator
+//! is unbiased either way); `--rr` enables Mitsuba's Russian roulette from the scene's `rr_depth`.
+//!
+//! Rays that leave the scene pick up the environment (MIS-weighted against environment NEE);
+//! `twosided` materials are resolved per hit (a back hit flips the frame), and the
+//! geometric side test lets transmission through dielectrics cross the surface.
 
 use crate::bsdf::Material;
 use crate::emitter::EmitterSample;
@@ -30,7 +37,8 @@ use std::sync::Mutex;
 pub enum IntegratorKind {
     /// BSDF sampling only; emission is picked up when a path hits a light.
     Pt,
-    /// Next-event estimation on area lights + BSDF sampling, combined with the power heuristic.
+    /// Next-event estimation (area, point and environment emitters) + BSDF sampling, combined
+    /// with the power heuristic.
     PtNee,
 }
 
