@@ -105,6 +105,8 @@ where
         .configure_mesh()
         .x_desc("wall time [s]")
         .y_desc("relMSE (trimmed 0.1 %)")
+        .x_labels(8)
+        .y_labels(8)
         .x_label_formatter(&|v| format!("{v:.3}"))
         .y_label_formatter(&|v| format!("{v:.1e}"))
         .label_style(("sans-serif", 14))
