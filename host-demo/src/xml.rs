@@ -241,10 +241,22 @@ impl<'a, 'i> Ctx<'a, 'i> {
                 }
                 _ => return Err(self.unsupported(op, "transform operation")),
             };
+            // A NaN / infinity in one operation is reported at that element (its line),
+            // not later as a non-finite vertex.
+            if !t.is_finite() {
+                return Err(self.err(
+                    op,
+                    format!(
+                        "<{}> in transform \"{}\" is not finite (NaN or infinity)",
+                        op.tag_name().name(),
+                        n.attribute("name").unwrap_or("")
+                    ),
+                ));
+            }
             m = t * m;
         }
         if !m.is_finite() {
-            return Err(self.err(n, "transform is not finite"));
+            return Err(self.err(n, "transform is not finite (overflow)"));
         }
         Ok(m)
     }
