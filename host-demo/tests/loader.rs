@@ -261,3 +261,150 @@ fn bvh_matches_brute_force_on_random_rays() {
         );
     }
 }
+
+// ---------------------------------------------------------------------------------------
+// Mitsuba 0.6 spellings
+// ---------------------------------------------------------------------------------------
+
+/// A small scene: camera `to_world` block, one rectangle light and a sphere with `bsdf`.
+fn scene_06(camera_transform: &str, shape_transform: &str, bsdf: &str, radiance: &str) -> String {
+    format!(
+        r#"<scene version="3.0.0">
+  <sensor type="perspective"><float name="fov" value="40"/>
+    {camera_transform}
+    <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>
+  </sensor>
+  <shape type="sphere">{shape_transform}{bsdf}</shape>
+  <shape type="rectangle"><transform name="to_world"><translate z="3"/></transform>
+    <emitter type="area">{radiance}</emitter></shape>
+</scene>"#
+    )
+}
+
+fn load_ok(text: &str) -> Scene {
+    xml::load_str(text, "t.xml", Path::new(".")).unwrap_or_else(|e| panic!("loads: {e}\n{text}"))
+}
+
+/// Same materials, camera and geometry (bit for bit: the same operations run).
+fn assert_same_scene(a: &Scene, b: &Scene, what: &str) {
+    assert_eq!(a.materials, b.materials, "{what}: materials");
+    assert_eq!(a.camera.to_world, b.camera.to_world, "{what}: camera");
+    assert_eq!(a.prims.len(), b.prims.len(), "{what}: prims");
+    assert_eq!(
+        format!("{:?}", a.prims),
+        format!("{:?}", b.prims),
+        "{what}: geometry"
+    );
+    assert_eq!(
+        a.lights.iter().map(|l| l.radiance).collect::<Vec<_>>(),
+        b.lights.iter().map(|l| l.radiance).collect::<Vec<_>>(),
+        "{what}: emitters"
+    );
+}
+
+/// sRGB decoding (IEC 61966-2-1) in f64, for the Mitsuba 3 twins' linear values.
+fn decode(c: f64) -> f32 {
+    (if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }) as f32
+}
+
+#[test]
+fn mitsuba_06_spellings_equal_their_mitsuba_3_twins() {
+    let cam3 = r#"<transform name="to_world"><lookat origin="0, -5, 1" target="0, 0, 0" up="0, 0, 1"/></transform>"#;
+    let cam06 = r#"<transform name="toWorld"><lookAt origin="0, -5, 1" target="0, 0, 0" up="0, 0, 1"/></transform>"#;
+    let tr3 = r#"<transform name="to_world"><scale value="0.5"/><translate x="0.25"/></transform>"#;
+    let tr06 = r#"<transform name="toWorld"><scale value="0.5"/><translate x="0.25"/></transform>"#;
+    let diffuse = |c: &str| format!(r#"<bsdf type="diffuse">{c}</bsdf>"#);
+    let rgb = |v: [f32; 3]| {
+        format!(
+            r#"<rgb name="reflectance" value="{}, {}, {}"/>"#,
+            v[0], v[1], v[2]
+        )
+    };
+    let light3 = r#"<rgb name="radiance" value="2"/>"#;
+
+    // lookAt + toWorld on the camera and a shape.
+    let m3 = load_ok(&scene_06(cam3, tr3, &diffuse(&rgb([0.5; 3])), light3));
+    let m06 = load_ok(&scene_06(cam06, tr06, &diffuse(&rgb([0.5; 3])), light3));
+    assert_same_scene(&m06, &m3, "lookAt/toWorld");
+    // toWorld on a top-level point emitter too.
+    let point = |name: &str| {
+        format!(
+            r#"<scene version="3.0.0"><sensor type="perspective"><float name="fov" value="40"/></sensor><shape type="sphere"/><emitter type="point"><transform name="{name}"><translate z="4"/></transform><rgb name="intensity" value="3"/></emitter></scene>"#
+        )
+    };
+    let (p3, p06) = (load_ok(&point("to_world")), load_ok(&point("toWorld")));
+    assert_eq!(
+        format!("{:?}", p3.point_lights),
+        format!("{:?}", p06.point_lights)
+    );
+
+    // srgb: hex and numbers, decoded to linear as Mitsuba 0.6 does.
+    let hex = decode(f64::from(0x88u8) / 255.0);
+    assert!((hex - 0.246_201).abs() < 1e-5, "{hex}");
+    for (srgb, linear) in [
+        (
+            r##"<srgb name="reflectance" value="#ff8800"/>"##,
+            [1.0, hex, 0.0],
+        ),
+        (
+            r#"<srgb name="reflectance" value="0.5, 0.2, 0.02"/>"#,
+            [decode(0.5), decode(0.2), decode(0.02)],
+        ),
+        (
+            r#"<srgb name="reflectance" value="0.5"/>"#,
+            [decode(0.5); 3],
+        ),
+    ] {
+        let a = load_ok(&scene_06(cam3, tr3, &diffuse(srgb), light3));
+        let b = load_ok(&scene_06(cam3, tr3, &diffuse(&rgb(linear)), light3));
+        // The loader decodes in f32: equal to the f64 decoding within a few ulps.
+        match (a.materials[0], b.materials[0]) {
+            (
+                host_demo::bsdf::Material::Diffuse { reflectance: ra },
+                host_demo::bsdf::Material::Diffuse { reflectance: rb },
+            ) => assert!(
+                (ra - rb).abs().max_element() <= 4.0 * f32::EPSILON,
+                "{srgb}: {ra} vs {rb}"
+            ),
+            other => panic!("{srgb}: {other:?}"),
+        }
+    }
+    // decode(0.02) is on the linear segment: 0.02 / 12.92.
+    assert!((decode(0.02) - 0.02 / 12.92).abs() < 1e-9);
+
+    // spectrum with a single value: grey, for a BSDF and an emitter.
+    let a = load_ok(&scene_06(
+        cam3,
+        tr3,
+        &diffuse(r#"<spectrum name="reflectance" value="0.3"/>"#),
+        r#"<spectrum name="radiance" value="2"/>"#,
+    ));
+    let b = load_ok(&scene_06(cam3, tr3, &diffuse(&rgb([0.3; 3])), light3));
+    assert_same_scene(&a, &b, "spectrum");
+
+    // Unsupported forms stay clear errors.
+    let e = load_err(
+        &scene_06(
+            cam3,
+            tr3,
+            &diffuse(r#"<spectrum name="reflectance" value="400:0.1, 700:0.5"/>"#),
+            light3,
+        ),
+        Path::new("."),
+    );
+    assert!(e.contains("spectrum") && e.contains("wavelength"), "{e}");
+    let e = load_err(
+        &scene_06(
+            cam3,
+            tr3,
+            &diffuse(r##"<srgb name="reflectance" value="#ff88"/>"##),
+            light3,
+        ),
+        Path::new("."),
+    );
+    assert!(e.contains("#ff88"), "{e}");
+}
