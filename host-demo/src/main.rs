@@ -122,9 +122,11 @@ enum Cmd {
         /// Guiding model (`--integrator guided`).
         #[arg(long, value_enum, default_value = "npm")]
         guide: GuideArg,
-        /// Guiding target (`--integrator guided`).
-        #[arg(long, value_enum, default_value = "product")]
-        target: TargetArg,
+        /// Guiding target (`--integrator guided`). Default: `product`, or `radiance` when
+        /// every material of the scene is diffuse (the product then adds nothing: the BSDF
+        /// is the cosine). Pass `--target product` to force the product anyway.
+        #[arg(long, value_enum)]
+        target: Option<TargetArg>,
         /// Model size preset (`--integrator guided`).
         #[arg(long, value_enum, default_value = "demo")]
         model_size: SizeArg,
@@ -469,6 +471,9 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
     let t1 = Instant::now();
     let mut guided_stats = None;
     let mut plain_stats = None;
+    let all_diffuse = all_materials_diffuse(&sc);
+    // The default target was switched to radiance because every material is diffuse.
+    let mut target_auto_radiance = false;
     let img = if let Integrator::Guided = integrator {
         let gopts = GuidedOptions {
             nee: match nee {
@@ -487,8 +492,18 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
             GuideArg::DfL => GuideKind::DfL,
         };
         let target = match target {
-            TargetArg::Radiance => Target::Radiance,
-            TargetArg::Product => Target::Product,
+            Some(TargetArg::Radiance) => Target::Radiance,
+            Some(TargetArg::Product) => Target::Product,
+            None if all_diffuse => {
+                eprintln!(
+                    "note: every material is diffuse, so the product target adds nothing over \
+                     radiance (the BSDF is the cosine); guiding with --target radiance \
+                     (pass --target product to force the product)"
+                );
+                target_auto_radiance = true;
+                Target::Radiance
+            }
+            None => Target::Product,
         };
         let size = match model_size {
             SizeArg::Demo => ModelSize::Demo,
@@ -574,7 +589,6 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
             "mean_std_error_rgb": se,
             "output": {"exr": out.display().to_string(), "png": png.display().to_string()},
         });
-        let all_diffuse = sc.materials.iter().all(|m| m.is_diffuse());
         let (nee_ran, nee_asked) = match (&plain_stats, &guided_stats) {
             (Some(p), _) => (p.nee, integrator == Integrator::PtNee),
             (_, Some((g, _, go))) => (g.nee, go.nee),
@@ -644,10 +658,13 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
                 "product_inputs": {
                     "ran": product,
                     "all_materials_diffuse": all_diffuse,
-                    "reason": if !product {
+                    "skipped_all_diffuse": target_auto_radiance,
+                    "reason": if target_auto_radiance {
+                        "skipped: every material is diffuse (the BSDF is the cosine), so the default target switched to radiance; --target product forces it"
+                    } else if !product {
                         "radiance target"
                     } else if all_diffuse {
-                        "product target requested; every material is diffuse, but the guide facade has no switch to drop the product inputs yet"
+                        "product target requested explicitly although every material is diffuse"
                     } else {
                         "product target"
                     },
@@ -670,6 +687,17 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         })?;
     }
     Ok(())
+}
+
+/// True when every material is Lambertian (a `twosided` counts when both its sides are), so
+/// the guiding product `f·cos·L` is `L·cos·albedo/π` and the product target learns nothing the
+/// radiance target does not.
+fn all_materials_diffuse(sc: &host_demo::scene::Scene) -> bool {
+    let diffuse = |i: u32| sc.materials.get(i as usize).is_some_and(|m| m.is_diffuse());
+    sc.materials.iter().all(|m| match *m {
+        host_demo::bsdf::Material::TwoSided { front, back } => diffuse(front) && diffuse(back),
+        ref m => m.is_diffuse(),
+    })
 }
 
 fn img_spp(

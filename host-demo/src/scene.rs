@@ -81,9 +81,10 @@ impl Prim {
         }
     }
 
-    /// Ray intersection; returns `(t, u, v)` for `t` in `(tmin, tmax)`.
+    /// Ray intersection; returns `(t, u, v)` for `t` in `(tmin, tmax)`. Public so tests can
+    /// check the BVH against a brute-force loop over [`Scene::prims`].
     #[inline]
-    fn intersect(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<(f32, f32, f32)> {
+    pub fn intersect(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<(f32, f32, f32)> {
         match *self {
             Prim::Tri { p, .. } => {
                 // Moller-Trumbore.
@@ -175,6 +176,8 @@ pub struct SurfaceHit {
     pub ns: Vec3,
     /// Shape index.
     pub shape: u32,
+    /// Primitive index into [`Scene::prims`].
+    pub prim: u32,
     /// Distance along the (unit) ray.
     pub t: f32,
 }
@@ -505,6 +508,7 @@ impl Scene {
             ng,
             ns,
             shape: self.prim_shape[id],
+            prim: id as u32,
             t: hit.t,
         })
     }

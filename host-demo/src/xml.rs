@@ -7,7 +7,9 @@
 //! numbers or Mitsuba's names) and `twosided`; shapes `obj`, `ply`, `sphere`, `rectangle`,
 //! `cube`, `disk` (to_world, flip_normals, face_normals for meshes); emitters `area` (nested in
 //! a shape), `point`, `constant` and `envmap` (EXR, to_world rotation, scale); `ref id`; and
-//! `transform` with matrix/lookat/translate/rotate/scale.
+//! `transform` with matrix/lookat/translate/rotate/scale. The common Mitsuba 0.6 spellings are
+//! read too: `<srgb>` colours (`#rrggbb` or numbers, sRGB-decoded), `<spectrum>` with a single
+//! value (grey), `lookAt` and `toWorld`.
 //!
 //! Anything else (an unknown element, plugin type or property) is an error that names the
 //! element and its line: nothing is dropped silently.
@@ -135,19 +137,65 @@ impl<'a, 'i> Ctx<'a, 'i> {
         }
     }
 
-    /// `<rgb value="r, g, b"/>`, `<rgb value="v"/>` or `<float value="v"/>`.
+    /// `<rgb value="r, g, b"/>`, `<rgb value="v"/>` or `<float value="v"/>` (linear), and the
+    /// Mitsuba 0.6 spellings `<srgb value="#rrggbb"/>` / `<srgb value="r, g, b"/>` (sRGB-encoded,
+    /// decoded with the sRGB transfer function as Mitsuba 0.6's `Spectrum::fromSRGB` does) and
+    /// `<spectrum value="v"/>` with a single value (grey; wavelength:value lists are refused).
     fn color(&self, n: Node) -> Result<Vec3> {
-        match n.tag_name().name() {
-            "rgb" | "float" => {
-                let v = self.floats(n, self.attr(n, "value")?)?;
-                match v.len() {
-                    1 => Ok(Vec3::splat(v[0])),
-                    3 => Ok(Vec3::new(v[0], v[1], v[2])),
-                    _ => Err(self.err(n, "expected 1 or 3 numbers")),
-                }
+        let tag = n.tag_name().name();
+        match tag {
+            "rgb" | "float" | "srgb" | "spectrum" => {
+                let s = self.attr(n, "value")?;
+                let v = match s.trim().strip_prefix('#') {
+                    Some(hex) if tag == "srgb" => self.hex_color(n, hex)?,
+                    _ if tag == "spectrum" && s.contains(':') => {
+                        return Err(self.err(
+                            n,
+                            "<spectrum> with wavelength:value pairs is not supported (use a single value or <rgb>)",
+                        ))
+                    }
+                    _ => {
+                        let v = self.floats(n, s)?;
+                        match (v.len(), tag) {
+                            (1, _) => Vec3::splat(v[0]),
+                            (3, "rgb" | "srgb") => Vec3::new(v[0], v[1], v[2]),
+                            _ if tag == "spectrum" || tag == "float" => {
+                                return Err(self.err(n, format!("<{tag}> expects a single number")))
+                            }
+                            _ => return Err(self.err(n, "expected 1 or 3 numbers")),
+                        }
+                    }
+                };
+                Ok(if tag == "srgb" {
+                    v.map(srgb_to_linear)
+                } else {
+                    v
+                })
             }
-            _ => Err(self.unsupported(n, "colour value (only <rgb> and <float> are supported)")),
+            _ => Err(self.unsupported(
+                n,
+                "colour value (only <rgb>, <srgb>, <spectrum> and <float> are supported)",
+            )),
         }
+    }
+
+    /// `rrggbb` (hex digits, after the `#`) as sRGB-encoded values in `[0, 1]`.
+    fn hex_color(&self, n: Node, hex: &str) -> Result<Vec3> {
+        let bad = || {
+            self.err(
+                n,
+                format!("cannot parse colour \"#{hex}\" (expected #rrggbb)"),
+            )
+        };
+        if hex.len() != 6 || !hex.is_ascii() {
+            return Err(bad());
+        }
+        let mut v = Vec3::ZERO;
+        for i in 0..3 {
+            let byte = u8::from_str_radix(&hex[2 * i..2 * i + 2], 16).map_err(|_| bad())?;
+            v[i] = f32::from(byte) / 255.0;
+        }
+        Ok(v)
     }
 
     /// `<point x= y= z=/>` or `value="x, y, z"`.
@@ -173,8 +221,9 @@ impl<'a, 'i> Ctx<'a, 'i> {
         Ok(out)
     }
 
+    /// The `name` attribute, with Mitsuba 0.6's `toWorld` read as `to_world`.
     fn name<'n>(&self, n: Node<'n, 'i>) -> Result<&'n str> {
-        self.attr(n, "name")
+        self.attr(n, "name").map(prop_name)
     }
 
     fn transform(&self, n: Node) -> Result<Mat4> {
@@ -211,7 +260,8 @@ impl<'a, 'i> Ctx<'a, 'i> {
                         .ok_or_else(|| self.err(op, "rotation axis is zero"))?;
                     Mat4::from_axis_angle(axis, angle.to_radians())
                 }
-                "lookat" => {
+                // `lookAt` is the Mitsuba 0.6 spelling.
+                "lookat" | "lookAt" => {
                     let get = |k: &str| -> Result<Vec3> {
                         let v = self.floats(op, self.attr(op, k)?)?;
                         if v.len() != 3 {
@@ -241,10 +291,22 @@ impl<'a, 'i> Ctx<'a, 'i> {
                 }
                 _ => return Err(self.unsupported(op, "transform operation")),
             };
+            // A NaN / infinity in one operation is reported at that element (its line),
+            // not later as a non-finite vertex.
+            if !t.is_finite() {
+                return Err(self.err(
+                    op,
+                    format!(
+                        "<{}> in transform \"{}\" is not finite (NaN or infinity)",
+                        op.tag_name().name(),
+                        n.attribute("name").unwrap_or("")
+                    ),
+                ));
+            }
             m = t * m;
         }
         if !m.is_finite() {
-            return Err(self.err(n, "transform is not finite"));
+            return Err(self.err(n, "transform is not finite (overflow)"));
         }
         Ok(m)
     }
@@ -596,7 +658,7 @@ impl<'a, 'i> Ctx<'a, 'i> {
         let mut position = None;
         let (mut filename, mut scale) = (None, 1.0f32);
         for p in elements(n) {
-            let pname = p.attribute("name").unwrap_or("");
+            let pname = prop_name(p.attribute("name").unwrap_or(""));
             match (p.tag_name().name(), pname, ty) {
                 ("transform", "to_world", "point" | "envmap") => {
                     to_world = Some(self.transform(p)?)
@@ -693,7 +755,7 @@ impl<'a, 'i> Ctx<'a, 'i> {
         let (mut center, mut radius) = (Vec3::ZERO, 1.0f32);
         for p in elements(n) {
             let tag = p.tag_name().name();
-            let pname = p.attribute("name").unwrap_or("");
+            let pname = prop_name(p.attribute("name").unwrap_or(""));
             match (tag, pname, ty) {
                 ("transform", "to_world", _) => to_world = self.transform(p)?,
                 ("boolean", "flip_normals", _) => flip = self.boolean(p)?,
@@ -876,6 +938,23 @@ impl<'a, 'i> Ctx<'a, 'i> {
         };
         self.builder.shape(prims, material, emission);
         Ok(())
+    }
+}
+
+/// Mitsuba 0.6 property names that Mitsuba 3 renamed (only `toWorld` so far).
+fn prop_name(s: &str) -> &str {
+    match s {
+        "toWorld" => "to_world",
+        s => s,
+    }
+}
+
+/// sRGB transfer function inverse (IEC 61966-2-1), as Mitsuba 0.6's `fromSRGB`.
+fn srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
     }
 }
 

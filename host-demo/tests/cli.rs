@@ -291,3 +291,68 @@ fn stats_report_skipped_nee() {
         .expect("reason")
         .contains("no emitter"));
 }
+
+/// With every material diffuse, the guided render's default target switches to radiance (the
+/// product adds nothing: the BSDF is the cosine) and the stats say the product inputs were
+/// skipped; `--target product` forces them, and a scene with a glossy material keeps them.
+#[test]
+fn stats_report_skipped_product_inputs_when_all_diffuse() {
+    let dir = scratch("product");
+    let glossy = dir.join("glossy.xml");
+    std::fs::write(
+        &glossy,
+        r#"<scene version="3.0.0"><sensor type="perspective"><float name="fov" value="40"/>
+        <transform name="to_world"><lookat origin="0, -5, 0" target="0, 0, 0" up="0, 0, 1"/></transform>
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film></sensor>
+        <shape type="sphere"><bsdf type="roughconductor"><string name="distribution" value="ggx"/><float name="alpha" value="0.3"/></bsdf></shape>
+        <shape type="rectangle"><transform name="to_world"><translate z="3"/></transform>
+        <emitter type="area"><rgb name="radiance" value="5"/></emitter></shape></scene>"#,
+    )
+    .expect("write");
+    let glossy = glossy.display().to_string();
+    let run = |scene: &str, target: Option<&str>, name: &str| {
+        let stats = dir.join(format!("{name}.json"));
+        let mut cmd = bin();
+        cmd.args(["render", scene, "--integrator", "guided", "--guide", "npm"])
+            .args(["--model-size", "small", "--spp", "2", "--width", "16"])
+            .args([
+                "--height",
+                "16",
+                "--batch-size",
+                "256",
+                "--steps-per-pass",
+                "1",
+            ])
+            .args(target.map(|t| vec!["--target", t]).unwrap_or_default())
+            .arg("--out")
+            .arg(dir.join(format!("{name}.exr")))
+            .arg("--stats")
+            .arg(&stats);
+        let out = cmd.output().expect("runs");
+        let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(out.status.success(), "{cmd:?} failed:\n{stderr}");
+        (
+            read_json(&stats)["stages"]["product_inputs"].clone(),
+            stderr,
+        )
+    };
+
+    let (p, stderr) = run("builtin:cornell-box", None, "default");
+    assert_eq!(p["ran"], false, "{p}");
+    assert_eq!(p["skipped_all_diffuse"], true, "{p}");
+    assert_eq!(p["all_materials_diffuse"], true, "{p}");
+    assert!(
+        p["reason"].as_str().expect("reason").contains("diffuse"),
+        "{p}"
+    );
+    assert!(stderr.contains("every material is diffuse"), "{stderr}");
+
+    let (p, stderr) = run("builtin:cornell-box", Some("product"), "forced");
+    assert_eq!(p["ran"], true, "{p}");
+    assert_eq!(p["skipped_all_diffuse"], false, "{p}");
+    assert!(!stderr.contains("every material is diffuse"), "{stderr}");
+
+    let (p, _) = run(&glossy, None, "glossy");
+    assert_eq!(p["ran"], true, "{p}");
+    assert_eq!(p["all_materials_diffuse"], false, "{p}");
+}
