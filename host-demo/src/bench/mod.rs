@@ -13,8 +13,9 @@
 //! * `micro.csv`: the micro-benchmarks ([`micro`]).
 //!
 //! References: `--reference NAME=FILE.exr` (e.g. rendered by Mitsuba 3 from the same XML), or a
-//! long `pt-nee` render cached under `--cache` keyed by the scene's bytes, resolution, depth and
-//! reference spp, so it is rendered once per machine.
+//! long `pt-nee` render cached under `--cache` keyed by the scene file's bytes, the loaded scene's
+//! content (so a changed built-in scene or mesh gets a new reference), resolution and reference
+//! spp, so it is rendered once per machine and scene version.
 
 pub mod micro;
 pub mod plot;
@@ -188,6 +189,36 @@ fn fnv1a(mut h: u64, bytes: &[u8]) -> u64 {
     h
 }
 
+/// [`fnv1a`] as a `fmt::Write` sink, to hash `Debug` output without building the string.
+struct FnvWriter(u64);
+
+impl std::fmt::Write for FnvWriter {
+    fn write_str(&mut self, s: &str) -> std::fmt::Result {
+        self.0 = fnv1a(self.0, s.as_bytes());
+        Ok(())
+    }
+}
+
+/// Hash of what a scene renders: its primitives, materials, shapes, camera and settings as
+/// loaded (so a change to a built-in scene's code or to a mesh file gives a new key; an envmap
+/// image's pixels are not included, only its settings through the XML bytes).
+fn scene_content_hash(spec: &str) -> Result<u64> {
+    use std::fmt::Write as _;
+    let scene = crate::load_scene(spec)?;
+    let mut w = FnvWriter(0xcbf2_9ce4_8422_2325);
+    let _ = write!(
+        w,
+        "{:?}{:?}{:?}{:?}{:?}{:?}",
+        scene.prims,
+        scene.materials,
+        scene.shapes,
+        scene.point_lights,
+        scene.camera,
+        scene.settings
+    );
+    Ok(w.0)
+}
+
 /// File-name-safe short name of a scene spec.
 pub fn scene_slug(scene: &str) -> String {
     let base = scene
@@ -247,6 +278,7 @@ fn reference_for(opts: &BenchOptions, scene: &str, pb: &ProgressBar) -> Result<P
         return Ok(p.clone());
     }
     let mut key = fnv1a(0xcbf2_9ce4_8422_2325, scene.as_bytes());
+    key = fnv1a(key, &scene_content_hash(scene)?.to_le_bytes());
     if !scene.starts_with("builtin:") {
         let bytes = std::fs::read(scene).map_err(|e| Error::Bench(format!("{scene}: {e}")))?;
         key = fnv1a(key, &bytes);
