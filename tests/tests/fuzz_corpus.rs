@@ -87,17 +87,13 @@ fn replay(target: &str, check: fn(&[u8]), max_len: usize) {
     );
 }
 
-/// Known failure, kept visible rather than deleted: about 15 % of the
-/// generated inputs fail, all of them factorised tables (DF-N/DF-L) whose
-/// logits are one-hot (±10³⁰ after sanitising) sampled at an exact bin edge or
-/// at a pole (the inputs force u = 0 at times). The direction's round trip
-/// through (φ, cos θ) lands in the zero-density neighbour bin, so
-/// `pdf(direction) = 0` while the sample reports p > 0. vMF and NASG inputs
-/// all pass. Fix: keep sampled ε strictly inside the sampled cell and away
-/// from the poles in `FactorisedTable::sample` (and the DF model), then remove
-/// this `ignore`.
+/// Every representation from arbitrary raw outputs. Factorised one-hot
+/// tables sampled at exact bin edges and poles (u = 0, 1 − 2⁻²⁴, forced by
+/// the inputs) used to fail here (~12 % of the generated inputs): the sampled
+/// direction came back from the warp in a zero-density neighbour bin. Fixed
+/// by keeping sampled points `SAMPLE_MARGIN` inside their cell
+/// (`guiding_core::factorised`).
 #[test]
-#[ignore = "known failure: factorised one-hot tables at bin edges/poles (see doc comment)"]
 fn distributions_corpus() {
     // DF tables read 1 + (32 + 32·16)·4 + … bytes; go a little beyond.
     replay("distributions", fuzz_checks::distributions, 2400);
