@@ -35,6 +35,17 @@ pub fn load_file(path: &Path) -> Result<Scene> {
 
 /// Loads a Mitsuba 3 XML scene from a string; `file` names it in errors, `base` resolves meshes.
 pub fn load_str(text: &str, file: &str, base: &Path) -> Result<Scene> {
+    load_str_with(text, file, base, &|path: &Path| std::fs::read(path))
+}
+
+/// [`load_str`] with meshes read by `read` (given `base` joined with the mesh's `filename`)
+/// instead of from disk: for in-memory scenes, tests and the fuzzer.
+pub fn load_str_with(
+    text: &str,
+    file: &str,
+    base: &Path,
+    read: &dyn Fn(&Path) -> std::io::Result<Vec<u8>>,
+) -> Result<Scene> {
     let doc = Document::parse(text).map_err(|source| Error::XmlSyntax {
         file: file.to_string(),
         source,
@@ -43,6 +54,7 @@ pub fn load_str(text: &str, file: &str, base: &Path) -> Result<Scene> {
         doc: &doc,
         file: file.to_string(),
         base: base.to_path_buf(),
+        read,
         bsdfs: HashMap::new(),
         builder: SceneBuilder::default(),
         default_material: None,
@@ -54,6 +66,7 @@ struct Ctx<'a, 'i> {
     doc: &'a Document<'i>,
     file: String,
     base: PathBuf,
+    read: &'a dyn Fn(&Path) -> std::io::Result<Vec<u8>>,
     bsdfs: HashMap<String, u32>,
     builder: SceneBuilder,
     default_material: Option<u32>,
@@ -135,16 +148,21 @@ impl<'a, 'i> Ctx<'a, 'i> {
         }
     }
 
-    /// `<rgb value="r, g, b"/>`, `<rgb value="v"/>` or `<float value="v"/>`.
+    /// `<rgb value="r, g, b"/>`, `<rgb value="v"/>` or `<float value="v"/>`; every use
+    /// (reflectance, radiance, IOR) needs finite values `>= 0`.
     fn color(&self, n: Node) -> Result<Vec3> {
         match n.tag_name().name() {
             "rgb" | "float" => {
                 let v = self.floats(n, self.attr(n, "value")?)?;
-                match v.len() {
-                    1 => Ok(Vec3::splat(v[0])),
-                    3 => Ok(Vec3::new(v[0], v[1], v[2])),
-                    _ => Err(self.err(n, "expected 1 or 3 numbers")),
+                let c = match v.len() {
+                    1 => Vec3::splat(v[0]),
+                    3 => Vec3::new(v[0], v[1], v[2]),
+                    _ => return Err(self.err(n, "expected 1 or 3 numbers")),
+                };
+                if !(c.is_finite() && c.min_element() >= 0.0) {
+                    return Err(self.err(n, format!("colour {c} must be finite and >= 0")));
                 }
+                Ok(c)
             }
             _ => Err(self.unsupported(n, "colour value (only <rgb> and <float> are supported)")),
         }
@@ -729,7 +747,7 @@ impl<'a, 'i> Ctx<'a, 'i> {
                     self.err(n, format!("{ty} shape needs a \"filename\" string"))
                 })?;
                 let path = self.base.join(&f);
-                let bytes = std::fs::read(&path).map_err(|source| Error::Io {
+                let bytes = (self.read)(&path).map_err(|source| Error::Io {
                     path: path.clone(),
                     source,
                 })?;
