@@ -31,6 +31,27 @@ use glam::{Vec2, Vec3};
 /// `ln(4π)`, the log of the warp's Jacobian `dω / dε`.
 pub const LN_FOUR_PI: f32 = 2.531_024_2;
 
+/// How far inside its cell a sampled square point `ε` is kept: `2⁻²⁰`
+/// (≈ 9.5 · 10⁻⁷, 16 ulps of 1).
+///
+/// The round trip `ε → ω = direction_from_square(ε) →
+/// square_from_direction(ω)` moves `ε` by up to 2 ulps of 1 in `ε₁` and 1 ulp
+/// in `ε₂` (measured over 2 · 10⁷ points concentrated at bin edges and near
+/// the poles; `tests/tests/factorised.rs` checks 4 ulps), and at a pole
+/// (`ε₂ ∈ {0, 1}`) the direction loses its azimuth altogether. The densities
+/// are discontinuous at nearest-bin edges, at the edges of their support and
+/// at the table's row edges, so a point sampled within a few ulps of such an
+/// edge could come back from the round trip in a neighbouring cell of zero
+/// density: `pdf(ω) = 0` for a sampled `ω`. The samplers therefore keep `ε`
+/// at least this margin inside the sampled 1D piece (see
+/// [`Pdf1d::sample_with_margin`]; the first and last pieces end at the poles
+/// and at the azimuth seam, so those are avoided too) and, for the table,
+/// inside the sampled row. Only points within the margin of an edge move, by
+/// at most the margin and within their own cell, so the sampled distribution
+/// changes by less than `2 · 2⁻²⁰ · max p` of probability mass per cell,
+/// moved by less than 10⁻⁶ (far below what any histogram test resolves).
+pub const SAMPLE_MARGIN: f32 = 1.0 / 1_048_576.0;
+
 /// The direction of the square point `eps` (DF §3): `φ = 2π ε₁`,
 /// `cos θ = 1 − 2 ε₂` about `+z`; see [`square_to_uniform_sphere`].
 /// `eps` is clamped to `[0, 1]²` (NaN reads as 0), so the result is always a
@@ -93,22 +114,24 @@ pub fn pdf<const M: usize, const N: usize>(
     marginal.pdf(eps.x) * conditional.pdf(eps.y) * INV_FOUR_PI
 }
 
-/// Draws `ε₁` from the marginal with `u ∈ [0, 1)`: returns `(ε₁, p(ε₁))`
-/// ([`Pdf1d::sample`]). The caller then evaluates the conditional at `ε₁`
-/// and calls [`sample_conditional`].
+/// Draws `ε₁` from the marginal with `u ∈ [0, 1)`: returns `(ε₁, p(ε₁))`,
+/// `ε₁` kept [`SAMPLE_MARGIN`] inside its piece
+/// ([`Pdf1d::sample_with_margin`]). The caller then evaluates the conditional
+/// at `ε₁` and calls [`sample_conditional`].
 #[inline]
 #[must_use]
 pub fn sample_marginal<const M: usize>(marginal: &Pdf1d<M>, u: f32) -> (f32, f32) {
-    marginal.sample(u)
+    marginal.sample_with_margin(u, SAMPLE_MARGIN)
 }
 
 /// Draws `ε₂` from the conditional `p(· | ε₁)` with `u ∈ [0, 1)`: returns
-/// `(ε₂, p(ε₂ | ε₁))`. The direction is [`direction_from_square`]`(ε₁, ε₂)`
-/// and its density `p(ε₁) p(ε₂ | ε₁) / (4π)`.
+/// `(ε₂, p(ε₂ | ε₁))`, `ε₂` kept [`SAMPLE_MARGIN`] inside its piece (so also
+/// off the poles). The direction is [`direction_from_square`]`(ε₁, ε₂)` and
+/// its density `p(ε₁) p(ε₂ | ε₁) / (4π)`.
 #[inline]
 #[must_use]
 pub fn sample_conditional<const N: usize>(conditional: &Pdf1d<N>, u: f32) -> (f32, f32) {
-    conditional.sample(u)
+    conditional.sample_with_margin(u, SAMPLE_MARGIN)
 }
 
 /// `ln p(ω)` of the factorised density built from raw logits — marginal with
@@ -240,18 +263,32 @@ impl<const M: usize, const N: usize> FactorisedTable<M, N> {
     /// Draws a direction from `u ∈ [0, 1)²`: `u.x → ε₁` through the marginal,
     /// `u.y → ε₂` through the conditional row of `ε₁`.
     ///
+    /// `ε` is kept [`SAMPLE_MARGIN`] inside its cell: inside the sampled
+    /// pieces of both 1D densities ([`sample_marginal`],
+    /// [`sample_conditional`]) and, for `ε₁`, inside its row
+    /// `[r/M, (r + 1)/M]` (a linear marginal's pieces straddle row edges).
+    /// The warp round trip (≤ 2 ulps) then never leaves the cell.
+    ///
     /// The returned pdf is [`Self::pdf`] of the returned direction (as in
     /// [`VmfMixture::sample`](crate::mixture::vmf::VmfMixture::sample)), so it
-    /// agrees exactly with the density used for MIS. It equals
-    /// `p(ε₁) p(ε₂ | ε₁) / (4π)` of the sampled `ε` except where the rounding
-    /// of the warp round trip (~10⁻⁷) carries `ε` across a bin edge of a
-    /// nearest density or across a row edge. In the rare case that this
-    /// lands on zero density while the sampled `ε` has positive density, the
-    /// latter is returned (still finite and `> 0`).
+    /// agrees exactly with the density used for MIS; for nearest
+    /// interpolation it equals `p(ε₁) p(ε₂ | ε₁) / (4π)` of the sampled `ε`,
+    /// for linear up to the slope times the round trip's ~10⁻⁷. Should the
+    /// product underflow to zero while the sampled `ε` has positive density,
+    /// the latter is returned (still finite and `> 0`).
     #[must_use]
     pub fn sample(&self, u: Vec2) -> DirectionSample {
-        let (e1, p1) = self.marginal.sample(u.x);
-        let (e2, p2) = self.conditionals[Self::row(e1)].sample(u.y);
+        let (mut e1, mut p1) = sample_marginal(&self.marginal, u.x);
+        let r = Self::row(e1);
+        let m = SAMPLE_MARGIN.min(0.25 / M as f32);
+        let (lo, hi) = (r as f32 / M as f32 + m, (r + 1) as f32 / M as f32 - m);
+        if !(e1 >= lo && e1 <= hi) {
+            // Within the margin of a row edge (only where a linear piece
+            // straddles it): moved inside the row, within the same piece.
+            e1 = e1.clamp(lo, hi);
+            p1 = self.marginal.pdf_in_unit_interval(e1);
+        }
+        let (e2, p2) = sample_conditional(&self.conditionals[r], u.y);
         let direction = direction_from_square(Vec2::new(e1, e2));
         let mut pdf = self.pdf(direction);
         if pdf <= 0.0 || pdf.is_nan() {

@@ -486,6 +486,26 @@ impl<const N: usize> Pdf1d<N> {
     /// inside.
     #[must_use]
     pub fn sample(&self, u: f32) -> (f32, f32) {
+        self.sample_with_margin(u, 0.0)
+    }
+
+    /// [`Self::sample`], with the sampled `x` kept at least
+    /// `m = min(margin, width / 4)` inside the chosen piece: `x` is clamped to
+    /// `[start + m, start + width − m]` before the zero-density nudges of
+    /// [`Self::sample`]. The returned density is still [`Self::pdf`] at the
+    /// returned `x`.
+    ///
+    /// Only points that would land within `m` of a piece end move, by at most
+    /// `m`, and never out of their piece: the sampled distribution differs
+    /// from `p` by less than `2 m · max p` of probability mass per piece,
+    /// displaced by at most `m`. This is for callers that map `x` through a
+    /// warp whose rounding can move it by a few ulps (the factorised sphere
+    /// densities, see [`crate::factorised::SAMPLE_MARGIN`]): a point kept
+    /// inside its piece cannot be carried across a discontinuity of `p` (the
+    /// edge of a nearest bin, the end of the support) by that rounding.
+    /// `margin ≤ 0` or NaN is [`Self::sample`] exactly.
+    #[must_use]
+    pub fn sample_with_margin(&self, u: f32, margin: f32) -> (f32, f32) {
         let u = clamp_unit(u);
         let linear = self.interpolation() == Interpolation::Linear;
         let inv_n = 1.0 / N as f32;
@@ -556,6 +576,10 @@ impl<const N: usize> Pdf1d<N> {
             local
         };
         let mut x = clamp_unit(start + width * t);
+        if margin > 0.0 {
+            let m = margin.min(0.25 * width);
+            x = x.clamp(start + m, start + width - m);
+        }
         let mut p = self.pdf_in_unit_interval(x);
         // Rounding put x on zero density: step a few ulps into the piece …
         let mut step = 0;

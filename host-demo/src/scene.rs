@@ -376,6 +376,13 @@ impl SceneBuilder {
                     "primitive {i} has non-finite coordinates or a non-positive radius"
                 )));
             }
+            // Finite coordinates can still overflow the area (|x| ~ 1e19 and beyond), which
+            // would turn light pdfs into 0 and radiance estimates into NaN.
+            if !p.area().is_finite() {
+                return Err(Error::Scene(format!(
+                    "primitive {i} is too large (its area overflows f32)"
+                )));
+            }
         }
         let aabbs: Vec<Aabb> = self.prims.iter().map(Prim::aabb).collect();
         let bvh = obvhs::cwbvh::builder::build_cwbvh(
@@ -410,6 +417,11 @@ impl SceneBuilder {
                         l.prims.push(i as u32);
                         l.cdf.push(l.area);
                     }
+                }
+                if !l.area.is_finite() {
+                    return Err(Error::Scene(format!(
+                        "emitting shape {s} is too large (its total area overflows f32)"
+                    )));
                 }
                 if l.area > 0.0 && radiance.max_element() > 0.0 {
                     shape_light[s] = lights.len() as u32;

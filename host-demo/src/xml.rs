@@ -37,6 +37,17 @@ pub fn load_file(path: &Path) -> Result<Scene> {
 
 /// Loads a Mitsuba 3 XML scene from a string; `file` names it in errors, `base` resolves meshes.
 pub fn load_str(text: &str, file: &str, base: &Path) -> Result<Scene> {
+    load_str_with(text, file, base, &|path: &Path| std::fs::read(path))
+}
+
+/// [`load_str`] with meshes read by `read` (given `base` joined with the mesh's `filename`)
+/// instead of from disk: for in-memory scenes, tests and the fuzzer.
+pub fn load_str_with(
+    text: &str,
+    file: &str,
+    base: &Path,
+    read: &dyn Fn(&Path) -> std::io::Result<Vec<u8>>,
+) -> Result<Scene> {
     let doc = Document::parse(text).map_err(|source| Error::XmlSyntax {
         file: file.to_string(),
         source,
@@ -45,6 +56,7 @@ pub fn load_str(text: &str, file: &str, base: &Path) -> Result<Scene> {
         doc: &doc,
         file: file.to_string(),
         base: base.to_path_buf(),
+        read,
         bsdfs: HashMap::new(),
         builder: SceneBuilder::default(),
         default_material: None,
@@ -56,6 +68,7 @@ struct Ctx<'a, 'i> {
     doc: &'a Document<'i>,
     file: String,
     base: PathBuf,
+    read: &'a dyn Fn(&Path) -> std::io::Result<Vec<u8>>,
     bsdfs: HashMap<String, u32>,
     builder: SceneBuilder,
     default_material: Option<u32>,
@@ -141,6 +154,7 @@ impl<'a, 'i> Ctx<'a, 'i> {
     /// Mitsuba 0.6 spellings `<srgb value="#rrggbb"/>` / `<srgb value="r, g, b"/>` (sRGB-encoded,
     /// decoded with the sRGB transfer function as Mitsuba 0.6's `Spectrum::fromSRGB` does) and
     /// `<spectrum value="v"/>` with a single value (grey; wavelength:value lists are refused).
+    /// Every use (reflectance, radiance, IOR) needs finite values `>= 0`.
     fn color(&self, n: Node) -> Result<Vec3> {
         let tag = n.tag_name().name();
         match tag {
@@ -166,11 +180,15 @@ impl<'a, 'i> Ctx<'a, 'i> {
                         }
                     }
                 };
-                Ok(if tag == "srgb" {
+                let c = if tag == "srgb" {
                     v.map(srgb_to_linear)
                 } else {
                     v
-                })
+                };
+                if !(c.is_finite() && c.min_element() >= 0.0) {
+                    return Err(self.err(n, format!("colour {c} must be finite and >= 0")));
+                }
+                Ok(c)
             }
             _ => Err(self.unsupported(
                 n,
@@ -791,7 +809,7 @@ impl<'a, 'i> Ctx<'a, 'i> {
                     self.err(n, format!("{ty} shape needs a \"filename\" string"))
                 })?;
                 let path = self.base.join(&f);
-                let bytes = std::fs::read(&path).map_err(|source| Error::Io {
+                let bytes = (self.read)(&path).map_err(|source| Error::Io {
                     path: path.clone(),
                     source,
                 })?;

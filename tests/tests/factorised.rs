@@ -8,7 +8,7 @@
 //! case registry (`guiding_tests::cases::factorised`).
 
 use glam::{Vec2, Vec3};
-use guiding_core::factorised::{self, FactorisedTable, LN_FOUR_PI};
+use guiding_core::factorised::{self, FactorisedTable, LN_FOUR_PI, SAMPLE_MARGIN};
 use guiding_core::math::{INV_FOUR_PI, ONE_MINUS_EPSILON};
 use guiding_core::pdf1d::{linear_cdf, sample_linear, Boundary, Interpolation, Pdf1d};
 use guiding_tests::cases::factorised::{logits, random_table, LogitKind, STANDALONE_CHI2_TESTS};
@@ -741,10 +741,11 @@ fn check_table<const M: usize, const N: usize>(seed: u64, kind: LogitKind, inter
         assert!(s.pdf > 0.0 && s.pdf.is_finite());
         assert_eq!(s.pdf, table.pdf(s.direction));
         assert_eq!(table.eval(s.direction), s.pdf);
-        // The sampled ε, recomputed from the 1D samplers.
-        let (e1, p1) = table.marginal.sample(u.x);
+        // The sampled ε, recomputed from the 1D samplers (with the margin the
+        // table keeps; its row clamp moves ε₁ by ≤ SAMPLE_MARGIN, same row).
+        let (e1, p1) = factorised::sample_marginal(&table.marginal, u.x);
         let row = FactorisedTable::<M, N>::row(e1);
-        let (e2, p2) = table.conditionals[row].sample(u.y);
+        let (e2, p2) = factorised::sample_conditional(&table.conditionals[row], u.y);
         let eps = factorised::square_from_direction(s.direction);
         assert!((eps.x - e1).abs() < 1e-5 || (eps.x - e1).abs() > 1.0 - 1e-5);
         assert!((eps.y - e2).abs() < 1e-5);
@@ -851,6 +852,134 @@ fn table_sample_invert_normalisation() {
             check_table::<64, 32>(2, kind, interp);
             check_table::<1, 1>(3, kind, interp);
             check_table::<2, 2>(4, kind, interp);
+        }
+    }
+}
+
+/// The warp round trip `ε → ω → ε` moves `ε` by at most 4 ulps of 1 in each
+/// coordinate (2 and 1 measured), a quarter of `SAMPLE_MARGIN`, over points
+/// concentrated at bin edges, at the seam and near the poles.
+#[test]
+fn warp_round_trip_within_margin() {
+    let ulp = 1.0 / 16_777_216.0f32;
+    let mut rng = Pcg32::new(61, 3);
+    let (mut worst_x, mut worst_y) = (0.0f32, 0.0f32);
+    for i in 0..1_000_000u32 {
+        let mut e = rng.next_vec2();
+        let near = |rng: &mut Pcg32| {
+            let k = (rng.next_u32() % 129) as f32 / 128.0;
+            (k + (rng.next_f32() - 0.5) * 64.0 * ulp).clamp(SAMPLE_MARGIN, 1.0 - SAMPLE_MARGIN)
+        };
+        match i % 4 {
+            1 => e.x = near(&mut rng),
+            2 => e.y = near(&mut rng),
+            3 => {
+                // Near the poles, down to the margin.
+                let t = SAMPLE_MARGIN * (1.0 + 1e3 * rng.next_f32());
+                e.y = if rng.next_u32() % 2 == 0 { t } else { 1.0 - t };
+            }
+            _ => {}
+        }
+        let b = factorised::square_from_direction(factorised::direction_from_square(e));
+        let dx = (b.x - e.x).abs();
+        worst_x = worst_x.max(dx.min(1.0 - dx));
+        worst_y = worst_y.max((b.y - e.y).abs());
+    }
+    println!(
+        "warp round trip: {} ulps in ε₁, {} in ε₂",
+        worst_x / ulp,
+        worst_y / ulp
+    );
+    assert!(worst_x <= 4.0 * ulp && worst_y <= 4.0 * ulp);
+    assert!(4.0 * ulp <= 0.25 * SAMPLE_MARGIN);
+}
+
+/// Regression (fuzz target `distributions`): one-hot tables (logits ±10³⁰)
+/// sampled at `u ∈ {0, 1 − 2⁻²⁴}` and next to every bin edge put `ε` on a bin
+/// edge or a pole, whose direction used to come back from the warp in the
+/// zero-density neighbour (`pdf(ω) = 0` for a sampled `ω`). Every sample must
+/// now lie strictly inside its cell and have `pdf(ω) = ` the sampled pdf.
+fn check_one_hot<const M: usize, const N: usize>(interp: Interpolation) {
+    let edges = [0.0, 1e-30, 1e-7, 0.5, 1.0 - 1e-7, ONE_MINUS_EPSILON];
+    for hot_m in 0..M {
+        for hot_n in [0, N / 2, N - 1] {
+            let mut lm = [-1e30f32; M];
+            lm[hot_m] = 1e30;
+            let mut lc = [[-1e30f32; N]; M];
+            for row in &mut lc {
+                row[hot_n] = 1e30;
+            }
+            let table = FactorisedTable::<M, N>::from_logits(&lm, &lc, interp);
+            for &ux in &edges {
+                for &uy in &edges {
+                    let s = table.sample(Vec2::new(ux, uy));
+                    let at = table.pdf(s.direction);
+                    assert!(
+                        s.pdf > 0.0 && s.pdf == at,
+                        "{M}×{N} {interp:?} hot ({hot_m}, {hot_n}) u = ({ux}, {uy}): \
+                         sample pdf {} vs pdf(ω) {at}",
+                        s.pdf
+                    );
+                    let eps = factorised::square_from_direction(s.direction);
+                    assert!(
+                        eps.y >= 0.5 * SAMPLE_MARGIN && eps.y <= 1.0 - 0.5 * SAMPLE_MARGIN,
+                        "ε₂ = {} at a pole",
+                        eps.y
+                    );
+                    if interp == Interpolation::Nearest {
+                        let cell = ((eps.x * M as f32) as usize, (eps.y * N as f32) as usize);
+                        assert_eq!(cell, (hot_m, hot_n), "ε = {eps} left its cell");
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn one_hot_tables_at_edges() {
+    for interp in [Interpolation::Nearest, Interpolation::Linear] {
+        check_one_hot::<32, 16>(interp);
+        check_one_hot::<8, 4>(interp);
+        check_one_hot::<1, 2>(interp);
+    }
+}
+
+/// `sample_with_margin` keeps `x` inside its piece and is `sample` with a
+/// zero margin; the margin moves `x` by at most the margin.
+#[test]
+fn pdf1d_sample_margin() {
+    let mut rng = Pcg32::new(62, 1);
+    for &(interp, boundary) in &CONFIGS {
+        for &kind in &KINDS {
+            let pdf = pdf_from::<16>(12, kind, interp, boundary);
+            for i in 0..20_000 {
+                let u = match i {
+                    0 => 0.0,
+                    1 => ONE_MINUS_EPSILON,
+                    _ => rng.next_f32(),
+                };
+                let (x0, _) = pdf.sample(u);
+                assert_eq!(pdf.sample_with_margin(u, 0.0), pdf.sample(u));
+                let (x, p) = pdf.sample_with_margin(u, SAMPLE_MARGIN);
+                assert!(p > 0.0 && p == pdf.pdf(x));
+                assert!((x - x0).abs() <= SAMPLE_MARGIN, "moved {x0} → {x}");
+                // Piece ends: bin edges (nearest) or centres and 0, 1 (linear).
+                let s = match interp {
+                    Interpolation::Nearest => x * 16.0,
+                    Interpolation::Linear => x * 16.0 + 0.5,
+                };
+                let to_end = (s - s.round()).abs() / 16.0;
+                let to_end = if interp == Interpolation::Linear {
+                    to_end.min(x).min(1.0 - x)
+                } else {
+                    to_end
+                };
+                assert!(
+                    to_end >= SAMPLE_MARGIN * (1.0 - 1e-3),
+                    "x = {x} within {to_end} of a piece end"
+                );
+            }
         }
     }
 }

@@ -108,9 +108,11 @@ impl VmfLobe {
         self.norm * self.eval(direction)
     }
 
-    /// `1 − cos θ` of the sample with CDF value `u_theta ∈ [0, 1)`.
+    /// `1 − cos θ` of the sample with CDF value `u_theta ∈ [0, 1)` (clamped
+    /// there, NaN read as 0, so any input gives `t ∈ [0, 2]`).
     #[inline]
     fn sample_one_minus_cos(&self, u_theta: f32) -> f32 {
+        let u_theta = unit_interval(u_theta);
         if self.kappa < VMF_KAPPA_UNIFORM {
             return 2.0 * (1.0 - u_theta);
         }
@@ -124,7 +126,8 @@ impl VmfLobe {
     }
 
     /// Draws a direction from `u ∈ [0, 1)²`: `u.x` picks the azimuth, `u.y`
-    /// the polar angle (`u.y → 1` is the mean).
+    /// the polar angle (`u.y → 1` is the mean). `u` outside `[0, 1)²` is
+    /// clamped (NaN reads as 0), so every input gives a unit direction.
     #[inline]
     #[must_use]
     pub fn sample(&self, u: Vec2) -> DirectionSample {
@@ -147,7 +150,7 @@ impl VmfLobe {
     fn sample_with_one_minus_cos(&self, u: Vec2) -> (Vec3, f32) {
         let t = self.sample_one_minus_cos(u.y);
         let sin_theta = safe_sqrt(t * (2.0 - t));
-        let local = spherical_direction_turns(sin_theta, 1.0 - t, u.x);
+        let local = spherical_direction_turns(sin_theta, 1.0 - t, unit_interval(u.x));
         (Frame::from_z(self.mean()).to_world(local), t)
     }
 
@@ -176,6 +179,17 @@ impl VmfLobe {
             phi.clamp(0.0, ONE_MINUS_EPSILON),
             (1.0 - one_minus_u).clamp(0.0, ONE_MINUS_EPSILON),
         )
+    }
+}
+
+/// `x` clamped to `[0, ONE_MINUS_EPSILON]`, NaN to 0 (the identity on
+/// `[0, 1)`).
+#[inline]
+fn unit_interval(x: f32) -> f32 {
+    if x > 0.0 {
+        x.min(ONE_MINUS_EPSILON)
+    } else {
+        0.0
     }
 }
 

@@ -573,7 +573,9 @@ impl<
     }
 
     /// `u.x → ε₁` through the marginal, the conditional network at `ε₁`,
-    /// `u.y → ε₂`, `ω = direction_from_square(ε)`. The pdf is that of
+    /// `u.y → ε₂` (each kept [`factorised::SAMPLE_MARGIN`] inside its piece,
+    /// so the warp's rounding cannot carry `ω` into a neighbouring bin of zero
+    /// density), `ω = direction_from_square(ε)`. The pdf is that of
     /// [`Self::pdf`] at `ω` (see the module docs); should it be zero or NaN
     /// where the sampled `ε` has positive density, `p(ε₁) p(ε₂|ε₁) / 4π` of
     /// the sampled `ε` is returned.
@@ -586,9 +588,9 @@ impl<
         }
         let base = self.base_input(params, query);
         let marginal = self.marginal_from(params, &base);
-        let (e1, p1) = marginal.sample(u.x);
+        let (e1, p1) = factorised::sample_marginal(&marginal, u.x);
         let conditional = self.conditional_from(params, &base, e1);
-        let (e2, p2) = conditional.sample(u.y);
+        let (e2, p2) = factorised::sample_conditional(&conditional, u.y);
         let direction = direction_from_square(Vec2::new(e1, e2));
         let eps = square_from_direction(direction);
         let p_cond = if eps.x == e1 {

@@ -5,6 +5,20 @@
 //! regression test without a nightly toolchain.
 //!
 //! Each check panics (the fuzzer's crash signal) when a property fails.
+//!
+//! Targets: [`distributions`], [`lobes_extreme`] (here), [`training_step`]
+//! (`training.rs`), [`scene_parser`] (`scene.rs`). The `c_api` target of
+//! issue #8 is added with the C API: a `c_api` check function here, a
+//! `fuzz/fuzz_targets/c_api.rs` calling it, a `[[bin]]` in
+//! `fuzz/Cargo.toml`, seeds in `fuzz/corpus/c_api/` and its replay in
+//! `tests/tests/fuzz_corpus.rs` (whose `every_target_is_replayed` test fails
+//! until the replay exists).
+
+mod scene;
+mod training;
+
+pub use scene::{check_scene, scene_input, scene_parser, split_scene_input, SCENE_INPUT_LIMIT};
+pub use training::{training_step, TrainingInput, TrainingOutcome};
 
 use glam::{Vec2, Vec3};
 use guiding_core::factorised::FactorisedTable;
