@@ -145,11 +145,28 @@ pub fn linear_cdf(t: f32, a: f32, b: f32) -> f32 {
     (t * (a * (2.0 - t) + b * t) / (a + b)).clamp(0.0, 1.0)
 }
 
-/// `x` if it is positive, else 0 (also for NaN).
+/// Pieces whose mass is at most this (`2⁻²⁴` of the total, which is one for
+/// every density the constructors build) are never chosen by
+/// [`Pdf1d::sample`]: the tail cut of the lobes' samplers
+/// ([`VMF_TAIL_CUT`](crate::lobe::vmf::VMF_TAIL_CUT)) applied per piece.
+///
+/// `2⁻²⁴` is the resolution of an `f32` random number in `[0, 1)`. Without
+/// the cut, `u = 0` (or a `u` landing exactly on a running sum) chooses the
+/// first piece of positive mass however small, e.g. one of mass `10⁻³⁸`
+/// next to an empty bin, and samples it at its zero-density end, where the
+/// density (and a factorised product of two such) underflows to 0 in
+/// `f32`. A chosen piece of mass above the cut has a density above
+/// `2⁻²³ / width` at its far end, so the densities of sampled points stay
+/// representable. The sampled distribution differs from `p` by at most the
+/// cut pieces' total mass, `< N · 2⁻²⁴`; `pdf` still reports their density.
+pub const PDF1D_SAMPLE_CUT: f32 = 1.0 / 16_777_216.0;
+
+/// A piece mass for sampling: `m` if it is above [`PDF1D_SAMPLE_CUT`],
+/// else 0 (also for negative and NaN `m`).
 #[inline]
-fn non_negative(x: f32) -> f32 {
-    if x > 0.0 {
-        x
+fn sampled_mass(m: f32) -> f32 {
+    if m > PDF1D_SAMPLE_CUT {
+        m
     } else {
         0.0
     }
@@ -471,8 +488,10 @@ impl<const N: usize> Pdf1d<N> {
     /// piece — the first whose running sum exceeds `u` times the total — is
     /// the number of running sums not above that target (a branch-free
     /// count, vectorised; pieces of zero mass are never chosen, as their
-    /// running sum equals the previous one). The choice and the position
-    /// within the piece are bit-identical to a scan accumulating the masses.
+    /// running sum equals the previous one). Pieces of mass at most
+    /// [`PDF1D_SAMPLE_CUT`] count as zero mass here. The choice and the
+    /// position within the piece are bit-identical to a scan accumulating the
+    /// (cut) masses.
     /// Inside the chosen piece, [`sample_linear`] inverts the quadratic CDF
     /// (for nearest interpolation the piece is flat and its inverse is the
     /// identity, which is exactly what `sample_linear` returns for equal end
@@ -510,8 +529,8 @@ impl<const N: usize> Pdf1d<N> {
         let linear = self.interpolation() == Interpolation::Linear;
         let inv_n = 1.0 / N as f32;
         // Running sums of the piece masses `w (a + b) / 2` (as `piece_mass`;
-        // negative and NaN masses, which no constructor produces, count as
-        // zero) over pieces 0..N; the linear end piece N is kept apart. One
+        // masses up to PDF1D_SAMPLE_CUT, and negative and NaN masses, which
+        // no constructor produces, count as zero) over pieces 0..N; the linear end piece N is kept apart. One
         // serial pass: the running sum is the only loop-carried dependency.
         let mut ends = [0.0f32; N];
         let mut acc = 0.0f32;
@@ -519,21 +538,21 @@ impl<const N: usize> Pdf1d<N> {
         if linear {
             let (e0, e1) = self.end_values();
             let half = 0.5 * inv_n;
-            acc = non_negative(0.5 * half * (e0 + self.values[0]));
+            acc = sampled_mass(0.5 * half * (e0 + self.values[0]));
             ends[0] = acc;
             let mut k = 1;
             while k < N {
-                acc += non_negative(0.5 * inv_n * (self.values[k - 1] + self.values[k]));
+                acc += sampled_mass(0.5 * inv_n * (self.values[k - 1] + self.values[k]));
                 ends[k] = acc;
                 k += 1;
             }
-            last_mass = non_negative(0.5 * half * (self.values[N - 1] + e1));
+            last_mass = sampled_mass(0.5 * half * (self.values[N - 1] + e1));
         } else {
             // `w (v + v) / 2 = v / N`, the same f32 (the factors ½ and 2 are
             // exact) for every value below f32::MAX / 2.
             let mut k = 0;
             while k < N {
-                acc += non_negative(inv_n * self.values[k]);
+                acc += sampled_mass(inv_n * self.values[k]);
                 ends[k] = acc;
                 k += 1;
             }

@@ -945,6 +945,50 @@ fn one_hot_tables_at_edges() {
     }
 }
 
+/// Regression (fuzz target `distributions`, crash minimised to
+/// `fuzz/corpus/distributions/crash-df-product-underflow-u0`): a bin of
+/// value ~10⁻³⁷ next to empty ones was chosen at `u = 0` and sampled next to
+/// its zero end; marginal × conditional underflowed to a sample pdf of 0.
+/// Pieces of mass ≤ `PDF1D_SAMPLE_CUT` are now never chosen.
+#[test]
+fn tiny_mass_pieces_are_not_sampled() {
+    for interp in [Interpolation::Nearest, Interpolation::Linear] {
+        for tiny in [-87.0f32, -60.0, -30.0] {
+            // Logits: empty bins, one bin e^tiny times the big one, the big one.
+            let mut lm = [-1e30f32; 32];
+            lm[11] = tiny;
+            lm[12] = 0.0;
+            let mut row = [-1e30f32; 16];
+            row[14] = tiny;
+            row[15] = 0.0;
+            let table = FactorisedTable::<32, 16>::from_logits(&lm, &[row; 32], interp);
+            for ux in [0.0, 1e-30, 1.0 / 16_777_216.0, 0.5, ONE_MINUS_EPSILON] {
+                for uy in [0.0, 1e-30, 1.0 / 16_777_216.0, 0.5, ONE_MINUS_EPSILON] {
+                    let s = table.sample(Vec2::new(ux, uy));
+                    let at = table.pdf(s.direction);
+                    assert!(
+                        s.pdf > 0.0 && s.pdf == at,
+                        "{interp:?} e^{tiny} u ({ux}, {uy}): sample pdf {} vs {at}",
+                        s.pdf
+                    );
+                }
+            }
+            let pdf = Pdf1d::from_logits(&row, interp, Boundary::Clamp);
+            let (x, p) = pdf.sample(0.0);
+            // The tiny piece (mass ≤ 2⁻²⁴: bin 14 for nearest, between the
+            // centres of bins 13 and 14 for linear) is skipped.
+            let start = match interp {
+                Interpolation::Nearest => 15.0 / 16.0,
+                Interpolation::Linear => 14.5 / 16.0,
+            };
+            assert!(
+                x >= start && p > 0.0,
+                "{interp:?} e^{tiny}: sample(0) = ({x}, {p})"
+            );
+        }
+    }
+}
+
 /// `sample_with_margin` keeps `x` inside its piece and is `sample` with a
 /// zero margin; the margin moves `x` by at most the margin.
 #[test]
