@@ -216,6 +216,27 @@ fn scene_parser_corpus() {
     replay("scene_parser", fuzz_checks::scene_parser, &generated);
 }
 
+/// Call sequences on the C ABI: the seeds plus random and special-float
+/// byte strings (each at most `C_API_MAX_OPS` calls on Small models).
+#[test]
+fn c_api_corpus() {
+    let generated = generated_inputs("c_api".len() as u64, 1500, 400);
+    replay("c_api", fuzz_checks::c_api, &generated);
+}
+
+/// The hand-made seeds of `c_api` are the ones `write_seed_corpora` writes.
+#[test]
+fn c_api_seeds_are_checked_in() {
+    for (name, bytes) in c_api_seeds() {
+        let path = corpus_dir("c_api").join(&name);
+        assert_eq!(
+            std::fs::read(&path).ok(),
+            Some(bytes),
+            "{name}: run write_seed_corpora"
+        );
+    }
+}
+
 /// Every `[[bin]]` of `fuzz/Cargo.toml` has a non-empty corpus and a replay
 /// test `<name>_corpus` in this file (so a new target, e.g. `c_api`, cannot
 /// land without its stable replay).
@@ -244,6 +265,174 @@ fn every_target_is_replayed() {
 
 // ---------------------------------------------------------------------------
 // Seeds.
+
+/// Bytes of a `c_api` call sequence (see `guiding_tests::fuzz_checks::c_api`
+/// for how each call reads them).
+#[derive(Default)]
+struct Calls(Vec<u8>);
+
+impl Calls {
+    fn bytes(mut self, b: &[u8]) -> Self {
+        self.0.extend_from_slice(b);
+        self
+    }
+    /// A value read as a plausible number in [0, 1) (`c_value`).
+    fn unit(self, x: f32) -> Self {
+        let bits = ((x * 16_777_216.0) as u32) << 8;
+        self.bytes(&[3]).bytes(&bits.to_le_bytes())
+    }
+    /// A unit direction from two numbers in [0, 1) (`c_dir3`).
+    fn dir(self, u: f32, v: f32) -> Self {
+        let (a, b) = (
+            ((u * 16_777_216.0) as u32) << 8,
+            ((v * 16_777_216.0) as u32) << 8,
+        );
+        self.bytes(&[2])
+            .bytes(&a.to_le_bytes())
+            .bytes(&b.to_le_bytes())
+    }
+    fn position(self, p: [f32; 3]) -> Self {
+        let mut c = self.bytes(&[1]);
+        for x in p {
+            c = c.bytes(&((((x + 1.0) / 2.0 * 16_777_216.0) as u32) << 8).to_le_bytes());
+        }
+        c
+    }
+    /// A valid Small field of representation `rep` in slot `slot`.
+    fn new_field(self, slot: u8, rep: u8, product: bool) -> Self {
+        // flags 0x14: default training values and bounds [-1, 1]³;
+        // 1 thread, batch 16, 4 steps, 64 buffered, seed 0; out not NULL.
+        self.bytes(&[slot << 7, rep, 0x14, u8::from(product), 0, 15, 3, 63, 0, 1])
+    }
+    fn new_dist(self, slot: u8) -> Self {
+        self.bytes(&[(slot << 7) | 18, 0])
+    }
+    fn query(mut self, slot: u8, n: u8) -> Self {
+        self = self.bytes(&[(slot << 7) | 3, n]);
+        for i in 0..n {
+            let t = f32::from(i) / 8.0;
+            self = self
+                .position([t - 0.5, 0.25, -t])
+                .unit(0.5)
+                .dir(0.1, 0.2)
+                .dir(0.3 + t, 0.7);
+        }
+        self.bytes(&[1])
+    }
+    fn dist_sample(mut self, slot: u8, n: u8) -> Self {
+        self = self.bytes(&[(slot << 7) | 5, n, 1]);
+        for i in 0..2 * u32::from(n) {
+            self = self.bytes(&((i * 0x1357_9bdf) | 0xff).to_le_bytes());
+        }
+        self.bytes(&[1])
+    }
+    fn dist_pdf(mut self, slot: u8, n: u8) -> Self {
+        self = self.bytes(&[(slot << 7) | 6, n]);
+        for i in 0..n {
+            self = self.dir(f32::from(i) / 8.0, 0.3);
+        }
+        self
+    }
+    fn add_samples(mut self, slot: u8, n: u8) -> Self {
+        self = self.bytes(&[(slot << 7) | 11, n]);
+        for i in 0..n {
+            let t = f32::from(i) / 8.0;
+            self = self
+                .position([t - 0.5, 0.25, -t])
+                .unit(0.5)
+                .dir(0.1, 0.2)
+                .unit(0.08)
+                .dir(0.3, 0.7)
+                .unit(0.05)
+                .dir(t, 0.4)
+                .unit(t)
+                .unit(t)
+                .unit(0.5)
+                .unit(0.2)
+                .unit(0.2)
+                .unit(0.2);
+        }
+        self.bytes(&[1])
+    }
+    fn update(self, slot: u8) -> Self {
+        self.bytes(&[(slot << 7) | 13, 0])
+    }
+    fn op(self, slot: u8, op: u8) -> Self {
+        self.bytes(&[(slot << 7) | op])
+    }
+}
+
+fn c_api_seeds() -> Vec<(String, Vec<u8>)> {
+    let mut out = Vec::new();
+    for (rep, name) in ["npm", "nasg", "dfn", "dfl"].iter().enumerate() {
+        let rep = rep as u8;
+        let product = rep % 2 == 1;
+        // Train, query, sample and evaluate; n beyond what is held.
+        let train = Calls::default()
+            .new_field(0, rep, product)
+            .new_dist(0)
+            .add_samples(0, 8)
+            .update(0)
+            .query(0, 4)
+            .dist_sample(0, 4)
+            .dist_pdf(0, 4)
+            .bytes(&[7, 4])
+            .dist_sample(0, 7)
+            .add_samples(0, 8)
+            .update(0)
+            // Stale after the update.
+            .dist_sample(0, 2)
+            .op(0, 14);
+        out.push((format!("seed-{name}-train-query"), train.0));
+    }
+    // Save and load, intact and with a flipped byte.
+    let save = Calls::default()
+        .new_field(1, 0, false)
+        .add_samples(1, 4)
+        .update(1)
+        .bytes(&[0x80 | 17, 0])
+        .op(1, 14)
+        .bytes(&[0x80 | 17, 1])
+        .bytes(&40u32.to_le_bytes())
+        .bytes(&[2, 0x10]);
+    out.push(("seed-save-load".into(), save.0));
+    // Distributions outliving their field; release and NULL sweep.
+    let outlive = Calls::default()
+        .new_field(0, 1, false)
+        .new_dist(0)
+        .query(0, 3)
+        .op(0, 2)
+        .dist_sample(0, 3)
+        .dist_pdf(0, 3)
+        .op(0, 19);
+    out.push(("seed-dist-outlives-field".into(), outlive.0));
+    // A recorder: new, start, two vertices, end, count, flush.
+    let rec = Calls::default()
+        .new_field(0, 2, false)
+        .bytes(&[16, 0, 0])
+        .bytes(&[16, 1]);
+    let mut rec = rec;
+    for _ in 0..2 {
+        rec = rec
+            .bytes(&[16, 2])
+            .position([0.1, 0.2, 0.3])
+            .dir(0.5, 0.5)
+            .dir(0.2, 0.1)
+            .dir(0.7, 0.3)
+            .unit(0.1)
+            .unit(0.5)
+            .unit(0.5)
+            .bytes(&[0])
+            .unit(0.2)
+            .unit(0.2)
+            .unit(0.3)
+            .unit(0.3)
+            .unit(0.3);
+    }
+    let rec = rec.bytes(&[16, 5, 1, 16, 6, 1, 16, 7]).update(0);
+    out.push(("seed-recorder".into(), rec.0));
+    out
+}
 
 /// A valid radiance-target sample at `p` towards `wi` (vMF κ = 20 radiance).
 fn valid_sample(rng: &mut Pcg32, product: bool) -> TrainingSample {
@@ -516,6 +705,7 @@ fn write_seed_corpora() {
     for (target, seeds) in [
         ("training_step", training_seeds()),
         ("scene_parser", scene_seeds()),
+        ("c_api", c_api_seeds()),
     ] {
         let dir = corpus_dir(target);
         std::fs::create_dir_all(&dir).unwrap();

@@ -7,15 +7,18 @@
 //! Each check panics (the fuzzer's crash signal) when a property fails.
 //!
 //! Targets: [`distributions`], [`lobes_extreme`] (here), [`training_step`]
-//! (`training.rs`), [`scene_parser`] (`scene.rs`). The `c_api` target of
-//! issue #8 is added with the C API: a `c_api` check function here, a
-//! `fuzz/fuzz_targets/c_api.rs` calling it, a `[[bin]]` in
-//! `fuzz/Cargo.toml`, seeds in `fuzz/corpus/c_api/` and its replay in
+//! (`training.rs`), [`scene_parser`] (`scene.rs`), [`c_api`] (`c_api.rs`:
+//! call sequences on the C ABI of `guiding-capi`). A new target needs its
+//! check here, a `fuzz/fuzz_targets/<name>.rs` calling it, a `[[bin]]` in
+//! `fuzz/Cargo.toml`, seeds in `fuzz/corpus/<name>/` and its replay in
 //! `tests/tests/fuzz_corpus.rs` (whose `every_target_is_replayed` test fails
 //! until the replay exists).
 
+mod c_api;
 mod scene;
 mod training;
+
+pub use c_api::{c_api, MAX_OPS as C_API_MAX_OPS};
 
 pub use scene::{check_scene, scene_input, scene_parser, split_scene_input, SCENE_INPUT_LIMIT};
 pub use training::{training_step, TrainingInput, TrainingOutcome};

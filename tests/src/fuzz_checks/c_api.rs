@@ -1,0 +1,927 @@
+//! Fuzz target `c_api`: arbitrary bytes read as a sequence of calls on the C
+//! ABI of `guiding-capi`, made through its `extern "C"` functions exactly as
+//! a C renderer would make them.
+//!
+//! The interpreter keeps a few handle slots (fields, distributions, a
+//! recorder). A release clears its slot, so a handle is never used after it
+//! is released or released twice: the header documents both as undefined
+//! behaviour (as with `free`), which no status code can report. Everything
+//! else is fair game: NULL handles and arrays, unknown codes, NaN and empty
+//! bounds, NaN and out-of-range random numbers and directions, counts larger
+//! than the distributions hold, arbitrary training samples and path
+//! vertices, and saved files with corrupted bytes.
+//!
+//! Asserted after every call: the status is one of the `PgStatus` codes and
+//! never `PG_PANIC` (a panic caught at the boundary is a library bug);
+//! `pg_last_error()` is a non-empty string after a failure and `""` after a
+//! success; on success the outputs are valid (finite unit directions, finite
+//! densities, `> 0` for samples, selection probabilities in `[0, 1]`).
+//!
+//! Inputs stay cheap: only `PG_SIZE_SMALL` models (other size codes are
+//! invalid ones), batches of at most 16 samples, at most 4 steps per update,
+//! at most 2 threads, at most 6 queries per call and [`MAX_OPS`] calls.
+
+use super::ByteReader;
+use guiding_capi::*;
+use std::ffi::{CStr, CString};
+use std::ptr::{null, null_mut};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Calls interpreted per input at most.
+pub const MAX_OPS: usize = 32;
+/// Queries (and distributions) per call at most.
+const MAX_N: usize = 6;
+/// Handle slots of each kind.
+const SLOTS: usize = 2;
+
+/// Values at the edges of every argument's domain.
+const SPECIAL: [f32; 16] = [
+    0.0,
+    -0.0,
+    1e-45,
+    -1.0,
+    1.0,
+    0.5,
+    1.0 + 1e-3,
+    1e-30,
+    1e6,
+    1e30,
+    -1e30,
+    f32::MAX,
+    f32::INFINITY,
+    f32::NEG_INFINITY,
+    f32::NAN,
+    2.0,
+];
+
+impl ByteReader<'_> {
+    /// Mostly a plausible value in `[0, 1)`, sometimes a special value,
+    /// sometimes any bit pattern.
+    fn c_value(&mut self) -> f32 {
+        let b = self.byte();
+        match b % 8 {
+            0 => self.any_f32(),
+            1 | 2 => SPECIAL[usize::from(b >> 4)],
+            _ => self.unit(),
+        }
+    }
+
+    /// Mostly a unit direction, sometimes an arbitrary vector.
+    fn c_dir3(&mut self) -> [f32; 3] {
+        match self.byte() % 6 {
+            0 => [self.c_value(), self.c_value(), self.c_value()],
+            1 => [0.0; 3],
+            _ => {
+                let (u, v) = (self.unit(), self.unit());
+                let z = 1.0 - 2.0 * u;
+                let r = (1.0 - z * z).max(0.0).sqrt();
+                let phi = std::f32::consts::TAU * v;
+                [r * phi.cos(), r * phi.sin(), z]
+            }
+        }
+    }
+
+    fn c_position(&mut self) -> [f32; 3] {
+        if self.byte() % 8 == 0 {
+            [self.c_value(), self.c_value(), self.c_value()]
+        } else {
+            [
+                self.unit() * 2.0 - 1.0,
+                self.unit() * 2.0 - 1.0,
+                self.unit() * 2.0 - 1.0,
+            ]
+        }
+    }
+
+    fn c_query(&mut self) -> PgQueryPoint {
+        PgQueryPoint {
+            position: self.c_position(),
+            roughness: self.c_value(),
+            normal: self.c_dir3(),
+            pad0: 0.0,
+            wo: self.c_dir3(),
+            pad1: 0.0,
+        }
+    }
+
+    fn c_sample(&mut self) -> PgTrainingSample {
+        PgTrainingSample {
+            position: self.c_position(),
+            roughness: self.c_value(),
+            normal: self.c_dir3(),
+            sample_pdf: self.c_value(),
+            wo: self.c_dir3(),
+            bsdf_pdf: self.c_value(),
+            wi: self.c_dir3(),
+            pad0: 0.0,
+            radiance: [self.c_value(), self.c_value(), self.c_value()],
+            pad1: 0.0,
+            bsdf_cos: [self.c_value(), self.c_value(), self.c_value()],
+            pad2: 0.0,
+        }
+    }
+
+    fn c_vertex(&mut self) -> PgPathVertex {
+        let mut v = PgPathVertex::default();
+        // SAFETY: a valid pointer to a local.
+        assert_ok(unsafe { pg_path_vertex_set_defaults(&mut v) }, "vertex");
+        v.position = self.c_position();
+        v.normal = self.c_dir3();
+        v.wo = self.c_dir3();
+        v.wi = self.c_dir3();
+        v.sample_pdf = self.c_value();
+        v.emitted = [self.c_value(), 0.0, self.c_value()];
+        let b = self.byte();
+        if b & 1 != 0 {
+            v.roughness = self.c_value();
+            v.bsdf_pdf = self.c_value();
+            v.emitted_mis_weight = self.c_value();
+            v.continuation_scale = self.c_value();
+        }
+        v.direct = [self.c_value(), self.c_value(), 0.0];
+        v.bsdf_cos = [self.c_value(), self.c_value(), self.c_value()];
+        v.is_delta = u32::from(b & 6 == 6);
+        v
+    }
+}
+
+/// This thread's `pg_last_error()` text.
+fn last_error() -> String {
+    let p = pg_last_error();
+    assert!(!p.is_null(), "pg_last_error returned NULL");
+    // SAFETY: pg_last_error returns a NUL-terminated string (checked non-NULL).
+    unsafe { CStr::from_ptr(p) }.to_string_lossy().into_owned()
+}
+
+/// Checks the contract of every status and returns it.
+fn check(status: PgStatus, what: &str) -> PgStatus {
+    assert!(
+        status as u32 <= PgStatus::PG_PANIC as u32,
+        "{what}: bad code"
+    );
+    let message = last_error();
+    assert!(
+        status != PgStatus::PG_PANIC,
+        "{what}: the library panicked: {message}"
+    );
+    if status == PgStatus::PG_OK {
+        assert!(message.is_empty(), "{what}: OK with message {message:?}");
+    } else {
+        assert!(!message.is_empty(), "{what}: {status:?} without a message");
+    }
+    status
+}
+
+fn assert_ok(status: PgStatus, what: &str) {
+    assert_eq!(
+        check(status, what),
+        PgStatus::PG_OK,
+        "{what}: {}",
+        last_error()
+    );
+}
+
+fn is_unit(d: &[f32]) -> bool {
+    let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+    d.iter().all(|x| x.is_finite()) && (l - 1.0).abs() <= 1e-5
+}
+
+fn check_samples(what: &str, dirs: &[f32], pdfs: &[f32]) {
+    for (d, p) in dirs.chunks_exact(3).zip(pdfs) {
+        assert!(is_unit(d), "{what}: direction {d:?}");
+        assert!(p.is_finite() && *p > 0.0, "{what}: sample pdf {p}");
+    }
+}
+
+fn check_pdfs(what: &str, pdfs: &[f32]) {
+    for p in pdfs {
+        assert!(p.is_finite() && *p >= 0.0, "{what}: pdf {p}");
+    }
+}
+
+fn check_probabilities(what: &str, out: &[f32]) {
+    for p in out {
+        assert!((0.0..=1.0).contains(p), "{what}: selection probability {p}");
+    }
+}
+
+/// A pointer to `v`'s data, or NULL when `null` (the callee must refuse
+/// NULL unless the count is 0).
+fn ptr_or_null<T>(v: &[T], null: bool) -> *const T {
+    if null {
+        std::ptr::null()
+    } else {
+        v.as_ptr()
+    }
+}
+
+fn mut_or_null<T>(v: &mut [T], null: bool) -> *mut T {
+    if null {
+        null_mut()
+    } else {
+        v.as_mut_ptr()
+    }
+}
+
+/// A file path unique to this process and call.
+fn temp_path() -> CString {
+    static NEXT: AtomicU64 = AtomicU64::new(0);
+    let n = NEXT.fetch_add(1, Ordering::Relaxed);
+    let path =
+        std::env::temp_dir().join(format!("guiding-capi-fuzz-{}-{n}.pgf", std::process::id()));
+    CString::new(path.into_os_string().into_encoded_bytes()).unwrap()
+}
+
+/// Handles held by the interpreter; released when it is dropped (also
+/// when a check fails, so the fuzzer does not leak).
+struct State {
+    fields: [*mut PgField; SLOTS],
+    dists: [*mut PgDistributions; SLOTS],
+    /// Distributions held by each slot (from the latest query into it).
+    held: [usize; SLOTS],
+    recorder: *mut PgRecorder,
+    path: CString,
+}
+
+impl Drop for State {
+    fn drop(&mut self) {
+        // SAFETY: every non-NULL slot holds a live handle, released once.
+        unsafe {
+            for f in self.fields {
+                pg_field_release(f);
+            }
+            for d in self.dists {
+                pg_distributions_release(d);
+            }
+            pg_recorder_release(self.recorder);
+        }
+        let path = std::path::PathBuf::from(self.path.to_str().unwrap_or_default());
+        let _ = std::fs::remove_file(path);
+    }
+}
+
+/// Field arguments from bytes: a representation code (4 is invalid), and
+/// sometimes an invalid target or size, out-of-range training values or
+/// bad bounds. The size is always `PG_SIZE_SMALL` or an invalid code.
+fn field_args(r: &mut ByteReader<'_>) -> Option<PgFieldArgs> {
+    let rep = u32::from(r.byte() % 5);
+    let mut args = PgFieldArgs {
+        representation: 0,
+        target: 0,
+        size: 0,
+        selection_probability: 0.0,
+        learning_rate: 0.0,
+        ema_decay: 0.0,
+        steps_per_update: 0,
+        seed: 0,
+        batch_size: 0,
+        threads: 0,
+        max_buffered_samples: 0,
+        max_steps: 0,
+        plateau_window: 0,
+        plateau_min_relative_improvement: 0.0,
+        bounds_min: [0.0; 3],
+        bounds_max: [0.0; 3],
+    };
+    // SAFETY: a valid pointer to a local.
+    let status = check(
+        unsafe { pg_field_args_set_defaults(&mut args, rep) },
+        "defaults",
+    );
+    if rep < 4 {
+        assert_eq!(status, PgStatus::PG_OK);
+        assert_eq!(args.representation, rep);
+        assert!(args.bounds_min == [0.0; 3] && args.bounds_max == [0.0; 3]);
+    } else {
+        assert_eq!(status, PgStatus::PG_INVALID_ARGUMENT);
+    }
+    let flags = r.byte();
+    args.target = u32::from(r.byte() % 2);
+    args.size = PG_SIZE_SMALL;
+    args.threads = 1 + usize::from(r.byte() % 2);
+    args.batch_size = 1 + usize::from(r.byte() % 16);
+    args.steps_per_update = 1 + u32::from(r.byte() % 4);
+    args.max_buffered_samples = 1 + usize::from(r.byte() % 64);
+    args.seed = u32::from(r.byte());
+    args.bounds_min = [-1.0; 3];
+    args.bounds_max = [1.0; 3];
+    if flags & 1 != 0 {
+        // Arbitrary training values: invalid ones must be refused.
+        args.selection_probability = r.c_value();
+        args.learning_rate = r.c_value();
+        args.ema_decay = r.c_value();
+        args.plateau_window = u32::from(r.byte() % 4);
+        args.plateau_min_relative_improvement = r.c_value();
+        args.max_steps = u64::from(r.byte());
+        let b = r.byte();
+        if b & 1 != 0 {
+            args.batch_size = 0;
+        }
+        if b & 2 != 0 {
+            args.steps_per_update = 0;
+        }
+        if b & 4 != 0 {
+            args.max_buffered_samples = 0;
+        }
+        if b & 8 != 0 {
+            args.target = 2 + u32::from(b >> 4);
+        }
+    }
+    if flags & 2 != 0 {
+        // Bad sizes: 3.. are not size codes (Compact/Paper stay out: slow).
+        args.size = 3 + u32::from(r.byte());
+    }
+    match (flags >> 2) % 8 {
+        0 => {
+            // NaN, infinite, huge or arbitrary corners.
+            args.bounds_min = [r.c_value(), r.c_value(), r.c_value()];
+            args.bounds_max = [r.c_value(), r.c_value(), r.c_value()];
+        }
+        1 => args.bounds_max = args.bounds_min, // empty
+        2 => std::mem::swap(&mut args.bounds_min, &mut args.bounds_max),
+        3 => {
+            args.bounds_min = [-1e30; 3];
+            args.bounds_max = [1e30; 3];
+        }
+        4 => args.bounds_max[usize::from(r.byte() % 3)] = f32::NAN,
+        _ => {}
+    }
+    (flags & 0xe0 != 0xe0).then_some(args)
+}
+
+/// Fuzz target `c_api`: see the module documentation.
+pub fn c_api(data: &[u8]) {
+    let mut r = ByteReader::new(data);
+    let mut s = State {
+        fields: [null_mut(); SLOTS],
+        dists: [null_mut(); SLOTS],
+        held: [0; SLOTS],
+        recorder: null_mut(),
+        path: temp_path(),
+    };
+    for _ in 0..MAX_OPS {
+        if r.pos >= data.len() {
+            break;
+        }
+        let op = r.byte();
+        let slot = usize::from(op >> 7);
+        // Sometimes a NULL handle instead of the slot's.
+        let null_handle = op & 0x40 != 0 && r.byte() % 4 == 0;
+        let field = if null_handle {
+            null_mut()
+        } else {
+            s.fields[slot]
+        };
+        let dist = if null_handle {
+            null_mut()
+        } else {
+            s.dists[slot]
+        };
+        // SAFETY (all calls below): handles are NULL or live (slots are
+        // cleared on release), arrays are locals of at least the stated
+        // length or NULL.
+        match op % 20 {
+            0 | 1 => op_new_field(&mut r, &mut s, slot),
+            2 => {
+                unsafe { pg_field_release(s.fields[slot]) };
+                check(PgStatus::PG_OK, "pg_field_release");
+                s.fields[slot] = null_mut();
+            }
+            3 | 4 => op_query(&mut r, &mut s, slot, field, dist),
+            5 => op_dist_sample(&mut r, &s, slot, dist),
+            6 => op_dist_pdf(&mut r, &s, slot, dist),
+            7 => {
+                let n = usize::from(r.byte()) % (MAX_N + 2);
+                let mut out = vec![-1.0; n];
+                let st = check(
+                    unsafe { pg_distributions_selection_probability(dist, n, out.as_mut_ptr()) },
+                    "pg_distributions_selection_probability",
+                );
+                expect_size(st, dist, n, s.held[slot], true);
+                if st == PgStatus::PG_OK {
+                    check_probabilities("distributions", &out);
+                }
+            }
+            8 => op_field_sample(&mut r, field),
+            9 => op_field_pdf(&mut r, field),
+            10 => {
+                let n = usize::from(r.byte()) % (MAX_N + 1);
+                let q: Vec<_> = (0..n).map(|_| r.c_query()).collect();
+                let mut out = vec![-1.0; n];
+                let st = check(
+                    unsafe {
+                        pg_field_selection_probability(field, n, q.as_ptr(), out.as_mut_ptr())
+                    },
+                    "pg_field_selection_probability",
+                );
+                expect_null(st, field.is_null());
+                if st == PgStatus::PG_OK {
+                    check_probabilities("field", &out);
+                }
+            }
+            11 | 12 => {
+                let n = usize::from(r.byte() % 9);
+                let samples: Vec<_> = (0..n).map(|_| r.c_sample()).collect();
+                let null = n > 0 && r.byte() % 8 == 0;
+                let st = check(
+                    unsafe { pg_field_add_samples(field, ptr_or_null(&samples, null), n) },
+                    "pg_field_add_samples",
+                );
+                expect_null(st, field.is_null() || null);
+            }
+            13 => op_update(&mut r, field),
+            14 => op_info(field),
+            15 => {
+                let st = check(
+                    unsafe { pg_field_stop_training(field) },
+                    "pg_field_stop_training",
+                );
+                expect_null(st, field.is_null());
+            }
+            16 => op_recorder(&mut r, &mut s, field, null_handle),
+            17 => op_save_load(&mut r, &mut s, slot, field),
+            18 => {
+                // A fresh or released distributions handle.
+                let new = r.byte() % 2 == 0;
+                unsafe { pg_distributions_release(s.dists[slot]) };
+                s.dists[slot] = null_mut();
+                s.held[slot] = 0;
+                if new {
+                    let mut d = null_mut();
+                    assert_ok(unsafe { pg_distributions_new(&mut d) }, "dist new");
+                    assert!(!d.is_null());
+                    s.dists[slot] = d;
+                }
+            }
+            _ => null_sweep(),
+        }
+    }
+}
+
+/// On a NULL handle or array the status must be `PG_NULL_POINTER`; else
+/// it must not be.
+fn expect_null(status: PgStatus, null: bool) {
+    if null {
+        assert_eq!(status, PgStatus::PG_NULL_POINTER, "{}", last_error());
+    } else {
+        assert_ne!(status, PgStatus::PG_NULL_POINTER, "{}", last_error());
+    }
+}
+
+/// Distributions calls: `n` beyond what is held is `PG_SIZE_MISMATCH` when
+/// every other argument is valid, and never OK.
+fn expect_size(st: PgStatus, dist: *mut PgDistributions, n: usize, held: usize, valid: bool) {
+    if dist.is_null() {
+        assert_eq!(st, PgStatus::PG_NULL_POINTER, "{}", last_error());
+    } else if n > held {
+        assert_ne!(st, PgStatus::PG_OK, "n {n} > held {held}");
+        if valid {
+            assert_eq!(st, PgStatus::PG_SIZE_MISMATCH, "{}", last_error());
+        }
+    } else if valid {
+        assert!(
+            matches!(st, PgStatus::PG_OK | PgStatus::PG_STALE),
+            "{st:?}: {}",
+            last_error()
+        );
+    }
+}
+
+fn op_new_field(r: &mut ByteReader<'_>, s: &mut State, slot: usize) {
+    let args = field_args(r);
+    let null_out = r.byte() % 16 == 0;
+    let mut out: *mut PgField = std::ptr::dangling_mut(); // must be overwritten
+    let args_ptr = args.as_ref().map_or(null(), |a| a as *const PgFieldArgs);
+    let out_ptr = if null_out {
+        null_mut()
+    } else {
+        &mut out as *mut *mut PgField
+    };
+    // SAFETY: valid pointers to locals or NULL.
+    let st = check(unsafe { pg_field_new(args_ptr, out_ptr) }, "pg_field_new");
+    if null_out || args.is_none() {
+        assert_eq!(st, PgStatus::PG_NULL_POINTER);
+        if !null_out {
+            assert!(out.is_null(), "out not NULL on failure");
+        }
+        return;
+    }
+    if st != PgStatus::PG_OK {
+        assert!(out.is_null(), "out not NULL on failure");
+        return;
+    }
+    assert!(!out.is_null());
+    // SAFETY: the slot holds NULL or a live handle; replaced by the new one.
+    unsafe { pg_field_release(s.fields[slot]) };
+    s.fields[slot] = out;
+    // The arguments round-trip.
+    let mut got = args.unwrap();
+    got.seed ^= 1;
+    assert_ok(unsafe { pg_field_get_args(out, &mut got) }, "get_args");
+    let a = args.unwrap();
+    assert_eq!(
+        (got.representation, got.target),
+        (a.representation, a.target)
+    );
+    assert_eq!(
+        (got.bounds_min, got.bounds_max),
+        (a.bounds_min, a.bounds_max)
+    );
+}
+
+fn op_query(
+    r: &mut ByteReader<'_>,
+    s: &mut State,
+    slot: usize,
+    field: *mut PgField,
+    dist: *mut PgDistributions,
+) {
+    let n = usize::from(r.byte()) % (MAX_N + 1);
+    let q: Vec<_> = (0..n).map(|_| r.c_query()).collect();
+    let null_q = n > 0 && r.byte() % 8 == 0;
+    let st = check(
+        unsafe { pg_field_query(field, n, ptr_or_null(&q, null_q), dist) },
+        "pg_field_query",
+    );
+    expect_null(st, field.is_null() || dist.is_null() || null_q);
+    if dist.is_null() {
+        return;
+    }
+    let mut len = usize::MAX;
+    assert_ok(unsafe { pg_distributions_len(dist, &mut len) }, "len");
+    let expected = if st == PgStatus::PG_OK { n } else { 0 };
+    assert_eq!(len, expected, "held after query ({st:?})");
+    s.held[slot] = len;
+}
+
+/// Random numbers: mostly in `[0, 1)`, sometimes 1, NaN or out of range.
+fn random_numbers(r: &mut ByteReader<'_>, n: usize) -> (Vec<f32>, bool) {
+    let bad = r.byte() % 4 == 0;
+    let u: Vec<f32> = (0..n)
+        .map(|_| if bad { r.c_value() } else { r.unit() })
+        .collect();
+    let valid = u.iter().all(|x| (0.0..=1.0).contains(x));
+    (u, valid)
+}
+
+fn directions(r: &mut ByteReader<'_>, n: usize) -> (Vec<f32>, bool) {
+    let d: Vec<f32> = (0..n).flat_map(|_| r.c_dir3()).collect();
+    let valid = d.chunks_exact(3).all(|c| {
+        let l = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
+        c.iter().all(|x| x.is_finite()) && (l - 1.0).abs() <= 1e-6
+    });
+    (d, valid)
+}
+
+fn op_dist_sample(r: &mut ByteReader<'_>, s: &State, slot: usize, dist: *mut PgDistributions) {
+    let n = usize::from(r.byte()) % (MAX_N + 2);
+    let (u, valid) = random_numbers(r, 2 * n);
+    let null_pdfs = r.byte() % 16 == 0;
+    let mut dirs = vec![f32::NAN; 3 * n];
+    let mut pdfs = vec![f32::NAN; n];
+    let st = check(
+        unsafe {
+            pg_distributions_sample(
+                dist,
+                n,
+                u.as_ptr(),
+                dirs.as_mut_ptr(),
+                mut_or_null(&mut pdfs, null_pdfs),
+            )
+        },
+        "pg_distributions_sample",
+    );
+    let null_array = null_pdfs && n > 0;
+    if null_array && !dist.is_null() {
+        assert_eq!(st, PgStatus::PG_NULL_POINTER);
+        return;
+    }
+    expect_size(st, dist, n, s.held[slot], valid);
+    if !valid && !dist.is_null() {
+        assert_ne!(st, PgStatus::PG_OK, "invalid u accepted: {u:?}");
+    }
+    if st == PgStatus::PG_OK {
+        check_samples("distributions", &dirs, &pdfs);
+    }
+}
+
+fn op_dist_pdf(r: &mut ByteReader<'_>, s: &State, slot: usize, dist: *mut PgDistributions) {
+    let n = usize::from(r.byte()) % (MAX_N + 2);
+    let (dirs, valid) = directions(r, n);
+    let mut pdfs = vec![f32::NAN; n];
+    let st = check(
+        unsafe { pg_distributions_pdf(dist, n, dirs.as_ptr(), pdfs.as_mut_ptr()) },
+        "pg_distributions_pdf",
+    );
+    expect_size(st, dist, n, s.held[slot], valid);
+    if st == PgStatus::PG_OK {
+        check_pdfs("distributions", &pdfs);
+    }
+}
+
+fn op_field_sample(r: &mut ByteReader<'_>, field: *mut PgField) {
+    let n = usize::from(r.byte()) % (MAX_N + 1);
+    let q: Vec<_> = (0..n).map(|_| r.c_query()).collect();
+    let (u, valid_u) = random_numbers(r, 2 * n);
+    let mut dirs = vec![f32::NAN; 3 * n];
+    let mut pdfs = vec![f32::NAN; n];
+    let st = check(
+        unsafe {
+            pg_field_sample(
+                field,
+                n,
+                q.as_ptr(),
+                u.as_ptr(),
+                dirs.as_mut_ptr(),
+                pdfs.as_mut_ptr(),
+            )
+        },
+        "pg_field_sample",
+    );
+    expect_null(st, field.is_null());
+    if !valid_u {
+        assert_ne!(st, PgStatus::PG_OK, "invalid u accepted: {u:?}");
+    }
+    if st == PgStatus::PG_OK {
+        check_samples("field", &dirs, &pdfs);
+    }
+}
+
+fn op_field_pdf(r: &mut ByteReader<'_>, field: *mut PgField) {
+    let n = usize::from(r.byte()) % (MAX_N + 1);
+    let q: Vec<_> = (0..n).map(|_| r.c_query()).collect();
+    let (dirs, valid) = directions(r, n);
+    let mut pdfs = vec![f32::NAN; n];
+    let st = check(
+        unsafe { pg_field_pdf(field, n, q.as_ptr(), dirs.as_ptr(), pdfs.as_mut_ptr()) },
+        "pg_field_pdf",
+    );
+    expect_null(st, field.is_null());
+    let finite_q = q.iter().all(|q| {
+        [q.position, q.normal, q.wo]
+            .iter()
+            .flatten()
+            .chain([&q.roughness])
+            .all(|x| x.is_finite())
+    });
+    if !field.is_null() && valid && finite_q {
+        assert_eq!(st, PgStatus::PG_OK, "{}", last_error());
+    }
+    if st == PgStatus::PG_OK {
+        check_pdfs("field", &pdfs);
+    }
+}
+
+fn op_update(r: &mut ByteReader<'_>, field: *mut PgField) {
+    let with_report = r.byte() % 2 == 0;
+    let mut report = PgUpdateReport::default();
+    let report_ptr = if with_report {
+        &mut report as *mut PgUpdateReport
+    } else {
+        null_mut()
+    };
+    let st = check(
+        unsafe { pg_field_update(field, report_ptr) },
+        "pg_field_update",
+    );
+    expect_null(st, field.is_null());
+    if st == PgStatus::PG_OK {
+        assert!(report.steps <= 4, "{report:?}");
+        assert!(
+            report.mean_loss.is_finite() || report.steps == 0,
+            "{report:?}"
+        );
+    }
+}
+
+fn op_info(field: *mut PgField) {
+    let mut stats = PgFieldStats::default();
+    let st = check(
+        unsafe { pg_field_stats(field, &mut stats) },
+        "pg_field_stats",
+    );
+    expect_null(st, field.is_null());
+    let mut converged = false;
+    let st2 = check(
+        unsafe { pg_field_is_converged(field, &mut converged) },
+        "pg_field_is_converged",
+    );
+    expect_null(st2, field.is_null());
+    if st == PgStatus::PG_OK {
+        assert_eq!(stats.converged != 0, converged);
+        assert!(stats.buffered_samples <= 64, "{stats:?}");
+    }
+}
+
+fn op_recorder(r: &mut ByteReader<'_>, s: &mut State, field: *mut PgField, null_handle: bool) {
+    let rec = if null_handle { null_mut() } else { s.recorder };
+    let null = rec.is_null();
+    match r.byte() % 8 {
+        0 => {
+            unsafe { pg_recorder_release(s.recorder) };
+            s.recorder = null_mut();
+            if r.byte() % 2 == 0 {
+                let mut out = null_mut();
+                assert_ok(unsafe { pg_recorder_new(&mut out) }, "recorder new");
+                assert!(!out.is_null());
+                s.recorder = out;
+            }
+        }
+        1 => expect_null(
+            check(unsafe { pg_recorder_start_path(rec) }, "start_path"),
+            null,
+        ),
+        2 | 3 => {
+            let v = r.c_vertex();
+            expect_null(
+                check(unsafe { pg_recorder_add_vertex(rec, &v) }, "add_vertex"),
+                null,
+            );
+        }
+        4 => {
+            let rgb = [r.c_value(), r.c_value(), r.c_value()];
+            let w = r.c_value();
+            expect_null(
+                check(
+                    unsafe { pg_recorder_add_escaped_radiance(rec, rgb.as_ptr(), w) },
+                    "escaped",
+                ),
+                null,
+            );
+        }
+        5 => {
+            let mut rgb = [f32::NAN; 3];
+            let out = if r.byte() % 2 == 0 {
+                null_mut()
+            } else {
+                rgb.as_mut_ptr()
+            };
+            expect_null(
+                check(unsafe { pg_recorder_end_path(rec, out) }, "end_path"),
+                null,
+            );
+        }
+        6 => {
+            let mut count = usize::MAX;
+            let st = check(
+                unsafe { pg_recorder_sample_count(rec, &mut count) },
+                "count",
+            );
+            expect_null(st, null);
+            if r.byte() % 2 == 0 {
+                let st = check(unsafe { pg_recorder_clear_samples(rec) }, "clear");
+                expect_null(st, null);
+            }
+        }
+        _ => {
+            let mut count = usize::MAX;
+            let st = check(
+                unsafe { pg_recorder_flush_into(rec, field, &mut count) },
+                "flush_into",
+            );
+            expect_null(st, null || field.is_null());
+        }
+    }
+}
+
+fn op_save_load(r: &mut ByteReader<'_>, s: &mut State, slot: usize, field: *mut PgField) {
+    let st = check(
+        unsafe { pg_field_save(field, s.path.as_ptr()) },
+        "pg_field_save",
+    );
+    expect_null(st, field.is_null());
+    let path = std::path::PathBuf::from(s.path.to_str().unwrap());
+    if st == PgStatus::PG_OK {
+        // Corrupt it: overwrite bytes, truncate or append.
+        let mut bytes = std::fs::read(&path).unwrap();
+        let mode = r.byte();
+        for _ in 0..mode % 4 {
+            let len = bytes.len().max(1);
+            let at = (r.u32() as usize) % len;
+            match r.byte() % 4 {
+                0 => bytes.truncate(at),
+                1 => bytes.push(r.byte()),
+                _ => {
+                    if let Some(b) = bytes.get_mut(at) {
+                        *b ^= r.byte() | 1;
+                    }
+                }
+            }
+        }
+        std::fs::write(&path, &bytes).unwrap();
+    } else if r.byte() % 2 == 0 {
+        // Arbitrary bytes in place of a field file.
+        let len = usize::from(r.byte());
+        let bytes: Vec<u8> = (0..len).map(|_| r.byte()).collect();
+        std::fs::write(&path, bytes).unwrap();
+    }
+    let mut out: *mut PgField = null_mut();
+    let st = check(
+        unsafe { pg_field_load(s.path.as_ptr(), &mut out) },
+        "pg_field_load",
+    );
+    assert!(
+        matches!(st, PgStatus::PG_OK | PgStatus::PG_IO | PgStatus::PG_FORMAT),
+        "load: {st:?} {}",
+        last_error()
+    );
+    if st == PgStatus::PG_OK {
+        assert!(!out.is_null());
+        unsafe { pg_field_release(s.fields[slot]) };
+        s.fields[slot] = out;
+    } else {
+        assert!(out.is_null());
+    }
+    let _ = std::fs::remove_file(&path);
+}
+
+/// Every function with NULL handles (and NULL outputs): `PG_NULL_POINTER`.
+fn null_sweep() {
+    let nul = PgStatus::PG_NULL_POINTER;
+    let path = c"/nonexistent/x";
+    let mut f: *mut PgField = std::ptr::dangling_mut();
+    let mut n = 0usize;
+    let mut b = false;
+    let u = [0.5f32; 2];
+    let mut o = [0.0f32; 3];
+    let q = [PgQueryPoint::default()];
+    let sample = PgTrainingSample::default();
+    let v = PgPathVertex::default();
+    unsafe {
+        let calls: [(PgStatus, &str); 32] = [
+            (pg_field_args_set_defaults(null_mut(), 0), "defaults"),
+            (pg_field_new(null(), &mut f), "new"),
+            (pg_field_new(null(), null_mut()), "new out"),
+            (pg_field_get_args(null(), null_mut()), "get_args"),
+            (pg_field_add_samples(null_mut(), &sample, 1), "add"),
+            (pg_field_update(null_mut(), null_mut()), "update"),
+            (pg_field_is_converged(null(), &mut b), "converged"),
+            (pg_field_stop_training(null_mut()), "stop"),
+            (pg_field_stats(null(), null_mut()), "stats"),
+            (pg_field_save(null(), path.as_ptr()), "save"),
+            (pg_field_load(null(), &mut f), "load"),
+            (pg_field_load(path.as_ptr(), null_mut()), "load out"),
+            (pg_field_query(null(), 1, q.as_ptr(), null_mut()), "query"),
+            (
+                pg_field_sample(
+                    null(),
+                    1,
+                    q.as_ptr(),
+                    u.as_ptr(),
+                    o.as_mut_ptr(),
+                    null_mut(),
+                ),
+                "sample",
+            ),
+            (pg_field_pdf(null(), 0, null(), null(), null_mut()), "pdf"),
+            (
+                pg_field_selection_probability(null(), 0, null(), null_mut()),
+                "selection",
+            ),
+            (pg_distributions_new(null_mut()), "dist new"),
+            (pg_distributions_len(null(), &mut n), "len"),
+            (
+                pg_distributions_sample(null(), 0, null(), null_mut(), null_mut()),
+                "dist sample",
+            ),
+            (
+                pg_distributions_pdf(null(), 0, null(), null_mut()),
+                "dist pdf",
+            ),
+            (
+                pg_distributions_selection_probability(null(), 0, null_mut()),
+                "dist sel",
+            ),
+            (pg_path_vertex_set_defaults(null_mut()), "vertex"),
+            (pg_recorder_new(null_mut()), "rec new"),
+            (pg_recorder_start_path(null_mut()), "start"),
+            (pg_recorder_add_vertex(null_mut(), &v), "add vertex"),
+            (
+                pg_recorder_add_escaped_radiance(null_mut(), o.as_ptr(), 1.0),
+                "escaped",
+            ),
+            (pg_recorder_end_path(null_mut(), null_mut()), "end"),
+            (pg_recorder_sample_count(null(), &mut n), "count"),
+            (pg_recorder_clear_samples(null_mut()), "clear"),
+            (
+                pg_recorder_flush_into(null_mut(), null_mut(), null_mut()),
+                "flush",
+            ),
+            (
+                pg_field_sample(null(), 0, null(), null(), null_mut(), null_mut()),
+                "s0",
+            ),
+            (pg_field_query(null(), 0, null(), null_mut()), "q0"),
+        ];
+        assert!(f.is_null(), "new/load leave *out NULL on failure");
+        for (st, what) in calls {
+            // Only the last call's message is kept: check the code here.
+            assert_eq!(st, nul, "{what}");
+        }
+        // A NULL release is a no-op; the message is then "".
+        pg_field_release(null_mut());
+        pg_distributions_release(null_mut());
+        pg_recorder_release(null_mut());
+        check(PgStatus::PG_OK, "release NULL");
+    }
+}
