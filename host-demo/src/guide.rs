@@ -1,8 +1,8 @@
 //! The guiding models the `guided` integrator can use, behind one object-safe trait.
 //!
-//! [`Guide`] is implemented by the embedding facade's [`guiding::GuidingField`] (model +
-//! online trainer + EMA weights over every representation and size), so the renderer uses
-//! the library exactly as a third-party renderer would. Batched queries run serially on the
+//! [`build_guide`] maps the CLI's choices onto the embedding facade's
+//! [`guiding::GuidingField`] (model + online trainer + EMA weights over every representation
+//! and size), so the renderer uses the library exactly as a third-party renderer would. Batched queries run serially on the
 //! calling render thread (the renderer already runs one thread per core; nesting the field's
 //! own thread pool inside each render thread would oversubscribe).
 //!
@@ -18,9 +18,8 @@
 
 use glam::Vec3;
 use guiding::{GuidingConfig, GuidingField, Representation};
-use guiding_core::field::{FieldConfig, UpdateReport};
+use guiding_core::field::FieldConfig;
 use guiding_core::loss::Target;
-use guiding_core::sample::TrainingSample;
 
 /// Which guiding model.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -46,69 +45,16 @@ pub enum ModelSize {
     Paper,
 }
 
-/// A trained-online guiding distribution, object-safe so the renderer stays non-generic.
-pub trait Guide: Sync {
-    /// Human-readable model description (kind, target, size, parameter count).
-    fn describe(&self) -> String;
-    /// Whether the model learns its selection probability (NASG).
-    fn learned_selection(&self) -> bool;
-    /// The field, for queries: [`GuidingField::distribution`] decodes the distribution at a
-    /// vertex once; selection, sampling and pdfs reuse it.
-    fn field(&self) -> &GuidingField;
-    /// Hands training samples to the field.
-    fn add_samples(&mut self, samples: &[TrainingSample]);
-    /// Runs the configured number of training steps on the buffered samples.
-    fn update(&mut self) -> UpdateReport;
-    /// Stops training for good.
-    fn stop_training(&mut self);
-    /// Applied training steps so far.
-    fn steps(&self) -> u64;
-    /// Rejected training samples so far (all kinds).
-    fn rejected(&self) -> u64;
-    /// Samples handed over after training stopped.
-    fn ignored(&self) -> u64;
-    /// Valid samples dropped because the buffer was full.
-    fn overflowed(&self) -> u64;
-}
-
-impl Guide for GuidingField {
-    fn describe(&self) -> String {
-        let c = self.config();
-        format!(
-            "{:?} {:?} {:?} ({} parameters)",
-            c.representation,
-            c.target,
-            c.size,
-            self.param_count()
-        )
-    }
-    fn learned_selection(&self) -> bool {
-        self.config().representation.learns_selection()
-    }
-    fn field(&self) -> &GuidingField {
-        self
-    }
-    fn add_samples(&mut self, samples: &[TrainingSample]) {
-        GuidingField::add_samples(self, samples);
-    }
-    fn update(&mut self) -> UpdateReport {
-        GuidingField::update(self)
-    }
-    fn stop_training(&mut self) {
-        GuidingField::stop_training(self);
-    }
-    fn steps(&self) -> u64 {
-        self.stats().steps
-    }
-    fn rejected(&self) -> u64 {
-        self.stats().rejected_samples.iter().sum()
-    }
-    fn ignored(&self) -> u64 {
-        self.stats().ignored_samples
-    }
-    fn overflowed(&self) -> u64 {
-        self.stats().overflowed_samples
-    }
+/// Human-readable description of a guide: representation, target, size and parameter count.
+pub fn describe(field: &GuidingField) -> String {
+    let c = field.config();
+    format!(
+        "{:?} {:?} {:?} ({} parameters)",
+        c.representation,
+        c.target,
+        c.size,
+        field.param_count()
+    )
 }
 
 /// Builds a guide over the box `[bbox_min, bbox_max]` (the facade pads it by 1 % so surface
@@ -121,7 +67,7 @@ pub fn build_guide(
     bbox: (Vec3, Vec3),
     selection: f32,
     config: FieldConfig,
-) -> crate::Result<Box<dyn Guide + Send>> {
+) -> crate::Result<GuidingField> {
     let representation = match kind {
         GuideKind::Npm => Representation::Npm,
         GuideKind::Nasg => Representation::Nasg,
@@ -142,7 +88,6 @@ pub fn build_guide(
     };
     // Degenerate (flat) scene boxes get a minimal thickness, as before the facade existed.
     let (lo, hi) = (bbox.0, bbox.1.max(bbox.0 + Vec3::splat(1e-3)));
-    let field = GuidingField::new(config, lo.to_array(), hi.to_array())
-        .map_err(|e| crate::Error::Scene(format!("guiding field: {e}")))?;
-    Ok(Box::new(field))
+    GuidingField::new(config, lo.to_array(), hi.to_array())
+        .map_err(|e| crate::Error::Scene(format!("guiding field: {e}")))
 }

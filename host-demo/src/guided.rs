@@ -37,9 +37,9 @@
 //! share of the direct light, while `Le_k+1 + R_k+1` is an unbiased estimate of the incident
 //! radiance `L_i(x_k, ω_k)` (the light's NEE share belongs to vertex `k`, not to direction
 //! `ω_k`). Directions that miss the scene give radiance 0 and are kept (DF's radiance cache
-//! must learn zeros). The samples are handed to [`Guide::add_samples`] in block order
-//! (deterministic), followed by one [`Guide::update`] (`steps_per_pass` Adam steps). After
-//! the training passes, [`Guide::stop_training`] is called and nothing is recorded any more.
+//! must learn zeros). The samples are handed to [`GuidingField::add_samples`] in block order
+//! (deterministic), followed by one [`GuidingField::update`] (`steps_per_pass` Adam steps). After
+//! the training passes, [`GuidingField::stop_training`] is called and nothing is recorded any more.
 //! The training passes stay in the image (each is an unbiased estimate).
 //!
 //! Radiance-target guides are sampled directly (the learned incident-radiance distribution
@@ -48,7 +48,6 @@
 
 use crate::bsdf::Material;
 use crate::emitter::EmitterSample;
-use crate::guide::Guide;
 use crate::integrator::{
     accumulate, finish_image, offset, shadow_ray, side_ok, Image, IntegratorKind, RenderOptions,
     Worker,
@@ -57,6 +56,7 @@ use crate::math::{power_heuristic, Frame};
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
 use guiding::Distribution;
+use guiding::GuidingField;
 use guiding_core::model::QueryPoint;
 use guiding_core::sample::TrainingSample;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -182,7 +182,7 @@ struct Node {
 
 /// Per-render-thread state of the guided integrator.
 pub(crate) struct GuidedWorker<'g> {
-    guide: &'g dyn Guide,
+    guide: &'g GuidingField,
     gopts: GuidedOptions,
     record: bool,
     /// Per slot, the recorded hits of the current sample.
@@ -228,7 +228,7 @@ const NONE: u32 = u32::MAX;
 const NEE_BIT: u32 = 1 << 31;
 
 impl<'g> GuidedWorker<'g> {
-    pub(crate) fn new(guide: &'g dyn Guide, gopts: GuidedOptions, record: bool) -> Self {
+    pub(crate) fn new(guide: &'g GuidingField, gopts: GuidedOptions, record: bool) -> Self {
         Self {
             guide,
             gopts,
@@ -362,7 +362,7 @@ pub(crate) fn stage_guide_query(w: &mut Worker<'_>, nee: bool) {
     // One network pass per guidable vertex: selection, sampling and every pdf below reuse
     // the decoded distribution (DF evaluates its conditional network per sample / pdf).
     let t0 = Instant::now();
-    let field = g.guide.field();
+    let field = g.guide;
     g.g_dist.clear();
     g.g_dist
         .extend(g.g_query.iter().map(|q| field.distribution(q)));
@@ -565,7 +565,7 @@ pub fn render_guided(
     scene: &Scene,
     opts: &RenderOptions,
     gopts: &GuidedOptions,
-    guide: &mut dyn Guide,
+    guide: &mut GuidingField,
 ) -> (Image, GuidedStats) {
     let mut opts = *opts;
     opts.integrator = if gopts.nee {
@@ -580,7 +580,7 @@ pub fn render_guided(
     let nblocks = npix.div_ceil(block);
     let mut stats = GuidedStats {
         nee: gopts.nee && scene.has_samplable_emitter(),
-        model: guide.describe(),
+        model: crate::guide::describe(guide),
         last_loss: f64::NAN,
         ..Default::default()
     };
@@ -601,7 +601,7 @@ pub fn render_guided(
         let results: Mutex<Vec<Option<BlockResult>>> =
             Mutex::new((0..nblocks).map(|_| None).collect());
         let counters = Mutex::new((0u64, 0u64, Duration::ZERO, 0u64));
-        let guide_ref: &dyn Guide = &*guide;
+        let guide_ref: &GuidingField = guide;
         std::thread::scope(|sc| {
             for _ in 0..threads.min(nblocks) {
                 sc.spawn(|| {
@@ -659,14 +659,14 @@ pub fn render_guided(
             stats.samples_recorded_after_training += train.len() as u64;
         }
         if !train.is_empty() {
-            let steps_before = guide.steps();
+            let steps_before = guide.stats().steps;
             guide.add_samples(&train);
             let rep = guide.update();
             if rep.steps > 0 {
                 stats.last_loss = rep.mean_loss;
             }
             if !record {
-                stats.training_steps_after_training += guide.steps() - steps_before;
+                stats.training_steps_after_training += guide.stats().steps - steps_before;
             }
             stats.training += t_train.elapsed();
         }
@@ -676,9 +676,10 @@ pub fn render_guided(
     }
     stats.passes = sched.passes();
     sched.finish();
-    stats.training_steps = guide.steps();
-    stats.rejected_samples = guide.rejected();
-    stats.overflowed_samples = guide.overflowed();
+    let fs = guide.stats();
+    stats.training_steps = fs.steps;
+    stats.rejected_samples = fs.rejected_samples.iter().sum();
+    stats.overflowed_samples = fs.overflowed_samples;
     (
         finish_image(width, height, stats.passes, &sum, &sum2),
         stats,

@@ -524,7 +524,7 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
             selection_probability,
             config,
         )?;
-        let (img, stats) = render_guided(&sc, &opts, &gopts, &mut *g);
+        let (img, stats) = render_guided(&sc, &opts, &gopts, &mut g);
         guided_stats = Some((stats, target, gopts));
         img
     } else {

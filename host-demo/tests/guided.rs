@@ -67,7 +67,7 @@ fn guided(
         nee,
         ..GuidedOptions::default()
     };
-    render_guided(scene, o, &gopts, &mut *g)
+    render_guided(scene, o, &gopts, &mut g)
 }
 
 /// Mean over pixels and channels of the per-pixel variance of the mean.

@@ -537,7 +537,7 @@ fn guided_envmap_agrees_with_pt_nee() {
         config,
     )
     .expect("guide");
-    let (img, st) = render_guided(&sc, &o, &GuidedOptions::default(), &mut *g);
+    let (img, st) = render_guided(&sc, &o, &GuidedOptions::default(), &mut g);
     assert!(img.all_finite());
     assert!(
         st.guided_vertices > 0 && st.training_steps > 0 && st.nee,

@@ -196,7 +196,7 @@ fn guided(scene: &Scene, kind: GuideKind, nee: bool, seed: u64) -> Image {
         nee,
         ..GuidedOptions::default()
     };
-    render_guided(scene, &o, &gopts, &mut *g).0
+    render_guided(scene, &o, &gopts, &mut g).0
 }
 
 #[test]
