@@ -7,20 +7,28 @@
 //!
 //! For vertices `0 … n−1` (0 nearest the camera), with the continuation
 //! weight `β_k = s_k · f_k cos θ_k / p_k` (`bsdf_cos / sample_pdf`, times
-//! the Russian-roulette scale `s_k`), the radiance leaving vertex `k`
-//! towards `k − 1` is
+//! the Russian-roulette scale `s_k`), the path estimate of the radiance
+//! leaving vertex `k` towards `k − 1` is
 //!
-//! `L_o(k) = w_k L_e(k) + D_k + β_k L_i(k)`, with `L_i(k) = L_o(k + 1)`
+//! `L̃_o(k) = w_k L_e(k) + D_k + β_k L̃_i(k)`, with `L̃_i(k) = L̃_o(k + 1)`
 //!
-//! where `L_e(k)` is the emission seen at `k` (MIS weight `w_k`), `D_k` the
-//! already weighted next-event contribution at `k`, and `L_i(n−1)` the
-//! radiance of an escaped ray ([`PathRecorder::add_escaped_radiance`]) or
-//! zero. `L_i(k)` is the incident radiance estimate along the sampled
-//! direction `ω_i` of vertex `k`: the training target of that vertex. No
-//! sample is made for delta vertices (no guiding there) or vertices whose
-//! path ended (`sample_pdf = 0`). [`PathRecorder::end_path`] returns
-//! `L_o(0)`, the path's contribution to its pixel (divided by the camera
-//! weight), so a renderer can check its own estimator against it.
+//! where `L_e(k)` is the emission seen at `k` (MIS weight `w_k` against
+//! next-event estimation at `k − 1`), `D_k` the already weighted next-event
+//! contribution at `k`, and `L̃_i(n−1)` the MIS-weighted radiance of an
+//! escaped ray ([`PathRecorder::add_escaped_radiance`]) or zero.
+//! [`PathRecorder::end_path`] returns `L̃_o(0)`, the path's contribution to
+//! its pixel (divided by the camera weight), so a renderer can check its own
+//! estimator against it.
+//!
+//! The training target of vertex `k` is the incident radiance along its
+//! sampled direction `ω_i`, `L_i(k) = L_e(k + 1) + D_{k+1} + β_{k+1}
+//! L̃_i(k + 1)`: the emission found along `ω_i` counts **in full** (it is the
+//! radiance arriving along `ω_i`, whatever NEE at `k` estimated), while
+//! everything scattered further down the path keeps its MIS weights (NEE and
+//! BSDF sampling there together estimate the light scattered at `k + 1`
+//! without double counting). This is Open PGL's behaviour without
+//! `useNEEMiWeights`. No sample is made for delta vertices (no guiding
+//! there) or vertices whose path ended (`sample_pdf = 0`).
 
 use crate::field::GuidingField;
 use guiding_core::sample::TrainingSample;
@@ -40,7 +48,8 @@ pub struct PathVertex {
     /// Radiance emitted at this vertex towards `wo`.
     pub emitted: [f32; 3],
     /// MIS weight of `emitted` against next-event estimation at the
-    /// previous vertex (1 without NEE).
+    /// previous vertex (1 without NEE); it weights the pixel estimate, not
+    /// the previous vertex's training target (see the [module docs](self)).
     pub emitted_mis_weight: f32,
     /// Next-event estimation at this vertex, scattered towards `wo`, already
     /// weighted: `f · L_light · |cos| · w_mis / p_light`.
@@ -100,7 +109,9 @@ fn mul(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
 #[derive(Clone, Debug, Default)]
 pub struct PathRecorder {
     vertices: Vec<PathVertex>,
+    /// Escaped radiance: full, and MIS-weighted.
     escaped: [f32; 3],
+    escaped_mis: [f32; 3],
     samples: Vec<TrainingSample>,
 }
 
@@ -115,6 +126,7 @@ impl PathRecorder {
     pub fn start_path(&mut self) {
         self.vertices.clear();
         self.escaped = [0.0; 3];
+        self.escaped_mis = [0.0; 3];
     }
 
     /// Records the next vertex of the current path.
@@ -123,9 +135,11 @@ impl PathRecorder {
     }
 
     /// Radiance arriving along the last vertex's `wi` from outside the scene
-    /// (an environment), already MIS-weighted; adds up over calls.
+    /// (an environment), with its MIS weight against next-event estimation
+    /// of the environment at that vertex; adds up over calls.
     pub fn add_escaped_radiance(&mut self, radiance: [f32; 3], mis_weight: f32) {
-        self.escaped = add(self.escaped, scale(radiance, mis_weight));
+        self.escaped = add(self.escaped, radiance);
+        self.escaped_mis = add(self.escaped_mis, scale(radiance, mis_weight));
     }
 
     /// Vertices recorded on the current path.
@@ -136,7 +150,9 @@ impl PathRecorder {
     /// Ends the path: propagates radiance back along it (see the [module
     /// docs](self)), appends its training samples and returns `L_o(0)`.
     pub fn end_path(&mut self) -> [f32; 3] {
-        let mut incident = self.escaped;
+        // Incident radiance along the current vertex's `wi`: the training
+        // target (emission in full) and the path estimate (MIS-weighted).
+        let (mut incident, mut incident_mis) = (self.escaped, self.escaped_mis);
         let first_new = self.samples.len();
         for v in self.vertices.iter().rev() {
             let continues = v.sample_pdf > 0.0;
@@ -159,21 +175,21 @@ impl PathRecorder {
             let scattered = if continues {
                 mul(
                     scale(v.bsdf_cos, v.continuation_scale / v.sample_pdf),
-                    incident,
+                    incident_mis,
                 )
             } else {
                 [0.0; 3]
             };
-            incident = add(
-                add(scale(v.emitted, v.emitted_mis_weight), v.direct),
-                scattered,
-            );
+            let rest = add(v.direct, scattered);
+            incident = add(v.emitted, rest);
+            incident_mis = add(scale(v.emitted, v.emitted_mis_weight), rest);
         }
         // Samples were pushed from the last vertex back; keep path order.
         self.samples[first_new..].reverse();
         self.vertices.clear();
         self.escaped = [0.0; 3];
-        incident
+        self.escaped_mis = [0.0; 3];
+        incident_mis
     }
 
     /// Training samples of the finished paths so far.

@@ -261,6 +261,32 @@ fn recorder_propagates_radiance_back_along_the_path() {
     assert_eq!(rec.flush_into(&mut field), 2);
     assert!(rec.samples().is_empty());
     assert_eq!(field.stats().accepted_samples, 2);
+    // The emission found along a sampled direction is that vertex's training
+    // target in full; its MIS weight (against NEE at the vertex) only weights
+    // the pixel estimate. Likewise for an escaped ray.
+    rec.clear_samples();
+    rec.start_path();
+    rec.add_vertex(PathVertex {
+        wi: [0.0, 0.0, 1.0],
+        sample_pdf: 0.5,
+        bsdf_cos: [0.25; 3],
+        ..PathVertex::default()
+    });
+    rec.add_vertex(PathVertex {
+        emitted: [2.0; 3],
+        emitted_mis_weight: 0.25,
+        direct: [0.5; 3],
+        wi: [0.0, 1.0, 0.0],
+        sample_pdf: 1.0,
+        bsdf_cos: [0.5; 3],
+        ..PathVertex::default()
+    });
+    rec.add_escaped_radiance([4.0; 3], 0.5);
+    // Vertex 1: target 4 (escaped, in full); its path estimate 0.25·2 + 0.5 + 0.5·(0.5·4) = 2.
+    // Vertex 0: target 2 + 0.5 + 0.5·(0.5·4) = 3.5; pixel 0.25/0.5 · 2 = 1.
+    assert_eq!(rec.end_path(), [1.0; 3]);
+    assert_eq!(rec.samples()[0].radiance, [3.5; 3]);
+    assert_eq!(rec.samples()[1].radiance, [4.0; 3]);
 }
 
 /// Every representation learns, through the recorder, a light cone it can
