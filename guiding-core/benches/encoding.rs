@@ -65,7 +65,7 @@ fn encodings(c: &mut Criterion) {
     let d_out = [1e-3f32; 32];
     bench(c, "grid_backward_npm", &world, |p| {
         let mut g = grad.borrow_mut();
-        grid_backward(&cfg, p, &d_out, 0, &mut g);
+        grid_backward(&cfg, p, &d_out, 0, &mut g[..]);
         g[0]
     });
     let dirs: Vec<Vec3> = world.iter().map(|&p| p + Vec3::splat(1e-3)).collect();

@@ -23,6 +23,7 @@ pub mod factorised;
 #[cfg(feature = "std")]
 pub mod field;
 pub mod frame;
+pub mod gradient;
 pub mod lobe;
 pub mod loss;
 pub mod math;

@@ -73,6 +73,7 @@
 #[cfg(feature = "std")]
 extern crate std;
 
+use crate::gradient::GradientSink;
 use crate::math::sqrt;
 use crate::rng::{hash2, symmetric_unit_f32};
 use bytemuck::{Pod, Zeroable};
@@ -184,9 +185,9 @@ fn dense<const I: usize, const O: usize, const RELU: bool>(
 /// `grad` and writes `dx = Wᵀ dy`. Rows with `dy[o] = 0` (dead ReLUs) are
 /// skipped: they add exact zeros when `x` is finite.
 #[inline]
-fn dense_backward<const I: usize, const O: usize>(
+fn dense_backward<const I: usize, const O: usize, G: GradientSink + ?Sized>(
     params: &[f32],
-    grad: &mut [f32],
+    grad: &mut G,
     w: usize,
     x: &[f32; I],
     dy: &[f32; O],
@@ -202,11 +203,11 @@ fn dense_backward<const I: usize, const O: usize>(
     while o < O {
         let d = dy[o];
         if d != 0.0 {
-            grad[b + o] += d;
+            grad.add(b + o, d);
             let row = w + o * I;
             i = 0;
             while i < I {
-                grad[row + i] += d * x[i];
+                grad.add(row + i, d * x[i]);
                 dx[i] += params[row + i] * d;
                 i += 1;
             }
@@ -348,18 +349,18 @@ impl<const IN: usize, const WIDTH: usize, const OUT: usize, const HIDDEN: usize>
     ///
     /// # Panics
     /// If `params` or `grad` is shorter than `offset + PARAM_COUNT`.
-    pub fn backward(
+    pub fn backward<G: GradientSink + ?Sized>(
         params: &[f32],
         offset: usize,
         input: &[f32; IN],
         ctx: &MlpContext<WIDTH, HIDDEN>,
         d_output: &[f32; OUT],
-        grad: &mut [f32],
+        grad: &mut G,
         d_input: &mut [f32; IN],
     ) {
         let () = Self::VALID;
         let mut delta = [0.0f32; WIDTH];
-        dense_backward::<WIDTH, OUT>(
+        dense_backward::<WIDTH, OUT, G>(
             params,
             grad,
             offset + Self::OUTPUT_LAYER_OFFSET,
@@ -371,7 +372,7 @@ impl<const IN: usize, const WIDTH: usize, const OUT: usize, const HIDDEN: usize>
         while l > 0 {
             relu_mask(&mut delta, &ctx.hidden[l]);
             let mut prev = [0.0f32; WIDTH];
-            dense_backward::<WIDTH, WIDTH>(
+            dense_backward::<WIDTH, WIDTH, G>(
                 params,
                 grad,
                 offset + Self::layer_offset(l),
@@ -383,7 +384,7 @@ impl<const IN: usize, const WIDTH: usize, const OUT: usize, const HIDDEN: usize>
             l -= 1;
         }
         relu_mask(&mut delta, &ctx.hidden[0]);
-        dense_backward::<IN, WIDTH>(params, grad, offset, input, &delta, d_input);
+        dense_backward::<IN, WIDTH, G>(params, grad, offset, input, &delta, d_input);
     }
 
     /// Initial value of parameter `index` (`0 … PARAM_COUNT`, relative to the

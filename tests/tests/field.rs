@@ -8,6 +8,7 @@ use guiding_core::field::{
     rejection_index, Field, FieldConfig, FieldError, PlateauConfig, DEFAULT_GRADIENT_CHUNKS,
 };
 use guiding_core::glam::{Vec2, Vec3};
+use guiding_core::gradient::GradientSink;
 use guiding_core::lobe::vmf::VmfLobe;
 use guiding_core::lobe::DirectionSample;
 use guiding_core::loss::{kl_weight, Target};
@@ -67,11 +68,11 @@ impl GuidingModel for TinyGrid {
         0.5
     }
 
-    fn accumulate_gradient(
+    fn accumulate_gradient<G: GradientSink + ?Sized>(
         &self,
         params: &[f32],
         sample: &TrainingSample,
-        grad: &mut [f32],
+        grad: &mut G,
     ) -> f32 {
         let w = kl_weight(sample, Target::Radiance);
         if w == 0.0 {
@@ -83,7 +84,7 @@ impl GuidingModel for TinyGrid {
         let base = self.cell(sample.position) * PER_CELL;
         for (k, lobe) in g.iter().enumerate() {
             for (j, &d) in lobe.iter().enumerate() {
-                grad[base + k * VMF_RAW_PER_LOBE + j] += -w * d;
+                grad.add(base + k * VMF_RAW_PER_LOBE + j, -w * d);
             }
         }
         -w * log_pdf
@@ -111,7 +112,12 @@ impl GuidingModel for Empty {
     fn selection_probability(&self, _: &[f32], _: &QueryPoint) -> f32 {
         0.5
     }
-    fn accumulate_gradient(&self, _: &[f32], _: &TrainingSample, _: &mut [f32]) -> f32 {
+    fn accumulate_gradient<G: GradientSink + ?Sized>(
+        &self,
+        _: &[f32],
+        _: &TrainingSample,
+        _: &mut G,
+    ) -> f32 {
         0.0
     }
 }

@@ -59,6 +59,7 @@
 //! scattered memory reads per level.
 
 use crate::encoding::write_clamped;
+use crate::gradient::GradientSink;
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
@@ -442,12 +443,12 @@ pub fn grid_forward<const N: usize>(
 /// past `N` count as zero; gradient slots past `grad.len()` are skipped. No
 /// gradient with respect to `position` is computed. Finite `d_out` gives
 /// finite increments (`|Δ| ≤ |d_out|`).
-pub fn grid_backward<const N: usize>(
+pub fn grid_backward<const N: usize, G: GradientSink + ?Sized>(
     cfg: &GridConfig,
     position: Vec3,
     d_out: &[f32; N],
     d_out_offset: usize,
-    grad: &mut [f32],
+    grad: &mut G,
 ) {
     if d_out_offset >= N {
         return;
@@ -473,7 +474,7 @@ pub fn grid_backward<const N: usize>(
                 while c < 8 {
                     let idx = corners.index[c].wrapping_add(k);
                     if idx < len {
-                        grad[idx] += corners.weight[c] * d;
+                        grad.add(idx, corners.weight[c] * d);
                     }
                     c += 1;
                 }

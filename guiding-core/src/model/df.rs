@@ -73,6 +73,7 @@ use crate::encoding::triangle_wave::TRIANGLE_WAVE_DF_FREQUENCIES;
 use crate::encoding::GridConfig;
 use crate::encoding::{grid_backward, grid_forward, grid_init, sh_encode, triangle_wave_encode};
 use crate::factorised::{self, direction_from_square, square_from_direction};
+use crate::gradient::GradientSink;
 use crate::lobe::DirectionSample;
 use crate::loss::{relative_l2, scalar, Target};
 use crate::math::{exp, ln_1p, sanitize, sigmoid, INV_FOUR_PI};
@@ -629,11 +630,11 @@ impl<
     /// grid. Adds nothing and returns 0 for an invalid sample, a too short
     /// `params`/`grad`, or a non-finite loss, network output or output
     /// gradient.
-    fn accumulate_gradient(
+    fn accumulate_gradient<G: GradientSink + ?Sized>(
         &self,
         params: &[f32],
         sample: &TrainingSample,
-        grad: &mut [f32],
+        grad: &mut G,
     ) -> f32 {
         let count = self.param_count();
         if sample.validate().is_err() || params.len() < count || grad.len() < count {

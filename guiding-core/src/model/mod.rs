@@ -10,6 +10,7 @@ pub mod df;
 pub mod nasg;
 pub mod npm;
 
+use crate::gradient::GradientSink;
 use crate::lobe::DirectionSample;
 use crate::sample::TrainingSample;
 use bytemuck::{Pod, Zeroable};
@@ -81,6 +82,10 @@ pub trait GuidingModel: Copy {
     /// parameter) into `grad` (length `param_count()`) and returns the loss.
     /// A sample that fails [`TrainingSample::validate`] adds nothing and
     /// returns `0`.
-    fn accumulate_gradient(&self, params: &[f32], sample: &TrainingSample, grad: &mut [f32])
-        -> f32;
+    fn accumulate_gradient<G: GradientSink + ?Sized>(
+        &self,
+        params: &[f32],
+        sample: &TrainingSample,
+        grad: &mut G,
+    ) -> f32;
 }

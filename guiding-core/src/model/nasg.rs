@@ -43,6 +43,7 @@
 //!   pushes `c` up. Renderers should fill `bsdf_pdf`.
 
 use crate::encoding::{grid_backward, grid_init, GridConfig};
+use crate::gradient::GradientSink;
 use crate::lobe::DirectionSample;
 use crate::loss::{kl_weight, nasg_mis_loss, Target};
 use crate::mixture::nasg::{
@@ -279,11 +280,11 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> GuidingModel
     /// grid backward. Adds nothing and returns 0 for an invalid sample, a
     /// zero weight, a too short `params`/`grad`, or a non-finite loss,
     /// network output or output gradient.
-    fn accumulate_gradient(
+    fn accumulate_gradient<G: GradientSink + ?Sized>(
         &self,
         params: &[f32],
         sample: &TrainingSample,
-        grad: &mut [f32],
+        grad: &mut G,
     ) -> f32 {
         let count = self.param_count();
         if sample.validate().is_err() || params.len() < count || grad.len() < count {

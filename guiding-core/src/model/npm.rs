@@ -50,6 +50,7 @@
 use crate::encoding::grid::{GRID_MAX_FEATURES, GRID_MAX_LEVELS, GRID_MAX_RESOLUTION};
 use crate::encoding::GridConfig;
 use crate::encoding::{grid_backward, grid_forward, grid_init, one_blob_encode, sh_encode};
+use crate::gradient::GradientSink;
 use crate::lobe::DirectionSample;
 use crate::loss::{kl_weight, Target};
 use crate::mixture::vmf::{VmfMixture, VMF_LOG_KAPPA_MIN, VMF_RAW_PER_LOBE};
@@ -490,11 +491,11 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> GuidingModel
     /// for an invalid sample, a zero weight, a too short `params`/`grad`, or
     /// a non-finite loss, network output or output gradient (a finite output
     /// implies finite hidden activations, so the backward pass sees no NaN).
-    fn accumulate_gradient(
+    fn accumulate_gradient<G: GradientSink + ?Sized>(
         &self,
         params: &[f32],
         sample: &TrainingSample,
-        grad: &mut [f32],
+        grad: &mut G,
     ) -> f32 {
         let count = self.param_count();
         if sample.validate().is_err() || params.len() < count || grad.len() < count {
