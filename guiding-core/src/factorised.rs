@@ -196,6 +196,15 @@ unsafe impl<const M: usize, const N: usize> Zeroable for FactorisedTable<M, N> {
 unsafe impl<const M: usize, const N: usize> Pod for FactorisedTable<M, N> {}
 
 impl<const M: usize, const N: usize> FactorisedTable<M, N> {
+    /// All-zero table (written out: `Zeroable::zeroed` goes through
+    /// `MaybeUninit`, which rust-gpu cannot compile).
+    pub const ZERO: Self = Self {
+        marginal: Pdf1d::ZERO,
+        conditionals: [Pdf1d::ZERO; M],
+    };
+}
+
+impl<const M: usize, const N: usize> FactorisedTable<M, N> {
     /// Table from raw logits: the marginal from `marginal_logits` and row `i`
     /// from `conditional_logits[i]`, each by `N · softmax` (see
     /// [`Pdf1d::from_logits`]; any input gives a valid table).
@@ -205,7 +214,7 @@ impl<const M: usize, const N: usize> FactorisedTable<M, N> {
         conditional_logits: &[[f32; N]; M],
         interpolation: Interpolation,
     ) -> Self {
-        let mut table = Self::zeroed();
+        let mut table = Self::ZERO;
         table.marginal = Pdf1d::from_logits(marginal_logits, interpolation, Boundary::Wrap);
         let mut i = 0;
         while i < M {

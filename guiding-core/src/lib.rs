@@ -18,6 +18,7 @@
 #[cfg(feature = "std")]
 extern crate std;
 
+pub mod batch;
 pub mod encoding;
 pub mod factorised;
 #[cfg(feature = "std")]

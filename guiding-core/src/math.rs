@@ -31,20 +31,51 @@ pub const ONE_MINUS_EPSILON: f32 = 1.0 - f32::EPSILON * 0.5;
 
 /// Cody–Waite range reduction shared by the exponential family:
 /// `x = n ln 2 + r` with `|r| ≤ ln 2 / 2` (ln 2 split into a high part exact
-/// in a few bits and a low correction). `n` is rounded to nearest by the
-/// `1.5·2²³` trick (exact for `|n| < 2²²`) and read back as an integer from
-/// the low mantissa bits, which avoids a float → int conversion (Rust's
-/// saturating `as` does not vectorise well). Returns `(n, r)`.
+/// in a few bits and a low correction); `n` is rounded by [`round_nearest`].
+/// Returns `(n, r)`.
 #[inline(always)]
 fn reduce_ln2(x: f32) -> (i32, f32) {
     const LOG2_E: f32 = core::f32::consts::LOG2_E;
     const LN2_HI: f32 = 0.693_359_4;
     const LN2_LO: f32 = -2.121_944_4e-4;
-    const ROUND: f32 = 12_582_912.0;
-    let shifted = x * LOG2_E + ROUND;
-    let n = shifted - ROUND;
+    let (n, n_int) = round_nearest(x * LOG2_E);
     let r = (x - n * LN2_HI) - n * LN2_LO;
-    (shifted.to_bits().wrapping_sub(ROUND.to_bits()) as i32, r)
+    (n_int, r)
+}
+
+/// `(round(t), round(t) as i32)` for `|t| < 2²²` (other arguments give an
+/// unspecified but harmless pair; callers clamp or select around them).
+///
+/// On the CPU: the `1.5·2²³` trick — `t + 1.5·2²³` rounds `t` to an integer
+/// in the FPU's round-to-nearest-even, subtracting it back gives the float,
+/// and the integer is the low mantissa bits (no float → int conversion, which
+/// does not vectorise well). In SPIR-V the trick is not safe: spirv-opt and
+/// the drivers' compilers (Mesa's NIR for lavapipe) treat float arithmetic
+/// as reassociable unless it is marked `NoContraction`, which rust-gpu does
+/// not emit, and fold `(t + c) − c` to `t` (measured on lavapipe: `exp(−3)`
+/// came out as `0.0625`). There the rounding goes through a conversion:
+/// `i = trunc(t ± ½)`, which rounds halves away from zero instead of to even
+/// — the reduction `|r| ≤ ½` holds either way.
+#[inline(always)]
+fn round_nearest(t: f32) -> (f32, i32) {
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        const ROUND: f32 = 12_582_912.0;
+        let shifted = t + ROUND;
+        (
+            shifted - ROUND,
+            shifted.to_bits().wrapping_sub(ROUND.to_bits()) as i32,
+        )
+    }
+    #[cfg(target_arch = "spirv")]
+    {
+        let i = if t >= 0.0 {
+            (t + 0.5) as i32
+        } else {
+            (t - 0.5) as i32
+        };
+        (i as f32, i)
+    }
 }
 
 /// `e^r` for a reduced `|r| ≤ ln 2 / 2`: the Cephes `expf` polynomial,
@@ -316,16 +347,15 @@ pub fn expm1_nonpositive(x: f32) -> f32 {
 #[inline]
 #[must_use]
 pub fn sin_cos_turns(u: f32) -> (f32, f32) {
-    const ROUND: f32 = 12_582_912.0;
     // q = round(4u) (exact for |4u| < 2²²) and r = u − q/4 ∈ [−⅛, ⅛], exact:
     // u and q/4 are within a factor 2 of each other (or q = 0). Beyond
     // |u| = 2²⁰ (and for NaN, ±∞) the angle is read as 0 and fixed up below.
     let small = u.abs() < 1_048_576.0;
     let uc = if small { u } else { 0.0 };
-    let shifted = 4.0 * uc + ROUND;
-    let q = shifted - ROUND;
+    let (q, q_int) = round_nearest(4.0 * uc);
     let r = uc - 0.25 * q;
-    let quadrant = shifted.to_bits();
+    // Two's complement: the low two bits are q mod 4 for negative q too.
+    let quadrant = q_int as u32;
     let s2 = r * r;
     // sin 2πr = 2π r + r³ P(r²); 2π as f32 plus its rounding error, so that
     // the leading term is rounded only once.
@@ -340,8 +370,8 @@ pub fn sin_cos_turns(u: f32) -> (f32, f32) {
     let pc = pc * s2 + 6.493_937e1;
     let pc = pc * s2 - 1.973_920_9e1;
     let cos_r = pc * s2 + 1.0;
-    // Quadrant q mod 4 from the low bits of `shifted` (ROUND's low bits are
-    // zero): swap on odd q, then flip the signs by xor of the sign bits —
+    // Quadrant q mod 4 from the low bits of q: swap on odd q, then flip the
+    // signs by xor of the sign bits —
     // sin for q ≡ 2, 3, cos for q ≡ 1, 2.
     let odd = quadrant & 1 != 0;
     let (s, c) = if odd { (cos_r, sin_r) } else { (sin_r, cos_r) };
@@ -517,4 +547,18 @@ pub fn x_over_one_minus_exp_neg(x: f32) -> f32 {
 #[must_use]
 pub fn floor(x: f32) -> f32 {
     libm::floorf(x)
+}
+
+/// `a + b`, saturating at `usize::MAX` — the index arithmetic of the
+/// kernels that must not wrap on corrupt offsets. Written out because
+/// rust-gpu 0.11 does not implement the `saturating_add` intrinsic.
+#[inline]
+#[must_use]
+pub const fn add_saturating(a: usize, b: usize) -> usize {
+    let s = a.wrapping_add(b);
+    if s < a {
+        usize::MAX
+    } else {
+        s
+    }
 }

@@ -281,6 +281,16 @@ pub struct Pdf1d<const N: usize> {
     pub boundary: u32,
 }
 
+impl<const N: usize> Pdf1d<N> {
+    /// All-zero table (a constant, for code that rust-gpu compiles:
+    /// `Zeroable::zeroed` goes through `MaybeUninit`).
+    pub const ZERO: Self = Self {
+        values: [0.0; N],
+        interpolation: 0,
+        boundary: 0,
+    };
+}
+
 // SAFETY: `repr(C)` struct of an `[f32; N]` array and two `u32`s, all 4-byte
 // aligned, so no padding; every bit pattern is valid and zero is valid.
 unsafe impl<const N: usize> Zeroable for Pdf1d<N> {}

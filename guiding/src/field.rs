@@ -321,6 +321,49 @@ impl GuidingField {
         })
     }
 
+    /// Everything a GPU runtime needs to run this field's model: the
+    /// SPIR-V entry-point prefix, the raw outputs per query, the model's
+    /// `Pod` configuration bytes and the training state.
+    pub fn export_model(&self) -> ModelExport {
+        ModelExport {
+            kernel_prefix: models::kernel_prefix(&self.inner),
+            raw_outputs: models::raw_outputs(&self.inner),
+            model: self.model_bytes(),
+            state: self.state(),
+        }
+    }
+
+    /// The distribution whose raw network outputs (`raw`, length
+    /// [`ModelExport::raw_outputs`]) were computed elsewhere — a GPU running
+    /// the model's `infer` kernel on the exported weights. Decoding is the
+    /// same function [`Self::distribution`] uses, so CPU and GPU differ
+    /// only by the network's rounding.
+    ///
+    /// # Errors
+    /// [`GuidingError::LengthMismatch`] if `raw` has the wrong length, or
+    /// [`GuidingError::InvalidConfig`] for DF models (no raw outputs).
+    pub fn distribution_from_raw(&self, raw: &[f32]) -> Result<Distribution<'_>, GuidingError> {
+        let expected = models::raw_outputs(&self.inner);
+        if expected == 0 {
+            return Err(GuidingError::InvalidConfig(
+                "DF models have no raw outputs (the conditional network depends on the \
+                 direction)"
+                    .into(),
+            ));
+        }
+        if raw.len() != expected {
+            return Err(GuidingError::LengthMismatch {
+                what: format!("{} raw outputs for a {expected}-output model", raw.len()),
+            });
+        }
+        let decoded = models::decode_raw(&self.inner, raw)
+            .ok_or_else(|| GuidingError::InvalidConfig("the model has no raw outputs".into()))?;
+        Ok(Distribution {
+            field: self,
+            decoded,
+        })
+    }
+
     /// The resumable training state (for [`crate::file`]).
     pub(crate) fn state(&self) -> FieldState {
         with_field!(&self.inner, f => f.state())
@@ -337,6 +380,20 @@ impl GuidingField {
     fn pdf_df(&self, query: &QueryPoint, direction: Vec3) -> f32 {
         with_field!(&self.inner, f => f.pdf(query, direction))
     }
+}
+
+/// A field's model as a GPU runtime uploads it ([`GuidingField::export_model`]).
+#[derive(Clone, Debug)]
+pub struct ModelExport {
+    /// Entry-point prefix in the `guiding-shaders` SPIR-V module, e.g.
+    /// `"npm_compact_radiance"`.
+    pub kernel_prefix: &'static str,
+    /// Raw network outputs per query (`{prefix}_infer`); 0 for DF.
+    pub raw_outputs: usize,
+    /// The model's configuration as bytes (`repr(C)`, `Pod`).
+    pub model: Vec<u8>,
+    /// Parameters, EMA weights, Adam moments and step counts.
+    pub state: FieldState,
 }
 
 /// The guiding distribution at one shading point, borrowed from its field.

@@ -55,8 +55,8 @@ pub mod recorder;
 
 pub use config::{GuidingConfig, ModelSize, Representation, Target};
 pub use error::GuidingError;
-pub use field::{DecodedDistribution, Distribution, FieldStats, GuidingField};
-pub use guiding_core::field::{FieldConfig, PlateauConfig, UpdateReport};
+pub use field::{DecodedDistribution, Distribution, FieldStats, GuidingField, ModelExport};
+pub use guiding_core::field::{FieldConfig, FieldState, PlateauConfig, UpdateReport};
 pub use guiding_core::lobe::DirectionSample;
 pub use guiding_core::model::QueryPoint;
 pub use guiding_core::optim::AdamConfig;

@@ -17,18 +17,9 @@ use guiding_core::model::npm::{
 use guiding_core::model::{GuidingModel, QueryPoint};
 use guiding_core::pdf1d::Interpolation;
 
-/// [`ModelSize::Compact`] NPM, radiance target (16 grid features in).
-pub type NpmCompactRadiance = Npm<16, 32, 2>;
-/// [`ModelSize::Compact`] NPM, product target (16 + 32 product inputs).
-pub type NpmCompactProduct = Npm<48, 32, 2>;
-/// [`ModelSize::Compact`] NASG, radiance target.
-pub type NasgCompactRadiance = Nasg<16, 32, 2>;
-/// [`ModelSize::Compact`] NASG, product target.
-pub type NasgCompactProduct = Nasg<48, 32, 2>;
-/// [`ModelSize::Compact`] DF, radiance target (`IN_C = IN_M + 12`, cache input 16 + 16).
-pub type DfCompactRadiance = Df<16, 28, 32, 32, 2, 32, 2>;
-/// [`ModelSize::Compact`] DF, product target.
-pub type DfCompactProduct = Df<48, 60, 32, 32, 2, 32, 2>;
+pub use guiding_core::model::df::{DfCompactProduct, DfCompactRadiance};
+pub use guiding_core::model::nasg::{NasgCompactProduct, NasgCompactRadiance};
+pub use guiding_core::model::npm::{NpmCompactProduct, NpmCompactRadiance};
 
 const B0: [f32; 3] = [0.0; 3];
 const B1: [f32; 3] = [1.0; 3];
@@ -271,6 +262,62 @@ pub(crate) fn build(
 /// The model's bytes (`repr(C)` Pod): its grid box, layer offsets and
 /// constants, stored in save files to detect a file written for another
 /// model layout.
+/// The SPIR-V entry-point prefix of the model type (crate
+/// `guiding-shaders`: `{prefix}_sample`, `_pdf`, `_gradient`, `_infer`).
+pub(crate) fn kernel_prefix(field: &AnyField) -> &'static str {
+    match field {
+        AnyField::NpmSmallRadiance(_) => "npm_small_radiance",
+        AnyField::NpmSmallProduct(_) => "npm_small_product",
+        AnyField::NpmCompactRadiance(_) => "npm_compact_radiance",
+        AnyField::NpmCompactProduct(_) => "npm_compact_product",
+        AnyField::NpmPaperRadiance(_) => "npm_paper_radiance",
+        AnyField::NpmPaperProduct(_) => "npm_paper_product",
+        AnyField::NasgSmallRadiance(_) => "nasg_small_radiance",
+        AnyField::NasgSmallProduct(_) => "nasg_small_product",
+        AnyField::NasgCompactRadiance(_) => "nasg_compact_radiance",
+        AnyField::NasgCompactProduct(_) => "nasg_compact_product",
+        AnyField::NasgPaperRadiance(_) => "nasg_paper_radiance",
+        AnyField::NasgPaperProduct(_) => "nasg_paper_product",
+        AnyField::DfSmallRadiance(_) => "df_small_radiance",
+        AnyField::DfSmallProduct(_) => "df_small_product",
+        AnyField::DfCompactRadiance(_) => "df_compact_radiance",
+        AnyField::DfCompactProduct(_) => "df_compact_product",
+        AnyField::DfPaperRadiance(_) => "df_paper_radiance",
+        AnyField::DfPaperProduct(_) => "df_paper_product",
+    }
+}
+
+/// Raw network outputs per query of the model (0 for DF, whose conditional
+/// network depends on the direction).
+pub(crate) fn raw_outputs(field: &AnyField) -> usize {
+    use guiding_core::model::nasg::NASG_OUTPUTS;
+    use guiding_core::model::npm::NPM_OUTPUTS;
+    let prefix = kernel_prefix(field);
+    if prefix.starts_with("npm") {
+        NPM_OUTPUTS
+    } else if prefix.starts_with("nasg") {
+        NASG_OUTPUTS
+    } else {
+        0
+    }
+}
+
+/// The distribution decoded from raw outputs computed elsewhere (a GPU
+/// running [`guiding_core::model::RawOutputs::write_raw`]); `None` for DF.
+pub(crate) fn decode_raw(field: &AnyField, raw: &[f32]) -> Option<Decoded> {
+    use guiding_core::batch::{nasg_mixture_from_raw, vmf_mixture_from_raw};
+    match raw_outputs(field) {
+        0 => None,
+        n if n == guiding_core::model::npm::NPM_OUTPUTS => Some(Decoded::Vmf {
+            mixture: vmf_mixture_from_raw(raw, 0),
+            selection: with_field!(field, f => f
+                .model()
+                .selection_probability(f.ema_params(), &QueryPoint::default())),
+        }),
+        _ => Some(Decoded::Nasg(nasg_mixture_from_raw(raw, 0))),
+    }
+}
+
 pub(crate) fn model_bytes(field: &AnyField) -> Vec<u8> {
     with_field!(field, f => bytemuck::bytes_of(f.model()).to_vec())
 }

@@ -182,12 +182,35 @@ pub fn decode_selection(selection_raw: f32) -> (f32, f32) {
 }
 
 impl<const K: usize> NasgMixture<K> {
+    /// All-zero mixture (written out: `Zeroable::zeroed` goes through
+    /// `MaybeUninit`, which rust-gpu cannot compile).
+    pub const ZERO: Self = Self {
+        weight: [0.0; K],
+        x_x: [0.0; K],
+        x_y: [0.0; K],
+        x_z: [0.0; K],
+        y_x: [0.0; K],
+        y_y: [0.0; K],
+        y_z: [0.0; K],
+        z_x: [0.0; K],
+        z_y: [0.0; K],
+        z_z: [0.0; K],
+        lambda: [0.0; K],
+        a: [0.0; K],
+        epsilon: [0.0; K],
+        log_norm: [0.0; K],
+        one_minus_e2l: [0.0; K],
+        selection_probability: 0.0,
+    };
+}
+
+impl<const K: usize> NasgMixture<K> {
     /// Mixture of the given lobes with the given weights (normalised here;
     /// negative, infinite or NaN weights count as zero, all-zero weights become
     /// uniform) and selection probability [`NASG_SELECTION_DEFAULT`].
     #[must_use]
     pub fn from_lobes(lobes: &[NasgLobe; K], weights: &[f32; K]) -> Self {
-        let mut m = Self::zeroed();
+        let mut m = Self::ZERO;
         let mut sum = 0.0;
         let mut k = 0;
         while k < K {
@@ -230,7 +253,7 @@ impl<const K: usize> NasgMixture<K> {
     /// and clamps). Any input, including NaN and ±∞, gives a valid mixture.
     #[must_use]
     pub fn decode(raw: &[[f32; NASG_RAW_PER_LOBE]; K], selection_raw: f32) -> Self {
-        let mut m = Self::zeroed();
+        let mut m = Self::ZERO;
         softmax(&weight_logits(raw), &mut m.weight);
         let mut k = 0;
         while k < K {

@@ -102,11 +102,26 @@ fn weight_logits<const K: usize>(raw: &[[f32; VMF_RAW_PER_LOBE]; K]) -> [f32; K]
 }
 
 impl<const K: usize> VmfMixture<K> {
+    /// All-zero mixture (the starting value of the constructors; written
+    /// out because `Zeroable::zeroed` goes through `MaybeUninit`, which
+    /// rust-gpu cannot compile).
+    pub const ZERO: Self = Self {
+        weight: [0.0; K],
+        mean_x: [0.0; K],
+        mean_y: [0.0; K],
+        mean_z: [0.0; K],
+        kappa: [0.0; K],
+        norm: [0.0; K],
+        one_minus_e2k: [0.0; K],
+    };
+}
+
+impl<const K: usize> VmfMixture<K> {
     /// Mixture of the given lobes with the given weights (normalised here;
     /// negative or NaN weights count as zero, all-zero weights become uniform).
     #[must_use]
     pub fn from_lobes(lobes: &[VmfLobe; K], weights: &[f32; K]) -> Self {
-        let mut m = Self::zeroed();
+        let mut m = Self::ZERO;
         let mut sum = 0.0;
         let mut k = 0;
         while k < K {
@@ -138,7 +153,7 @@ impl<const K: usize> VmfMixture<K> {
     /// mixture.
     #[must_use]
     pub fn decode(raw: &[[f32; VMF_RAW_PER_LOBE]; K]) -> Self {
-        let mut m = Self::zeroed();
+        let mut m = Self::ZERO;
         softmax(&weight_logits(raw), &mut m.weight);
         let mut k = 0;
         while k < K {
@@ -257,7 +272,7 @@ impl<const K: usize> VmfMixture<K> {
     pub fn product_with_clamped_cosine(&self, normal: Vec3) -> Self {
         let n = crate::frame::normalize_or(normal, Vec3::Z);
         let kc = CLAMPED_COSINE_KAPPA;
-        let mut out = Self::zeroed();
+        let mut out = Self::ZERO;
         let mut log_w = [f32::MIN; K];
         let mut max_log = f32::MIN;
         let mut k = 0;

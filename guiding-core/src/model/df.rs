@@ -252,6 +252,11 @@ pub type DfSmallRadiance = Df<8, 20, 24, 16, 2, 16, 2>;
 /// Small product model for tests: [`small_grid`] + product inputs, networks
 /// 2 × 16.
 pub type DfSmallProduct = Df<40, 52, 24, 16, 2, 16, 2>;
+/// The `guiding` crate's compact DF for radiance (`IN_C = IN_M + 12`, cache
+/// input 16 + 16).
+pub type DfCompactRadiance = Df<16, 28, 32, 32, 2, 32, 2>;
+/// The compact DF for product guiding.
+pub type DfCompactProduct = Df<48, 60, 32, 32, 2, 32, 2>;
 
 impl DfRadiance {
     /// Radiance DF over the scene box with [`GridConfig::npm`]; `Nearest`

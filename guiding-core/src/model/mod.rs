@@ -89,3 +89,20 @@ pub trait GuidingModel: Copy {
         grad: &mut G,
     ) -> f32;
 }
+
+/// Models whose network output at a query is a fixed-size vector that fully
+/// describes the distribution there (NPM: 8 vMF lobes × 4; NASG: 8 lobes × 6
+/// plus the selection logit). A GPU runs the network ([`Self::write_raw`])
+/// and the renderer decodes the outputs where it samples
+/// ([`crate::batch::vmf_mixture_from_raw`],
+/// [`crate::batch::nasg_mixture_from_raw`]). DF is not one of them: its
+/// conditional network depends on the direction.
+pub trait RawOutputs: GuidingModel {
+    /// Number of `f32` outputs per query.
+    const RAW_OUTPUTS: usize;
+
+    /// Writes the network outputs at `query` to `out[base .. base +
+    /// RAW_OUTPUTS]` (slots past `out.len()` are skipped). A too short
+    /// `params` writes the outputs of the near-uniform distribution.
+    fn write_raw(&self, params: &[f32], query: &QueryPoint, out: &mut [f32], base: usize);
+}

@@ -112,6 +112,10 @@ pub type NasgRadiance = Nasg<32, 128, 4>;
 pub type NasgSmallProduct = Nasg<40, 16, 2>;
 /// Small radiance model for tests: IN = 8, 2 hidden × 16.
 pub type NasgSmallRadiance = Nasg<8, 16, 2>;
+/// The `guiding` crate's compact NASG for radiance (16 inputs, 2 × 32).
+pub type NasgCompactRadiance = Nasg<16, 32, 2>;
+/// The compact NASG for product guiding (48 inputs, 2 × 32).
+pub type NasgCompactProduct = Nasg<48, 32, 2>;
 
 impl NasgProduct {
     /// NASG's model: [`GridConfig::npm`] + product inputs, MLP 4 × 128,
@@ -328,5 +332,25 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> GuidingModel
         );
         grid_backward(&self.grid, sample.position(), &d_input, 0, grad);
         terms.loss
+    }
+}
+
+impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> super::RawOutputs
+    for Nasg<IN, WIDTH, HIDDEN>
+{
+    const RAW_OUTPUTS: usize = NASG_OUTPUTS;
+
+    /// The network outputs of [`Self::decode`]: 8 rows of 6 lobe values,
+    /// then the selection logit.
+    fn write_raw(&self, params: &[f32], query: &QueryPoint, out: &mut [f32], base: usize) {
+        let y = self.raw(params, query);
+        let mut k = 0;
+        while k < NASG_OUTPUTS {
+            let i = crate::math::add_saturating(base, k);
+            if i < out.len() {
+                out[i] = y[k];
+            }
+            k += 1;
+        }
     }
 }

@@ -203,7 +203,7 @@ pub(crate) fn mlp_init<const IN: usize, const W: usize, const OUT: usize, const 
     let len = params.len();
     let mut k = 0;
     while k < Mlp::<IN, W, OUT, H>::PARAM_COUNT {
-        let idx = offset.saturating_add(k);
+        let idx = crate::math::add_saturating(offset, k);
         if idx >= len {
             break;
         }
@@ -216,7 +216,7 @@ pub(crate) fn mlp_init<const IN: usize, const W: usize, const OUT: usize, const 
 #[inline]
 #[must_use]
 pub(crate) fn region_end(offset: u32, count: usize) -> usize {
-    (offset as usize).saturating_add(count)
+    crate::math::add_saturating(offset as usize, count)
 }
 
 /// `p` clamped to `[0, 1]`, NaN → 0.5.
@@ -338,6 +338,11 @@ pub type NpmSmallRadiance = Npm<8, 16, 2>;
 /// Small product model for tests: [`small_grid`] + product inputs (IN = 40),
 /// 2 hidden × 16.
 pub type NpmSmallProduct = Npm<40, 16, 2>;
+/// The `guiding` crate's compact NPM for radiance: 4-level grid (16 features
+/// in), 2 hidden × 32.
+pub type NpmCompactRadiance = Npm<16, 32, 2>;
+/// The compact NPM for product guiding (16 + 32 product inputs).
+pub type NpmCompactProduct = Npm<48, 32, 2>;
 
 impl NpmRadiance {
     /// NPM's radiance model over the scene box: [`GridConfig::npm`], MLP
@@ -537,5 +542,29 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> GuidingModel
         );
         grid_backward(&self.grid, sample.position(), &d_input, 0, grad);
         loss
+    }
+}
+
+impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> super::RawOutputs
+    for Npm<IN, WIDTH, HIDDEN>
+{
+    const RAW_OUTPUTS: usize = NPM_OUTPUTS;
+
+    /// The rows of [`Self::decode`]'s input, flattened row-major
+    /// (`out[base + 4k + r]`).
+    fn write_raw(&self, params: &[f32], query: &QueryPoint, out: &mut [f32], base: usize) {
+        let rows = self.raw(params, query);
+        let mut k = 0;
+        while k < NPM_LOBES {
+            let mut r = 0;
+            while r < VMF_RAW_PER_LOBE {
+                let i = crate::math::add_saturating(base, k * VMF_RAW_PER_LOBE + r);
+                if i < out.len() {
+                    out[i] = rows[k][r];
+                }
+                r += 1;
+            }
+            k += 1;
+        }
     }
 }

@@ -1,12 +1,400 @@
-//! Compute entry points over guiding-core kernels.
+//! SPIR-V compute entry points of the path-guiding library.
+//!
+//! Every entry point is a thin wrapper: it turns the invocation id into an
+//! element index and calls the matching `guiding_core::batch` kernel — the
+//! very function the CPU runs in the difftests — so nothing is
+//! re-implemented here. Built to SPIR-V by `guiding-gpu/build.rs` (rust-gpu
+//! 0.11, feature `shaders`); on the host it compiles as a plain library so
+//! that clippy and the stable workspace see the same code.
+//!
+//! Conventions (the Vulkan runtime in `guiding-gpu` follows them):
+//! - 64 invocations per workgroup; a batch larger than 65535 workgroups
+//!   (Vulkan's guaranteed `maxComputeWorkGroupCount[0]`) is dispatched as a
+//!   2-D grid, so the element index is `gid.x + gid.y · groups.x · 64`;
+//! - descriptor set 0, storage buffers at bindings 0, 1, … in the order of
+//!   the parameters below; small scalars in push constants
+//!   ([`BatchArgs`], [`AdamArgs`]);
+//! - a model's configuration (a `#[repr(C)]` `Pod` value such as
+//!   `NpmCompactRadiance`) is element 0 of its own storage buffer.
 #![no_std]
+// An entry point takes one argument per binding and built-in.
+#![allow(clippy::too_many_arguments)]
 
+use guiding_core::batch::{self, AdamArgs, BatchArgs};
+use guiding_core::model::df::{
+    DfCompactProduct, DfCompactRadiance, DfProduct, DfRadiance, DfSmallProduct, DfSmallRadiance,
+};
+use guiding_core::model::nasg::{
+    NasgCompactProduct, NasgCompactRadiance, NasgProduct, NasgRadiance, NasgSmallProduct,
+    NasgSmallRadiance,
+};
+use guiding_core::model::npm::{
+    NpmCompactProduct, NpmCompactRadiance, NpmProduct, NpmRadiance, NpmSmallProduct,
+    NpmSmallRadiance,
+};
+use guiding_core::model::QueryPoint;
+use guiding_core::sample::TrainingSample;
+use spirv_std::glam::UVec3;
 use spirv_std::spirv;
 
-/// Smoke kernel: `out[i] = exp(in[i])` through guiding-core's math shim.
+/// Invocations per workgroup of every entry point.
+pub const WORKGROUP_SIZE: u32 = 64;
+
+/// The element index of an invocation (see the crate docs).
+#[inline]
+#[must_use]
+pub fn element_index(id: UVec3, groups: UVec3) -> usize {
+    (id.x + id.y * groups.x * WORKGROUP_SIZE) as usize
+}
+
+/// Entry points of one model type: `sample`, `pdf`, `gradient` (and
+/// `infer` for models with [`guiding_core::model::RawOutputs`]).
+macro_rules! model_kernels {
+    ($model:ty, $sample:ident, $pdf:ident, $gradient:ident $(, $infer:ident)?) => {
+        /// [`batch::sample_element`] of this model.
+        #[spirv(compute(threads(64)))]
+        pub fn $sample(
+            #[spirv(global_invocation_id)] id: UVec3,
+            #[spirv(num_workgroups)] groups: UVec3,
+            #[spirv(push_constant)] args: &BatchArgs,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] model: &[$model],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] params: &[f32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] queries: &[QueryPoint],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] u: &[[f32; 4]],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] out: &mut [[f32; 4]],
+        ) {
+            let i = element_index(id, groups);
+            if i < args.count as usize {
+                batch::sample_element(&model[0], params, queries, u, out, i);
+            }
+        }
+
+        /// [`batch::pdf_element`] of this model.
+        #[spirv(compute(threads(64)))]
+        pub fn $pdf(
+            #[spirv(global_invocation_id)] id: UVec3,
+            #[spirv(num_workgroups)] groups: UVec3,
+            #[spirv(push_constant)] args: &BatchArgs,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] model: &[$model],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] params: &[f32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] queries: &[QueryPoint],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] directions: &[[f32; 4]],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] out: &mut [f32],
+        ) {
+            let i = element_index(id, groups);
+            if i < args.count as usize {
+                batch::pdf_element(&model[0], params, queries, directions, out, i);
+            }
+        }
+
+        /// [`batch::gradient_chunk`] of this model: one invocation per chunk.
+        #[spirv(compute(threads(64)))]
+        pub fn $gradient(
+            #[spirv(global_invocation_id)] id: UVec3,
+            #[spirv(num_workgroups)] groups: UVec3,
+            #[spirv(push_constant)] args: &BatchArgs,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] model: &[$model],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] params: &[f32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] samples: &[TrainingSample],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] rows: &mut [f32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] losses: &mut [f32],
+        ) {
+            let c = element_index(id, groups);
+            batch::gradient_chunk(
+                &model[0],
+                params,
+                samples,
+                args.count as usize,
+                args.chunks as usize,
+                rows,
+                args.row_len as usize,
+                losses,
+                c,
+            );
+        }
+
+        $(
+        /// [`batch::infer_element`] of this model.
+        #[spirv(compute(threads(64)))]
+        pub fn $infer(
+            #[spirv(global_invocation_id)] id: UVec3,
+            #[spirv(num_workgroups)] groups: UVec3,
+            #[spirv(push_constant)] args: &BatchArgs,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] model: &[$model],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] params: &[f32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] queries: &[QueryPoint],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] out: &mut [f32],
+        ) {
+            let i = element_index(id, groups);
+            if i < args.count as usize {
+                batch::infer_element(&model[0], params, queries, out, i);
+            }
+        }
+        )?
+    };
+}
+
+model_kernels!(
+    NpmSmallRadiance,
+    npm_small_radiance_sample,
+    npm_small_radiance_pdf,
+    npm_small_radiance_gradient,
+    npm_small_radiance_infer
+);
+model_kernels!(
+    NpmSmallProduct,
+    npm_small_product_sample,
+    npm_small_product_pdf,
+    npm_small_product_gradient,
+    npm_small_product_infer
+);
+model_kernels!(
+    NpmCompactRadiance,
+    npm_compact_radiance_sample,
+    npm_compact_radiance_pdf,
+    npm_compact_radiance_gradient,
+    npm_compact_radiance_infer
+);
+model_kernels!(
+    NpmCompactProduct,
+    npm_compact_product_sample,
+    npm_compact_product_pdf,
+    npm_compact_product_gradient,
+    npm_compact_product_infer
+);
+model_kernels!(
+    NpmRadiance,
+    npm_paper_radiance_sample,
+    npm_paper_radiance_pdf,
+    npm_paper_radiance_gradient,
+    npm_paper_radiance_infer
+);
+model_kernels!(
+    NpmProduct,
+    npm_paper_product_sample,
+    npm_paper_product_pdf,
+    npm_paper_product_gradient,
+    npm_paper_product_infer
+);
+model_kernels!(
+    NasgSmallRadiance,
+    nasg_small_radiance_sample,
+    nasg_small_radiance_pdf,
+    nasg_small_radiance_gradient,
+    nasg_small_radiance_infer
+);
+model_kernels!(
+    NasgSmallProduct,
+    nasg_small_product_sample,
+    nasg_small_product_pdf,
+    nasg_small_product_gradient,
+    nasg_small_product_infer
+);
+model_kernels!(
+    NasgCompactRadiance,
+    nasg_compact_radiance_sample,
+    nasg_compact_radiance_pdf,
+    nasg_compact_radiance_gradient,
+    nasg_compact_radiance_infer
+);
+model_kernels!(
+    NasgCompactProduct,
+    nasg_compact_product_sample,
+    nasg_compact_product_pdf,
+    nasg_compact_product_gradient,
+    nasg_compact_product_infer
+);
+model_kernels!(
+    NasgRadiance,
+    nasg_paper_radiance_sample,
+    nasg_paper_radiance_pdf,
+    nasg_paper_radiance_gradient,
+    nasg_paper_radiance_infer
+);
+model_kernels!(
+    NasgProduct,
+    nasg_paper_product_sample,
+    nasg_paper_product_pdf,
+    nasg_paper_product_gradient,
+    nasg_paper_product_infer
+);
+model_kernels!(
+    DfSmallRadiance,
+    df_small_radiance_sample,
+    df_small_radiance_pdf,
+    df_small_radiance_gradient
+);
+model_kernels!(
+    DfSmallProduct,
+    df_small_product_sample,
+    df_small_product_pdf,
+    df_small_product_gradient
+);
+model_kernels!(
+    DfCompactRadiance,
+    df_compact_radiance_sample,
+    df_compact_radiance_pdf,
+    df_compact_radiance_gradient
+);
+model_kernels!(
+    DfCompactProduct,
+    df_compact_product_sample,
+    df_compact_product_pdf,
+    df_compact_product_gradient
+);
+model_kernels!(
+    DfRadiance,
+    df_paper_radiance_sample,
+    df_paper_radiance_pdf,
+    df_paper_radiance_gradient
+);
+model_kernels!(
+    DfProduct,
+    df_paper_product_sample,
+    df_paper_product_pdf,
+    df_paper_product_gradient
+);
+
+/// [`batch::reduce_gradient_element`]: one invocation per parameter;
+/// `args.count` = samples in the step (the scale is `1 / count`),
+/// `args.chunks`, `args.row_len` = parameter count.
+#[spirv(compute(threads(64)))]
+pub fn reduce_gradient(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] args: &BatchArgs,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] rows: &mut [f32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] total: &mut [f32],
+) {
+    let j = element_index(id, groups);
+    let scale = 1.0 / args.count as f32;
+    batch::reduce_gradient_element(
+        rows,
+        args.row_len as usize,
+        args.chunks as usize,
+        total,
+        scale,
+        j,
+    );
+}
+
+/// [`batch::max_abs_partial`]: one invocation per block of 256 gradient
+/// elements; `args.count` = parameter count.
+#[spirv(compute(threads(64)))]
+pub fn max_abs(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] args: &BatchArgs,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] grad: &[f32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] out: &mut [f32],
+) {
+    let b = element_index(id, groups);
+    batch::max_abs_partial(grad, args.count as usize, out, b);
+}
+
+/// [`batch::adam_element`]: one invocation per parameter.
+#[spirv(compute(threads(64)))]
+pub fn adam(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] args: &AdamArgs,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] params: &mut [f32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] grad: &mut [f32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] m: &mut [f32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] v: &mut [f32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] ema: &mut [f32],
+) {
+    let j = element_index(id, groups);
+    batch::adam_element(params, grad, m, v, ema, args, j);
+}
+
+/// Entry points of one decode family (raw network outputs → sample, pdf).
+macro_rules! decode_kernels {
+    ($sample:ident, $pdf:ident, $sample_fn:path, $pdf_fn:path) => {
+        /// Decode + sample of a batch of raw outputs.
+        #[spirv(compute(threads(64)))]
+        pub fn $sample(
+            #[spirv(global_invocation_id)] id: UVec3,
+            #[spirv(num_workgroups)] groups: UVec3,
+            #[spirv(push_constant)] args: &BatchArgs,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] raw: &[f32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] u: &[[f32; 4]],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] out: &mut [[f32; 4]],
+        ) {
+            let i = element_index(id, groups);
+            if i < args.count as usize {
+                $sample_fn(raw, u, out, i);
+            }
+        }
+
+        /// Decode + pdf of a batch of raw outputs and directions.
+        #[spirv(compute(threads(64)))]
+        pub fn $pdf(
+            #[spirv(global_invocation_id)] id: UVec3,
+            #[spirv(num_workgroups)] groups: UVec3,
+            #[spirv(push_constant)] args: &BatchArgs,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] raw: &[f32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] directions: &[[f32; 4]],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] out: &mut [f32],
+        ) {
+            let i = element_index(id, groups);
+            if i < args.count as usize {
+                $pdf_fn(raw, directions, out, i);
+            }
+        }
+    };
+}
+
+decode_kernels!(
+    vmf_decode_sample,
+    vmf_decode_pdf,
+    batch::vmf_decode_sample_element,
+    batch::vmf_decode_pdf_element
+);
+decode_kernels!(
+    nasg_decode_sample,
+    nasg_decode_pdf,
+    batch::nasg_decode_sample_element,
+    batch::nasg_decode_pdf_element
+);
+
+/// DF decode + sample; `args.chunks` is the interpolation code.
+#[spirv(compute(threads(64)))]
+pub fn df_decode_sample(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] args: &BatchArgs,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] raw: &[f32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] u: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] out: &mut [[f32; 4]],
+) {
+    let i = element_index(id, groups);
+    if i < args.count as usize {
+        batch::df_decode_sample_element(raw, args.chunks, u, out, i);
+    }
+}
+
+/// DF decode + pdf; `args.chunks` is the interpolation code.
+#[spirv(compute(threads(64)))]
+pub fn df_decode_pdf(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] args: &BatchArgs,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] raw: &[f32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] directions: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] out: &mut [f32],
+) {
+    let i = element_index(id, groups);
+    if i < args.count as usize {
+        batch::df_decode_pdf_element(raw, args.chunks, directions, out, i);
+    }
+}
+
+/// Smoke kernel of the runtime tests: `out[i] = exp(in[i])` through
+/// guiding-core's math shim.
 #[spirv(compute(threads(64)))]
 pub fn exp_kernel(
-    #[spirv(global_invocation_id)] id: spirv_std::glam::UVec3,
+    #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] input: &[f32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] output: &mut [f32],
 ) {

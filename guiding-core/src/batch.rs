@@ -1,0 +1,448 @@
+//! Batch kernels, one element per call: the bodies that a CPU loop and a
+//! SPIR-V compute entry point (crate `guiding-shaders`, one invocation per
+//! element) both run, so that the GPU executes exactly this code.
+//!
+//! Conventions (shared with the Vulkan runtime in `guiding-gpu`):
+//! - every buffer is a flat slice of `f32`, `[f32; 4]` or a `#[repr(C)]`
+//!   [`Pod`] struct; vectors travel as `[f32; 4]` (std430 has no packed
+//!   `vec3` arrays), so a direction sample is `[x, y, z, pdf]` and a random
+//!   pair is `[u₀, u₁, ·, ·]`;
+//! - `i` is the element index; a call with `i` past the batch does nothing
+//!   (an invocation of the last, partial workgroup);
+//! - no allocation, no iterator, no `dyn`, `f32` only.
+//!
+//! The training step is split into three kernels so that thousands of
+//! invocations can work on it without floating-point atomics (which Vulkan
+//! does not guarantee) and with a result that does not depend on scheduling:
+//! [`gradient_chunk`] (one invocation per chunk of samples, each adding its
+//! samples in order into its own row of a `chunks × P` buffer, exactly as
+//! `Field`'s CPU step does per thread), [`reduce_gradient_element`] (one
+//! invocation per parameter, summing the rows in chunk order and scaling by
+//! `1/n`) and, after the host has looked at [`max_abs_partial`]'s block
+//! maxima to decide on skipping or clipping the step, [`adam_element`]. With
+//! the same chunk count the GPU step is the CPU step up to the rounding of
+//! fused multiply-adds.
+
+use crate::factorised::FactorisedTable;
+use crate::gradient::GradientRow;
+use crate::lobe::DirectionSample;
+use crate::mixture::nasg::{NasgMixture, NASG_RAW_PER_LOBE};
+use crate::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
+use crate::model::df::{DF_CONDITIONAL_BINS, DF_MARGINAL_BINS};
+use crate::model::nasg::{NASG_LOBES, NASG_OUTPUTS, NASG_SELECTION_OUTPUT};
+use crate::model::npm::{NPM_LOBES, NPM_OUTPUTS};
+use crate::model::{GuidingModel, QueryPoint, RawOutputs};
+use crate::optim::{adam_update_with_factors, ema_update_element, AdamConfig, AdamStepFactors};
+use crate::pdf1d::Interpolation;
+use crate::sample::TrainingSample;
+use bytemuck::{Pod, Zeroable};
+use glam::{Vec2, Vec3};
+
+/// Raw outputs per element of the DF decode kernels: the marginal logits,
+/// then the `DF_MARGINAL_BINS` conditional rows.
+pub const DF_TABLE_LOGITS: usize = DF_MARGINAL_BINS + DF_MARGINAL_BINS * DF_CONDITIONAL_BINS;
+
+/// Push constants of the element kernels.
+///
+/// `repr(C)`, [`Pod`], 16 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct BatchArgs {
+    /// Number of elements (queries, samples or parameters).
+    pub count: u32,
+    /// Number of gradient chunks ([`gradient_chunk`],
+    /// [`reduce_gradient_element`]); the interpolation code for the DF
+    /// decode kernels (0 nearest, 1 linear).
+    pub chunks: u32,
+    /// Length of one gradient row (the parameter count).
+    pub row_len: u32,
+    /// Unused (padding).
+    pub pad: u32,
+}
+
+/// Push constants of [`adam_element`].
+///
+/// `repr(C)`, [`Pod`], 48 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct AdamArgs {
+    /// Number of parameters.
+    pub count: u32,
+    /// Padding.
+    pub pad: [u32; 3],
+    /// Optimiser settings.
+    pub adam: AdamConfig,
+    /// Bias corrections of this step.
+    pub factors: AdamStepFactors,
+    /// Factor applied to every gradient element first (`1`, or
+    /// `clip / max|g|` for a clipped step).
+    pub gradient_scale: f32,
+    /// Weight of the new parameters in the EMA ([`crate::optim::ema_weight`]).
+    pub ema_alpha: f32,
+}
+
+/// `[x, y, z, pdf]` of a direction sample.
+#[inline]
+#[must_use]
+pub fn pack_sample(s: DirectionSample) -> [f32; 4] {
+    [s.direction.x, s.direction.y, s.direction.z, s.pdf]
+}
+
+/// The direction of a packed `[x, y, z, ·]`.
+#[inline]
+#[must_use]
+pub fn unpack_direction(v: [f32; 4]) -> Vec3 {
+    Vec3::new(v[0], v[1], v[2])
+}
+
+/// Network outputs of query `i`: `out[i·R .. (i+1)·R]` with `R =
+/// M::RAW_OUTPUTS` ([`RawOutputs::write_raw`]).
+#[inline]
+pub fn infer_element<M: RawOutputs>(
+    model: &M,
+    params: &[f32],
+    queries: &[QueryPoint],
+    out: &mut [f32],
+    i: usize,
+) {
+    if i < queries.len() {
+        model.write_raw(params, &queries[i], out, i * M::RAW_OUTPUTS);
+    }
+}
+
+/// `out[i] = [ω, pdf]` of [`GuidingModel::sample`] at query `i` with the
+/// random pair `u[i]`.
+#[inline]
+pub fn sample_element<M: GuidingModel>(
+    model: &M,
+    params: &[f32],
+    queries: &[QueryPoint],
+    u: &[[f32; 4]],
+    out: &mut [[f32; 4]],
+    i: usize,
+) {
+    if i < queries.len() && i < u.len() && i < out.len() {
+        let r = u[i];
+        out[i] = pack_sample(model.sample(params, &queries[i], Vec2::new(r[0], r[1])));
+    }
+}
+
+/// `out[i]` = [`GuidingModel::pdf`] of direction `directions[i]` at query `i`.
+#[inline]
+pub fn pdf_element<M: GuidingModel>(
+    model: &M,
+    params: &[f32],
+    queries: &[QueryPoint],
+    directions: &[[f32; 4]],
+    out: &mut [f32],
+    i: usize,
+) {
+    if i < queries.len() && i < directions.len() && i < out.len() {
+        out[i] = model.pdf(params, &queries[i], unpack_direction(directions[i]));
+    }
+}
+
+/// `out[i]` = [`GuidingModel::selection_probability`] at query `i`.
+#[inline]
+pub fn selection_element<M: GuidingModel>(
+    model: &M,
+    params: &[f32],
+    queries: &[QueryPoint],
+    out: &mut [f32],
+    i: usize,
+) {
+    if i < queries.len() && i < out.len() {
+        out[i] = model.selection_probability(params, &queries[i]);
+    }
+}
+
+/// Gradient of chunk `c` of `chunks` balanced contiguous chunks of the first
+/// `count` samples (chunk `c` holds samples `c·n/C .. (c+1)·n/C`, as in
+/// `Field`'s step), added in sample order into row `c` of `rows`
+/// (`rows[c·row_len ..]`, zero on entry); the chunk's loss sum goes to
+/// `losses[c]`.
+#[allow(clippy::too_many_arguments)]
+pub fn gradient_chunk<M: GuidingModel>(
+    model: &M,
+    params: &[f32],
+    samples: &[TrainingSample],
+    count: usize,
+    chunks: usize,
+    rows: &mut [f32],
+    row_len: usize,
+    losses: &mut [f32],
+    c: usize,
+) {
+    if c >= chunks || c >= losses.len() {
+        return;
+    }
+    let n = if count < samples.len() {
+        count
+    } else {
+        samples.len()
+    };
+    let start = c * n / chunks;
+    let end = (c + 1) * n / chunks;
+    let mut row = GradientRow::new(rows, c * row_len, row_len);
+    let mut loss = 0.0f32;
+    let mut s = start;
+    while s < end {
+        loss += model.accumulate_gradient(params, &samples[s], &mut row);
+        s += 1;
+    }
+    losses[c] = loss;
+}
+
+/// `total[j] = scale · Σ_c rows[c·row_len + j]` (chunks in order), and the
+/// rows' entries `j` reset to zero for the next step.
+#[inline]
+pub fn reduce_gradient_element(
+    rows: &mut [f32],
+    row_len: usize,
+    chunks: usize,
+    total: &mut [f32],
+    scale: f32,
+    j: usize,
+) {
+    if j >= row_len || j >= total.len() {
+        return;
+    }
+    let mut sum = 0.0f32;
+    let mut c = 0;
+    while c < chunks {
+        let k = c * row_len + j;
+        if k < rows.len() {
+            sum += rows[k];
+            rows[k] = 0.0;
+        }
+        c += 1;
+    }
+    total[j] = sum * scale;
+}
+
+/// Elements per block of [`max_abs_partial`].
+pub const MAX_ABS_BLOCK: usize = 256;
+
+/// `out[b] = max |g|` over block `b` (`MAX_ABS_BLOCK` elements) of `g`, or
+/// `+∞` when the block holds a non-finite value: the host reads these
+/// `⌈P / 256⌉` values to skip (non-finite) or clip the step, as `Field` does.
+#[inline]
+pub fn max_abs_partial(g: &[f32], count: usize, out: &mut [f32], b: usize) {
+    if b >= out.len() {
+        return;
+    }
+    let n = if count < g.len() { count } else { g.len() };
+    let mut max = 0.0f32;
+    let mut j = b * MAX_ABS_BLOCK;
+    let end = j + MAX_ABS_BLOCK;
+    while j < end && j < n {
+        let x = g[j];
+        if !x.is_finite() {
+            max = f32::INFINITY;
+        } else if x.abs() > max {
+            max = x.abs();
+        }
+        j += 1;
+    }
+    out[b] = max;
+}
+
+/// One parameter's Adam update ([`adam_update_with_factors`] on
+/// `gradient_scale · grad[j]`), then its EMA ([`ema_update_element`]) and
+/// `grad[j] = 0`. Returns whether Adam updated the element.
+#[inline]
+pub fn adam_element(
+    params: &mut [f32],
+    grad: &mut [f32],
+    m: &mut [f32],
+    v: &mut [f32],
+    ema: &mut [f32],
+    args: &AdamArgs,
+    j: usize,
+) -> bool {
+    let n = args.count as usize;
+    if j >= n || j >= params.len() || j >= grad.len() || j >= m.len() || j >= v.len() {
+        return false;
+    }
+    let g = grad[j] * args.gradient_scale;
+    let mut p = params[j];
+    let mut mj = m[j];
+    let mut vj = v[j];
+    let updated = adam_update_with_factors(&mut p, &mut mj, &mut vj, g, &args.adam, &args.factors);
+    params[j] = p;
+    m[j] = mj;
+    v[j] = vj;
+    if j < ema.len() {
+        let mut e = ema[j];
+        ema_update_element(&mut e, p, args.ema_alpha);
+        ema[j] = e;
+    }
+    grad[j] = 0.0;
+    updated
+}
+
+/// The NPM mixture of the raw outputs `raw[base .. base + 32]` (8 rows of
+/// `[w, ln κ, θ, φ]`, [`VmfMixture::decode`]); missing slots read as 0.
+#[must_use]
+pub fn vmf_mixture_from_raw(raw: &[f32], base: usize) -> VmfMixture<NPM_LOBES> {
+    let mut rows = [[0.0f32; VMF_RAW_PER_LOBE]; NPM_LOBES];
+    let mut k = 0;
+    while k < NPM_LOBES {
+        let mut r = 0;
+        while r < VMF_RAW_PER_LOBE {
+            let i = base + k * VMF_RAW_PER_LOBE + r;
+            if i < raw.len() {
+                rows[k][r] = raw[i];
+            }
+            r += 1;
+        }
+        k += 1;
+    }
+    VmfMixture::decode(&rows)
+}
+
+/// The NASG mixture (with its selection probability) of the raw outputs
+/// `raw[base .. base + 49]` ([`NasgMixture::decode`]); missing slots read
+/// as 0.
+#[must_use]
+pub fn nasg_mixture_from_raw(raw: &[f32], base: usize) -> NasgMixture<NASG_LOBES> {
+    let mut rows = [[0.0f32; NASG_RAW_PER_LOBE]; NASG_LOBES];
+    let mut k = 0;
+    while k < NASG_LOBES {
+        let mut r = 0;
+        while r < NASG_RAW_PER_LOBE {
+            let i = base + k * NASG_RAW_PER_LOBE + r;
+            if i < raw.len() {
+                rows[k][r] = raw[i];
+            }
+            r += 1;
+        }
+        k += 1;
+    }
+    let s = base + NASG_SELECTION_OUTPUT;
+    let selection = if s < raw.len() { raw[s] } else { 0.0 };
+    NasgMixture::decode(&rows, selection)
+}
+
+/// The DF table of the logits `raw[base .. base + DF_TABLE_LOGITS]`
+/// ([`FactorisedTable::from_logits`]); missing slots read as 0.
+#[must_use]
+pub fn df_table_from_raw(
+    raw: &[f32],
+    base: usize,
+    interpolation: Interpolation,
+) -> FactorisedTable<DF_MARGINAL_BINS, DF_CONDITIONAL_BINS> {
+    let mut marginal = [0.0f32; DF_MARGINAL_BINS];
+    let mut conditional = [[0.0f32; DF_CONDITIONAL_BINS]; DF_MARGINAL_BINS];
+    let mut i = 0;
+    while i < DF_MARGINAL_BINS {
+        let k = base + i;
+        if k < raw.len() {
+            marginal[i] = raw[k];
+        }
+        let mut j = 0;
+        while j < DF_CONDITIONAL_BINS {
+            let k = base + DF_MARGINAL_BINS + i * DF_CONDITIONAL_BINS + j;
+            if k < raw.len() {
+                conditional[i][j] = raw[k];
+            }
+            j += 1;
+        }
+        i += 1;
+    }
+    FactorisedTable::from_logits(&marginal, &conditional, interpolation)
+}
+
+/// Decode kernel: `out[i] = [ω, pdf]` sampled with `u[i]` from
+/// [`vmf_mixture_from_raw`] of element `i` (32 raw values each).
+#[inline]
+pub fn vmf_decode_sample_element(raw: &[f32], u: &[[f32; 4]], out: &mut [[f32; 4]], i: usize) {
+    if i < u.len() && i < out.len() {
+        let r = u[i];
+        let mix = vmf_mixture_from_raw(raw, i * NPM_OUTPUTS);
+        out[i] = pack_sample(mix.sample(Vec2::new(r[0], r[1])));
+    }
+}
+
+/// Decode kernel: `out[i]` = density of `directions[i]` under
+/// [`vmf_mixture_from_raw`] of element `i`.
+#[inline]
+pub fn vmf_decode_pdf_element(raw: &[f32], directions: &[[f32; 4]], out: &mut [f32], i: usize) {
+    if i < directions.len() && i < out.len() {
+        let mix = vmf_mixture_from_raw(raw, i * NPM_OUTPUTS);
+        out[i] = mix.pdf(unpack_direction(directions[i]));
+    }
+}
+
+/// Decode kernel: `out[i] = [ω, pdf]` sampled with `u[i]` from
+/// [`nasg_mixture_from_raw`] of element `i` (49 raw values each).
+#[inline]
+pub fn nasg_decode_sample_element(raw: &[f32], u: &[[f32; 4]], out: &mut [[f32; 4]], i: usize) {
+    if i < u.len() && i < out.len() {
+        let r = u[i];
+        let mix = nasg_mixture_from_raw(raw, i * NASG_OUTPUTS);
+        out[i] = pack_sample(mix.sample(Vec2::new(r[0], r[1])));
+    }
+}
+
+/// Decode kernel: `out[i]` = density of `directions[i]` under
+/// [`nasg_mixture_from_raw`] of element `i`.
+#[inline]
+pub fn nasg_decode_pdf_element(raw: &[f32], directions: &[[f32; 4]], out: &mut [f32], i: usize) {
+    if i < directions.len() && i < out.len() {
+        let mix = nasg_mixture_from_raw(raw, i * NASG_OUTPUTS);
+        out[i] = mix.pdf(unpack_direction(directions[i]));
+    }
+}
+
+/// The interpolation of a DF decode kernel's code (0 nearest, else linear).
+#[inline]
+#[must_use]
+pub fn interpolation_from_code(code: u32) -> Interpolation {
+    if code == 0 {
+        Interpolation::Nearest
+    } else {
+        Interpolation::Linear
+    }
+}
+
+/// Decode kernel: `out[i] = [ω, pdf]` sampled with `u[i]` from
+/// [`df_table_from_raw`] of element `i` ([`DF_TABLE_LOGITS`] values each).
+#[inline]
+pub fn df_decode_sample_element(
+    raw: &[f32],
+    interpolation: u32,
+    u: &[[f32; 4]],
+    out: &mut [[f32; 4]],
+    i: usize,
+) {
+    if i < u.len() && i < out.len() {
+        let r = u[i];
+        let table = df_table_from_raw(
+            raw,
+            i * DF_TABLE_LOGITS,
+            interpolation_from_code(interpolation),
+        );
+        out[i] = pack_sample(table.sample(Vec2::new(r[0], r[1])));
+    }
+}
+
+/// Decode kernel: `out[i]` = density of `directions[i]` under
+/// [`df_table_from_raw`] of element `i`.
+#[inline]
+pub fn df_decode_pdf_element(
+    raw: &[f32],
+    interpolation: u32,
+    directions: &[[f32; 4]],
+    out: &mut [f32],
+    i: usize,
+) {
+    if i < directions.len() && i < out.len() {
+        let table = df_table_from_raw(
+            raw,
+            i * DF_TABLE_LOGITS,
+            interpolation_from_code(interpolation),
+        );
+        out[i] = table.pdf(unpack_direction(directions[i]));
+    }
+}
