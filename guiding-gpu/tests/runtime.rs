@@ -209,3 +209,13 @@ fn kernel_rejects_what_is_not_spirv() {
         "{e}"
     );
 }
+
+#[test]
+fn handles_are_thread_safe_where_documented() {
+    fn send_sync<T: Send + Sync>() {}
+    fn send<T: Send>() {}
+    send_sync::<GpuContext>();
+    send_sync::<Kernel>();
+    send_sync::<GpuError>();
+    send::<GpuBuffer>();
+}

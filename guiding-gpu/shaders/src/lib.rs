@@ -38,3 +38,22 @@ pub fn exp_kernel(
     }
     output[i as usize] = guiding_core::math::exp(input[i as usize]);
 }
+
+/// Exact smoke kernel for the runtime's tests: `output[i] = input[i] + i`
+/// (wrapping `u32`) for `i < n`. Bindings: 0 input, 1 output; push constant
+/// `n: u32`. Integer-only, so the GPU result is bit-exact on every device and
+/// a wrong index or a missing barrier shows up as a wrong value.
+#[spirv(compute(threads(64)))]
+pub fn add_index_kernel(
+    #[spirv(global_invocation_id)] gid: UVec3,
+    #[spirv(num_workgroups)] num_workgroups: UVec3,
+    #[spirv(push_constant)] n: &u32,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] input: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] output: &mut [u32],
+) {
+    let i = linear_index(gid, num_workgroups);
+    if i >= *n || i as usize >= input.len() || i as usize >= output.len() {
+        return;
+    }
+    output[i as usize] = input[i as usize].wrapping_add(i);
+}
