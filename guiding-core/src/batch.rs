@@ -11,20 +11,21 @@
 //!   (an invocation of the last, partial workgroup);
 //! - no allocation, no iterator, no `dyn`, `f32` only.
 //!
-//! The training step is split into three kernels so that thousands of
-//! invocations can work on it without floating-point atomics (which Vulkan
-//! does not guarantee) and with a result that does not depend on scheduling:
-//! [`gradient_chunk`] (one invocation per chunk of samples, each adding its
-//! samples in order into its own row of a `chunks × P` buffer, exactly as
-//! `Field`'s CPU step does per thread), [`reduce_gradient_element`] (one
-//! invocation per parameter, summing the rows in chunk order and scaling by
-//! `1/n`) and, after the host has looked at [`max_abs_partial`]'s block
-//! maxima to decide on skipping or clipping the step, [`adam_element`]. With
-//! the same chunk count the GPU step is the CPU step up to the rounding of
-//! fused multiply-adds.
+//! The training step is three kernels: [`gradient_sample`] (one invocation
+//! per sample, adding its gradient into one shared buffer through the
+//! caller's [`GradientSink`] — on the GPU an atomic compare-and-swap float
+//! add, since Vulkan guarantees no float atomics), [`max_abs_partial`]
+//! (block maxima the host reads to skip a non-finite step or clip a large
+//! one, as `Field` does) and [`adam_element`] (one invocation per
+//! parameter). One sample per invocation keeps every invocation short:
+//! lavapipe (Mesa's CPU Vulkan driver) cuts any invocation's loops after
+//! 65535 iterations in total (gallivm's loop limiter), which a chunk of a
+//! few dozen samples through a compact network already exceeds. The GPU
+//! adds the samples in whatever order the atomics land, so its gradient
+//! equals the CPU's up to the rounding of a reordered sum.
 
 use crate::factorised::FactorisedTable;
-use crate::gradient::GradientRow;
+use crate::gradient::GradientSink;
 use crate::lobe::DirectionSample;
 use crate::mixture::nasg::{NasgMixture, NASG_RAW_PER_LOBE};
 use crate::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
@@ -50,14 +51,11 @@ pub const DF_TABLE_LOGITS: usize = DF_MARGINAL_BINS + DF_MARGINAL_BINS * DF_COND
 pub struct BatchArgs {
     /// Number of elements (queries, samples or parameters).
     pub count: u32,
-    /// Number of gradient chunks ([`gradient_chunk`],
-    /// [`reduce_gradient_element`]); the interpolation code for the DF
-    /// decode kernels (0 nearest, 1 linear).
-    pub chunks: u32,
-    /// Length of one gradient row (the parameter count).
-    pub row_len: u32,
-    /// Unused (padding).
-    pub pad: u32,
+    /// The interpolation code of the DF decode kernels (0 nearest, 1
+    /// linear); unused elsewhere.
+    pub code: u32,
+    /// Padding.
+    pub pad: [u32; 2],
 }
 
 /// Push constants of [`adam_element`].
@@ -156,68 +154,23 @@ pub fn selection_element<M: GuidingModel>(
     }
 }
 
-/// Gradient of chunk `c` of `chunks` balanced contiguous chunks of the first
-/// `count` samples (chunk `c` holds samples `c·n/C .. (c+1)·n/C`, as in
-/// `Field`'s step), added in sample order into row `c` of `rows`
-/// (`rows[c·row_len ..]`, zero on entry); the chunk's loss sum goes to
-/// `losses[c]`.
-#[allow(clippy::too_many_arguments)]
-pub fn gradient_chunk<M: GuidingModel>(
+/// Training loss of sample `i` into `losses[i]`, its parameter gradient
+/// added into `grad` ([`GuidingModel::accumulate_gradient`]); the sum over
+/// the batch divided by `count` is the step's gradient. Samples past
+/// `count` (or the buffers) do nothing.
+#[inline]
+pub fn gradient_sample<M: GuidingModel, G: GradientSink + ?Sized>(
     model: &M,
     params: &[f32],
     samples: &[TrainingSample],
     count: usize,
-    chunks: usize,
-    rows: &mut [f32],
-    row_len: usize,
+    grad: &mut G,
     losses: &mut [f32],
-    c: usize,
+    i: usize,
 ) {
-    if c >= chunks || c >= losses.len() {
-        return;
+    if i < count && i < samples.len() && i < losses.len() {
+        losses[i] = model.accumulate_gradient(params, &samples[i], grad);
     }
-    let n = if count < samples.len() {
-        count
-    } else {
-        samples.len()
-    };
-    let start = c * n / chunks;
-    let end = (c + 1) * n / chunks;
-    let mut row = GradientRow::new(rows, c * row_len, row_len);
-    let mut loss = 0.0f32;
-    let mut s = start;
-    while s < end {
-        loss += model.accumulate_gradient(params, &samples[s], &mut row);
-        s += 1;
-    }
-    losses[c] = loss;
-}
-
-/// `total[j] = scale · Σ_c rows[c·row_len + j]` (chunks in order), and the
-/// rows' entries `j` reset to zero for the next step.
-#[inline]
-pub fn reduce_gradient_element(
-    rows: &mut [f32],
-    row_len: usize,
-    chunks: usize,
-    total: &mut [f32],
-    scale: f32,
-    j: usize,
-) {
-    if j >= row_len || j >= total.len() {
-        return;
-    }
-    let mut sum = 0.0f32;
-    let mut c = 0;
-    while c < chunks {
-        let k = c * row_len + j;
-        if k < rows.len() {
-            sum += rows[k];
-            rows[k] = 0.0;
-        }
-        c += 1;
-    }
-    total[j] = sum * scale;
 }
 
 /// Elements per block of [`max_abs_partial`].

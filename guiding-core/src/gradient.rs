@@ -35,44 +35,6 @@ impl GradientSink for [f32] {
     }
 }
 
-/// Slots `base .. base + len` of `buffer`, seen as a gradient buffer of
-/// `len` slots: the per-chunk rows of the GPU training step.
-pub struct GradientRow<'a> {
-    buffer: &'a mut [f32],
-    base: usize,
-    len: usize,
-}
-
-impl<'a> GradientRow<'a> {
-    /// The row `base .. base + len` of `buffer`, clipped to the buffer's end
-    /// (a row past the end has no slot).
-    #[inline]
-    #[must_use]
-    pub fn new(buffer: &'a mut [f32], base: usize, len: usize) -> Self {
-        let end = buffer.len();
-        let len = if base >= end {
-            0
-        } else if len > end - base {
-            end - base
-        } else {
-            len
-        };
-        Self { buffer, base, len }
-    }
-}
-
-impl GradientSink for GradientRow<'_> {
-    #[inline(always)]
-    fn len(&self) -> usize {
-        self.len
-    }
-
-    #[inline(always)]
-    fn add(&mut self, index: usize, value: f32) {
-        self.buffer[self.base + index] += value;
-    }
-}
-
 /// A `Vec` is a sink like its slice (host code only).
 #[cfg(feature = "std")]
 impl GradientSink for std::vec::Vec<f32> {

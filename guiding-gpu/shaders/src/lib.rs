@@ -21,6 +21,7 @@
 #![allow(clippy::too_many_arguments)]
 
 use guiding_core::batch::{self, AdamArgs, BatchArgs};
+use guiding_core::gradient::GradientSink;
 use guiding_core::model::df::{
     DfCompactProduct, DfCompactRadiance, DfProduct, DfRadiance, DfSmallProduct, DfSmallRadiance,
 };
@@ -45,6 +46,83 @@ pub const WORKGROUP_SIZE: u32 = 64;
 #[must_use]
 pub fn element_index(id: UVec3, groups: UVec3) -> usize {
     (id.x + id.y * groups.x * WORKGROUP_SIZE) as usize
+}
+
+/// A gradient buffer shared by all invocations of a dispatch: `f32` values
+/// stored as their bits in a `u32` storage buffer, added with a
+/// compare-and-swap loop (`OpAtomicCompareExchange`, core Vulkan; float
+/// atomics are an extension). Zero increments are skipped.
+pub struct AtomicGradient<'a> {
+    buffer: &'a mut [u32],
+    len: usize,
+}
+
+impl<'a> AtomicGradient<'a> {
+    /// The first `len` slots of `buffer` (fewer if it is shorter).
+    pub fn new(buffer: &'a mut [u32], len: usize) -> Self {
+        let len = if len < buffer.len() {
+            len
+        } else {
+            buffer.len()
+        };
+        Self { buffer, len }
+    }
+}
+
+impl GradientSink for AtomicGradient<'_> {
+    fn len(&self) -> usize {
+        self.len
+    }
+
+    fn add(&mut self, index: usize, value: f32) {
+        if value == 0.0 || index >= self.len {
+            return;
+        }
+        let slot = &mut self.buffer[index];
+        let mut old = *slot;
+        // Bounded retries: under contention every round lets at least one
+        // invocation through, and the loop counts toward lavapipe's limit.
+        let mut tries = 0u32;
+        while tries < 1024 {
+            let new = (f32::from_bits(old) + value).to_bits();
+            let seen = compare_exchange(slot, new, old);
+            if seen == old {
+                return;
+            }
+            old = seen;
+            tries += 1;
+        }
+    }
+}
+
+/// `OpAtomicCompareExchange` at queue-family scope (every invocation of the
+/// dispatch; device scope would need the `VulkanMemoryModelDeviceScope`
+/// capability in the module), relaxed: the value the slot
+/// held (the exchange happened if it equals `current`).
+#[cfg(target_arch = "spirv")]
+fn compare_exchange(slot: &mut u32, new: u32, current: u32) -> u32 {
+    use spirv_std::memory::{Scope, Semantics};
+    // SAFETY: `slot` is a valid storage-buffer word; relaxed atomics on it
+    // race only with other atomics of this dispatch.
+    unsafe {
+        spirv_std::arch::atomic_compare_exchange::<
+            u32,
+            { Scope::QueueFamily as u32 },
+            { Semantics::NONE.bits() },
+            { Semantics::NONE.bits() },
+        >(slot, new, current)
+    }
+}
+
+/// Host build (clippy, docs): a plain exchange — the entry points only run
+/// as SPIR-V.
+#[cfg(not(target_arch = "spirv"))]
+fn compare_exchange(slot: &mut u32, new: u32, current: u32) -> u32 {
+    let seen = *slot;
+    if seen == current {
+        *slot = new;
+    }
+    seen
 }
 
 /// Entry points of one model type: `sample`, `pdf`, `gradient` (and
@@ -87,7 +165,8 @@ macro_rules! model_kernels {
             }
         }
 
-        /// [`batch::gradient_chunk`] of this model: one invocation per chunk.
+        /// [`batch::gradient_sample`] of this model: one invocation per
+        /// sample, the gradient added atomically into `grad` (`f32` bits).
         #[spirv(compute(threads(64)))]
         pub fn $gradient(
             #[spirv(global_invocation_id)] id: UVec3,
@@ -96,20 +175,19 @@ macro_rules! model_kernels {
             #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] model: &[$model],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] params: &[f32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] samples: &[TrainingSample],
-            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] rows: &mut [f32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] grad: &mut [u32],
             #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] losses: &mut [f32],
         ) {
-            let c = element_index(id, groups);
-            batch::gradient_chunk(
+            let i = element_index(id, groups);
+            let mut sink = AtomicGradient::new(grad, params.len());
+            batch::gradient_sample(
                 &model[0],
                 params,
                 samples,
                 args.count as usize,
-                args.chunks as usize,
-                rows,
-                args.row_len as usize,
+                &mut sink,
                 losses,
-                c,
+                i,
             );
         }
 
@@ -255,29 +333,6 @@ model_kernels!(
     df_paper_product_gradient
 );
 
-/// [`batch::reduce_gradient_element`]: one invocation per parameter;
-/// `args.count` = samples in the step (the scale is `1 / count`),
-/// `args.chunks`, `args.row_len` = parameter count.
-#[spirv(compute(threads(64)))]
-pub fn reduce_gradient(
-    #[spirv(global_invocation_id)] id: UVec3,
-    #[spirv(num_workgroups)] groups: UVec3,
-    #[spirv(push_constant)] args: &BatchArgs,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] rows: &mut [f32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] total: &mut [f32],
-) {
-    let j = element_index(id, groups);
-    let scale = 1.0 / args.count as f32;
-    batch::reduce_gradient_element(
-        rows,
-        args.row_len as usize,
-        args.chunks as usize,
-        total,
-        scale,
-        j,
-    );
-}
-
 /// [`batch::max_abs_partial`]: one invocation per block of 256 gradient
 /// elements; `args.count` = parameter count.
 #[spirv(compute(threads(64)))]
@@ -358,7 +413,7 @@ decode_kernels!(
     batch::nasg_decode_pdf_element
 );
 
-/// DF decode + sample; `args.chunks` is the interpolation code.
+/// DF decode + sample; `args.code` is the interpolation code.
 #[spirv(compute(threads(64)))]
 pub fn df_decode_sample(
     #[spirv(global_invocation_id)] id: UVec3,
@@ -370,11 +425,11 @@ pub fn df_decode_sample(
 ) {
     let i = element_index(id, groups);
     if i < args.count as usize {
-        batch::df_decode_sample_element(raw, args.chunks, u, out, i);
+        batch::df_decode_sample_element(raw, args.code, u, out, i);
     }
 }
 
-/// DF decode + pdf; `args.chunks` is the interpolation code.
+/// DF decode + pdf; `args.code` is the interpolation code.
 #[spirv(compute(threads(64)))]
 pub fn df_decode_pdf(
     #[spirv(global_invocation_id)] id: UVec3,
@@ -386,20 +441,43 @@ pub fn df_decode_pdf(
 ) {
     let i = element_index(id, groups);
     if i < args.count as usize {
-        batch::df_decode_pdf_element(raw, args.chunks, directions, out, i);
+        batch::df_decode_pdf_element(raw, args.code, directions, out, i);
     }
 }
 
-/// Smoke kernel of the runtime tests: `out[i] = exp(in[i])` through
-/// guiding-core's math shim.
+/// Smoke kernel: `output[i] = exp(input[i])` for `i < n` through
+/// guiding-core's math shim. Bindings: 0 input, 1 output; push constant `n: u32`.
 #[spirv(compute(threads(64)))]
 pub fn exp_kernel(
     #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] n: &u32,
     #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] input: &[f32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] output: &mut [f32],
 ) {
-    let i = id.x as usize;
-    if i < input.len() {
-        output[i] = guiding_core::math::exp(input[i]);
+    let i = element_index(id, groups);
+    // Also bounded by the buffers, so a wrong `n` cannot index out of range.
+    if i >= *n as usize || i >= input.len() || i >= output.len() {
+        return;
     }
+    output[i] = guiding_core::math::exp(input[i]);
+}
+
+/// Exact smoke kernel for the runtime's tests: `output[i] = input[i] + i`
+/// (wrapping `u32`) for `i < n`. Bindings: 0 input, 1 output; push constant
+/// `n: u32`. Integer-only, so the GPU result is bit-exact on every device and
+/// a wrong index or a missing barrier shows up as a wrong value.
+#[spirv(compute(threads(64)))]
+pub fn add_index_kernel(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] n: &u32,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] input: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] output: &mut [u32],
+) {
+    let i = element_index(id, groups);
+    if i >= *n as usize || i >= input.len() || i >= output.len() {
+        return;
+    }
+    output[i] = input[i].wrapping_add(i as u32);
 }

@@ -1,0 +1,513 @@
+//! A guiding model resident on the GPU: its configuration, parameters,
+//! Adam moments and EMA weights in device buffers, and the batch kernels of
+//! `guiding_core::batch` (compiled to SPIR-V) for inference and training.
+//!
+//! [`GpuModel`] is what a renderer's wavefront loop talks to when it runs
+//! the guiding stages on the GPU: [`GpuModel::infer`] (grid encoding + MLP
+//! for a batch of query points, raw outputs back for the CPU to decode),
+//! [`GpuModel::sample`] / [`GpuModel::pdf`] (the whole model per query) and
+//! [`GpuModel::train_step`] (per-sample gradients added atomically → block
+//! maxima → Adam + EMA, the step of `guiding_core::field::Field` on the
+//! GPU; see `guiding_core::batch` for why one sample per invocation). Queries read the EMA
+//! weights, as the CPU field does.
+
+use crate::{Batch, BatchReport, GpuBuffer, GpuContext, GpuError, Kernel};
+use bytemuck::Pod;
+use guiding_core::batch::{AdamArgs, BatchArgs, MAX_ABS_BLOCK};
+use guiding_core::model::QueryPoint;
+use guiding_core::optim::{ema_weight, AdamConfig, AdamStepFactors};
+use guiding_core::sample::TrainingSample;
+use std::mem::size_of;
+
+/// The entry points of one model type: `{prefix}_sample`, `{prefix}_pdf`,
+/// `{prefix}_gradient` and, for NPM / NASG, `{prefix}_infer`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ModelEntryPoints {
+    /// Entry-point prefix, e.g. `"npm_compact_radiance"`.
+    pub prefix: &'static str,
+    /// Raw outputs per query of `{prefix}_infer` (0: the model has none, DF).
+    pub raw_outputs: u32,
+}
+
+/// Training settings of [`GpuModel::train_step`] (those of the CPU field).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrainOptions {
+    /// Adam settings.
+    pub adam: AdamConfig,
+    /// EMA decay of the inference weights.
+    pub ema_decay: f32,
+    /// A step whose largest gradient magnitude exceeds this is scaled down to it.
+    pub max_gradient_magnitude: f32,
+}
+
+/// What one training step did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum StepOutcome {
+    /// Adam applied; `loss` is the mean sample loss, `clipped` whether the
+    /// gradient was scaled down.
+    Applied {
+        /// Mean loss of the batch.
+        loss: f32,
+        /// The gradient exceeded the clip magnitude.
+        clipped: bool,
+    },
+    /// The gradient or the loss was not finite; nothing changed.
+    Skipped,
+}
+
+/// A storage buffer that grows to the largest batch seen.
+struct Scratch {
+    buffer: Option<GpuBuffer>,
+}
+
+impl Scratch {
+    const fn new() -> Self {
+        Self { buffer: None }
+    }
+
+    fn at_least(&mut self, ctx: &GpuContext, bytes: u64) -> Result<&mut GpuBuffer, GpuError> {
+        let bytes = bytes.max(16);
+        let small = self.buffer.as_ref().is_none_or(|b| b.size() < bytes);
+        if small {
+            self.buffer = None;
+            self.buffer = Some(ctx.buffer(bytes.next_power_of_two())?);
+        }
+        self.buffer
+            .as_mut()
+            .ok_or_else(|| GpuError::BadArgument("scratch buffer missing".into()))
+    }
+
+    fn get(&self) -> Result<&GpuBuffer, GpuError> {
+        self.buffer
+            .as_ref()
+            .ok_or_else(|| GpuError::BadArgument("scratch buffer missing".into()))
+    }
+}
+
+/// Kernels of a model type plus the model-independent training kernels.
+struct Kernels {
+    infer: Option<Kernel>,
+    sample: Kernel,
+    pdf: Kernel,
+    gradient: Kernel,
+    max_abs: Kernel,
+    adam: Kernel,
+}
+
+/// Training buffers, created at the first step (`losses` grows with the batch).
+struct TrainBuffers {
+    grad: GpuBuffer,
+    partial: GpuBuffer,
+}
+
+/// A guiding model on the GPU (see the [module docs](self)).
+pub struct GpuModel {
+    ctx: GpuContext,
+    entry: ModelEntryPoints,
+    param_count: usize,
+    kernels: Kernels,
+    model: GpuBuffer,
+    params: GpuBuffer,
+    adam_m: GpuBuffer,
+    adam_v: GpuBuffer,
+    ema: GpuBuffer,
+    train: Option<TrainBuffers>,
+    losses: Scratch,
+    steps: u64,
+    queries: Scratch,
+    inputs: Scratch,
+    outputs: Scratch,
+    samples: Scratch,
+}
+
+fn push<T: Pod>(value: &T) -> &[u8] {
+    bytemuck::bytes_of(value)
+}
+
+fn count_u32(n: usize, what: &str) -> Result<u32, GpuError> {
+    u32::try_from(n).map_err(|_| GpuError::BadArgument(format!("{what}: {n} is over 2^32")))
+}
+
+impl GpuModel {
+    /// Uploads a model: `model` holds the bytes of the `Pod` configuration
+    /// value of the type `entry` names (e.g. a `NpmCompactRadiance`), then the training state
+    /// (`params`, Adam moments `adam_m` / `adam_v`, `ema` weights; all of the
+    /// model's parameter count) and the number of steps already taken.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        ctx: GpuContext,
+        entry: ModelEntryPoints,
+        model: &[u8],
+        params: &[f32],
+        adam_m: &[f32],
+        adam_v: &[f32],
+        ema: &[f32],
+        steps: u64,
+    ) -> Result<GpuModel, GpuError> {
+        let n = params.len();
+        if n == 0 || adam_m.len() != n || adam_v.len() != n || ema.len() != n {
+            return Err(GpuError::BadArgument(format!(
+                "model state lengths differ or are zero: params {n}, m {}, v {}, ema {}",
+                adam_m.len(),
+                adam_v.len(),
+                ema.len()
+            )));
+        }
+        let b = size_of::<BatchArgs>() as u32;
+        let p = entry.prefix;
+        let kernels = Kernels {
+            infer: if entry.raw_outputs > 0 {
+                Some(ctx.embedded_kernel(&format!("{p}_infer"), 4, b)?)
+            } else {
+                None
+            },
+            sample: ctx.embedded_kernel(&format!("{p}_sample"), 5, b)?,
+            pdf: ctx.embedded_kernel(&format!("{p}_pdf"), 5, b)?,
+            gradient: ctx.embedded_kernel(&format!("{p}_gradient"), 5, b)?,
+            max_abs: ctx.embedded_kernel("max_abs", 2, b)?,
+            adam: ctx.embedded_kernel("adam", 5, size_of::<AdamArgs>() as u32)?,
+        };
+        Ok(GpuModel {
+            model: ctx.buffer_from(model)?,
+            params: ctx.buffer_from(params)?,
+            adam_m: ctx.buffer_from(adam_m)?,
+            adam_v: ctx.buffer_from(adam_v)?,
+            ema: ctx.buffer_from(ema)?,
+            ctx,
+            entry,
+            param_count: n,
+            kernels,
+            train: None,
+            losses: Scratch::new(),
+            steps,
+            queries: Scratch::new(),
+            inputs: Scratch::new(),
+            outputs: Scratch::new(),
+            samples: Scratch::new(),
+        })
+    }
+
+    /// The device context.
+    pub fn context(&self) -> &GpuContext {
+        &self.ctx
+    }
+
+    /// The model's entry points.
+    pub fn entry_points(&self) -> ModelEntryPoints {
+        self.entry
+    }
+
+    /// Number of parameters.
+    pub fn param_count(&self) -> usize {
+        self.param_count
+    }
+
+    /// Training steps taken (including those before upload).
+    pub fn steps(&self) -> u64 {
+        self.steps
+    }
+
+    /// Raw network outputs (EMA weights) of every query into `out`
+    /// (`queries.len() · raw_outputs` floats, query-major).
+    pub fn infer(
+        &mut self,
+        queries: &[QueryPoint],
+        out: &mut [f32],
+    ) -> Result<BatchReport, GpuError> {
+        let r = self.entry.raw_outputs as usize;
+        let Some(kernel) = self.kernels.infer.as_ref() else {
+            return Err(GpuError::BadArgument(format!(
+                "{} has no raw outputs (its conditional network depends on the direction): \
+                 use sample / pdf",
+                self.entry.prefix
+            )));
+        };
+        if out.len() != queries.len() * r {
+            return Err(GpuError::BadArgument(format!(
+                "infer: {} queries need {} outputs, {} given",
+                queries.len(),
+                queries.len() * r,
+                out.len()
+            )));
+        }
+        if queries.is_empty() {
+            return Ok(BatchReport {
+                dispatches: 0,
+                gpu_time_ns: None,
+            });
+        }
+        let n = count_u32(queries.len(), "queries")?;
+        self.queries
+            .at_least(&self.ctx, size_of_val(queries) as u64)?
+            .upload(queries)?;
+        self.outputs.at_least(&self.ctx, size_of_val(out) as u64)?;
+        let args = BatchArgs {
+            count: n,
+            ..BatchArgs::default()
+        };
+        let mut batch = self.ctx.timed_batch()?;
+        batch.dispatch(
+            kernel,
+            &[
+                &self.model,
+                &self.ema,
+                self.queries.get()?,
+                self.outputs.get()?,
+            ],
+            push(&args),
+            n,
+        )?;
+        let report = batch.submit_and_wait()?;
+        self.outputs.get()?.download_into(out)?;
+        Ok(report)
+    }
+
+    /// `out[i] = [ω, pdf]` sampled at `queries[i]` with `u[i] = [u₀, u₁, ·, ·]`.
+    pub fn sample(
+        &mut self,
+        queries: &[QueryPoint],
+        u: &[[f32; 4]],
+        out: &mut [[f32; 4]],
+    ) -> Result<BatchReport, GpuError> {
+        if u.len() != queries.len() || out.len() != queries.len() {
+            return Err(GpuError::BadArgument(format!(
+                "sample: {} queries, {} random pairs, {} outputs",
+                queries.len(),
+                u.len(),
+                out.len()
+            )));
+        }
+        let kernel = &self.kernels.sample;
+        Self::query_kernel(
+            &self.ctx,
+            kernel,
+            [&self.model, &self.ema],
+            (&mut self.queries, &mut self.inputs, &mut self.outputs),
+            queries,
+            u,
+            out,
+        )
+    }
+
+    /// `out[i]` = density of `directions[i] = [x, y, z, ·]` at `queries[i]`.
+    pub fn pdf(
+        &mut self,
+        queries: &[QueryPoint],
+        directions: &[[f32; 4]],
+        out: &mut [f32],
+    ) -> Result<BatchReport, GpuError> {
+        if directions.len() != queries.len() || out.len() != queries.len() {
+            return Err(GpuError::BadArgument(format!(
+                "pdf: {} queries, {} directions, {} outputs",
+                queries.len(),
+                directions.len(),
+                out.len()
+            )));
+        }
+        let kernel = &self.kernels.pdf;
+        Self::query_kernel(
+            &self.ctx,
+            kernel,
+            [&self.model, &self.ema],
+            (&mut self.queries, &mut self.inputs, &mut self.outputs),
+            queries,
+            directions,
+            out,
+        )
+    }
+
+    /// One dispatch of a `(model, params, queries, input) → out` kernel.
+    fn query_kernel<I: Pod, O: Pod>(
+        ctx: &GpuContext,
+        kernel: &Kernel,
+        state: [&GpuBuffer; 2],
+        scratch: (&mut Scratch, &mut Scratch, &mut Scratch),
+        queries: &[QueryPoint],
+        input: &[I],
+        out: &mut [O],
+    ) -> Result<BatchReport, GpuError> {
+        if queries.is_empty() {
+            return Ok(BatchReport {
+                dispatches: 0,
+                gpu_time_ns: None,
+            });
+        }
+        let n = count_u32(queries.len(), "queries")?;
+        let (sq, si, so) = scratch;
+        sq.at_least(ctx, size_of_val(queries) as u64)?
+            .upload(queries)?;
+        si.at_least(ctx, size_of_val(input) as u64)?.upload(input)?;
+        so.at_least(ctx, size_of_val(out) as u64)?;
+        let args = BatchArgs {
+            count: n,
+            ..BatchArgs::default()
+        };
+        let mut batch = ctx.timed_batch()?;
+        batch.dispatch(
+            kernel,
+            &[state[0], state[1], sq.get()?, si.get()?, so.get()?],
+            push(&args),
+            n,
+        )?;
+        let report = batch.submit_and_wait()?;
+        so.get()?.download_into(out)?;
+        Ok(report)
+    }
+
+    /// Runs the gradient kernel on `samples` (one invocation per sample,
+    /// atomic adds into the gradient buffer), then the block maxima; returns
+    /// the per-sample losses' sum and the block maxima of the *unscaled* sum.
+    fn accumulate(&mut self, samples: &[TrainingSample]) -> Result<(f64, Vec<f32>), GpuError> {
+        if samples.is_empty() {
+            return Err(GpuError::BadArgument(
+                "training step without samples".into(),
+            ));
+        }
+        let n = count_u32(samples.len(), "samples")?;
+        let p = self.param_count;
+        let pc = count_u32(p, "parameters")?;
+        let blocks = p.div_ceil(MAX_ABS_BLOCK);
+        if self.train.is_none() {
+            self.train = Some(TrainBuffers {
+                grad: self.ctx.buffer(p as u64 * 4)?,
+                partial: self.ctx.buffer(blocks as u64 * 4)?,
+            });
+        }
+        self.samples
+            .at_least(&self.ctx, size_of_val(samples) as u64)?
+            .upload(samples)?;
+        self.losses.at_least(&self.ctx, u64::from(n) * 4)?;
+        let t = self
+            .train
+            .as_ref()
+            .ok_or_else(|| GpuError::BadArgument("training buffers missing".into()))?;
+        let args = BatchArgs {
+            count: n,
+            ..BatchArgs::default()
+        };
+        let k = &self.kernels;
+        let mut batch: Batch<'_> = self.ctx.batch()?;
+        batch.dispatch(
+            &k.gradient,
+            &[
+                &self.model,
+                &self.params,
+                self.samples.get()?,
+                &t.grad,
+                self.losses.get()?,
+            ],
+            push(&args),
+            n,
+        )?;
+        batch.barrier();
+        let max_args = BatchArgs {
+            count: pc,
+            ..BatchArgs::default()
+        };
+        batch.dispatch(
+            &k.max_abs,
+            &[&t.grad, &t.partial],
+            push(&max_args),
+            count_u32(blocks, "blocks")?,
+        )?;
+        batch.submit_and_wait()?;
+        let mut losses = vec![0.0f32; samples.len()];
+        self.losses.get()?.download_into(&mut losses)?;
+        let partial: Vec<f32> = t.partial.download()?;
+        let mut loss = 0.0f64;
+        for l in &losses {
+            loss += f64::from(*l);
+        }
+        Ok((loss, partial))
+    }
+
+    /// The gradient of the mean loss over `samples` and that mean loss, as
+    /// the GPU computes it (for tests and diagnostics; nothing is updated).
+    pub fn gradient(&mut self, samples: &[TrainingSample]) -> Result<(Vec<f32>, f64), GpuError> {
+        let (loss, _) = self.accumulate(samples)?;
+        let t = self
+            .train
+            .as_mut()
+            .ok_or_else(|| GpuError::BadArgument("training buffers missing".into()))?;
+        let mut g: Vec<f32> = t.grad.download()?;
+        g.truncate(self.param_count);
+        t.grad.upload(&vec![0.0f32; self.param_count])?;
+        let inv = 1.0 / samples.len() as f32;
+        for x in &mut g {
+            *x *= inv;
+        }
+        Ok((g, loss / samples.len() as f64))
+    }
+
+    /// One training step on `samples`: per-sample gradients added on the
+    /// device, a skip if the sum or the loss is not finite, clipping of the
+    /// mean gradient to `max_gradient_magnitude`, then Adam and the EMA —
+    /// `Field`'s step, run by the kernels of `guiding_core::batch`.
+    pub fn train_step(
+        &mut self,
+        samples: &[TrainingSample],
+        options: &TrainOptions,
+    ) -> Result<StepOutcome, GpuError> {
+        let (loss_sum, partial) = self.accumulate(samples)?;
+        let n = samples.len() as f32;
+        let loss = loss_sum / f64::from(n);
+        let mut max = 0.0f32;
+        let mut finite = loss.is_finite();
+        for m in &partial {
+            finite &= m.is_finite();
+            max = max.max(*m);
+        }
+        let p = self.param_count;
+        let pc = count_u32(p, "parameters")?;
+        if !finite {
+            if let Some(t) = self.train.as_mut() {
+                t.grad.upload(&vec![0.0f32; p])?;
+            }
+            return Ok(StepOutcome::Skipped);
+        }
+        // The mean gradient's largest magnitude, and the clip factor on it.
+        let max_mean = max / n;
+        let clip = options.max_gradient_magnitude;
+        let clipped = max_mean > clip;
+        let factor = if clipped { clip / max_mean } else { 1.0 };
+        let step = u32::try_from(self.steps + 1).unwrap_or(u32::MAX);
+        let adam_args = AdamArgs {
+            count: pc,
+            pad: [0; 3],
+            adam: options.adam,
+            factors: AdamStepFactors::new(step, &options.adam),
+            gradient_scale: factor / n,
+            ema_alpha: ema_weight(options.ema_decay, step),
+        };
+        let t = self
+            .train
+            .as_ref()
+            .ok_or_else(|| GpuError::BadArgument("training buffers missing".into()))?;
+        self.ctx.run(
+            &self.kernels.adam,
+            &[&self.params, &t.grad, &self.adam_m, &self.adam_v, &self.ema],
+            push(&adam_args),
+            pc,
+        )?;
+        self.steps += 1;
+        Ok(StepOutcome::Applied {
+            loss: loss as f32,
+            clipped,
+        })
+    }
+
+    /// The current parameters.
+    pub fn params(&self) -> Result<Vec<f32>, GpuError> {
+        self.params.download()
+    }
+
+    /// The current EMA weights (what queries use).
+    pub fn ema(&self) -> Result<Vec<f32>, GpuError> {
+        self.ema.download()
+    }
+
+    /// The Adam moments `(m, v)`.
+    pub fn adam_moments(&self) -> Result<(Vec<f32>, Vec<f32>), GpuError> {
+        Ok((self.adam_m.download()?, self.adam_v.download()?))
+    }
+}
