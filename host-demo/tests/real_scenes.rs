@@ -740,3 +740,110 @@ fn blendbsdf_weight_texture_and_expectation() {
         assert!((p - f64::from(w)).abs() < z_threshold(2) * se, "{p} vs {w}");
     }
 }
+
+/// Load-time measurement (not a test of correctness; run by hand): writes a scene with a
+/// 10⁶-triangle `.serialized` grid (normals + uvs) and six 4096² RGB PNG textures (each
+/// referenced twice, so 12 textures over 6 images) to `$HOST_DEMO_LOAD_DIR` (default
+/// `/tmp/host-demo-load`), then loads it and prints the time and texel memory. Render it with
+/// `/usr/bin/time -v target/release/host-demo render DIR/scene.xml --spp 1 --width 64` for
+/// the peak memory.
+/// `cargo test --release -p host-demo --test real_scenes -- --ignored --nocapture load_time`
+#[test]
+#[ignore = "writes ~100 MB to /tmp and takes a while; a measurement, run by hand"]
+fn load_time_large_scene() {
+    use host_demo::serialized::{write_serialized, SerializedMesh};
+    let d = PathBuf::from(
+        std::env::var("HOST_DEMO_LOAD_DIR").unwrap_or_else(|_| "/tmp/host-demo-load".into()),
+    );
+    std::fs::create_dir_all(&d).expect("dir");
+    let (nx, ny) = (1000usize, 500usize);
+    if !d.join("grid.serialized").exists() {
+        let mut m = SerializedMesh {
+            name: "grid".into(),
+            normals: Some(Vec::new()),
+            uvs: Some(Vec::new()),
+            ..SerializedMesh::default()
+        };
+        for j in 0..=ny {
+            for i in 0..=nx {
+                let (u, v) = (i as f32 / nx as f32, j as f32 / ny as f32);
+                m.positions.push(Vec3::new(
+                    2.0 * u - 1.0,
+                    2.0 * v - 1.0,
+                    0.05 * (20.0 * u).sin(),
+                ));
+                m.normals.as_mut().expect("n").push(Vec3::Z);
+                m.uvs.as_mut().expect("uv").push(Vec2::new(u, v));
+            }
+        }
+        for j in 0..ny {
+            for i in 0..nx {
+                let k = (j * (nx + 1) + i) as u32;
+                let w = nx as u32 + 1;
+                m.indices.push([k, k + 1, k + w + 1]);
+                m.indices.push([k, k + w + 1, k + w]);
+            }
+        }
+        std::fs::write(d.join("grid.serialized"), write_serialized(&[m])).expect("write mesh");
+    }
+    let n = 4096u32;
+    for t in 0..6 {
+        let p = d.join(format!("tex{t}.png"));
+        if !p.exists() {
+            let mut rgb = vec![0u8; (n * n * 3) as usize];
+            for (i, px) in rgb.chunks_exact_mut(3).enumerate() {
+                let (x, y) = (i as u32 % n, i as u32 / n);
+                px.copy_from_slice(&[(x ^ y) as u8, (x >> 4) as u8 ^ t, (y >> 4) as u8]);
+            }
+            write_png(&p, n, n, &rgb);
+        }
+    }
+    let mut body = String::new();
+    for t in 0..6 {
+        for copy in 0..2 {
+            body += &format!(
+                r#"<shape type="serialized"><string name="filename" value="grid.serialized"/>
+  <transform name="to_world"><translate x="{}" y="{}"/></transform>
+  <bsdf type="diffuse"><texture type="bitmap" name="reflectance"><string name="filename" value="tex{t}.png"/>{}</texture></bsdf></shape>
+"#,
+                2.5 * t as f32,
+                2.5 * copy as f32,
+                if copy == 1 {
+                    r#"<string name="filter_type" value="nearest"/>"#
+                } else {
+                    ""
+                }
+            );
+            if t > 0 || copy > 0 {
+                // Only the first shape carries the full mesh; the others are small stand-ins
+                // so that the scene stays at ~10⁶ triangles.
+                body = body.replace(
+                    &format!(r#"<shape type="serialized"><string name="filename" value="grid.serialized"/>
+  <transform name="to_world"><translate x="{}" y="{}"/>"#, 2.5 * t as f32, 2.5 * copy as f32),
+                    &format!(r#"<shape type="rectangle">
+  <transform name="to_world"><translate x="{}" y="{}"/>"#, 2.5 * t as f32, 2.5 * copy as f32),
+                );
+            }
+        }
+    }
+    body += r#"<emitter type="constant"><rgb name="radiance" value="1"/></emitter>"#;
+    let text = scene_xml(60.0, 64, 4, &body)
+        .replace("0, 0, 5", "6, 1, 12")
+        .replace("target=\"0, 0, 0\"", "target=\"6, 1, 0\"");
+    std::fs::write(d.join("scene.xml"), text).expect("scene");
+    let t0 = std::time::Instant::now();
+    let sc = xml::load_file(&d.join("scene.xml")).expect("loads");
+    let dt = t0.elapsed().as_secs_f64();
+    eprintln!(
+        "loaded {} primitives, {} textures, {:.1} MiB of texels in {dt:.2} s",
+        sc.prims.len(),
+        sc.textures.len(),
+        sc.texture_bytes as f64 / (1 << 20) as f64
+    );
+    assert_eq!(sc.textures.len(), 12);
+    assert_eq!(
+        sc.texture_bytes,
+        6 * (n * n * 3) as usize,
+        "each image stored once"
+    );
+}
