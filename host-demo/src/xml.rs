@@ -1,18 +1,25 @@
-//! Loader for a subset of the Mitsuba 3 scene format.
+//! Loader for a subset of the Mitsuba 3 scene format, and of Mitsuba 0.6 / 0.5 files.
 //!
 //! Supported: `integrator path` (max_depth, rr_depth), `sensor perspective` (fov, fov_axis,
 //! to_world, near/far_clip), `sampler independent` (sample_count), `film hdrfilm` (width,
 //! height, rfilter box); BSDFs `diffuse`, `conductor`, `roughconductor`, `dielectric`,
-//! `roughdielectric`, `plastic`, `roughplastic` (rough ones GGX only, isotropic alpha; IORs as
-//! numbers or Mitsuba's names) and `twosided`; shapes `obj`, `ply`, `sphere`, `rectangle`,
-//! `cube`, `disk` (to_world, flip_normals, face_normals for meshes); emitters `area` (nested in
-//! a shape), `point`, `constant` and `envmap` (EXR, to_world rotation, scale); `ref id`; and
-//! `transform` with matrix/lookat/translate/rotate/scale. The common Mitsuba 0.6 spellings are
-//! read too: `<srgb>` colours (`#rrggbb` or numbers, sRGB-decoded), `<spectrum>` with a single
-//! value (grey), `lookAt` and `toWorld`.
+//! `thindielectric`, `roughdielectric`, `plastic`, `roughplastic` (rough ones GGX, isotropic
+//! alpha; IORs as numbers or Mitsuba's names), `twosided`, `blendbsdf` and `mask`; textures
+//! `bitmap` and `checkerboard` (see [`crate::texture`]) for the colour, alpha, weight and
+//! opacity parameters; shapes `obj`, `ply`, `serialized`, `sphere`, `rectangle`, `cube`, `disk`
+//! (to_world, flip_normals, face_normals for meshes), `shapegroup` + `instance` (flattened into
+//! world-space primitives); emitters `area` (nested in a shape), `point`, `constant` and
+//! `envmap` (EXR, to_world rotation, scale); `ref id`; `include` (with cycle detection);
+//! `<default>` + `$name` substitution ([`LoadOptions::params`] override the defaults); and
+//! `transform` with matrix/lookat/translate/rotate/scale. Mitsuba 0.6 spellings: camelCase
+//! property names become snake_case (`toWorld`, `maxDepth`, `intIOR`, ...), `<srgb>` colours
+//! (`#rrggbb` or numbers, sRGB-decoded), `<spectrum>` with one value (grey) or three (RGB),
+//! `lookAt`.
 //!
-//! Anything else (an unknown element, plugin type or property) is an error that names the
-//! element and its line: nothing is dropped silently.
+//! Parts whose effect can be approximated (bumpmap/normalmap, Beckmann, other samplers and
+//! reconstruction filters, ldrfilm, ...) load with a warning naming the file and line (stderr
+//! and [`Scene::warnings`]); anything else unknown (an element, plugin type or property) is an
+//! error that names the element and its line: nothing is dropped silently.
 
 use crate::bsdf::{Coating, Material};
 use crate::emitter::{EnvMap, Environment, PointLight};
