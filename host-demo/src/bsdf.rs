@@ -1,5 +1,5 @@
 //! Materials with Mitsuba 3 semantics: `diffuse`, `conductor`, `roughconductor`, `dielectric`,
-//! `roughdielectric`, `plastic`, `roughplastic` and `twosided`.
+//! `thindielectric`, `roughdielectric`, `plastic`, `roughplastic`, `blendbsdf` and `twosided`.
 //!
 //! All functions work in the local shading frame (z = shading normal). The opaque BSDFs are
 //! one-sided like Mitsuba's (zero if either direction is below the surface); the dielectrics
@@ -91,6 +91,30 @@ pub enum Material {
     Plastic(Coating),
     /// Rough plastic: diffuse base under a rough GGX coating (Mitsuba 3 `roughplastic`).
     RoughPlastic(Coating),
+    /// Thin dielectric sheet (Mitsuba 3 `thindielectric`): a delta reflection with the
+    /// reflectance of the sheet summed over its internal bounces, `R' = 2F/(1+F)` (F the
+    /// Fresnel reflectance of one interface at the incident angle), and a delta transmission
+    /// straight through (`wo = −wi`) with `1 − R'`. Two-sided.
+    ThinDielectric {
+        /// Relative IOR `int_ior / ext_ior`.
+        eta: f32,
+        /// Multiplier of the reflection.
+        reflectance: Vec3,
+        /// Multiplier of the transmission.
+        transmittance: Vec3,
+    },
+    /// Linear blend of two materials (Mitsuba `blendbsdf`): `(1 − w)·f_a + w·f_b`. Resolved
+    /// per hit by stochastic selection (`b` with probability `w`, see
+    /// [`crate::scene::Scene::resolve_material`]), which keeps the expected BSDF, its
+    /// sampling density and every MIS weight consistent; never evaluated itself.
+    Blend {
+        /// Material index used with weight `1 − w`.
+        a: u32,
+        /// Material index used with weight `w`.
+        b: u32,
+        /// Blend weight in `[0, 1]` (a texture may override it per hit).
+        weight: f32,
+    },
     /// Two-sided wrapper: material indices for the front and the back (resolved per hit).
     TwoSided {
         /// Material of the front side.
@@ -155,6 +179,18 @@ impl Coating {
             spec_weight: spec_weight(diffuse, specular),
             internal: (2.0 * internal / ROUGH_TRANSMITTANCE_RES as f64) as f32,
             ext_t,
+        }
+    }
+
+    /// The same coating with another base albedo and coating multiplier (textured
+    /// `diffuse_reflectance` / `specular_reflectance`): the lobe-selection weight follows,
+    /// the coating tables do not depend on them.
+    pub fn with_albedo(&self, diffuse: Vec3, specular: Vec3) -> Self {
+        Self {
+            diffuse,
+            specular,
+            spec_weight: spec_weight(diffuse, specular),
+            ..*self
         }
     }
 
@@ -261,6 +297,18 @@ pub fn rough_dielectric_albedo(mu: f32, alpha: f32, eta: f32) -> f32 {
     (acc / (N * N) as f64) as f32
 }
 
+/// Reflectance of a thin dielectric sheet at `|cos θi| = cos_i` (Mitsuba 3
+/// `thindielectric`): one interface reflects `F`, the internal bounces add
+/// `T² F / (1 − F²)` with `T = 1 − F`, i.e. `R' = 2F / (1 + F)`.
+pub fn thin_dielectric_reflectance(cos_i: f32, eta: f32) -> f32 {
+    let f = fresnel_dielectric(cos_i.abs(), eta).0;
+    if f >= 1.0 {
+        1.0
+    } else {
+        2.0 * f / (1.0 + f)
+    }
+}
+
 /// Mirror reflection about the local normal.
 #[inline]
 fn reflect_z(wi: Vec3) -> Vec3 {
@@ -347,6 +395,8 @@ impl Material {
             } => return rough_dielectric_eval(wi, wo, alpha, eta, reflectance, transmittance),
             Material::Conductor { .. }
             | Material::Dielectric { .. }
+            | Material::ThinDielectric { .. }
+            | Material::Blend { .. }
             | Material::TwoSided { .. } => return (Vec3::ZERO, 0.0),
             _ => {}
         }
@@ -441,7 +491,30 @@ impl Material {
                     u2,
                 )
             }
-            Material::TwoSided { .. } => return None,
+            Material::ThinDielectric {
+                eta,
+                reflectance,
+                transmittance,
+            } => {
+                if wi.z == 0.0 {
+                    return None;
+                }
+                let r = thin_dielectric_reflectance(wi.z.abs(), eta);
+                return Some(if u0 < r {
+                    BsdfSample {
+                        wo: reflect_z(wi),
+                        weight: reflectance,
+                        pdf: f32::INFINITY,
+                    }
+                } else {
+                    BsdfSample {
+                        wo: -wi,
+                        weight: transmittance,
+                        pdf: f32::INFINITY,
+                    }
+                });
+            }
+            Material::TwoSided { .. } | Material::Blend { .. } => return None,
             _ => {}
         }
         if wi.z <= 0.0 {
@@ -545,21 +618,25 @@ impl Material {
     pub fn is_delta(&self) -> bool {
         matches!(
             self,
-            Material::Conductor { .. } | Material::Dielectric { .. }
+            Material::Conductor { .. }
+                | Material::Dielectric { .. }
+                | Material::ThinDielectric { .. }
         )
     }
 
     /// NEE may connect to a light here: the BSDF has a non-delta part.
     pub fn nee_connectable(&self) -> bool {
-        !self.is_delta() && !matches!(self, Material::TwoSided { .. })
+        !self.is_delta() && !matches!(self, Material::TwoSided { .. } | Material::Blend { .. })
     }
 
     /// The BSDF is one-sided (zero when `wi` is below the shading normal): everything but
-    /// the dielectrics.
+    /// the dielectrics (a `blendbsdf` is checked through its components at load time).
     pub fn one_sided(&self) -> bool {
         !matches!(
             self,
-            Material::Dielectric { .. } | Material::RoughDielectric { .. }
+            Material::Dielectric { .. }
+                | Material::RoughDielectric { .. }
+                | Material::ThinDielectric { .. }
         )
     }
 
@@ -583,7 +660,9 @@ impl Material {
                 alpha.clamp(0.0, 1.0)
             }
             Material::RoughPlastic(ref c) => c.alpha.clamp(0.0, 1.0),
-            Material::Conductor { .. } | Material::Dielectric { .. } => 0.0,
+            Material::Conductor { .. }
+            | Material::Dielectric { .. }
+            | Material::ThinDielectric { .. } => 0.0,
             _ => 1.0,
         }
     }

@@ -46,6 +46,14 @@ pub enum Error {
         /// What is wrong (with the header line or the element).
         msg: String,
     },
+    /// A malformed or unsupported Mitsuba `.serialized` mesh.
+    #[error("{file}: serialized mesh: {msg}")]
+    Serialized {
+        /// Mesh file.
+        file: String,
+        /// What is wrong.
+        msg: String,
+    },
     /// Reading or writing a file failed.
     #[error("{path}: {source}")]
     Io {

@@ -344,7 +344,7 @@ pub(crate) fn stage_guide_query(w: &mut Worker<'_>, nee: bool) {
     g.v_query.resize(n, NONE);
     g.g_query.clear();
     for i in 0..n {
-        let mat = &scene.materials[verts.material[i] as usize];
+        let mat = &verts.bsdf[i];
         if guidable(mat, g.gopts.min_alpha) {
             g.v_query[i] = g.g_query.len() as u32;
             g.g_query.push(QueryPoint {
@@ -391,7 +391,7 @@ pub(crate) fn stage_guide_query(w: &mut Worker<'_>, nee: bool) {
         let slot = verts.slot[i] as usize;
         let rng = &mut w.rng[slot];
         let frame = Frame::new(verts.ns[i]);
-        let mat = &scene.materials[verts.material[i] as usize];
+        let mat = &verts.bsdf[i];
         let wi_l = frame.to_local(verts.wi[i]);
         let qi = g.v_query[i];
         // NEE light sample (same draws as pt-nee).
@@ -501,7 +501,6 @@ pub(crate) fn stage_guided_nee(w: &mut Worker<'_>) {
 
 /// Continuation stage: throughput `f·cos/p` with the combined density; training records.
 pub(crate) fn stage_guided_continue(w: &mut Worker<'_>) {
-    let scene = w.scene;
     let Some(g) = w.guided.as_mut() else {
         return;
     };
@@ -520,7 +519,7 @@ pub(crate) fn stage_guided_continue(w: &mut Worker<'_>) {
             (g.v_weight[i], g.v_pdf[i])
         } else {
             let frame = Frame::new(ns);
-            let mat = &scene.materials[w.verts.material[i] as usize];
+            let mat = &w.verts.bsdf[i];
             let (f, pdf_bsdf) = mat.eval(frame.to_local(wi), frame.to_local(dir));
             let c = g.g_c[qi as usize];
             let pdf = c * g.v_qpdf[i] + (1.0 - c) * pdf_bsdf;

@@ -188,8 +188,10 @@ pub struct VertexBatch {
     pub wi: Vec<Vec3>,
     /// Path throughput up to this vertex.
     pub beta: Vec<Vec3>,
-    /// Material index.
+    /// Material index (after `twosided` / `blendbsdf` resolution).
     pub material: Vec<u32>,
+    /// The material with its textures evaluated at the hit (what NEE and sampling use).
+    pub bsdf: Vec<Material>,
 }
 
 impl VertexBatch {
@@ -201,6 +203,7 @@ impl VertexBatch {
         self.wi.clear();
         self.beta.clear();
         self.material.clear();
+        self.bsdf.clear();
     }
     /// Number of vertices.
     pub fn len(&self) -> usize {
@@ -304,28 +307,6 @@ pub(crate) fn side_ok(wi: Vec3, wo: Vec3, ng: Vec3, ns: Vec3) -> bool {
     let shading_reflect = wi.dot(ns) * wo.dot(ns) > 0.0;
     let (gi, go) = (wi.dot(ng), wo.dot(ng));
     go != 0.0 && (gi * go > 0.0) == shading_reflect
-}
-
-/// Resolves `twosided`: returns the material index to shade with and the (possibly flipped)
-/// geometric and shading normals, so that a two-sided BSDF always sees its front side.
-#[inline]
-pub(crate) fn resolve_side(
-    scene: &Scene,
-    material: u32,
-    ng: Vec3,
-    ns: Vec3,
-    d: Vec3,
-) -> (u32, Vec3, Vec3) {
-    match scene.materials[material as usize] {
-        Material::TwoSided { front, back } => {
-            if ns.dot(-d) < 0.0 {
-                (back, -ng, -ns)
-            } else {
-                (front, ng, ns)
-            }
-        }
-        _ => (material, ng, ns),
-    }
 }
 
 /// Shadow ray `(origin, unit direction, tmax)` from the vertex at `p` (geometric normal `ng`)
@@ -499,8 +480,14 @@ impl<'s> Worker<'s> {
             if !continue_path {
                 continue;
             }
-            let (mat_id, ng, ns) = resolve_side(scene, shape.material, hit.ng, hit.ns, d);
-            let mat = &scene.materials[mat_id as usize];
+            let (mat_id, mat, ng, ns) = scene.resolve_material(
+                shape.material,
+                hit.ng,
+                hit.ns,
+                d,
+                hit.uv,
+                &mut self.rng[slot as usize],
+            );
             if mat.is_black() || (mat.one_sided() && ns.dot(-d) <= 0.0) {
                 continue; // absorbed, or the back of a one-sided BSDF
             }
@@ -523,6 +510,7 @@ impl<'s> Worker<'s> {
             self.verts.wi.push(-d);
             self.verts.beta.push(beta);
             self.verts.material.push(mat_id);
+            self.verts.bsdf.push(mat);
         }
     }
 
@@ -532,7 +520,7 @@ impl<'s> Worker<'s> {
         self.shadow.clear();
         for i in 0..self.verts.len() {
             let slot = self.verts.slot[i];
-            if !scene.materials[self.verts.material[i] as usize].nee_connectable() {
+            if !self.verts.bsdf[i].nee_connectable() {
                 continue; // delta BSDF: no light connection
             }
             let rng = &mut self.rng[slot as usize];
@@ -542,7 +530,7 @@ impl<'s> Worker<'s> {
                 continue;
             };
             let frame = Frame::new(self.verts.ns[i]);
-            let mat: &Material = &scene.materials[self.verts.material[i] as usize];
+            let mat: &Material = &self.verts.bsdf[i];
             let (f, pdf_bsdf) = mat.eval(frame.to_local(self.verts.wi[i]), frame.to_local(es.wo));
             if f.max_element() <= 0.0 {
                 continue;
@@ -583,14 +571,13 @@ impl<'s> Worker<'s> {
 
     /// Stage 6: BSDF sampling into the next bounce's queue.
     fn stage_bsdf_sample(&mut self) {
-        let scene = self.scene;
         self.next.clear();
         for i in 0..self.verts.len() {
             let slot = self.verts.slot[i];
             let rng = &mut self.rng[slot as usize];
             let (u0, u1, u2) = (rng.next_f32(), rng.next_f32(), rng.next_f32());
             let frame = Frame::new(self.verts.ns[i]);
-            let mat = &scene.materials[self.verts.material[i] as usize];
+            let mat = &self.verts.bsdf[i];
             let Some(bs) = mat.sample(frame.to_local(self.verts.wi[i]), u0, u1, u2) else {
                 continue;
             };

@@ -104,6 +104,10 @@ enum Cmd {
         /// Worker threads (0 = all cores).
         #[arg(long, default_value_t = 0)]
         threads: usize,
+        /// Scene parameter `$NAME` (Mitsuba's `-D`): overrides the scene's
+        /// `<default name="NAME" value=.../>` (repeatable).
+        #[arg(short = 'D', value_name = "NAME=VALUE")]
+        define: Vec<String>,
         /// Random seed.
         #[arg(long, default_value_t = 0)]
         seed: u64,
@@ -387,6 +391,7 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         rr,
         stats: stats_path,
         threads,
+        define,
         seed,
         max_depth,
         width,
@@ -435,9 +440,30 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
     if !(learning_rate.is_finite() && learning_rate > 0.0) {
         return bad(format!("--learning-rate {learning_rate} must be > 0"));
     }
+    let mut params = Vec::new();
+    for d in &define {
+        match d.split_once('=') {
+            Some((k, v))
+                if !k.is_empty() && k.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') =>
+            {
+                params.push((k.to_string(), v.to_string()))
+            }
+            _ => {
+                return bad(format!(
+                    "-D {d}: expected NAME=VALUE (NAME of letters, digits, _)"
+                ))
+            }
+        }
+    }
     let t0 = Instant::now();
-    let sc = host_demo::load_scene(&scene)?;
+    let sc = host_demo::load_scene_with(&scene, &host_demo::xml::LoadOptions { params })?;
     let load_s = t0.elapsed().as_secs_f64();
+    println!(
+        "loaded {} primitives, {} textures ({:.1} MiB of texel data) in {load_s:.3} s",
+        sc.prims.len(),
+        sc.textures.len(),
+        sc.texture_bytes as f64 / (1024.0 * 1024.0)
+    );
     let (w, h) = match (width, height) {
         (Some(w), Some(h)) => (w, h),
         (Some(w), None) => (
@@ -585,6 +611,10 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
                 None => json!({"spp": opts.spp}),
             },
             "load_s": load_s,
+            "primitives": sc.prims.len(),
+            "texture_bytes": sc.texture_bytes,
+            "params": define,
+            "load_warnings": sc.warnings,
             "mean_rgb": m,
             "mean_std_error_rgb": se,
             "output": {"exr": out.display().to_string(), "png": png.display().to_string()},

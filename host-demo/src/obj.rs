@@ -1,5 +1,7 @@
-//! Minimal Wavefront OBJ reader: `v`, `vn`, `vt` (ignored), `f` with n-gons (fan-triangulated)
-//! in the `v`, `v/vt`, `v//vn` and `v/vt/vn` forms, negative (relative) indices.
+//! Minimal Wavefront OBJ reader: `v`, `vn`, `vt`, `f` with n-gons (fan-triangulated)
+//! in the `v`, `v/vt`, `v//vn` and `v/vt/vn` forms, negative (relative) indices. Several
+//! objects / groups in one file become one mesh. Texture coordinates are flipped to
+//! Mitsuba's convention (`v ↦ 1 − v`, image row 0 at `v = 0`), as Mitsuba's OBJ loader does.
 //! Grouping/material statements (`o g s usemtl mtllib`) are accepted and ignored because they
 //! do not affect geometry; anything else is an error naming the line.
 
@@ -9,6 +11,12 @@ use glam::Vec3;
 
 /// Parses OBJ text into triangles. `file` is only used in error messages.
 pub fn parse_obj(text: &str, file: &str) -> Result<Vec<Prim>> {
+    parse_obj_uv(text, file).map(|m| m.0)
+}
+
+/// [`parse_obj`] that also returns per-triangle texture coordinates when any face has them
+/// (faces without get their barycentric default, [`crate::scene::DEFAULT_TRI_UV`]).
+pub fn parse_obj_uv(text: &str, file: &str) -> Result<crate::ply::MeshWithUv> {
     let err = |line: usize, msg: String| Error::Obj {
         file: file.to_string(),
         line,
@@ -16,8 +24,10 @@ pub fn parse_obj(text: &str, file: &str) -> Result<Vec<Prim>> {
     };
     let mut pos: Vec<Vec3> = Vec::new();
     let mut nrm: Vec<Vec3> = Vec::new();
-    let mut n_tex = 0usize;
+    let mut tex: Vec<glam::Vec2> = Vec::new();
     let mut tris = Vec::new();
+    let mut tri_uv: Vec<[glam::Vec2; 3]> = Vec::new();
+    let mut any_uv = false;
     for (ln, raw) in text.lines().enumerate() {
         let ln = ln + 1;
         let line = raw.split('#').next().unwrap_or("").trim();
@@ -41,8 +51,11 @@ pub fn parse_obj(text: &str, file: &str) -> Result<Vec<Prim>> {
                 nrm.push(Vec3::new(v[0], v[1], v[2]).normalize_or_zero());
             }
             "vt" => {
-                floats(it, 1)?;
-                n_tex += 1;
+                let v = floats(it, 1)?;
+                tex.push(glam::Vec2::new(
+                    v[0],
+                    1.0 - v.get(1).copied().unwrap_or(0.0),
+                ));
             }
             "f" => {
                 let mut verts = Vec::new();
@@ -70,19 +83,31 @@ pub fn parse_obj(text: &str, file: &str) -> Result<Vec<Prim>> {
                     let vi = resolve(parts.next(), pos.len(), "vertex")?.ok_or_else(|| {
                         err(ln, format!("face vertex \"{tok}\" has no position index"))
                     })?;
-                    let _ti = resolve(parts.next(), n_tex, "texture")?;
+                    let ti = resolve(parts.next(), tex.len(), "texture")?;
                     let ni = resolve(parts.next(), nrm.len(), "normal")?;
-                    verts.push((vi, ni));
+                    verts.push((vi, ni, ti));
                 }
                 if verts.len() < 3 {
                     return Err(err(ln, "face with fewer than 3 vertices".into()));
                 }
                 let all_n = verts.iter().all(|v| v.1.is_some());
+                let all_t = verts.iter().all(|v| v.2.is_some());
+                if all_t && !any_uv {
+                    any_uv = true;
+                    tri_uv.resize(tris.len(), crate::scene::DEFAULT_TRI_UV);
+                }
                 for k in 1..verts.len() - 1 {
                     let tri = [verts[0], verts[k], verts[k + 1]];
                     let p = tri.map(|v| pos[v.0]);
                     let n = all_n.then(|| tri.map(|v| nrm[v.1.unwrap_or(0)]));
                     tris.push(Prim::Tri { p, n });
+                    if any_uv {
+                        tri_uv.push(if all_t {
+                            tri.map(|v| tex[v.2.unwrap_or(0)])
+                        } else {
+                            crate::scene::DEFAULT_TRI_UV
+                        });
+                    }
                 }
             }
             "o" | "g" | "s" | "usemtl" | "mtllib" => {}
@@ -92,7 +117,7 @@ pub fn parse_obj(text: &str, file: &str) -> Result<Vec<Prim>> {
     if tris.is_empty() {
         return Err(err(0, "no faces".into()));
     }
-    Ok(tris)
+    Ok((tris, any_uv.then_some(tri_uv)))
 }
 
 #[cfg(test)]

@@ -103,6 +103,12 @@ impl Reader<'_> {
 /// Parses PLY bytes into triangles (with per-vertex normals when the file has `nx ny nz`).
 /// `file` is only used in error messages.
 pub fn parse_ply(bytes: &[u8], file: &str) -> Result<Vec<Prim>> {
+    parse_ply_uv(bytes, file).map(|m| m.0)
+}
+
+/// [`parse_ply`] that also returns per-triangle texture coordinates when the vertices have
+/// `u v` (or `s t`, `texture_u texture_v`) properties, stored as in the file.
+pub fn parse_ply_uv(bytes: &[u8], file: &str) -> Result<MeshWithUv> {
     let err = |msg: String| Error::Ply {
         file: file.to_string(),
         msg,
@@ -201,6 +207,7 @@ pub fn parse_ply(bytes: &[u8], file: &str) -> Result<Vec<Prim>> {
     };
     let mut pos3: Vec<Vec3> = Vec::new();
     let mut nrm: Vec<Vec3> = Vec::new();
+    let mut uvs: Vec<glam::Vec2> = Vec::new();
     let mut faces: Vec<Vec<u32>> = Vec::new();
     for e in &elements {
         let is_vertex = e.name == "vertex";
@@ -209,6 +216,10 @@ pub fn parse_ply(bytes: &[u8], file: &str) -> Result<Vec<Prim>> {
         let xyz = [find("x"), find("y"), find("z")];
         let nxyz = [find("nx"), find("ny"), find("nz")];
         let has_n = nxyz.iter().all(Option::is_some);
+        let uv = [["u", "v"], ["s", "t"], ["texture_u", "texture_v"]]
+            .iter()
+            .map(|[a, b]| (find(a), find(b)))
+            .find(|(a, b)| a.is_some() && b.is_some());
         if is_vertex && xyz.iter().any(Option::is_none) {
             return Err(err("vertex element lacks x, y or z".into()));
         }
@@ -269,10 +280,15 @@ pub fn parse_ply(bytes: &[u8], file: &str) -> Result<Vec<Prim>> {
                 if has_n {
                     nrm.push(Vec3::new(g(nxyz[0]), g(nxyz[1]), g(nxyz[2])).normalize_or_zero());
                 }
+                if let Some((a, b)) = uv {
+                    uvs.push(glam::Vec2::new(g(a), g(b)));
+                }
             }
         }
     }
     let mut tris = Vec::new();
+    let has_uv = !uvs.is_empty() && uvs.len() == pos3.len();
+    let mut tri_uv = Vec::new();
     for (k, f) in faces.iter().enumerate() {
         if let Some(&bad) = f.iter().find(|&&v| v as usize >= pos3.len()) {
             return Err(err(format!(
@@ -286,13 +302,19 @@ pub fn parse_ply(bytes: &[u8], file: &str) -> Result<Vec<Prim>> {
                 p: t.map(|i| pos3[i]),
                 n: (!nrm.is_empty()).then(|| t.map(|i| nrm[i])),
             });
+            if has_uv {
+                tri_uv.push(t.map(|i| uvs[i]));
+            }
         }
     }
     if tris.is_empty() {
         return Err(err("no faces".into()));
     }
-    Ok(tris)
+    Ok((tris, has_uv.then_some(tri_uv)))
 }
+
+/// Triangles and, when the file has them, per-triangle vertex texture coordinates.
+pub type MeshWithUv = (Vec<Prim>, Option<Vec<[glam::Vec2; 3]>>);
 
 #[cfg(test)]
 mod tests {

@@ -4,8 +4,9 @@
 use crate::bsdf::Material;
 use crate::emitter::{EmitterSample, Environment, PointLight};
 use crate::error::{Error, Result};
-use crate::math::{sample_uniform_sphere, Frame};
-use glam::{Mat4, Vec3, Vec3A};
+use crate::math::{sample_uniform_sphere, Frame, Rng};
+use crate::texture::{Param, Texture};
+use glam::{Mat4, Vec2, Vec3, Vec3A};
 use obvhs::aabb::Aabb;
 use obvhs::cwbvh::CwBvh;
 use obvhs::ray::{Ray, RayHit};
@@ -70,6 +71,42 @@ impl Prim {
                 Aabb::new(Vec3A::from(center - e), Vec3A::from(center + e))
             }
         }
+    }
+
+    /// The primitive under the affine map `m` (normals with the inverse transpose). Fails
+    /// for a sphere under a non-uniform scale (it would no longer be a sphere).
+    pub fn transformed(&self, m: &Mat4) -> std::result::Result<Prim, String> {
+        let nm = glam::Mat3::from_mat4(*m).inverse().transpose();
+        let xf_n = |v: Vec3| (nm * v).normalize_or_zero();
+        Ok(match *self {
+            Prim::Tri { p, n } => Prim::Tri {
+                p: p.map(|v| m.transform_point3(v)),
+                n: n.map(|n| n.map(xf_n)),
+            },
+            Prim::Sphere {
+                center,
+                radius,
+                flip,
+            } => {
+                let axes = [m.x_axis, m.y_axis, m.z_axis].map(|a| a.truncate().length());
+                if (axes[0] - axes[1]).abs() > 1e-4 * axes[0]
+                    || (axes[0] - axes[2]).abs() > 1e-4 * axes[0]
+                {
+                    return Err("sphere under a non-uniform scale is not supported".into());
+                }
+                Prim::Sphere {
+                    center: m.transform_point3(center),
+                    radius: radius * axes[0],
+                    flip,
+                }
+            }
+            Prim::Disk { center, a, b, n } => Prim::Disk {
+                center: m.transform_point3(center),
+                a: m.transform_vector3(a),
+                b: m.transform_vector3(b),
+                n: xf_n(n),
+            },
+        })
     }
 
     /// Surface area.
@@ -163,6 +200,30 @@ pub struct Shape {
     pub material: u32,
     /// Area emitter radiance, if the shape is a light.
     pub emission: Option<Vec3>,
+    /// Opacity of a `mask` BSDF: hits where it is below ½ are skipped by every ray
+    /// (camera, bounce and shadow rays alike).
+    pub opacity: Option<Param>,
+}
+
+/// Textured parameters of a material (indices into [`Scene::textures`]); `None` keeps the
+/// constant stored in the [`Material`].
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct MaterialTextures {
+    /// `reflectance` (diffuse) or `diffuse_reflectance` (plastics).
+    pub diffuse: Option<u32>,
+    /// `specular_reflectance` (conductor, dielectrics, plastics).
+    pub specular: Option<u32>,
+    /// `specular_transmittance` (dielectrics).
+    pub transmittance: Option<u32>,
+    /// A scalar: GGX `alpha` (rough conductor / dielectric) or the `blendbsdf` weight.
+    pub scalar: Option<u32>,
+}
+
+impl MaterialTextures {
+    /// True if nothing is textured.
+    pub fn is_empty(&self) -> bool {
+        *self == Self::default()
+    }
 }
 
 /// Local geometry at a ray hit.
@@ -180,6 +241,8 @@ pub struct SurfaceHit {
     pub prim: u32,
     /// Distance along the (unit) ray.
     pub t: f32,
+    /// Surface texture coordinates.
+    pub uv: Vec2,
 }
 
 /// Pinhole camera with Mitsuba's perspective conventions (local +z forward, image x towards
@@ -287,6 +350,18 @@ pub struct Scene {
     pub camera: Camera,
     /// Default settings.
     pub settings: Settings,
+    /// Per-primitive vertex texture coordinates (BVH order); empty when no shape has any
+    /// (triangles then use their barycentrics `(b1, b2)` as Mitsuba does).
+    pub uvs: Vec<[Vec2; 3]>,
+    /// Textures referenced by materials and masks.
+    pub textures: Vec<Texture>,
+    /// Textured parameters of each material (parallel to `materials`).
+    pub material_textures: Vec<MaterialTextures>,
+    /// Bytes of decoded texture data (each image counted once).
+    pub texture_bytes: usize,
+    /// Warnings the loader printed (approximations, ignored elements).
+    pub warnings: Vec<String>,
+    has_opacity: bool,
     bvh: CwBvh,
 }
 
@@ -297,9 +372,19 @@ pub struct SceneBuilder {
     prim_shape: Vec<u32>,
     shapes: Vec<Shape>,
     materials: Vec<Material>,
+    material_textures: Vec<MaterialTextures>,
+    uvs: Vec<[Vec2; 3]>,
+    textures: Vec<Texture>,
     point_lights: Vec<PointLight>,
     env: Option<Environment>,
+    /// Bytes of decoded texture data (set by the loader).
+    pub texture_bytes: usize,
+    /// Loader warnings.
+    pub warnings: Vec<String>,
 }
+
+/// Texture coordinates of a triangle without any: its barycentrics, `uv = (b1, b2)`.
+pub const DEFAULT_TRI_UV: [Vec2; 3] = [Vec2::ZERO, Vec2::X, Vec2::Y];
 
 impl SceneBuilder {
     /// Materials added so far.
@@ -307,17 +392,67 @@ impl SceneBuilder {
         &self.materials
     }
 
+    /// Textured parameters of the materials added so far.
+    pub fn material_textures(&self) -> &[MaterialTextures] {
+        &self.material_textures
+    }
+
     /// Adds a material and returns its index.
     pub fn material(&mut self, m: Material) -> u32 {
+        self.textured_material(m, MaterialTextures::default())
+    }
+
+    /// Adds a material with textured parameters and returns its index.
+    pub fn textured_material(&mut self, m: Material, tex: MaterialTextures) -> u32 {
         self.materials.push(m);
+        self.material_textures.push(tex);
         (self.materials.len() - 1) as u32
+    }
+
+    /// Adds a texture and returns its index.
+    pub fn texture(&mut self, t: Texture) -> u32 {
+        self.textures.push(t);
+        (self.textures.len() - 1) as u32
+    }
+
+    /// Textures added so far.
+    pub fn textures(&self) -> &[Texture] {
+        &self.textures
     }
 
     /// Adds a shape made of `prims`.
     pub fn shape(&mut self, prims: Vec<Prim>, material: u32, emission: Option<Vec3>) {
+        self.shape_with(prims, None, material, emission, None);
+    }
+
+    /// Adds a shape with optional per-primitive texture coordinates (one entry per
+    /// primitive; ignored for spheres and disks) and an optional `mask` opacity.
+    pub fn shape_with(
+        &mut self,
+        prims: Vec<Prim>,
+        uvs: Option<Vec<[Vec2; 3]>>,
+        material: u32,
+        emission: Option<Vec3>,
+        opacity: Option<Param>,
+    ) {
         let id = self.shapes.len() as u32;
-        self.shapes.push(Shape { material, emission });
+        self.shapes.push(Shape {
+            material,
+            emission,
+            opacity,
+        });
         self.prim_shape.extend(std::iter::repeat_n(id, prims.len()));
+        match uvs {
+            Some(uv) if uv.len() == prims.len() => {
+                self.uvs.resize(self.prims.len(), DEFAULT_TRI_UV);
+                self.uvs.extend(uv);
+            }
+            _ if !self.uvs.is_empty() => {
+                self.uvs
+                    .resize(self.prims.len() + prims.len(), DEFAULT_TRI_UV);
+            }
+            _ => {}
+        }
         self.prims.extend(prims);
     }
 
@@ -401,6 +536,14 @@ impl SceneBuilder {
             .iter()
             .map(|&i| self.prim_shape[i as usize])
             .collect();
+        let uvs: Vec<[Vec2; 3]> = if self.uvs.len() == self.prims.len() {
+            bvh.primitive_indices
+                .iter()
+                .map(|&i| self.uvs[i as usize])
+                .collect()
+        } else {
+            Vec::new()
+        };
         let mut shape_light = vec![u32::MAX; self.shapes.len()];
         let mut lights = Vec::new();
         for (s, shape) in self.shapes.iter().enumerate() {
@@ -430,20 +573,49 @@ impl SceneBuilder {
             }
         }
         for (i, m) in self.materials.iter().enumerate() {
-            if let Material::TwoSided { front, back } = *m {
-                let n = self.materials.len() as u32;
-                if front >= n || back >= n {
+            let n = self.materials.len() as u32;
+            // Nested materials always come before their wrapper (no cycles).
+            match *m {
+                Material::TwoSided { front, back } if front >= i as u32 || back >= i as u32 => {
                     return Err(Error::Scene(format!(
                         "material {i}: twosided refers to a missing material"
                     )));
                 }
+                Material::Blend { a, b, .. } if a >= i as u32 || b >= i as u32 || b >= n => {
+                    return Err(Error::Scene(format!(
+                        "material {i}: blendbsdf refers to a missing material"
+                    )));
+                }
+                _ => {}
             }
+        }
+        let nt = self.textures.len() as u32;
+        let tex_ok = |t: Option<u32>| t.is_none_or(|t| t < nt);
+        for (i, t) in self.material_textures.iter().enumerate() {
+            if !(tex_ok(t.diffuse)
+                && tex_ok(t.specular)
+                && tex_ok(t.transmittance)
+                && tex_ok(t.scalar))
+            {
+                return Err(Error::Scene(format!(
+                    "material {i} refers to a missing texture"
+                )));
+            }
+        }
+        if self.material_textures.len() != self.materials.len() {
+            return Err(Error::Scene("material texture table out of step".into()));
         }
         for s in &self.shapes {
             if s.material as usize >= self.materials.len() {
                 return Err(Error::Scene("a shape refers to a missing material".into()));
             }
+            if let Some(Param::Tex(t)) = s.opacity {
+                if t >= nt {
+                    return Err(Error::Scene("a mask refers to a missing texture".into()));
+                }
+            }
         }
+        let has_opacity = self.shapes.iter().any(|s| s.opacity.is_some());
         Ok(Scene {
             prims,
             prim_shape,
@@ -455,6 +627,12 @@ impl SceneBuilder {
             env: self.env,
             camera,
             settings,
+            uvs,
+            textures: self.textures,
+            material_textures: self.material_textures,
+            texture_bytes: self.texture_bytes,
+            warnings: self.warnings,
+            has_opacity,
             bvh,
         })
     }
@@ -485,11 +663,11 @@ impl Scene {
         let mut best = (0.0f32, 0.0f32);
         let found = self.bvh.ray_traverse(ray, &mut hit, |r, id| {
             match self.prims[id].intersect(o, d, r.tmin, r.tmax) {
-                Some((t, u, v)) => {
+                Some((t, u, v)) if !self.has_opacity || self.opaque_at(id, o + d * t, u, v) => {
                     best = (u, v);
                     t
                 }
-                None => f32::INFINITY,
+                _ => f32::INFINITY,
             }
         });
         if !found {
@@ -522,16 +700,198 @@ impl Scene {
             shape: self.prim_shape[id],
             prim: id as u32,
             t: hit.t,
+            uv: self.uv_at(id, p, u, v),
         })
     }
 
-    /// True if anything blocks the segment `o + t d`, `t` in `(tmin, tmax)`.
+    /// Texture coordinates on primitive `id` at `p` (triangles: barycentrics `(b1, b2)`).
+    /// Triangles interpolate their vertex uvs; spheres use Mitsuba's
+    /// `(φ / 2π, θ / π)` about the world axes; disks `(r, φ / 2π)`.
+    pub fn uv_at(&self, id: usize, p: Vec3, b1: f32, b2: f32) -> Vec2 {
+        match self.prims[id] {
+            Prim::Tri { .. } => match self.uvs.get(id) {
+                Some(t) => t[0] * (1.0 - b1 - b2) + t[1] * b1 + t[2] * b2,
+                None => Vec2::new(b1, b2),
+            },
+            Prim::Sphere { center, .. } => {
+                let q = (p - center).normalize_or_zero();
+                let phi = q.y.atan2(q.x);
+                let phi = if phi < 0.0 { phi + 2.0 * PI } else { phi };
+                Vec2::new(phi / (2.0 * PI), q.z.clamp(-1.0, 1.0).acos() / PI)
+            }
+            Prim::Disk { center, a, b, .. } => {
+                let (s, t) = disk_coords(p - center, a, b);
+                let phi = t.atan2(s);
+                let phi = if phi < 0.0 { phi + 2.0 * PI } else { phi };
+                Vec2::new((s * s + t * t).sqrt(), phi / (2.0 * PI))
+            }
+        }
+    }
+
+    /// Value of a parameter at `uv`.
+    #[inline]
+    pub fn param(&self, p: Param, uv: Vec2) -> Vec3 {
+        match p {
+            Param::Const(c) => c,
+            Param::Tex(t) => self.textures[t as usize].eval(uv),
+        }
+    }
+
+    /// False where a `mask` makes primitive `id` transparent at `p` (opacity below ½).
+    #[inline]
+    fn opaque_at(&self, id: usize, p: Vec3, b1: f32, b2: f32) -> bool {
+        match self.shapes[self.prim_shape[id] as usize].opacity {
+            None => true,
+            Some(op) => {
+                let v = self.param(op, self.uv_at(id, p, b1, b2));
+                v.element_sum() / 3.0 >= 0.5
+            }
+        }
+    }
+
+    /// Resolves the material of a hit for shading: `twosided` picks the side facing `-d`
+    /// (flipping the normals on the back), `blendbsdf` picks one component stochastically
+    /// with `rng` (`b` with probability `w`), and textured parameters are evaluated at
+    /// `uv`. Returns the resolved material index, the concrete material and the normals.
+    ///
+    /// Stochastic selection is unbiased: the expected BSDF is `(1 − w) f_a + w f_b`, and NEE,
+    /// BSDF sampling and their MIS weights all use the one selected component.
+    #[allow(clippy::too_many_arguments)] // the hit's geometry plus the random stream
+    pub fn resolve_material(
+        &self,
+        material: u32,
+        ng: Vec3,
+        ns: Vec3,
+        d: Vec3,
+        uv: Vec2,
+        rng: &mut Rng,
+    ) -> (u32, Material, Vec3, Vec3) {
+        let (mut id, mut ng, mut ns) = (material, ng, ns);
+        // Nested materials always have smaller indices, so this terminates; the bound is a
+        // guard only.
+        for _ in 0..64 {
+            match self.materials[id as usize] {
+                Material::TwoSided { front, back } => {
+                    if ns.dot(-d) < 0.0 {
+                        (id, ng, ns) = (back, -ng, -ns);
+                    } else {
+                        id = front;
+                    }
+                }
+                Material::Blend { a, b, weight } => {
+                    let w = match self.material_textures[id as usize].scalar {
+                        Some(t) => self.textures[t as usize].eval_scalar(uv).clamp(0.0, 1.0),
+                        None => weight,
+                    };
+                    id = if rng.next_f32() < w { b } else { a };
+                }
+                _ => break,
+            }
+        }
+        (id, self.shade(id, uv), ng, ns)
+    }
+
+    /// The expected `(f·|cos θo|, pdf)` of material `id` at `uv` over its `blendbsdf`
+    /// selections: `Σ P(component) · eval(component)`. This is the BSDF and the sampling
+    /// density that [`Scene::resolve_material`] followed by [`Material::sample`] realise
+    /// (the chi² test compares them). `twosided` is not looked through (front side only).
+    pub fn eval_mixture(&self, id: u32, uv: Vec2, wi: Vec3, wo: Vec3) -> (Vec3, f32) {
+        let (mut f, mut pdf) = (Vec3::ZERO, 0.0f32);
+        let mut stack = vec![(id, 1.0f32)];
+        while let Some((i, p)) = stack.pop() {
+            match self.materials[i as usize] {
+                Material::Blend { a, b, weight } => {
+                    let w = match self.material_textures[i as usize].scalar {
+                        Some(t) => self.textures[t as usize].eval_scalar(uv).clamp(0.0, 1.0),
+                        None => weight,
+                    };
+                    stack.push((a, p * (1.0 - w)));
+                    stack.push((b, p * w));
+                }
+                Material::TwoSided { front, .. } => stack.push((front, p)),
+                _ => {
+                    let (fi, pi) = self.shade(i, uv).eval(wi, wo);
+                    f += fi * p;
+                    pdf += pi * p;
+                }
+            }
+        }
+        (f, pdf)
+    }
+
+    /// Material `id` with its textured parameters evaluated at `uv`.
+    pub fn shade(&self, id: u32, uv: Vec2) -> Material {
+        let m = self.materials[id as usize];
+        let t = &self.material_textures[id as usize];
+        if t.is_empty() {
+            return m;
+        }
+        let tex = |o: Option<u32>, c: Vec3| o.map_or(c, |i| self.textures[i as usize].eval(uv));
+        let alpha = |o: Option<u32>, a: f32| {
+            o.map_or(a, |i| self.textures[i as usize].eval_scalar(uv).max(1e-4))
+        };
+        match m {
+            Material::Diffuse { reflectance } => Material::Diffuse {
+                reflectance: tex(t.diffuse, reflectance),
+            },
+            Material::Conductor { eta, k, specular } => Material::Conductor {
+                eta,
+                k,
+                specular: tex(t.specular, specular),
+            },
+            Material::RoughConductor { alpha: a, eta, k } => Material::RoughConductor {
+                alpha: alpha(t.scalar, a),
+                eta,
+                k,
+            },
+            Material::Dielectric {
+                eta,
+                reflectance,
+                transmittance,
+            } => Material::Dielectric {
+                eta,
+                reflectance: tex(t.specular, reflectance),
+                transmittance: tex(t.transmittance, transmittance),
+            },
+            Material::ThinDielectric {
+                eta,
+                reflectance,
+                transmittance,
+            } => Material::ThinDielectric {
+                eta,
+                reflectance: tex(t.specular, reflectance),
+                transmittance: tex(t.transmittance, transmittance),
+            },
+            Material::RoughDielectric {
+                alpha: a,
+                eta,
+                reflectance,
+                transmittance,
+            } => Material::RoughDielectric {
+                alpha: alpha(t.scalar, a),
+                eta,
+                reflectance: tex(t.specular, reflectance),
+                transmittance: tex(t.transmittance, transmittance),
+            },
+            Material::Plastic(c) => Material::Plastic(
+                c.with_albedo(tex(t.diffuse, c.diffuse), tex(t.specular, c.specular)),
+            ),
+            Material::RoughPlastic(c) => Material::RoughPlastic(
+                c.with_albedo(tex(t.diffuse, c.diffuse), tex(t.specular, c.specular)),
+            ),
+            other => other,
+        }
+    }
+
+    /// True if anything blocks the segment `o + t d`, `t` in `(tmin, tmax)` (masked-out
+    /// parts of a `mask` BSDF do not block).
     pub fn occluded(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
         let ray = Ray::new(o.into(), d.into(), tmin, tmax);
         !self.bvh.ray_traverse_miss(ray, |r, id| {
-            self.prims[id]
-                .intersect(o, d, r.tmin, r.tmax)
-                .map_or(f32::INFINITY, |h| h.0)
+            match self.prims[id].intersect(o, d, r.tmin, r.tmax) {
+                Some((t, u, v)) if !self.has_opacity || self.opaque_at(id, o + d * t, u, v) => t,
+                _ => f32::INFINITY,
+            }
         })
     }
 

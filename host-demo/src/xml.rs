@@ -1,38 +1,66 @@
-//! Loader for a subset of the Mitsuba 3 scene format.
+//! Loader for a subset of the Mitsuba 3 scene format, and of Mitsuba 0.6 / 0.5 files.
 //!
 //! Supported: `integrator path` (max_depth, rr_depth), `sensor perspective` (fov, fov_axis,
 //! to_world, near/far_clip), `sampler independent` (sample_count), `film hdrfilm` (width,
 //! height, rfilter box); BSDFs `diffuse`, `conductor`, `roughconductor`, `dielectric`,
-//! `roughdielectric`, `plastic`, `roughplastic` (rough ones GGX only, isotropic alpha; IORs as
-//! numbers or Mitsuba's names) and `twosided`; shapes `obj`, `ply`, `sphere`, `rectangle`,
-//! `cube`, `disk` (to_world, flip_normals, face_normals for meshes); emitters `area` (nested in
-//! a shape), `point`, `constant` and `envmap` (EXR, to_world rotation, scale); `ref id`; and
-//! `transform` with matrix/lookat/translate/rotate/scale. The common Mitsuba 0.6 spellings are
-//! read too: `<srgb>` colours (`#rrggbb` or numbers, sRGB-decoded), `<spectrum>` with a single
-//! value (grey), `lookAt` and `toWorld`.
+//! `thindielectric`, `roughdielectric`, `plastic`, `roughplastic` (rough ones GGX, isotropic
+//! alpha; IORs as numbers or Mitsuba's names), `twosided`, `blendbsdf` and `mask`; textures
+//! `bitmap` and `checkerboard` (see [`crate::texture`]) for the colour, alpha, weight and
+//! opacity parameters; shapes `obj`, `ply`, `serialized`, `sphere`, `rectangle`, `cube`, `disk`
+//! (to_world, flip_normals, face_normals for meshes), `shapegroup` + `instance` (flattened into
+//! world-space primitives); emitters `area` (nested in a shape), `point`, `constant` and
+//! `envmap` (EXR, to_world rotation, scale); `ref id`; `include` (with cycle detection);
+//! `<default>` + `$name` substitution ([`LoadOptions::params`] override the defaults); and
+//! `transform` with matrix/lookat/translate/rotate/scale. Mitsuba 0.6 spellings: camelCase
+//! property names become snake_case (`toWorld`, `maxDepth`, `intIOR`, ...), `<srgb>` colours
+//! (`#rrggbb` or numbers, sRGB-decoded), `<spectrum>` with one value (grey) or three (RGB),
+//! `lookAt`.
 //!
-//! Anything else (an unknown element, plugin type or property) is an error that names the
-//! element and its line: nothing is dropped silently.
+//! Parts whose effect can be approximated (bumpmap/normalmap, Beckmann, other samplers and
+//! reconstruction filters, ldrfilm, ...) load with a warning naming the file and line (stderr
+//! and [`Scene::warnings`]); anything else unknown (an element, plugin type or property) is an
+//! error that names the element and its line: nothing is dropped silently.
 
 use crate::bsdf::{Coating, Material};
 use crate::emitter::{EnvMap, Environment, PointLight};
 use crate::error::{Error, Result};
-use crate::obj::parse_obj;
-use crate::ply::parse_ply;
-use crate::scene::{Camera, Prim, Scene, SceneBuilder, Settings};
-use glam::{Mat4, Vec3};
+use crate::obj::parse_obj_uv;
+use crate::ply::parse_ply_uv;
+use crate::scene::{Camera, MaterialTextures, Prim, Scene, SceneBuilder, Settings};
+use crate::texture::{Filter, ImageCache, Param, Texture, UvMap, Wrap};
+use glam::{Mat4, Vec2, Vec3};
 use roxmltree::{Document, Node};
+use std::borrow::Cow;
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::{Component, Path, PathBuf};
 
-/// Loads a Mitsuba 3 XML scene from disk (meshes are resolved relative to its folder).
+/// Options of a scene load.
+#[derive(Clone, Debug, Default)]
+pub struct LoadOptions {
+    /// `$name` parameter values (`-D name=value` on the command line); they override the
+    /// scene's `<default>` values.
+    pub params: Vec<(String, String)>,
+}
+
+/// Loads a Mitsuba XML scene from disk (meshes are resolved relative to its folder).
 pub fn load_file(path: &Path) -> Result<Scene> {
+    load_file_with(path, &LoadOptions::default())
+}
+
+/// [`load_file`] with `$param` overrides.
+pub fn load_file_with(path: &Path, opts: &LoadOptions) -> Result<Scene> {
     let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
         path: path.to_path_buf(),
         source,
     })?;
     let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
-    load_str(&text, &path.display().to_string(), &base)
+    load_str_opts(
+        &text,
+        &path.display().to_string(),
+        &base,
+        &|p: &Path| std::fs::read(p),
+        opts,
+    )
 }
 
 /// Loads a Mitsuba 3 XML scene from a string; `file` names it in errors, `base` resolves meshes.
@@ -48,39 +76,190 @@ pub fn load_str_with(
     base: &Path,
     read: &dyn Fn(&Path) -> std::io::Result<Vec<u8>>,
 ) -> Result<Scene> {
-    let doc = Document::parse(text).map_err(|source| Error::XmlSyntax {
-        file: file.to_string(),
-        source,
-    })?;
+    load_str_opts(text, file, base, read, &LoadOptions::default())
+}
+
+/// [`load_str_with`] with options (`$param` overrides).
+pub fn load_str_opts(
+    text: &str,
+    file: &str,
+    base: &Path,
+    read: &dyn Fn(&Path) -> std::io::Result<Vec<u8>>,
+    opts: &LoadOptions,
+) -> Result<Scene> {
     let mut ctx = Ctx {
-        doc: &doc,
         file: file.to_string(),
         base: base.to_path_buf(),
+        root_base: base.to_path_buf(),
         read,
+        params: opts.params.iter().cloned().collect(),
+        includes: vec![normalize(&PathBuf::from(file))],
         bsdfs: HashMap::new(),
+        mask_opacity: HashMap::new(),
+        tex_defs: HashMap::new(),
+        tex_ids: HashMap::new(),
+        groups: HashMap::new(),
+        images: ImageCache::default(),
         builder: SceneBuilder::default(),
         default_material: None,
+        integrator: None,
+        sensor: None,
     };
+    let text = substitute(text, file, &ctx.params)?;
+    let doc = parse_doc(&text, file)?;
     ctx.scene(doc.root_element())
 }
 
-struct Ctx<'a, 'i> {
-    doc: &'a Document<'i>,
+fn parse_doc<'t>(text: &'t str, file: &str) -> Result<Document<'t>> {
+    Document::parse(text).map_err(|source| Error::XmlSyntax {
+        file: file.to_string(),
+        source,
+    })
+}
+
+/// Lexical normalisation (`a/./b/../c` → `a/c`) for include-cycle detection.
+fn normalize(p: &Path) -> PathBuf {
+    let mut out = PathBuf::new();
+    for c in p.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir if out.file_name().is_some() => {
+                out.pop();
+            }
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+/// Replaces `$name` references by parameter values: `params` (command line or includer)
+/// first, then the file's own top-level `<default name= value=>`. Values are XML-escaped, and
+/// a `$name` left in any attribute afterwards is an error naming its element and line.
+fn substitute(text: &str, file: &str, params: &HashMap<String, String>) -> Result<String> {
+    if !text.contains('$') {
+        return Ok(text.to_string());
+    }
+    let doc = parse_doc(text, file)?;
+    let mut values = params.clone();
+    for n in elements(doc.root_element()) {
+        if n.tag_name().name() == "default" {
+            if let (Some(k), Some(v)) = (n.attribute("name"), n.attribute("value")) {
+                values.entry(k.to_string()).or_insert_with(|| v.to_string());
+            }
+        }
+    }
+    let bytes = text.as_bytes();
+    let mut out = String::with_capacity(text.len());
+    let mut i = 0;
+    let mut last = 0;
+    while i < bytes.len() {
+        if bytes[i] == b'$' {
+            let j = i
+                + 1
+                + bytes[i + 1..]
+                    .iter()
+                    .take_while(|c| c.is_ascii_alphanumeric() || **c == b'_')
+                    .count();
+            if let Some(v) = values.get(&text[i + 1..j]) {
+                out.push_str(&text[last..i]);
+                for c in v.chars() {
+                    match c {
+                        '"' => out.push_str("&quot;"),
+                        '\'' => out.push_str("&apos;"),
+                        '<' => out.push_str("&lt;"),
+                        '>' => out.push_str("&gt;"),
+                        '&' => out.push_str("&amp;"),
+                        c => out.push(c),
+                    }
+                }
+                last = j;
+            }
+            i = j.max(i + 1);
+        } else {
+            i += 1;
+        }
+    }
+    out.push_str(&text[last..]);
+    let doc = parse_doc(&out, file)?;
+    for n in doc.descendants().filter(Node::is_element) {
+        for a in n.attributes() {
+            if let Some(k) = a.value().find('$') {
+                let name: String = a.value()[k + 1..]
+                    .chars()
+                    .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+                    .collect();
+                if name.is_empty() {
+                    continue;
+                }
+                let pos = doc.text_pos_at(n.range().start);
+                return Err(Error::Xml {
+                    file: file.to_string(),
+                    line: pos.row,
+                    col: pos.col,
+                    msg: format!("undefined parameter \"${name}\" in attribute \"{}\" (add <default name=\"{name}\" value=\"...\"/> or pass -D {name}=VALUE)", a.name()),
+                });
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// A top-level `<texture id=...>`: parsed when defined, its image decoded on first use.
+#[derive(Clone, Debug)]
+enum TexDef {
+    Bitmap {
+        path: PathBuf,
+        raw: bool,
+        filter: Filter,
+        wrap: Wrap,
+        uv: UvMap,
+        at: String,
+    },
+    Checker(Texture),
+}
+
+/// The geometry and appearance of one `<shape>` before it joins the scene (shapegroups keep
+/// these to instantiate them).
+#[derive(Clone)]
+struct ShapeData {
+    prims: Vec<Prim>,
+    uvs: Option<Vec<[Vec2; 3]>>,
+    material: u32,
+    emission: Option<Vec3>,
+    opacity: Option<Param>,
+}
+
+struct Ctx<'r> {
+    /// File being read (changes inside `<include>`).
     file: String,
+    /// Its folder.
     base: PathBuf,
-    read: &'a dyn Fn(&Path) -> std::io::Result<Vec<u8>>,
+    /// The main scene's folder (fallback for relative paths in included files).
+    root_base: PathBuf,
+    read: &'r dyn Fn(&Path) -> std::io::Result<Vec<u8>>,
+    params: HashMap<String, String>,
+    /// Include chain (cycle detection).
+    includes: Vec<PathBuf>,
     bsdfs: HashMap<String, u32>,
+    /// Material index → opacity of `mask` materials.
+    mask_opacity: HashMap<u32, Param>,
+    tex_defs: HashMap<String, TexDef>,
+    tex_ids: HashMap<String, u32>,
+    groups: HashMap<String, Vec<ShapeData>>,
+    images: ImageCache,
     builder: SceneBuilder,
     default_material: Option<u32>,
+    integrator: Option<(u32, u32)>,
+    sensor: Option<(Camera, u32, u32, u32)>,
 }
 
 fn elements<'a, 'i>(n: Node<'a, 'i>) -> impl Iterator<Item = Node<'a, 'i>> {
     n.children().filter(|c| c.is_element())
 }
 
-impl<'a, 'i> Ctx<'a, 'i> {
+impl Ctx<'_> {
     fn err(&self, n: Node, msg: impl Into<String>) -> Error {
-        let pos = self.doc.text_pos_at(n.range().start);
+        let pos = n.document().text_pos_at(n.range().start);
         Error::Xml {
             file: self.file.clone(),
             line: pos.row,
@@ -89,7 +268,52 @@ impl<'a, 'i> Ctx<'a, 'i> {
         }
     }
 
-    fn attr<'n>(&self, n: Node<'n, 'i>, name: &str) -> Result<&'n str> {
+    /// Prints a warning naming the element's file and line (stderr) and keeps it in
+    /// [`Scene::warnings`].
+    fn warn(&mut self, n: Node, msg: impl Into<String>) {
+        let pos = n.document().text_pos_at(n.range().start);
+        let w = format!(
+            "{}:{}:{}: warning: {}",
+            self.file,
+            pos.row,
+            pos.col,
+            msg.into()
+        );
+        eprintln!("{w}");
+        self.builder.warnings.push(w);
+    }
+
+    /// Reads `f` relative to the current file's folder, else the main scene's folder.
+    fn read_rel(&self, f: &str) -> Result<(PathBuf, Vec<u8>)> {
+        let first = self.base.join(f);
+        match (self.read)(&first) {
+            Ok(b) => Ok((first, b)),
+            Err(source) => {
+                let second = self.root_base.join(f);
+                if second != first {
+                    if let Ok(b) = (self.read)(&second) {
+                        return Ok((second, b));
+                    }
+                }
+                Err(Error::Io {
+                    path: first,
+                    source,
+                })
+            }
+        }
+    }
+
+    /// The path `f` resolves to (as [`Ctx::read_rel`] would read it), without reading.
+    fn resolve_rel(&self, f: &str) -> PathBuf {
+        let first = self.base.join(f);
+        if first.exists() || !self.root_base.join(f).exists() {
+            first
+        } else {
+            self.root_base.join(f)
+        }
+    }
+
+    fn attr<'n>(&self, n: Node<'n, '_>, name: &str) -> Result<&'n str> {
         n.attribute(name).ok_or_else(|| {
             self.err(
                 n,
@@ -172,8 +396,12 @@ impl<'a, 'i> Ctx<'a, 'i> {
                         let v = self.floats(n, s)?;
                         match (v.len(), tag) {
                             (1, _) => Vec3::splat(v[0]),
-                            (3, "rgb" | "srgb") => Vec3::new(v[0], v[1], v[2]),
-                            _ if tag == "spectrum" || tag == "float" => {
+                            // Mitsuba 0.6 reads a 3-value <spectrum> as linear RGB.
+                            (3, "rgb" | "srgb" | "spectrum") => Vec3::new(v[0], v[1], v[2]),
+                            _ if tag == "spectrum" => {
+                                return Err(self.err(n, "<spectrum> expects one value (grey) or three (RGB)"))
+                            }
+                            _ if tag == "float" => {
                                 return Err(self.err(n, format!("<{tag}> expects a single number")))
                             }
                             _ => return Err(self.err(n, "expected 1 or 3 numbers")),
@@ -239,8 +467,9 @@ impl<'a, 'i> Ctx<'a, 'i> {
         Ok(out)
     }
 
-    /// The `name` attribute, with Mitsuba 0.6's `toWorld` read as `to_world`.
-    fn name<'n>(&self, n: Node<'n, 'i>) -> Result<&'n str> {
+    /// The `name` attribute, with Mitsuba 0.6's camelCase (`toWorld`, `maxDepth`, `intIOR`)
+    /// read as Mitsuba 3's snake_case.
+    fn name<'n>(&self, n: Node<'n, '_>) -> Result<Cow<'n, str>> {
         self.attr(n, "name").map(prop_name)
     }
 
@@ -348,7 +577,27 @@ impl<'a, 'i> Ctx<'a, 'i> {
         Ok(out)
     }
 
-    fn scene(&mut self, root: Node<'a, 'i>) -> Result<Scene> {
+    fn scene(&mut self, root: Node) -> Result<Scene> {
+        self.check_root(root)?;
+        for n in elements(root) {
+            self.top(n)?;
+        }
+        let (camera, width, height, spp) = self
+            .sensor
+            .ok_or_else(|| self.err(root, "the scene has no <sensor>"))?;
+        let settings = Settings {
+            width,
+            height,
+            spp,
+            max_depth: self.integrator.map_or(1024, |d| d.0),
+            rr_depth: self.integrator.map_or(5, |d| d.1),
+        };
+        let mut builder = std::mem::take(&mut self.builder);
+        builder.texture_bytes = self.images.bytes();
+        builder.build(camera, settings)
+    }
+
+    fn check_root(&self, root: Node) -> Result<()> {
         if root.tag_name().name() != "scene" {
             return Err(self.err(
                 root,
@@ -358,48 +607,92 @@ impl<'a, 'i> Ctx<'a, 'i> {
                 ),
             ));
         }
-        let mut max_depth: Option<(u32, u32)> = None;
-        let mut sensor: Option<(Camera, u32, u32, u32)> = None;
-        for n in elements(root) {
-            match n.tag_name().name() {
-                "integrator" => max_depth = Some(self.integrator(n)?),
-                "sensor" => {
-                    if sensor.is_some() {
-                        return Err(self.err(n, "more than one <sensor> is not supported"));
-                    }
-                    sensor = Some(self.sensor(n)?);
+        Ok(())
+    }
+
+    /// One top-level element of the scene (or of an included file).
+    fn top(&mut self, n: Node) -> Result<()> {
+        match n.tag_name().name() {
+            "integrator" => self.integrator = Some(self.integrator(n)?),
+            "sensor" => {
+                if self.sensor.is_some() {
+                    return Err(self.err(n, "more than one <sensor> is not supported"));
                 }
-                "bsdf" => {
-                    let id = self.attr(n, "id")?.to_string();
-                    let idx = self.bsdf(n)?;
-                    self.bsdfs.insert(id, idx);
-                }
-                "shape" => self.shape(n)?,
-                "emitter" => self.emitter(n)?,
-                _ => return Err(self.unsupported(n, "scene element")),
+                self.sensor = Some(self.sensor(n)?);
             }
+            "bsdf" => {
+                let id = self.attr(n, "id")?.to_string();
+                let idx = self.bsdf(n)?;
+                self.bsdfs.insert(id, idx);
+            }
+            "texture" => {
+                let id = self.attr(n, "id")?.to_string();
+                let def = self.texture_def(n)?;
+                self.tex_defs.insert(id, def);
+            }
+            "shape" => self.shape(n)?,
+            "emitter" => self.emitter(n)?,
+            "include" => self.include(n)?,
+            // Consumed by the `$name` substitution before parsing.
+            "default" => {
+                self.attr(n, "name")?;
+                self.attr(n, "value")?;
+            }
+            _ => return Err(self.unsupported(n, "scene element")),
         }
-        let (camera, width, height, spp) =
-            sensor.ok_or_else(|| self.err(root, "the scene has no <sensor>"))?;
-        let settings = Settings {
-            width,
-            height,
-            spp,
-            max_depth: max_depth.map_or(1024, |d| d.0),
-            rr_depth: max_depth.map_or(5, |d| d.1),
-        };
-        let builder = std::mem::take(&mut self.builder);
-        builder.build(camera, settings)
+        Ok(())
+    }
+
+    /// `<include filename="..."/>`: the file's top-level elements join the scene; relative
+    /// paths inside it resolve against its own folder first. A file that includes itself
+    /// (directly or through others) is an error listing the chain.
+    fn include(&mut self, n: Node) -> Result<()> {
+        let f = self.attr(n, "filename")?;
+        let (path, bytes) = self.read_rel(f)?;
+        let key = normalize(&path);
+        if self.includes.contains(&key) {
+            let chain: Vec<String> = self
+                .includes
+                .iter()
+                .chain(std::iter::once(&key))
+                .map(|p| p.display().to_string())
+                .collect();
+            return Err(self.err(n, format!("include cycle: {}", chain.join(" -> "))));
+        }
+        if self.includes.len() > 32 {
+            return Err(self.err(n, "includes nested more than 32 deep"));
+        }
+        let name = path.display().to_string();
+        let text = String::from_utf8(bytes)
+            .map_err(|_| self.err(n, format!("included file {name} is not UTF-8 text")))?;
+        let text = substitute(&text, &name, &self.params)?;
+        let doc = parse_doc(&text, &name)?;
+        let saved_file = std::mem::replace(&mut self.file, name);
+        let saved_base = std::mem::replace(
+            &mut self.base,
+            path.parent().map(Path::to_path_buf).unwrap_or_default(),
+        );
+        self.includes.push(key);
+        let result = self.check_root(doc.root_element()).and_then(|()| {
+            for c in elements(doc.root_element()) {
+                self.top(c)?;
+            }
+            Ok(())
+        });
+        self.includes.pop();
+        self.file = saved_file;
+        self.base = saved_base;
+        result
     }
 
     /// `(max_depth, rr_depth)` of `<integrator type="path">`.
-    fn integrator(&self, n: Node) -> Result<(u32, u32)> {
+    fn integrator(&mut self, n: Node) -> Result<(u32, u32)> {
         if n.attribute("type") != Some("path") {
-            return Err(self.unsupported(n, "integrator type"));
+            return Err(self.unsupported(n, "integrator type (only \"path\")"));
         }
         let (mut depth, mut rr_depth) = (1024, 5);
         for p in elements(n) {
-            match (p.tag_name().name(), self.name(p)?) {
+            match (p.tag_name().name(), self.name(p)?.as_ref()) {
                 ("integer", "max_depth") => {
                     let d = self.integer(p)?;
                     depth = if d < 0 { 1024 } else { d.min(1 << 20) as u32 };
@@ -408,52 +701,92 @@ impl<'a, 'i> Ctx<'a, 'i> {
                 ("integer", "rr_depth") => {
                     rr_depth = self.integer(p)?.clamp(1, 1 << 20) as u32;
                 }
+                ("boolean", "strict_normals") => self.warn(
+                    p,
+                    "strict_normals is ignored (light leaks through shading normals are \
+                     rejected by a geometric side test instead)",
+                ),
+                ("boolean", "hide_emitters") if !self.boolean(p)? => {}
                 _ => return Err(self.unsupported(p, "integrator property")),
             }
         }
         Ok((depth, rr_depth))
     }
 
-    fn sensor(&self, n: Node) -> Result<(Camera, u32, u32, u32)> {
+    fn sensor(&mut self, n: Node) -> Result<(Camera, u32, u32, u32)> {
         if n.attribute("type") != Some("perspective") {
-            return Err(self.unsupported(n, "sensor type"));
+            return Err(self.unsupported(n, "sensor type (only \"perspective\")"));
         }
         let (mut fov, mut axis, mut to_world) = (None, "x".to_string(), Mat4::IDENTITY);
         let (mut w, mut h, mut spp) = (768u32, 576u32, 4u32);
         for p in elements(n) {
-            match p.tag_name().name() {
-                "float" if self.name(p)? == "fov" => fov = Some(self.float(p)?),
+            let tag = p.tag_name().name();
+            let pname = match tag {
+                "sampler" | "film" => Cow::Borrowed(""),
+                _ => self.name(p)?,
+            };
+            match (tag, pname.as_ref()) {
+                ("float", "fov") => fov = Some(self.float(p)?),
                 // Clipping planes do not change the image of a closed-form pinhole for these scenes.
-                "float" if matches!(self.name(p)?, "near_clip" | "far_clip") => {}
-                "string" if self.name(p)? == "fov_axis" => {
-                    axis = self.attr(p, "value")?.to_string()
-                }
-                "transform" if self.name(p)? == "to_world" => to_world = self.transform(p)?,
-                "sampler" => {
-                    if p.attribute("type") != Some("independent") {
-                        return Err(self.unsupported(p, "sampler type"));
+                ("float", "near_clip" | "far_clip") => {}
+                ("string", "fov_axis") => axis = self.attr(p, "value")?.to_string(),
+                ("transform", "to_world") => to_world = self.transform(p)?,
+                ("sampler", _) => {
+                    let ty = p.attribute("type").unwrap_or("");
+                    match ty {
+                        "independent" => {}
+                        "stratified" | "multijitter" | "orthogonal" | "ldsampler" | "halton"
+                        | "hammersley" | "sobol" | "correlated" | "ldsampler_" => self.warn(
+                            p,
+                            format!("sampler \"{ty}\" is replaced by \"independent\" (same expected image, different noise)"),
+                        ),
+                        _ => return Err(self.unsupported(p, "sampler type")),
                     }
                     for q in elements(p) {
-                        match (q.tag_name().name(), self.name(q)?) {
+                        match (q.tag_name().name(), self.name(q)?.as_ref()) {
                             ("integer", "sample_count") => spp = self.positive(q)?,
                             ("integer", "seed") => {}
+                            ("integer", "dimension" | "scramble")
+                            | ("boolean", "jitter" | "randomize")
+                                if ty != "independent" => {}
                             _ => return Err(self.unsupported(q, "sampler property")),
                         }
                     }
                 }
-                "film" => {
-                    if p.attribute("type") != Some("hdrfilm") {
-                        return Err(self.unsupported(p, "film type"));
+                ("film", _) => {
+                    let ty = p.attribute("type").unwrap_or("");
+                    match ty {
+                        "hdrfilm" => {}
+                        "ldrfilm" => self.warn(
+                            p,
+                            "ldrfilm: the image is written as EXR plus an sRGB PNG preview; its tonemapping parameters are ignored",
+                        ),
+                        _ => return Err(self.unsupported(p, "film type")),
                     }
                     for q in elements(p) {
-                        match q.tag_name().name() {
-                            "integer" if self.name(q)? == "width" => w = self.positive(q)?,
-                            "integer" if self.name(q)? == "height" => h = self.positive(q)?,
-                            "rfilter" => {
-                                if q.attribute("type") != Some("box") {
-                                    return Err(self.unsupported(q, "reconstruction filter"));
+                        let qtag = q.tag_name().name();
+                        if qtag == "rfilter" {
+                            match q.attribute("type").unwrap_or("") {
+                                "box" => {}
+                                f @ ("gaussian" | "tent" | "mitchell" | "catmullrom"
+                                | "lanczos") => {
+                                    let f = f.to_string();
+                                    self.warn(q, format!("reconstruction filter \"{f}\" is replaced by \"box\" (slightly sharper image)"));
                                 }
+                                _ => return Err(self.unsupported(q, "reconstruction filter")),
                             }
+                            continue;
+                        }
+                        match (qtag, self.name(q)?.as_ref()) {
+                            ("integer", "width") => w = self.positive(q)?,
+                            ("integer", "height") => h = self.positive(q)?,
+                            // Output-format options: the output is always EXR + PNG.
+                            ("string", "file_format" | "pixel_format" | "component_format")
+                            | ("boolean", "banner" | "high_quality_edges" | "attach_log") => {}
+                            (
+                                "string" | "float" | "boolean",
+                                "tonemap_method" | "gamma" | "exposure" | "key" | "burn",
+                            ) if ty == "ldrfilm" => {}
                             _ => return Err(self.unsupported(q, "film property")),
                         }
                     }
@@ -497,11 +830,20 @@ impl<'a, 'i> Ctx<'a, 'i> {
     }
 
     /// GGX roughness and distribution properties shared by the rough BSDFs; returns true if
-    /// the property was one of them.
-    fn rough_property(&self, p: Node, distribution: &mut String, alpha: &mut f32) -> Result<bool> {
-        match (p.tag_name().name(), self.name(p)?) {
+    /// the property was one of them. A textured `alpha` goes to `alpha_tex`.
+    fn rough_property(
+        &mut self,
+        p: Node,
+        distribution: &mut String,
+        alpha: &mut f32,
+        alpha_tex: &mut Option<u32>,
+    ) -> Result<bool> {
+        match (p.tag_name().name(), self.name(p)?.as_ref()) {
             ("string", "distribution") => *distribution = self.attr(p, "value")?.to_string(),
             ("float", "alpha") => *alpha = self.float(p)?,
+            ("texture" | "ref", "alpha") => {
+                *alpha_tex = Some(self.texture_param(p)?);
+            }
             // Visible-normal sampling is what we do anyway; `false` would only change variance.
             ("boolean", "sample_visible") => {}
             _ => return Ok(false),
@@ -509,10 +851,20 @@ impl<'a, 'i> Ctx<'a, 'i> {
         Ok(true)
     }
 
-    fn check_rough(&self, n: Node, distribution: &str, alpha: f32) -> Result<f32> {
+    fn check_rough(&mut self, n: Node, distribution: &str, alpha: f32) -> Result<f32> {
         let ty = n.attribute("type").unwrap_or("");
-        if distribution != "ggx" {
-            return Err(self.err(n, format!("{ty} distribution \"{distribution}\" is not supported (only \"ggx\"; Mitsuba's default is beckmann)")));
+        match distribution {
+            "ggx" => {}
+            "beckmann" => self.warn(
+                n,
+                format!("{ty}: the Beckmann distribution is approximated by GGX with the same alpha (Mitsuba's default is beckmann; give <string name=\"distribution\" value=\"ggx\"/> to silence this)"),
+            ),
+            _ => {
+                return Err(self.err(
+                    n,
+                    format!("{ty} distribution \"{distribution}\" is not supported (only \"ggx\", and \"beckmann\" approximated by GGX)"),
+                ))
+            }
         }
         if !(alpha > 0.0 && alpha.is_finite()) {
             return Err(self.err(n, format!("alpha {alpha} must be positive")));
@@ -520,16 +872,232 @@ impl<'a, 'i> Ctx<'a, 'i> {
         Ok(alpha.max(1e-4))
     }
 
-    /// Parses a `<bsdf>` (nested ones of `twosided` first), adds it to the scene and returns
-    /// its material index.
-    fn bsdf(&mut self, n: Node<'a, 'i>) -> Result<u32> {
+    /// A colour parameter: a constant, an inline `<texture>` or a `<ref>` to a texture id.
+    fn param(&mut self, p: Node) -> Result<Param> {
+        match p.tag_name().name() {
+            "texture" | "ref" => Ok(Param::Tex(self.texture_param(p)?)),
+            _ => Ok(Param::Const(self.color(p)?)),
+        }
+    }
+
+    /// A scalar parameter in `[0, 1]` (`float` or texture), as a [`Param`].
+    fn unit_param(&mut self, p: Node) -> Result<Param> {
+        match p.tag_name().name() {
+            "float" => {
+                let v = self.float(p)?;
+                if !(0.0..=1.0).contains(&v) {
+                    return Err(self.err(p, format!("value {v} must be in [0, 1]")));
+                }
+                Ok(Param::Const(Vec3::splat(v)))
+            }
+            _ => self.param(p),
+        }
+    }
+
+    /// The texture index of an inline `<texture>` or of a `<ref id=...>` to a texture.
+    fn texture_param(&mut self, p: Node) -> Result<u32> {
+        if p.tag_name().name() == "ref" {
+            let id = self.attr(p, "id")?;
+            if let Some(&t) = self.tex_ids.get(id) {
+                return Ok(t);
+            }
+            let def =
+                self.tex_defs.get(id).cloned().ok_or_else(|| {
+                    self.err(p, format!("reference to unknown texture id \"{id}\""))
+                })?;
+            let t = self.instantiate(p, def)?;
+            self.tex_ids.insert(id.to_string(), t);
+            return Ok(t);
+        }
+        let def = self.texture_def(p)?;
+        self.instantiate(p, def)
+    }
+
+    fn instantiate(&mut self, p: Node, def: TexDef) -> Result<u32> {
+        let t = match def {
+            TexDef::Checker(t) => t,
+            TexDef::Bitmap {
+                path,
+                raw,
+                filter,
+                wrap,
+                uv,
+                at,
+            } => {
+                let image = self
+                    .images
+                    .get(&path, raw, self.read)
+                    .map_err(|e| self.err(p, format!("texture defined at {at}: {e}")))?;
+                Texture::Bitmap {
+                    image,
+                    filter,
+                    wrap,
+                    uv,
+                }
+            }
+        };
+        Ok(self.builder.texture(t))
+    }
+
+    /// Parses a `<texture>` element (`bitmap` or `checkerboard`); images are not decoded yet.
+    fn texture_def(&mut self, n: Node) -> Result<TexDef> {
         let ty = n.attribute("type").unwrap_or("");
+        let mut uv = UvMap::default();
+        let (mut off, mut scale) = (Vec2::ZERO, Vec2::ONE);
+        let mut has_06 = false;
+        let (mut filename, mut raw) = (None, false);
+        let (mut filter, mut wrap) = (Filter::Bilinear, Wrap::Repeat);
+        let (mut c0, mut c1) = (Vec3::splat(0.4), Vec3::splat(0.2));
+        for p in elements(n) {
+            let tag = p.tag_name().name();
+            let pname = self.name(p)?;
+            match (tag, pname.as_ref(), ty) {
+                ("transform", "to_uv", _) => {
+                    let m = self.transform(p)?;
+                    uv = UvMap {
+                        m: glam::Mat2::from_cols(
+                            m.x_axis.truncate().truncate(),
+                            m.y_axis.truncate().truncate(),
+                        ),
+                        t: m.w_axis.truncate().truncate(),
+                    };
+                }
+                ("float", "uoffset", _) => (off.x, has_06) = (self.float(p)?, true),
+                ("float", "voffset", _) => (off.y, has_06) = (self.float(p)?, true),
+                ("float", "uscale", _) => (scale.x, has_06) = (self.float(p)?, true),
+                ("float", "vscale", _) => (scale.y, has_06) = (self.float(p)?, true),
+                ("string", "filename", "bitmap") => {
+                    filename = Some(self.attr(p, "value")?.to_string())
+                }
+                ("boolean", "raw", "bitmap") => raw = self.boolean(p)?,
+                ("string", "filter_type", "bitmap") => {
+                    filter = match self.attr(p, "value")? {
+                        "bilinear" => Filter::Bilinear,
+                        "nearest" => Filter::Nearest,
+                        // Mitsuba 0.6 filters: EWA / trilinear mip-mapping reduce aliasing only.
+                        v @ ("ewa" | "trilinear") => {
+                            let v = v.to_string();
+                            self.warn(p, format!("filter_type \"{v}\" is approximated by \"bilinear\" (no mip-mapping)"));
+                            Filter::Bilinear
+                        }
+                        v => {
+                            return Err(self.err(
+                                p,
+                                format!("unknown filter_type \"{v}\" (bilinear or nearest)"),
+                            ))
+                        }
+                    }
+                }
+                ("string", "wrap_mode" | "wrap_mode_u" | "wrap_mode_v", "bitmap") => {
+                    wrap = match self.attr(p, "value")? {
+                        "repeat" => Wrap::Repeat,
+                        "mirror" => Wrap::Mirror,
+                        "clamp" => Wrap::Clamp,
+                        v => {
+                            return Err(self.err(
+                                p,
+                                format!("unknown wrap_mode \"{v}\" (repeat, mirror or clamp)"),
+                            ))
+                        }
+                    }
+                }
+                // Mitsuba 0.6 bitmap options that do not change linear RGB textures.
+                ("string", "cache" | "channel", "bitmap")
+                | ("float", "max_anisotropy", "bitmap") => {}
+                ("float", "gamma", "bitmap") => {
+                    let g = self.float(p)?;
+                    self.warn(p, format!("bitmap gamma {g} is ignored (8-bit images are sRGB-decoded unless raw)"));
+                }
+                (_, "color0", "checkerboard") => c0 = self.color(p)?,
+                (_, "color1", "checkerboard") => c1 = self.color(p)?,
+                _ => return Err(self.unsupported(p, &format!("property of texture \"{ty}\""))),
+            }
+        }
+        if has_06 {
+            uv = UvMap {
+                m: uv.m * glam::Mat2::from_diagonal(scale),
+                t: uv.t + off,
+            };
+        }
+        let pos = n.document().text_pos_at(n.range().start);
+        let at = format!("{}:{}", self.file, pos.row);
+        match ty {
+            "bitmap" => {
+                let f = filename
+                    .ok_or_else(|| self.err(n, "bitmap texture needs a \"filename\" string"))?;
+                Ok(TexDef::Bitmap {
+                    path: self.resolve_rel(&f),
+                    raw,
+                    filter,
+                    wrap,
+                    uv,
+                    at,
+                })
+            }
+            "checkerboard" => Ok(TexDef::Checker(Texture::Checkerboard {
+                color0: c0,
+                color1: c1,
+                uv,
+            })),
+            _ => Err(self.unsupported(n, "texture type (bitmap or checkerboard)")),
+        }
+    }
+
+    /// Adds `m` with textured parameters where `tex` has any.
+    fn add_material(&mut self, m: Material, tex: MaterialTextures) -> u32 {
+        self.builder.textured_material(m, tex)
+    }
+
+    /// Splits a colour parameter into the constant stored in the material (0.5 grey for a
+    /// texture: it only serves as a placeholder) and the texture slot.
+    fn split(p: Param, slot: &mut Option<u32>) -> Vec3 {
+        match p {
+            Param::Const(c) => c,
+            Param::Tex(t) => {
+                *slot = Some(t);
+                Vec3::splat(0.5)
+            }
+        }
+    }
+
+    /// True if material `idx` (looking through blends) is one-sided and no twosided itself.
+    fn wrappable(&self, idx: u32) -> bool {
+        let mats = self.builder.materials();
+        let mut stack = vec![idx];
+        while let Some(i) = stack.pop() {
+            match mats[i as usize] {
+                Material::TwoSided { .. } => return false,
+                Material::Blend { a, b, .. } => stack.extend([a, b]),
+                m if !m.one_sided() => return false,
+                _ => {}
+            }
+        }
+        true
+    }
+
+    /// A nested `<bsdf>` or `<ref>` of a wrapper BSDF.
+    fn nested_bsdf(&mut self, p: Node, what: &str) -> Result<u32> {
+        match p.tag_name().name() {
+            "bsdf" => self.bsdf(p),
+            "ref" => self.bsdf_ref(p),
+            _ => Err(self.unsupported(p, what)),
+        }
+    }
+
+    /// Parses a `<bsdf>` (nested ones of wrappers first), adds it to the scene and returns
+    /// its material index.
+    fn bsdf(&mut self, n: Node) -> Result<u32> {
+        let ty = n.attribute("type").unwrap_or("");
+        let mut tex = MaterialTextures::default();
         let m = match ty {
             "diffuse" => {
                 let mut reflectance = Vec3::splat(0.5);
                 for p in elements(n) {
-                    match self.name(p)? {
-                        "reflectance" => reflectance = self.color(p)?,
+                    match self.name(p)?.as_ref() {
+                        "reflectance" => {
+                            let v = self.param(p)?;
+                            reflectance = Self::split(v, &mut tex.diffuse);
+                        }
                         _ => return Err(self.unsupported(p, "diffuse property")),
                     }
                 }
@@ -541,11 +1109,11 @@ impl<'a, 'i> Ctx<'a, 'i> {
                 let mut distribution = "beckmann".to_string();
                 for p in elements(n) {
                     if ty == "roughconductor"
-                        && self.rough_property(p, &mut distribution, &mut alpha)?
+                        && self.rough_property(p, &mut distribution, &mut alpha, &mut tex.scalar)?
                     {
                         continue;
                     }
-                    match (p.tag_name().name(), self.name(p)?) {
+                    match (p.tag_name().name(), self.name(p)?.as_ref()) {
                         ("string", "material") => {
                             if self.attr(p, "value")? != "none" {
                                 return Err(self.err(p, format!("named conductor material \"{}\" is not supported (use rgb eta/k, or \"none\")", self.attr(p, "value")?)));
@@ -556,7 +1124,8 @@ impl<'a, 'i> Ctx<'a, 'i> {
                         (_, "eta") => eta = self.color(p)?,
                         (_, "k") => k = self.color(p)?,
                         (_, "specular_reflectance") if ty == "conductor" => {
-                            specular = self.color(p)?
+                            let v = self.param(p)?;
+                            specular = Self::split(v, &mut tex.specular);
                         }
                         _ => return Err(self.unsupported(p, &format!("{ty} property"))),
                     }
@@ -568,21 +1137,27 @@ impl<'a, 'i> Ctx<'a, 'i> {
                     Material::RoughConductor { alpha, eta, k }
                 }
             }
-            "dielectric" | "roughdielectric" => {
+            "dielectric" | "roughdielectric" | "thindielectric" => {
                 let (mut int_ior, mut ext_ior, mut alpha) = (1.5046f32, 1.000_277f32, 0.1f32);
                 let (mut reflectance, mut transmittance) = (Vec3::ONE, Vec3::ONE);
                 let mut distribution = "beckmann".to_string();
                 for p in elements(n) {
                     if ty == "roughdielectric"
-                        && self.rough_property(p, &mut distribution, &mut alpha)?
+                        && self.rough_property(p, &mut distribution, &mut alpha, &mut tex.scalar)?
                     {
                         continue;
                     }
-                    match self.name(p)? {
+                    match self.name(p)?.as_ref() {
                         "int_ior" => int_ior = self.ior(p)?,
                         "ext_ior" => ext_ior = self.ior(p)?,
-                        "specular_reflectance" => reflectance = self.color(p)?,
-                        "specular_transmittance" => transmittance = self.color(p)?,
+                        "specular_reflectance" => {
+                            let v = self.param(p)?;
+                            reflectance = Self::split(v, &mut tex.specular);
+                        }
+                        "specular_transmittance" => {
+                            let v = self.param(p)?;
+                            transmittance = Self::split(v, &mut tex.transmittance);
+                        }
                         _ => return Err(self.unsupported(p, &format!("{ty} property"))),
                     }
                 }
@@ -590,19 +1165,25 @@ impl<'a, 'i> Ctx<'a, 'i> {
                     return Err(self.err(n, "int_ior and ext_ior must differ"));
                 }
                 let eta = int_ior / ext_ior;
-                if ty == "dielectric" {
-                    Material::Dielectric {
+                match ty {
+                    "dielectric" => Material::Dielectric {
                         eta,
                         reflectance,
                         transmittance,
-                    }
-                } else {
-                    let alpha = self.check_rough(n, &distribution, alpha)?;
-                    Material::RoughDielectric {
-                        alpha,
+                    },
+                    "thindielectric" => Material::ThinDielectric {
                         eta,
                         reflectance,
                         transmittance,
+                    },
+                    _ => {
+                        let alpha = self.check_rough(n, &distribution, alpha)?;
+                        Material::RoughDielectric {
+                            alpha,
+                            eta,
+                            reflectance,
+                            transmittance,
+                        }
                     }
                 }
             }
@@ -611,17 +1192,27 @@ impl<'a, 'i> Ctx<'a, 'i> {
                 let (mut diffuse, mut specular) = (Vec3::splat(0.5), Vec3::ONE);
                 let mut nonlinear = false;
                 let mut distribution = "beckmann".to_string();
+                let mut alpha_tex = None;
                 for p in elements(n) {
                     if ty == "roughplastic"
-                        && self.rough_property(p, &mut distribution, &mut alpha)?
+                        && self.rough_property(p, &mut distribution, &mut alpha, &mut alpha_tex)?
                     {
+                        if alpha_tex.is_some() {
+                            return Err(self.err(p, "a textured alpha on roughplastic is not supported (its coating tables are precomputed per alpha); use a float"));
+                        }
                         continue;
                     }
-                    match (p.tag_name().name(), self.name(p)?) {
+                    match (p.tag_name().name(), self.name(p)?.as_ref()) {
                         (_, "int_ior") => int_ior = self.ior(p)?,
                         (_, "ext_ior") => ext_ior = self.ior(p)?,
-                        (_, "diffuse_reflectance") => diffuse = self.color(p)?,
-                        (_, "specular_reflectance") => specular = self.color(p)?,
+                        (_, "diffuse_reflectance") => {
+                            let v = self.param(p)?;
+                            diffuse = Self::split(v, &mut tex.diffuse);
+                        }
+                        (_, "specular_reflectance") => {
+                            let v = self.param(p)?;
+                            specular = Self::split(v, &mut tex.specular);
+                        }
                         ("boolean", "nonlinear") => nonlinear = self.boolean(p)?,
                         _ => return Err(self.unsupported(p, &format!("{ty} property"))),
                     }
@@ -640,13 +1231,8 @@ impl<'a, 'i> Ctx<'a, 'i> {
             "twosided" => {
                 let mut sides = Vec::new();
                 for p in elements(n) {
-                    let idx = match p.tag_name().name() {
-                        "bsdf" => self.bsdf(p)?,
-                        "ref" => self.bsdf_ref(p)?,
-                        _ => return Err(self.unsupported(p, "twosided property")),
-                    };
-                    let inner = &self.builder.materials()[idx as usize];
-                    if !inner.one_sided() || matches!(inner, Material::TwoSided { .. }) {
+                    let idx = self.nested_bsdf(p, "twosided property")?;
+                    if !self.wrappable(idx) {
                         return Err(self.err(p, "twosided can only wrap opaque, one-sided BSDFs (not dielectrics or another twosided)"));
                     }
                     sides.push(idx);
@@ -663,9 +1249,92 @@ impl<'a, 'i> Ctx<'a, 'i> {
                     _ => return Err(self.err(n, "twosided needs one or two nested BSDFs")),
                 }
             }
+            "blendbsdf" => {
+                let mut parts = Vec::new();
+                let mut weight = Param::Const(Vec3::splat(0.5));
+                for p in elements(n) {
+                    match (
+                        p.tag_name().name(),
+                        p.attribute("name").map(prop_name).as_deref(),
+                    ) {
+                        ("bsdf", _) | ("ref", None) => {
+                            parts.push(self.nested_bsdf(p, "blendbsdf property")?)
+                        }
+                        (_, Some("weight")) => weight = self.unit_param(p)?,
+                        _ => return Err(self.unsupported(p, "blendbsdf property")),
+                    }
+                }
+                let [a, b] = parts[..] else {
+                    return Err(self.err(
+                        n,
+                        format!(
+                            "blendbsdf needs exactly two nested BSDFs (found {})",
+                            parts.len()
+                        ),
+                    ));
+                };
+                let w = match weight {
+                    Param::Const(c) => c.x,
+                    Param::Tex(t) => {
+                        tex.scalar = Some(t);
+                        0.5
+                    }
+                };
+                Material::Blend { a, b, weight: w }
+            }
+            "mask" => {
+                let mut nested = None;
+                let mut opacity = Param::Const(Vec3::splat(0.5));
+                for p in elements(n) {
+                    match (
+                        p.tag_name().name(),
+                        p.attribute("name").map(prop_name).as_deref(),
+                    ) {
+                        ("bsdf", _) | ("ref", None) => {
+                            nested = Some(self.nested_bsdf(p, "mask property")?)
+                        }
+                        (_, Some("opacity")) => opacity = self.unit_param(p)?,
+                        _ => return Err(self.unsupported(p, "mask property")),
+                    }
+                }
+                let inner = nested.ok_or_else(|| self.err(n, "mask needs a nested BSDF"))?;
+                if let Param::Const(c) = opacity {
+                    if c.x > 0.0 && c.x < 1.0 {
+                        self.warn(n, format!("mask opacity {} is approximated as a cut-out: {} (opacity < 0.5 is fully transparent, otherwise opaque)", c.x, if c.x < 0.5 { "fully transparent" } else { "opaque" }));
+                    }
+                }
+                // A copy of the nested material that carries the opacity.
+                let m = self.builder.materials()[inner as usize];
+                let t = self.builder.material_textures()[inner as usize];
+                let idx = self.add_material(m, t);
+                self.mask_opacity.insert(idx, opacity);
+                return Ok(idx);
+            }
+            "bumpmap" | "normalmap" => {
+                let mut nested = None;
+                for p in elements(n) {
+                    match p.tag_name().name() {
+                        "bsdf" | "ref"
+                            if p.attribute("name").is_none() || p.tag_name().name() == "bsdf" =>
+                        {
+                            nested = Some(self.nested_bsdf(p, &format!("{ty} property"))?)
+                        }
+                        // The bump / normal texture itself and its scale are not used.
+                        "texture" | "ref" | "float" => {}
+                        _ => return Err(self.unsupported(p, &format!("{ty} property"))),
+                    }
+                }
+                let inner =
+                    nested.ok_or_else(|| self.err(n, format!("{ty} needs a nested BSDF")))?;
+                self.warn(n, format!("{ty} is ignored: the nested BSDF is rendered with the unperturbed shading normal"));
+                return Ok(inner);
+            }
+            "phong" | "ward" | "modifiedphong" => {
+                return Err(self.err(n, format!("bsdf type \"{ty}\" is not supported (no energy-consistent equivalent here); replace it by roughconductor or roughplastic with a GGX alpha")));
+            }
             _ => return Err(self.unsupported(n, "bsdf type")),
         };
-        Ok(self.builder.material(m))
+        Ok(self.add_material(m, tex))
     }
 
     /// A top-level `<emitter>`: `point`, `constant` or `envmap` (area emitters live in shapes).
@@ -677,7 +1346,7 @@ impl<'a, 'i> Ctx<'a, 'i> {
         let (mut filename, mut scale) = (None, 1.0f32);
         for p in elements(n) {
             let pname = prop_name(p.attribute("name").unwrap_or(""));
-            match (p.tag_name().name(), pname, ty) {
+            match (p.tag_name().name(), pname.as_ref(), ty) {
                 ("transform", "to_world", "point" | "envmap") => {
                     to_world = Some(self.transform(p)?)
                 }
@@ -763,24 +1432,122 @@ impl<'a, 'i> Ctx<'a, 'i> {
             .ok_or_else(|| self.err(p, format!("reference to unknown bsdf id \"{id}\"")))
     }
 
-    fn shape(&mut self, n: Node<'a, 'i>) -> Result<()> {
+    /// A top-level `<shape>`: `shapegroup` (kept for instances), `instance` (the group's
+    /// shapes transformed and added, i.e. instances are flattened into world-space
+    /// primitives), or a plain shape.
+    fn shape(&mut self, n: Node) -> Result<()> {
+        match n.attribute("type").unwrap_or("") {
+            "shapegroup" => {
+                let id = self.attr(n, "id")?.to_string();
+                let mut shapes = Vec::new();
+                for c in elements(n) {
+                    if c.tag_name().name() != "shape" {
+                        return Err(self.unsupported(c, "shapegroup element (only <shape>)"));
+                    }
+                    if matches!(c.attribute("type"), Some("shapegroup" | "instance")) {
+                        return Err(self.err(
+                            c,
+                            "nested shapegroups / instances inside a shapegroup are not supported",
+                        ));
+                    }
+                    let d = self.shape_data(c)?;
+                    if d.emission.is_some() {
+                        return Err(self.err(c, "area emitters inside a shapegroup are not supported (Mitsuba does not instance emitters either)"));
+                    }
+                    shapes.push(d);
+                }
+                self.groups.insert(id, shapes);
+                Ok(())
+            }
+            "instance" => {
+                let (mut group, mut to_world) = (None, Mat4::IDENTITY);
+                for p in elements(n) {
+                    match (
+                        p.tag_name().name(),
+                        p.attribute("name").map(prop_name).as_deref(),
+                    ) {
+                        ("ref", _) => {
+                            let id = self.attr(p, "id")?;
+                            let g = self.groups.get(id).ok_or_else(|| {
+                                self.err(p, format!("reference to unknown shapegroup id \"{id}\""))
+                            })?;
+                            group = Some(g.clone());
+                        }
+                        ("transform", Some("to_world")) => to_world = self.transform(p)?,
+                        _ => return Err(self.unsupported(p, "instance property")),
+                    }
+                }
+                let group = group.ok_or_else(|| {
+                    self.err(n, "instance needs a <ref id=\"...\"/> to a shapegroup")
+                })?;
+                for mut d in group {
+                    for pr in &mut d.prims {
+                        *pr = pr.transformed(&to_world).map_err(|e| self.err(n, e))?;
+                    }
+                    self.add_shape(d);
+                }
+                Ok(())
+            }
+            _ => {
+                let d = self.shape_data(n)?;
+                self.add_shape(d);
+                Ok(())
+            }
+        }
+    }
+
+    fn add_shape(&mut self, d: ShapeData) {
+        self.builder
+            .shape_with(d.prims, d.uvs, d.material, d.emission, d.opacity);
+    }
+
+    /// Opacity of a shape with material `m` (a mask, or a twosided around a mask).
+    fn opacity_of(&self, m: u32) -> Option<Param> {
+        if let Some(&o) = self.mask_opacity.get(&m) {
+            return Some(o);
+        }
+        match self.builder.materials()[m as usize] {
+            Material::TwoSided { front, .. } => self.mask_opacity.get(&front).copied(),
+            _ => None,
+        }
+    }
+
+    fn shape_data(&mut self, n: Node) -> Result<ShapeData> {
         let ty = n.attribute("type").unwrap_or("");
         let mut to_world = Mat4::IDENTITY;
         let (mut flip, mut face_normals) = (false, false);
         let mut material = None;
         let mut emission = None;
         let mut filename = None;
+        let mut shape_index = 0u32;
         let (mut center, mut radius) = (Vec3::ZERO, 1.0f32);
         for p in elements(n) {
             let tag = p.tag_name().name();
             let pname = prop_name(p.attribute("name").unwrap_or(""));
-            match (tag, pname, ty) {
+            match (tag, pname.as_ref(), ty) {
                 ("transform", "to_world", _) => to_world = self.transform(p)?,
                 ("boolean", "flip_normals", _) => flip = self.boolean(p)?,
-                ("boolean", "face_normals", "obj" | "ply") => face_normals = self.boolean(p)?,
-                ("string", "filename", "obj" | "ply") => {
+                ("boolean", "face_normals", "obj" | "ply" | "serialized") => {
+                    face_normals = self.boolean(p)?
+                }
+                ("string", "filename", "obj" | "ply" | "serialized") => {
                     filename = Some(self.attr(p, "value")?.to_string())
                 }
+                ("integer", "shape_index", "serialized") => {
+                    let v = self.integer(p)?;
+                    shape_index = u32::try_from(v)
+                        .map_err(|_| self.err(p, format!("shape_index {v} must be >= 0")))?;
+                }
+                // Mitsuba 0.6 mesh options.
+                ("boolean", "flip_tex_coords", "obj") => {
+                    if !self.boolean(p)? {
+                        self.warn(p, "flip_tex_coords=false is ignored (OBJ v coordinates are always flipped, as Mitsuba 3 does)");
+                    }
+                }
+                ("float", "max_smooth_angle", "obj" | "ply" | "serialized") => {
+                    self.warn(p, "max_smooth_angle is ignored (the file's vertex normals, or face normals, are used)");
+                }
+                ("boolean", "collapse", "obj") => {}
                 ("point", "center", "sphere") => center = self.vec3(p)?,
                 ("float", "radius", "sphere") => radius = self.float(p)?,
                 ("ref", _, _) => material = Some(self.bsdf_ref(p)?),
@@ -803,24 +1570,28 @@ impl<'a, 'i> Ctx<'a, 'i> {
         }
         let nmat = Mat4::from_mat3(glam::Mat3::from_mat4(to_world).inverse().transpose());
         let xf_n = |v: Vec3| nmat.transform_vector3(v).normalize_or_zero();
+        let mut uvs: Option<Vec<[Vec2; 3]>> = None;
         let mut prims = match ty {
-            "obj" | "ply" => {
+            "obj" | "ply" | "serialized" => {
                 let f = filename.ok_or_else(|| {
                     self.err(n, format!("{ty} shape needs a \"filename\" string"))
                 })?;
-                let path = self.base.join(&f);
-                let bytes = (self.read)(&path).map_err(|source| Error::Io {
-                    path: path.clone(),
-                    source,
-                })?;
+                let (path, bytes) = self.read_rel(&f)?;
                 let name = path.display().to_string();
-                let mut tris = if ty == "obj" {
-                    let text = String::from_utf8(bytes)
-                        .map_err(|_| self.err(n, format!("{name} is not UTF-8 text")))?;
-                    parse_obj(&text, &name)?
-                } else {
-                    parse_ply(&bytes, &name)?
+                let (mut tris, uv) = match ty {
+                    "obj" => {
+                        let text = String::from_utf8(bytes)
+                            .map_err(|_| self.err(n, format!("{name} is not UTF-8 text")))?;
+                        parse_obj_uv(&text, &name)?
+                    }
+                    "ply" => parse_ply_uv(&bytes, &name)?,
+                    _ => {
+                        let m = crate::serialized::parse_serialized(&bytes, shape_index, &name)?;
+                        face_normals |= m.face_normals;
+                        serialized_prims(&m)
+                    }
                 };
+                uvs = uv;
                 for t in &mut tris {
                     if let Prim::Tri { p, n } = t {
                         *p = p.map(|v| to_world.transform_point3(v));
@@ -871,13 +1642,18 @@ impl<'a, 'i> Ctx<'a, 'i> {
                         n: None,
                     },
                 ];
+                // Mitsuba's rectangle uv: local (x, y) in [-1, 1]² mapped to [0, 1]².
+                let q = [Vec2::ZERO, Vec2::X, Vec2::ONE, Vec2::Y];
+                let mut uv = vec![[q[0], q[1], q[2]], [q[0], q[2], q[3]]];
                 if (c[1] - c[0]).cross(c[2] - c[0]).dot(nz) < 0.0 {
-                    for t in &mut tris {
+                    for (t, u) in tris.iter_mut().zip(&mut uv) {
                         if let Prim::Tri { p, .. } = t {
                             p.swap(1, 2);
+                            u.swap(1, 2);
                         }
                     }
                 }
+                uvs = Some(uv);
                 tris
             }
             "cube" => {
@@ -927,6 +1703,11 @@ impl<'a, 'i> Ctx<'a, 'i> {
             _ => return Err(self.unsupported(n, "shape type")),
         };
         if flip {
+            if let Some(uv) = &mut uvs {
+                for u in uv.iter_mut() {
+                    u.swap(1, 2);
+                }
+            }
             for pr in &mut prims {
                 match pr {
                     Prim::Tri { p, n } => {
@@ -954,27 +1735,66 @@ impl<'a, 'i> Ctx<'a, 'i> {
                 }
             },
         };
-        self.builder.shape(prims, material, emission);
-        Ok(())
+        let opacity = self.opacity_of(material);
+        Ok(ShapeData {
+            prims,
+            uvs,
+            material,
+            emission,
+            opacity,
+        })
     }
 }
 
-/// Mitsuba 0.6 property names that Mitsuba 3 renamed (only `toWorld` so far).
-fn prop_name(s: &str) -> &str {
-    match s {
-        "toWorld" => "to_world",
-        s => s,
-    }
+/// Triangles (and uvs, if stored) of a `.serialized` shape in object space.
+fn serialized_prims(m: &crate::serialized::SerializedMesh) -> crate::ply::MeshWithUv {
+    let tris = m
+        .indices
+        .iter()
+        .map(|t| {
+            let t = t.map(|i| i as usize);
+            Prim::Tri {
+                p: t.map(|i| m.positions[i]),
+                n: m.normals
+                    .as_ref()
+                    .map(|n| t.map(|i| n[i].normalize_or_zero())),
+            }
+        })
+        .collect();
+    let uvs = m.uvs.as_ref().map(|uv| {
+        m.indices
+            .iter()
+            .map(|t| t.map(|i| uv[i as usize]))
+            .collect()
+    });
+    (tris, uvs)
 }
 
-/// sRGB transfer function inverse (IEC 61966-2-1), as Mitsuba 0.6's `fromSRGB`.
-fn srgb_to_linear(c: f32) -> f32 {
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
+/// Mitsuba 0.6 property names in Mitsuba 3's spelling: camelCase becomes snake_case as
+/// Mitsuba 3's scene upgrade does (`toWorld` → `to_world`, `intIOR` → `int_ior`,
+/// `sampleCount` → `sample_count`); snake_case names pass unchanged.
+fn prop_name(s: &str) -> Cow<'_, str> {
+    if !s.bytes().any(|c| c.is_ascii_uppercase()) {
+        return Cow::Borrowed(s);
     }
+    let mut out = String::with_capacity(s.len() + 4);
+    let mut prev_lower = false;
+    for c in s.chars() {
+        if c.is_ascii_uppercase() {
+            if prev_lower {
+                out.push('_');
+            }
+            out.push(c.to_ascii_lowercase());
+            prev_lower = false;
+        } else {
+            out.push(c);
+            prev_lower = c.is_ascii_lowercase() || c.is_ascii_digit();
+        }
+    }
+    Cow::Owned(out)
 }
+
+use crate::texture::srgb_to_linear;
 
 fn quoted(s: &str) -> String {
     if s.is_empty() {

@@ -105,6 +105,16 @@ fn cases() -> Vec<(String, Material, Vec3, bool)> {
             false,
         ),
         (
+            // A textured diffuse_reflectance re-weights the lobe selection per hit.
+            "roughplastic a0.2 textured albedo".into(),
+            Material::RoughPlastic(
+                Coating::rough(d, s, 1.49, false, 0.2)
+                    .with_albedo(Vec3::new(0.9, 0.1, 0.05), Vec3::splat(0.3)),
+            ),
+            outside,
+            false,
+        ),
+        (
             "plastic diffuse part".into(),
             Material::Plastic(Coating::smooth(d, s, 1.49, false)),
             grazing,
@@ -180,4 +190,133 @@ fn bsdf_sampling_matches_pdf() {
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// `blendbsdf` as the renderer realises it: [`Scene::resolve_material`] picks a component
+/// stochastically (here with a textured weight), then that component samples. The sampled
+/// directions must follow the mixture density `Σ P(k)·pdf_k` ([`Scene::eval_mixture`]),
+/// conditioned on non-delta samples like the cases above.
+#[test]
+fn blendbsdf_sampling_matches_mixture_pdf() {
+    use glam::{Mat4, Vec2};
+    use host_demo::scene::{Camera, MaterialTextures, SceneBuilder, Settings};
+    use host_demo::texture::{Texture, UvMap};
+
+    let mut b = SceneBuilder::default();
+    let rough = b.material(Material::RoughConductor {
+        alpha: 0.15,
+        eta: Vec3::new(0.2, 0.92, 1.1),
+        k: Vec3::new(3.9, 2.45, 2.14),
+    });
+    let diffuse = b.material(Material::Diffuse {
+        reflectance: Vec3::splat(0.7),
+    });
+    let plastic = b.material(Material::Plastic(Coating::smooth(
+        Vec3::splat(0.5),
+        Vec3::ONE,
+        1.5,
+        false,
+    )));
+    let tex = b.texture(Texture::Checkerboard {
+        color0: Vec3::splat(0.35),
+        color1: Vec3::splat(0.8),
+        uv: UvMap::default(),
+    });
+    let inner = b.textured_material(
+        Material::Blend {
+            a: rough,
+            b: diffuse,
+            weight: 0.5,
+        },
+        MaterialTextures {
+            scalar: Some(tex),
+            ..MaterialTextures::default()
+        },
+    );
+    // A nested blend with a delta-carrying component (the plastic coating).
+    let outer = b.material(Material::Blend {
+        a: inner,
+        b: plastic,
+        weight: 0.25,
+    });
+    b.quad([Vec3::ZERO, Vec3::X, Vec3::ONE, Vec3::Y], outer, None);
+    let camera = Camera::new(Mat4::IDENTITY, 40.0, "x", 4, 4).expect("camera");
+    let settings = Settings {
+        width: 4,
+        height: 4,
+        spp: 1,
+        max_depth: 2,
+        rr_depth: 5,
+    };
+    let scene = std::sync::Arc::new(b.build(camera, settings).expect("scene"));
+
+    struct Blend {
+        scene: std::sync::Arc<host_demo::scene::Scene>,
+        id: u32,
+        uv: Vec2,
+        wi: Vec3,
+        norm: f64,
+    }
+    impl SphereDistribution for Blend {
+        fn sample(&self, rng: &mut Pcg32) -> (Vec3, f32) {
+            let mut r = host_demo::math::Rng::new(u64::from(rng.next_u32()), 1, 2);
+            for _ in 0..10_000 {
+                let (_, m, _, _) = self.scene.resolve_material(
+                    self.id,
+                    Vec3::Z,
+                    Vec3::Z,
+                    -self.wi,
+                    self.uv,
+                    &mut r,
+                );
+                let (u0, u1, u2) = (rng.next_f32(), rng.next_f32(), rng.next_f32());
+                if let Some(s) = m.sample(self.wi, u0, u1, u2) {
+                    if s.pdf.is_finite() {
+                        let d = s.wo.normalize();
+                        return (d, self.pdf(d));
+                    }
+                }
+            }
+            (Vec3::NAN, f32::NAN)
+        }
+        fn pdf(&self, d: Vec3) -> f32 {
+            let p = self.scene.eval_mixture(self.id, self.uv, self.wi, d).1;
+            (f64::from(p) / self.norm) as f32
+        }
+    }
+    let wi = Vec3::new(0.55, 0.1, 0.6).normalize();
+    let uvs = [Vec2::splat(0.25), Vec2::new(0.75, 0.25)];
+    for (i, uv) in uvs.iter().enumerate() {
+        let cfg = Chi2Config::default();
+        let warp = Warp::uniform();
+        let norm = integrate(
+            &warp,
+            |d| f64::from(scene.eval_mixture(outer, *uv, wi, d.as_vec3()).1),
+            cfg.res_u,
+            cfg.res_v,
+            16,
+        );
+        assert!(norm > 0.05 && norm <= 1.001, "∫pdf = {norm}");
+        let case = Case {
+            name: format!("bsdf/blendbsdf uv{i}"),
+            dist: Box::new(Blend {
+                scene: std::sync::Arc::clone(&scene),
+                id: outer,
+                uv: *uv,
+                wi,
+                norm,
+            }),
+            warp,
+        };
+        let r = run_chi2(
+            &case,
+            uvs.len(),
+            &Chi2Config {
+                seed: 300 + i as u64,
+                ..cfg
+            },
+        );
+        eprintln!("{} (∫pdf {norm:.4})", r.message);
+        assert!(r.passed, "{}", r.message);
+    }
 }

@@ -121,6 +121,21 @@ pub fn check_scene(what: &str, s: &Scene) {
                     && c.internal.is_finite()
                     && c.ext_t.iter().all(|t| t.is_finite())
             }
+            Material::ThinDielectric {
+                eta,
+                reflectance,
+                transmittance,
+            } => {
+                eta.is_finite()
+                    && eta > 0.0
+                    && finite_non_negative(reflectance)
+                    && finite_non_negative(transmittance)
+            }
+            Material::Blend { a, b, weight } => {
+                (a as usize) < s.materials.len()
+                    && (b as usize) < s.materials.len()
+                    && (0.0..=1.0).contains(&weight)
+            }
             Material::TwoSided { front, back } => {
                 (front as usize) < s.materials.len() && (back as usize) < s.materials.len()
             }
