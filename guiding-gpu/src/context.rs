@@ -93,6 +93,9 @@ impl Drop for Shared {
 ///
 /// Cheap to share by reference; `Send + Sync` (the queue is behind a lock, so
 /// batches may be submitted from several threads).
+///
+/// `Clone` gives another handle to the same device (an `Arc`).
+#[derive(Clone)]
 pub struct GpuContext {
     pub(crate) shared: Arc<Shared>,
 }

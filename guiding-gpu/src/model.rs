@@ -70,7 +70,9 @@ impl Scratch {
         let small = self.buffer.as_ref().is_none_or(|b| b.size() < bytes);
         if small {
             self.buffer = None;
-            self.buffer = Some(ctx.buffer(bytes.next_power_of_two())?);
+            let limit = ctx.device_info().max_storage_buffer_range;
+            let grown = bytes.next_power_of_two().min(limit).max(bytes);
+            self.buffer = Some(ctx.buffer(grown)?);
         }
         self.buffer
             .as_mut()
@@ -207,9 +209,50 @@ impl GpuModel {
         self.steps
     }
 
+    /// Largest batch whose buffers (`bytes_per_element` in the largest of
+    /// them) fit the device's storage-buffer range.
+    fn max_batch(&self, bytes_per_element: usize) -> usize {
+        let limit = self.ctx.device_info().max_storage_buffer_range as usize;
+        (limit / bytes_per_element.max(1)).max(1)
+    }
+
     /// Raw network outputs (EMA weights) of every query into `out`
-    /// (`queries.len() · raw_outputs` floats, query-major).
+    /// (`queries.len() · raw_outputs` floats, query-major). Batches larger
+    /// than the device's storage-buffer range are split.
     pub fn infer(
+        &mut self,
+        queries: &[QueryPoint],
+        out: &mut [f32],
+    ) -> Result<BatchReport, GpuError> {
+        let r = self.entry.raw_outputs as usize;
+        if out.len() != queries.len() * r {
+            return Err(GpuError::BadArgument(format!(
+                "infer: {} queries need {} outputs, {} given",
+                queries.len(),
+                queries.len() * r,
+                out.len()
+            )));
+        }
+        let per = self.max_batch((r * 4).max(size_of::<QueryPoint>()));
+        let mut report = BatchReport {
+            dispatches: 0,
+            gpu_time_ns: None,
+        };
+        let mut start = 0;
+        while start < queries.len() {
+            let end = (start + per).min(queries.len());
+            let rep = self.infer_batch(&queries[start..end], &mut out[start * r..end * r])?;
+            report.dispatches += rep.dispatches;
+            report.gpu_time_ns = match (report.gpu_time_ns, rep.gpu_time_ns) {
+                (Some(a), Some(b)) => Some(a + b),
+                (a, b) => a.or(b),
+            };
+            start = end;
+        }
+        Ok(report)
+    }
+
+    fn infer_batch(
         &mut self,
         queries: &[QueryPoint],
         out: &mut [f32],
@@ -316,8 +359,51 @@ impl GpuModel {
         )
     }
 
-    /// One dispatch of a `(model, params, queries, input) → out` kernel.
+    /// A `(model, params, queries, input) → out` kernel over the batch,
+    /// split where the buffers would exceed the storage-buffer range.
     fn query_kernel<I: Pod, O: Pod>(
+        ctx: &GpuContext,
+        kernel: &Kernel,
+        state: [&GpuBuffer; 2],
+        scratch: (&mut Scratch, &mut Scratch, &mut Scratch),
+        queries: &[QueryPoint],
+        input: &[I],
+        out: &mut [O],
+    ) -> Result<BatchReport, GpuError> {
+        let limit = ctx.device_info().max_storage_buffer_range as usize;
+        let widest = size_of::<QueryPoint>()
+            .max(size_of::<I>())
+            .max(size_of::<O>());
+        let per = (limit / widest).max(1);
+        let (sq, si, so) = scratch;
+        let mut report = BatchReport {
+            dispatches: 0,
+            gpu_time_ns: None,
+        };
+        let mut start = 0;
+        while start < queries.len() {
+            let end = (start + per).min(queries.len());
+            let rep = Self::query_dispatch(
+                ctx,
+                kernel,
+                state,
+                (&mut *sq, &mut *si, &mut *so),
+                &queries[start..end],
+                &input[start..end],
+                &mut out[start..end],
+            )?;
+            report.dispatches += rep.dispatches;
+            report.gpu_time_ns = match (report.gpu_time_ns, rep.gpu_time_ns) {
+                (Some(a), Some(b)) => Some(a + b),
+                (a, b) => a.or(b),
+            };
+            start = end;
+        }
+        Ok(report)
+    }
+
+    /// One dispatch of a `(model, params, queries, input) → out` kernel.
+    fn query_dispatch<I: Pod, O: Pod>(
         ctx: &GpuContext,
         kernel: &Kernel,
         state: [&GpuBuffer; 2],

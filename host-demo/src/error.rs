@@ -74,6 +74,9 @@ pub enum Error {
     /// The benchmark suite could not run (bad arguments, a failed child render, I/O).
     #[error("bench: {0}")]
     Bench(String),
+    /// `--device gpu`: no usable Vulkan device, shaders not built, or a GPU failure.
+    #[error("GPU: {0}")]
+    Gpu(#[from] guiding_gpu::GpuError),
 }
 
 /// Convenience alias.

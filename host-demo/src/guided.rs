@@ -48,6 +48,7 @@
 
 use crate::bsdf::Material;
 use crate::emitter::EmitterSample;
+use crate::gpu::GpuGuide;
 use crate::integrator::{
     accumulate, finish_image, offset, shadow_ray, side_ok, Image, IntegratorKind, RenderOptions,
     Worker,
@@ -59,6 +60,7 @@ use guiding::Distribution;
 use guiding::GuidingField;
 use guiding_core::model::QueryPoint;
 use guiding_core::sample::TrainingSample;
+use guiding_gpu::GpuError;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
@@ -183,6 +185,12 @@ struct Node {
 /// Per-render-thread state of the guided integrator.
 pub(crate) struct GuidedWorker<'g> {
     guide: &'g GuidingField,
+    /// `--device gpu`: the network runs there (raw outputs decoded here).
+    gpu: Option<&'g GpuGuide>,
+    /// The first GPU failure of this worker (the render stops after the pass).
+    pub(crate) gpu_error: Option<GpuError>,
+    /// Raw network outputs of the guidable vertices (GPU path).
+    g_raw: Vec<f32>,
     gopts: GuidedOptions,
     record: bool,
     /// Per slot, the recorded hits of the current sample.
@@ -228,9 +236,17 @@ const NONE: u32 = u32::MAX;
 const NEE_BIT: u32 = 1 << 31;
 
 impl<'g> GuidedWorker<'g> {
-    pub(crate) fn new(guide: &'g GuidingField, gopts: GuidedOptions, record: bool) -> Self {
+    pub(crate) fn new(
+        guide: &'g GuidingField,
+        gpu: Option<&'g GpuGuide>,
+        gopts: GuidedOptions,
+        record: bool,
+    ) -> Self {
         Self {
             guide,
+            gpu,
+            gpu_error: None,
+            g_raw: Vec::new(),
             gopts,
             record,
             chains: Vec::new(),
@@ -364,8 +380,29 @@ pub(crate) fn stage_guide_query(w: &mut Worker<'_>, nee: bool) {
     let t0 = Instant::now();
     let field = g.guide;
     g.g_dist.clear();
-    g.g_dist
-        .extend(g.g_query.iter().map(|q| field.distribution(q)));
+    let on_gpu = match g.gpu {
+        Some(gpu) if g.gpu_error.is_none() => match gpu.infer(&g.g_query, &mut g.g_raw) {
+            Ok(()) => true,
+            Err(e) => {
+                g.gpu_error = Some(e);
+                false
+            }
+        },
+        _ => false,
+    };
+    if on_gpu {
+        let r = g.gpu.map_or(1, GpuGuide::raw_outputs).max(1);
+        for (q, raw) in g.g_query.iter().zip(g.g_raw.chunks_exact(r)) {
+            // The length always matches; fall back to the CPU network otherwise.
+            let d = field
+                .distribution_from_raw(raw)
+                .unwrap_or_else(|_| field.distribution(q));
+            g.g_dist.push(d);
+        }
+    } else {
+        g.g_dist
+            .extend(g.g_query.iter().map(|q| field.distribution(q)));
+    }
     g.g_c.clear();
     g.g_c
         .extend(g.g_dist.iter().map(|d| d.selection_probability()));
@@ -566,6 +603,36 @@ pub fn render_guided(
     gopts: &GuidedOptions,
     guide: &mut GuidingField,
 ) -> (Image, GuidedStats) {
+    let (img, stats, _) = render_guided_on(scene, opts, gopts, guide, None);
+    (img, stats)
+}
+
+/// [`render_guided`] with the guide's network inference and training on a
+/// Vulkan device (`--device gpu`; see [`crate::gpu`]). `guide` supplies the
+/// configuration and the decoding; its own weights are not trained.
+///
+/// # Errors
+/// The first GPU failure; the render stops after the pass it happened in.
+pub fn render_guided_gpu(
+    scene: &Scene,
+    opts: &RenderOptions,
+    gopts: &GuidedOptions,
+    guide: &mut GuidingField,
+    gpu: &mut GpuGuide,
+) -> Result<(Image, GuidedStats), GpuError> {
+    match render_guided_on(scene, opts, gopts, guide, Some(gpu)) {
+        (img, stats, None) => Ok((img, stats)),
+        (_, _, Some(e)) => Err(e),
+    }
+}
+
+fn render_guided_on(
+    scene: &Scene,
+    opts: &RenderOptions,
+    gopts: &GuidedOptions,
+    guide: &mut GuidingField,
+    mut gpu: Option<&mut GpuGuide>,
+) -> (Image, GuidedStats, Option<GpuError>) {
     let mut opts = *opts;
     opts.integrator = if gopts.nee {
         IntegratorKind::PtNee
@@ -579,7 +646,10 @@ pub fn render_guided(
     let nblocks = npix.div_ceil(block);
     let mut stats = GuidedStats {
         nee: gopts.nee && scene.has_samplable_emitter(),
-        model: crate::guide::describe(guide),
+        model: match &gpu {
+            Some(d) => format!("{} on {}", crate::guide::describe(guide), d.device()),
+            None => crate::guide::describe(guide),
+        },
         last_loss: f64::NAN,
         ..Default::default()
     };
@@ -591,6 +661,9 @@ pub fn render_guided(
         let (s, record) = (pass.index, pass.train);
         if !record && !stopped {
             guide.stop_training();
+            if let Some(d) = gpu.as_deref_mut() {
+                d.stop_training();
+            }
             stopped = true;
         }
         stats.training_passes += u32::from(record);
@@ -601,10 +674,12 @@ pub fn render_guided(
             Mutex::new((0..nblocks).map(|_| None).collect());
         let counters = Mutex::new((0u64, 0u64, Duration::ZERO, 0u64));
         let guide_ref: &GuidingField = guide;
+        let gpu_ref: Option<&GpuGuide> = gpu.as_deref();
+        let gpu_error: Mutex<Option<GpuError>> = Mutex::new(None);
         std::thread::scope(|sc| {
             for _ in 0..threads.min(nblocks) {
                 sc.spawn(|| {
-                    let gw = GuidedWorker::new(guide_ref, *gopts, record);
+                    let gw = GuidedWorker::new(guide_ref, gpu_ref, *gopts, record);
                     let mut w = Worker::new(scene, opts, Some(gw));
                     loop {
                         let b = next.fetch_add(1, Ordering::Relaxed);
@@ -623,6 +698,12 @@ pub fn render_guided(
                         let mut r = results.lock().unwrap_or_else(|e| e.into_inner());
                         r[b] = Some((rad, train));
                     }
+                    if let Some(e) = w.guided.as_mut().and_then(|g| g.gpu_error.take()) {
+                        gpu_error
+                            .lock()
+                            .unwrap_or_else(|e| e.into_inner())
+                            .get_or_insert(e);
+                    }
                     if let Some(g) = &w.guided {
                         let mut c = counters.lock().unwrap_or_else(|e| e.into_inner());
                         c.0 += g.queries;
@@ -633,6 +714,13 @@ pub fn render_guided(
                 });
             }
         });
+        if let Some(e) = gpu_error.into_inner().unwrap_or_else(|e| e.into_inner()) {
+            return (
+                finish_image(width, height, pass.index + 1, &sum, &sum2),
+                stats,
+                Some(e),
+            );
+        }
         let (q, gv, qt, rays) = counters.into_inner().unwrap_or_else(|e| e.into_inner());
         stats.rays += rays;
         stats.guide_queries += q;
@@ -658,14 +746,35 @@ pub fn render_guided(
             stats.samples_recorded_after_training += train.len() as u64;
         }
         if !train.is_empty() {
-            let steps_before = guide.stats().steps;
-            guide.add_samples(&train);
-            let rep = guide.update();
-            if rep.steps > 0 {
-                stats.last_loss = rep.mean_loss;
-            }
-            if !record {
-                stats.training_steps_after_training += guide.stats().steps - steps_before;
+            if let Some(d) = gpu.as_deref_mut() {
+                let steps_before = d.steps();
+                match d.update(&train) {
+                    Ok(rep) => {
+                        if rep.steps > 0 {
+                            stats.last_loss = rep.mean_loss;
+                        }
+                    }
+                    Err(e) => {
+                        return (
+                            finish_image(width, height, pass.index + 1, &sum, &sum2),
+                            stats,
+                            Some(e),
+                        )
+                    }
+                }
+                if !record {
+                    stats.training_steps_after_training += d.steps() - steps_before;
+                }
+            } else {
+                let steps_before = guide.stats().steps;
+                guide.add_samples(&train);
+                let rep = guide.update();
+                if rep.steps > 0 {
+                    stats.last_loss = rep.mean_loss;
+                }
+                if !record {
+                    stats.training_steps_after_training += guide.stats().steps - steps_before;
+                }
             }
             stats.training += t_train.elapsed();
         }
@@ -676,12 +785,16 @@ pub fn render_guided(
     stats.passes = sched.passes();
     sched.finish();
     let fs = guide.stats();
-    stats.training_steps = fs.steps;
+    stats.training_steps = match &gpu {
+        Some(d) => d.steps(),
+        None => fs.steps,
+    };
     stats.rejected_samples = fs.rejected_samples.iter().sum();
     stats.overflowed_samples = fs.overflowed_samples;
     (
         finish_image(width, height, stats.passes, &sum, &sum2),
         stats,
+        None,
     )
 }
 

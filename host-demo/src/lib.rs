@@ -15,6 +15,7 @@ pub mod builtin;
 pub mod compare;
 pub mod emitter;
 pub mod error;
+pub mod gpu;
 pub mod guide;
 pub mod guided;
 pub mod integrator;

@@ -8,7 +8,7 @@ use clap::{Parser, Subcommand, ValueEnum};
 use guiding_core::field::FieldConfig;
 use guiding_core::loss::Target;
 use host_demo::guide::{build_guide, GuideKind, ModelSize};
-use host_demo::guided::{render_guided, GuidedOptions};
+use host_demo::guided::{render_guided, render_guided_gpu, GuidedOptions};
 use host_demo::integrator::{render_with_stats, RenderStats};
 use host_demo::integrator::{IntegratorKind, RenderOptions};
 use serde_json::json;
@@ -64,6 +64,14 @@ enum SizeArg {
     Small,
     /// The papers' sizes (4.1 M parameters; slow on a CPU).
     Paper,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum DeviceArg {
+    /// The CPU field (no Vulkan).
+    Cpu,
+    /// A Vulkan device (see --vk-device).
+    Gpu,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -153,6 +161,16 @@ enum Cmd {
         /// NEE in the guided integrator (default: on when the scene has an emitter NEE can sample).
         #[arg(long, value_enum)]
         nee: Option<OnOff>,
+        /// Where the guide's network runs (`--integrator guided`, NPM / NASG): `cpu`, or `gpu`
+        /// (Vulkan: inference and training through the SPIR-V kernels of guiding-gpu; tracing
+        /// stays on the CPU). Needs a build with `--features guiding-gpu/shaders`.
+        #[arg(long, value_enum, default_value = "cpu")]
+        device: DeviceArg,
+        /// The Vulkan device of `--device gpu`: `auto` (discrete GPU first, then integrated,
+        /// then lavapipe), `gpu` (never a CPU implementation), `cpu` (lavapipe), an index, or
+        /// `name:TEXT`. The environment variable GUIDING_VK_DEVICE overrides `auto`.
+        #[arg(long, default_value = "auto")]
+        vk_device: String,
     },
     /// Run time against error: scenes × methods × budgets × seeds against references, written as
     /// runs.csv, report.md (equal-budget table, speed-up vs pt, micro-benchmarks) and one
@@ -406,6 +424,8 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         batch_size,
         learning_rate,
         nee,
+        device,
+        vk_device,
     } = cmd
     else {
         unreachable!("render_cmd is only called for `render`");
@@ -550,7 +570,14 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
             selection_probability,
             config,
         )?;
-        let (img, stats) = render_guided(&sc, &opts, &gopts, &mut g);
+        let (img, stats) = if device == DeviceArg::Gpu {
+            let selection: guiding_gpu::DeviceSelection = vk_device.parse()?;
+            let mut gpu = host_demo::gpu::GpuGuide::new(&g, selection)?;
+            eprintln!("guide network on {}", gpu.device());
+            render_guided_gpu(&sc, &opts, &gopts, &mut g, &mut gpu)?
+        } else {
+            render_guided(&sc, &opts, &gopts, &mut g)
+        };
         guided_stats = Some((stats, target, gopts));
         img
     } else {

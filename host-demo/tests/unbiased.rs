@@ -24,8 +24,9 @@
 use guiding_core::field::FieldConfig;
 use guiding_core::loss::Target;
 use host_demo::builtin::load_builtin;
+use host_demo::gpu::GpuGuide;
 use host_demo::guide::{build_guide, GuideKind, ModelSize};
-use host_demo::guided::{render_guided, GuidedOptions};
+use host_demo::guided::{render_guided, render_guided_gpu, GuidedOptions};
 use host_demo::integrator::{render, Image, IntegratorKind, RenderOptions};
 use host_demo::scene::Scene;
 
@@ -176,6 +177,26 @@ fn sidak(alpha: f64, n: usize) -> f64 {
 type Method<'a> = (&'a str, Box<dyn Fn(u64) -> Image + 'a>);
 
 fn guided(scene: &Scene, kind: GuideKind, nee: bool, seed: u64) -> Image {
+    guided_with(scene, kind, nee, seed, None)
+}
+
+/// A guided render with NEE, the guide on `gpu` when given.
+fn guided_on(
+    scene: &Scene,
+    kind: GuideKind,
+    seed: u64,
+    gpu: Option<&guiding_gpu::GpuContext>,
+) -> Image {
+    guided_with(scene, kind, true, seed, gpu)
+}
+
+fn guided_with(
+    scene: &Scene,
+    kind: GuideKind,
+    nee: bool,
+    seed: u64,
+    gpu: Option<&guiding_gpu::GpuContext>,
+) -> Image {
     let o = opts(IntegratorKind::PtNee, SPP, 1000 + seed);
     let config = FieldConfig::DEFAULT
         .with_batch_size(1024)
@@ -196,7 +217,15 @@ fn guided(scene: &Scene, kind: GuideKind, nee: bool, seed: u64) -> Image {
         nee,
         ..GuidedOptions::default()
     };
-    render_guided(scene, &o, &gopts, &mut g).0
+    match gpu {
+        Some(ctx) => {
+            let mut d = GpuGuide::with_context(&g, ctx.clone()).expect("GPU guide");
+            render_guided_gpu(scene, &o, &gopts, &mut g, &mut d)
+                .expect("GPU render")
+                .0
+        }
+        None => render_guided(scene, &o, &gopts, &mut g).0,
+    }
 }
 
 #[test]
@@ -207,6 +236,86 @@ fn t_distribution_helper_matches_tables() {
         assert!((got - p).abs() < 2e-3 * p, "t {t} df {df}: {got} vs {p}");
     }
     assert!((sidak(0.01, 1) - 0.01).abs() < 1e-15);
+}
+
+/// Welch t-tests of every block and channel of `stats` against `reference`
+/// (seed means and variances); failures below `level` are pushed.
+fn compare_blocks(
+    name: &str,
+    reference_name: &str,
+    stats: &[[(f64, f64); 3]],
+    reference: &[[(f64, f64); 3]],
+    level: f64,
+    failures: &mut Vec<String>,
+) {
+    let n = SEEDS as f64;
+    let (mut worst_p, mut worst_t) = (1.0f64, 0.0f64);
+    for b in 0..reference.len() {
+        for c in 0..3 {
+            let ((ma, va), (mb, vb)) = (stats[b][c], reference[b][c]);
+            let (sa, sb) = (va / n, vb / n);
+            let se2 = sa + sb;
+            assert!(se2 > 0.0, "{name}: block {b} ch {c} has no variance");
+            let t = (ma - mb) / se2.sqrt();
+            // Welch–Satterthwaite degrees of freedom.
+            let df = se2 * se2 / (sa * sa / (n - 1.0) + sb * sb / (n - 1.0));
+            let p = t_two_sided(t.abs(), df);
+            if p < worst_p {
+                (worst_p, worst_t) = (p, t);
+            }
+            if p < level {
+                failures.push(format!(
+                    "{name}: block {b} ch {c}: {ma:.5} vs {reference_name} {mb:.5} (t = {t:.2}, df {df:.1}, p = {p:.2e} < {level:.2e})"
+                ));
+            }
+        }
+    }
+    eprintln!("{name}: worst p {worst_p:.2e} (t = {worst_t:.2}); per-test level {level:.2e}");
+}
+
+/// `--device gpu` against `--device cpu`: the guided integrator with the
+/// guide's inference and training on Vulkan (lavapipe in CI) renders the
+/// same image in expectation, per block, as with the CPU field (both NPM
+/// and NASG, NEE on, independent seeds). Skipped (with a note) when the
+/// SPIR-V was not built or there is no Vulkan device, unless
+/// `GUIDING_REQUIRE_VULKAN=1`.
+#[test]
+fn gpu_guide_agrees_with_the_cpu_guide_per_block() {
+    let required = std::env::var("GUIDING_REQUIRE_VULKAN").is_ok_and(|v| v == "1");
+    let ctx = match guiding_gpu::shader_module()
+        .and_then(|_| guiding_gpu::GpuContext::new(guiding_gpu::DeviceSelection::Auto))
+    {
+        Ok(ctx) => ctx,
+        Err(e) => {
+            assert!(!required, "GUIDING_REQUIRE_VULKAN=1 but: {e}");
+            eprintln!("skipped: {e}");
+            return;
+        }
+    };
+    let scene = load_builtin("cornell-box").expect("builtin");
+    let kinds = [("npm", GuideKind::Npm), ("nasg", GuideKind::Nasg)];
+    let level = sidak(
+        ALPHA,
+        kinds.len() * (RES / BLOCK * RES / BLOCK) as usize * 3,
+    );
+    let mut failures = Vec::new();
+    for (name, kind) in kinds {
+        let cpu = seed_statistics(|s| guided_on(&scene, kind, 200 + s, None));
+        let gpu = seed_statistics(|s| guided_on(&scene, kind, 300 + s, Some(&ctx)));
+        compare_blocks(
+            &format!("guided {name} --device gpu"),
+            "--device cpu",
+            &gpu,
+            &cpu,
+            level,
+            &mut failures,
+        );
+    }
+    assert!(
+        failures.is_empty(),
+        "GPU and CPU guides disagree:\n{}",
+        failures.join("\n")
+    );
 }
 
 #[test]
@@ -240,34 +349,11 @@ fn all_integrators_agree_per_block() {
         ),
     ];
     let blocks = reference.len();
-    let tests = methods.len() * blocks * 3;
-    let level = sidak(ALPHA, tests);
-    let n = SEEDS as f64;
+    let level = sidak(ALPHA, methods.len() * blocks * 3);
     let mut failures = Vec::new();
     for (name, f) in &methods {
         let stats = seed_statistics(f);
-        let (mut worst_p, mut worst_t) = (1.0f64, 0.0f64);
-        for b in 0..blocks {
-            for c in 0..3 {
-                let ((ma, va), (mb, vb)) = (stats[b][c], reference[b][c]);
-                let (sa, sb) = (va / n, vb / n);
-                let se2 = sa + sb;
-                assert!(se2 > 0.0, "{name}: block {b} ch {c} has no variance");
-                let t = (ma - mb) / se2.sqrt();
-                // Welch–Satterthwaite degrees of freedom.
-                let df = se2 * se2 / (sa * sa / (n - 1.0) + sb * sb / (n - 1.0));
-                let p = t_two_sided(t.abs(), df);
-                if p < worst_p {
-                    (worst_p, worst_t) = (p, t);
-                }
-                if p < level {
-                    failures.push(format!(
-                        "{name}: block {b} ch {c}: {ma:.5} vs pt-nee {mb:.5} (t = {t:.2}, df {df:.1}, p = {p:.2e} < {level:.2e})"
-                    ));
-                }
-            }
-        }
-        eprintln!("{name}: worst p {worst_p:.2e} (t = {worst_t:.2}); per-test level {level:.2e}");
+        compare_blocks(name, "pt-nee", &stats, &reference, level, &mut failures);
     }
     assert!(failures.is_empty(), "biased:\n{}", failures.join("\n"));
 }
