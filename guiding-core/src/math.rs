@@ -2,8 +2,12 @@
 //!
 //! Every transcendental function the kernels use goes through this module, so
 //! that one file decides where the math comes from: [`libm`] on the CPU (exact,
-//! portable, `no_std`), and later `spirv-std` intrinsics when the crate is
-//! compiled to SPIR-V. Kernels never call `f32::exp` & co. directly.
+//! portable, `no_std`); in SPIR-V (`cfg(target_arch = "spirv")`, rust-gpu)
+//! the inlined f32 versions below, because rust-gpu would lower libm calls
+//! to GLSL.std.450 instructions whose precision Vulkan leaves loose (Mesa's
+//! NIR approximates `atan` and `tan`; a GPU-vs-CPU difftest of NASG
+//! sampling saw the difference on 11 of 1714 samples), and `sqrt` / `floor`, which are exact
+//! there. Kernels never call `f32::exp` & co. directly.
 //!
 //! Next to the libm wrappers sit our own inlined, branch-free versions, for
 //! the `K`-lobe loops that must vectorise (a libm call is out of line and
@@ -434,21 +438,45 @@ pub fn atan2_turns(y: f32, x: f32) -> f32 {
 #[inline]
 #[must_use]
 pub fn expm1(x: f32) -> f32 {
-    libm::expm1f(x)
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        libm::expm1f(x)
+    }
+    // SPIR-V: rust-gpu lowers libm calls to GLSL.std.450, whose precision
+    // Vulkan leaves loose (and Mesa's NIR approximates); the kernels use the
+    // inlined f32 versions of this module, checked against f64 in the tests.
+    #[cfg(target_arch = "spirv")]
+    {
+        expm1_inline(x)
+    }
 }
 
 /// Natural logarithm.
 #[inline]
 #[must_use]
 pub fn ln(x: f32) -> f32 {
-    libm::logf(x)
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        libm::logf(x)
+    }
+    #[cfg(target_arch = "spirv")]
+    {
+        ln_inline(x)
+    }
 }
 
 /// `ln(1 + x)`, accurate for small `|x|`.
 #[inline]
 #[must_use]
 pub fn ln_1p(x: f32) -> f32 {
-    libm::log1pf(x)
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        libm::log1pf(x)
+    }
+    #[cfg(target_arch = "spirv")]
+    {
+        ln_1p_inline(x)
+    }
 }
 
 /// Square root.
@@ -469,28 +497,58 @@ pub fn safe_sqrt(x: f32) -> f32 {
 #[inline]
 #[must_use]
 pub fn sin_cos(x: f32) -> (f32, f32) {
-    libm::sincosf(x)
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        libm::sincosf(x)
+    }
+    // SPIR-V: in turns (the argument's rounding adds at most ~|x|·2⁻²⁴).
+    #[cfg(target_arch = "spirv")]
+    {
+        sin_cos_turns(x * INV_TWO_PI)
+    }
 }
 
 /// Four-quadrant arctangent of `y / x`, in `[-π, π]`.
 #[inline]
 #[must_use]
 pub fn atan2(y: f32, x: f32) -> f32 {
-    libm::atan2f(y, x)
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        libm::atan2f(y, x)
+    }
+    #[cfg(target_arch = "spirv")]
+    {
+        atan2_turns(y, x) * TWO_PI
+    }
 }
 
 /// Arctangent, in `[-π/2, π/2]`.
 #[inline]
 #[must_use]
 pub fn atan(x: f32) -> f32 {
-    libm::atanf(x)
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        libm::atanf(x)
+    }
+    #[cfg(target_arch = "spirv")]
+    {
+        atan2_turns(x, 1.0) * TWO_PI
+    }
 }
 
 /// Tangent.
 #[inline]
 #[must_use]
 pub fn tan(x: f32) -> f32 {
-    libm::tanf(x)
+    #[cfg(not(target_arch = "spirv"))]
+    {
+        libm::tanf(x)
+    }
+    #[cfg(target_arch = "spirv")]
+    {
+        let (s, c) = sin_cos(x);
+        s / c
+    }
 }
 
 /// `|x|` with the sign of `s`.
