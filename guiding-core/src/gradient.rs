@@ -4,10 +4,11 @@
 //! [`crate::encoding::grid::grid_backward`],
 //! [`crate::model::GuidingModel::accumulate_gradient`]) *adds* into a flat
 //! buffer with the layout of the parameters. It is written against
-//! [`GradientSink`] rather than `&mut [f32]` so that a SPIR-V kernel can hand
-//! it a window of a larger storage buffer ([`GradientRow`]: one row per
-//! gradient chunk) — rust-gpu cannot sub-slice a storage buffer. On the CPU a
-//! plain `[f32]` is the sink. Static dispatch only (generics, no `dyn`).
+//! [`GradientSink`] rather than `&mut [f32]` so that a SPIR-V kernel can
+//! hand it an atomic accumulator (crate `guiding-shaders`: compare-and-swap
+//! float adds on a `u32` storage buffer, every sample of a batch adding into
+//! one gradient at once). On the CPU a plain `[f32]` is the sink. Static
+//! dispatch only (generics, no `dyn`).
 
 /// A flat gradient buffer that backward passes add into.
 pub trait GradientSink {

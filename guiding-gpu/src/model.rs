@@ -86,6 +86,24 @@ impl Scratch {
     }
 }
 
+/// The per-query kernels with one input array.
+#[derive(Clone, Copy)]
+enum QueryKernel {
+    Sample,
+    Pdf,
+}
+
+/// `a` then `b`: dispatch counts and device times added.
+fn combine(a: BatchReport, b: BatchReport) -> BatchReport {
+    BatchReport {
+        dispatches: a.dispatches + b.dispatches,
+        gpu_time_ns: match (a.gpu_time_ns, b.gpu_time_ns) {
+            (Some(x), Some(y)) => Some(x + y),
+            (x, y) => x.or(y),
+        },
+    }
+}
+
 /// Kernels of a model type plus the model-independent training kernels.
 struct Kernels {
     infer: Option<Kernel>,
@@ -102,7 +120,9 @@ struct TrainBuffers {
     partial: GpuBuffer,
 }
 
-/// A guiding model on the GPU (see the [module docs](self)).
+/// A guiding model on the GPU: its configuration, parameters, Adam moments
+/// and EMA weights in device buffers, with the batch kernels for inference
+/// and training.
 pub struct GpuModel {
     ctx: GpuContext,
     entry: ModelEntryPoints,
@@ -242,11 +262,7 @@ impl GpuModel {
         while start < queries.len() {
             let end = (start + per).min(queries.len());
             let rep = self.infer_batch(&queries[start..end], &mut out[start * r..end * r])?;
-            report.dispatches += rep.dispatches;
-            report.gpu_time_ns = match (report.gpu_time_ns, rep.gpu_time_ns) {
-                (Some(a), Some(b)) => Some(a + b),
-                (a, b) => a.or(b),
-            };
+            report = combine(report, rep);
             start = end;
         }
         Ok(report)
@@ -312,24 +328,7 @@ impl GpuModel {
         u: &[[f32; 4]],
         out: &mut [[f32; 4]],
     ) -> Result<BatchReport, GpuError> {
-        if u.len() != queries.len() || out.len() != queries.len() {
-            return Err(GpuError::BadArgument(format!(
-                "sample: {} queries, {} random pairs, {} outputs",
-                queries.len(),
-                u.len(),
-                out.len()
-            )));
-        }
-        let kernel = &self.kernels.sample;
-        Self::query_kernel(
-            &self.ctx,
-            kernel,
-            [&self.model, &self.ema],
-            (&mut self.queries, &mut self.inputs, &mut self.outputs),
-            queries,
-            u,
-            out,
-        )
+        self.per_query(QueryKernel::Sample, queries, u, out)
     }
 
     /// `out[i]` = density of `directions[i] = [x, y, z, ·]` at `queries[i]`.
@@ -339,22 +338,36 @@ impl GpuModel {
         directions: &[[f32; 4]],
         out: &mut [f32],
     ) -> Result<BatchReport, GpuError> {
-        if directions.len() != queries.len() || out.len() != queries.len() {
+        self.per_query(QueryKernel::Pdf, queries, directions, out)
+    }
+
+    /// One input and one output per query, through the `which` kernel.
+    fn per_query<I: Pod, O: Pod>(
+        &mut self,
+        which: QueryKernel,
+        queries: &[QueryPoint],
+        input: &[I],
+        out: &mut [O],
+    ) -> Result<BatchReport, GpuError> {
+        let (what, kernel) = match which {
+            QueryKernel::Sample => ("sample", &self.kernels.sample),
+            QueryKernel::Pdf => ("pdf", &self.kernels.pdf),
+        };
+        if input.len() != queries.len() || out.len() != queries.len() {
             return Err(GpuError::BadArgument(format!(
-                "pdf: {} queries, {} directions, {} outputs",
+                "{what}: {} queries, {} inputs, {} outputs",
                 queries.len(),
-                directions.len(),
+                input.len(),
                 out.len()
             )));
         }
-        let kernel = &self.kernels.pdf;
         Self::query_kernel(
             &self.ctx,
             kernel,
             [&self.model, &self.ema],
             (&mut self.queries, &mut self.inputs, &mut self.outputs),
             queries,
-            directions,
+            input,
             out,
         )
     }
@@ -392,11 +405,7 @@ impl GpuModel {
                 &input[start..end],
                 &mut out[start..end],
             )?;
-            report.dispatches += rep.dispatches;
-            report.gpu_time_ns = match (report.gpu_time_ns, rep.gpu_time_ns) {
-                (Some(a), Some(b)) => Some(a + b),
-                (a, b) => a.or(b),
-            };
+            report = combine(report, rep);
             start = end;
         }
         Ok(report)

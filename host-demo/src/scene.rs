@@ -14,6 +14,16 @@ use obvhs::BvhBuildParams;
 use std::f32::consts::PI;
 use std::time::Duration;
 
+/// The direction handed to the BVH traversal: `d` with exactly-zero components replaced by
+/// ±10⁻³⁰ (keeping the zero's sign). obvhs's slab test misses boxes for rays with an exact zero
+/// component (`0 · ∞` in the inverse direction; found by the axis-aligned rays of the BVH
+/// brute-force test); the nudge moves the ray by at most 10⁻³⁰ per unit length, far below f32
+/// resolution, and the primitive tests still use `d` itself.
+fn traversal_direction(d: Vec3) -> Vec3 {
+    let fix = |x: f32| if x == 0.0 { 1e-30f32.copysign(x) } else { x };
+    Vec3::new(fix(d.x), fix(d.y), fix(d.z))
+}
+
 /// A geometric primitive.
 #[derive(Clone, Copy, Debug)]
 pub enum Prim {
@@ -658,7 +668,7 @@ impl Scene {
 
     /// Closest hit along the unit-direction ray `o + t d`, `t` in `(tmin, tmax)`.
     pub fn intersect(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<SurfaceHit> {
-        let ray = Ray::new(o.into(), d.into(), tmin, tmax);
+        let ray = Ray::new(o.into(), traversal_direction(d).into(), tmin, tmax);
         let mut hit = RayHit::none();
         let mut best = (0.0f32, 0.0f32);
         let found = self.bvh.ray_traverse(ray, &mut hit, |r, id| {
@@ -886,7 +896,7 @@ impl Scene {
     /// True if anything blocks the segment `o + t d`, `t` in `(tmin, tmax)` (masked-out
     /// parts of a `mask` BSDF do not block).
     pub fn occluded(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
-        let ray = Ray::new(o.into(), d.into(), tmin, tmax);
+        let ray = Ray::new(o.into(), traversal_direction(d).into(), tmin, tmax);
         !self.bvh.ray_traverse_miss(ray, |r, id| {
             match self.prims[id].intersect(o, d, r.tmin, r.tmax) {
                 Some((t, u, v)) if !self.has_opacity || self.opaque_at(id, o + d * t, u, v) => t,

@@ -209,7 +209,11 @@ fn bvh_matches_brute_force_on_random_rays() {
         let mut rng = Rng(0x5EED_0000 + sc.prims.len() as u64);
         let (mut hits, mut ties) = (0usize, 0usize);
         for k in 0..RAYS {
-            let (o, d) = if k % 2 == 0 {
+            let (o, d) = if k % 10 == 4 {
+                // Axis-aligned: exactly-zero direction components (1/d = ±∞ in the slab test).
+                let axes = [Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z, -Vec3::Z];
+                (rng.in_box(lo, hi), axes[(k / 10) % 6])
+            } else if k % 2 == 0 {
                 (rng.in_box(lo, hi), rng.direction())
             } else {
                 let o = center + 2.0 * diag * rng.direction();
