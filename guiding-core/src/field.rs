@@ -81,7 +81,7 @@
 use crate::lobe::DirectionSample;
 use crate::model::{GuidingModel, QueryPoint};
 use crate::optim::{adam_step, ema_update, AdamConfig};
-use crate::rng::Rng;
+use crate::rng::{shuffle, Rng};
 use crate::sample::{Rejection, TrainingSample, REJECTION_KINDS};
 use core::fmt;
 use glam::{Vec2, Vec3};
@@ -996,17 +996,6 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
         parallel_fill(self.threads, out, |i| {
             model.selection_probability(params, &queries[i])
         });
-    }
-}
-
-/// Fisher–Yates shuffle driven by `rng` (`u32` draws, reduced by Lemire's
-/// multiply-shift; the tiny bias is irrelevant here).
-fn shuffle<T>(items: &mut [T], rng: &mut Rng) {
-    let mut i = items.len();
-    while i > 1 {
-        let j = ((u64::from(rng.next_u32()) * i as u64) >> 32) as usize;
-        i -= 1;
-        items.swap(i, j);
     }
 }
 

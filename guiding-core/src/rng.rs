@@ -142,3 +142,16 @@ impl Rng {
         symmetric_unit_f32(self.next_u32())
     }
 }
+
+/// Fisher–Yates shuffle driven by `rng` (`u32` draws, reduced by Lemire's
+/// multiply-shift; the tiny bias is irrelevant here): the minibatch shuffle
+/// of `Field::update`, shared with GPU trainers that must draw the same
+/// batches.
+pub fn shuffle<T>(items: &mut [T], rng: &mut Rng) {
+    let mut i = items.len();
+    while i > 1 {
+        let j = ((u64::from(rng.next_u32()) * i as u64) >> 32) as usize;
+        i -= 1;
+        items.swap(i, j);
+    }
+}

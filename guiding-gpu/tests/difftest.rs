@@ -192,17 +192,7 @@ fn upload<M: GuidingModel + bytemuck::Pod>(
 /// triangle-wave octaves, which amplify rounding in ε₁ by up to 2¹¹; the
 /// mixtures are far better conditioned.
 fn pdf_sensitivity<M: GuidingModel>(model: &M, params: &[f32], q: &QueryPoint, d: Vec3) -> f32 {
-    let p0 = model.pdf(params, q, d);
-    let t = if d.x.abs() < 0.9 { Vec3::X } else { Vec3::Y };
-    let t1 = d.cross(t).normalize();
-    let t2 = d.cross(t1);
-    let h = 4.0 * f32::EPSILON;
-    let mut sens = 0.0f32;
-    for dir in [t1, -t1, t2, -t2] {
-        let p = model.pdf(params, q, (d + h * dir).normalize());
-        sens = sens.max((p - p0).abs());
-    }
-    sens
+    local_sensitivity(&|x| model.pdf(params, q, x), d)
 }
 
 /// Sample kernel: GPU `[ω, pdf]` against the CPU's, and the GPU's pdf
@@ -621,7 +611,8 @@ fn raw_batch(n: usize, per: usize, seed: u32) -> Vec<f32> {
 /// The CPU decode of element `i`: its sample for `u[i]` and its density.
 type CpuDecode<'a> = Box<dyn Fn(&[f32], usize) -> (Vec3, f32, Box<dyn Fn(Vec3) -> f32 + 'a>) + 'a>;
 
-/// How much `pdf` moves when `d` moves by a few ulp (see [`pdf_sensitivity`]).
+/// How much `pdf` moves when `d` moves by a few ulp (along two tangents,
+/// both ways).
 fn local_sensitivity(pdf: &dyn Fn(Vec3) -> f32, d: Vec3) -> f32 {
     let p0 = pdf(d);
     let t = if d.x.abs() < 0.9 { Vec3::X } else { Vec3::Y };

@@ -13,7 +13,7 @@
 //! DF guide is an error.
 
 use guiding::{FieldConfig, GuidingField, QueryPoint, TrainingSample};
-use guiding_core::rng::Rng;
+use guiding_core::rng::{shuffle, Rng};
 use guiding_gpu::{
     DeviceSelection, GpuContext, GpuError, GpuModel, ModelEntryPoints, StepOutcome, TrainOptions,
 };
@@ -183,16 +183,5 @@ impl GpuGuide {
             report.mean_loss = loss_sum / f64::from(report.steps);
         }
         Ok(report)
-    }
-}
-
-/// Fisher–Yates with `u32` draws reduced by Lemire's multiply-shift (the
-/// shuffle of `Field::update`).
-fn shuffle<T>(items: &mut [T], rng: &mut Rng) {
-    let mut i = items.len();
-    while i > 1 {
-        let j = ((u64::from(rng.next_u32()) * i as u64) >> 32) as usize;
-        i -= 1;
-        items.swap(i, j);
     }
 }
