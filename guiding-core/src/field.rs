@@ -85,6 +85,7 @@ use crate::rng::{shuffle, Rng};
 use crate::sample::{Rejection, TrainingSample, REJECTION_KINDS};
 use core::fmt;
 use glam::{Vec2, Vec3};
+use rayon::prelude::*;
 use std::thread;
 use std::vec;
 use std::vec::Vec;
@@ -531,6 +532,9 @@ pub struct Field<M: GuidingModel> {
     model: M,
     config: FieldConfig,
     threads: usize,
+    /// The persistent worker pool (`None` with one thread): training and
+    /// batched inference run on it, no OS thread is spawned per call.
+    pool: Option<std::sync::Arc<rayon::ThreadPool>>,
     state: TrainState,
     buffer: Vec<TrainingSample>,
     /// Updates that trained (had samples).
@@ -682,10 +686,23 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
         } else {
             config.threads
         };
+        let pool = (threads > 1)
+            .then(|| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .thread_name(|i| std::format!("guiding-field-{i}"))
+                    .build()
+                    .ok()
+            })
+            .flatten()
+            .map(std::sync::Arc::new);
+        // A pool that could not be built leaves one thread (same results).
+        let threads = if pool.is_some() { threads } else { 1 };
         Self {
             model,
             config,
             threads,
+            pool,
             state: TrainState {
                 ema: params.clone(),
                 params,
@@ -880,13 +897,13 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
             }
             let batch = &self.buffer[pos..pos + b];
             pos += b;
-            match train_step(
-                &self.model,
-                &self.config,
-                self.threads,
-                &mut self.state,
-                batch,
-            ) {
+            let (model, config, threads) = (&self.model, &self.config, self.threads);
+            let state = &mut self.state;
+            let outcome = match &self.pool {
+                Some(pool) => pool.install(|| train_step(model, config, threads, state, batch)),
+                None => train_step(model, config, 1, state, batch),
+            };
+            match outcome {
                 StepOutcome::Applied {
                     loss,
                     element_skips,
@@ -961,7 +978,7 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
             out.len()
         );
         let (model, params) = (&self.model, &self.state.ema[..]);
-        parallel_fill(self.threads, out, |i| {
+        parallel_fill(self.pool.as_deref(), out, |i| {
             model.sample(params, &queries[i], u[i])
         });
     }
@@ -980,7 +997,7 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
             out.len()
         );
         let (model, params) = (&self.model, &self.state.ema[..]);
-        parallel_fill(self.threads, out, |i| {
+        parallel_fill(self.pool.as_deref(), out, |i| {
             model.pdf(params, &queries[i], directions[i])
         });
     }
@@ -993,7 +1010,7 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
     pub fn selection_probability_batch(&self, queries: &[QueryPoint], out: &mut [f32]) {
         assert_eq!(queries.len(), out.len(), "one output per query");
         let (model, params) = (&self.model, &self.state.ema[..]);
-        parallel_fill(self.threads, out, |i| {
+        parallel_fill(self.pool.as_deref(), out, |i| {
             model.selection_probability(params, &queries[i])
         });
     }
@@ -1025,11 +1042,7 @@ fn chunk_gradient<M: GuidingModel>(
     samples: &[TrainingSample],
     grad: &mut [f32],
 ) -> f64 {
-    let mut loss = 0.0f64;
-    for s in samples {
-        loss += f64::from(model.accumulate_gradient(params, s, grad));
-    }
-    loss
+    model.accumulate_gradient_batch(params, samples, grad)
 }
 
 /// `total += s` for every buffer `s` of `scratch`, in order, then `s = 0`.
@@ -1089,14 +1102,11 @@ fn train_step<M: GuidingModel + Send + Sync>(
         if group.len() == 1 {
             losses[0] = chunk_gradient(model, params, group[0], &mut bufs[0]);
         } else {
-            thread::scope(|s| {
-                let mut jobs = group.iter().zip(bufs.iter_mut()).zip(losses.iter_mut());
-                let ((first, first_buf), first_loss) = jobs.next().expect("group is not empty");
-                for ((piece, buf), out) in jobs {
-                    s.spawn(move || *out = chunk_gradient(model, params, piece, buf));
-                }
-                *first_loss = chunk_gradient(model, params, first, first_buf);
-            });
+            group
+                .par_iter()
+                .zip(bufs.par_iter_mut())
+                .zip(losses.par_iter_mut())
+                .for_each(|((piece, buf), out)| *out = chunk_gradient(model, params, piece, buf));
         }
         for l in losses {
             loss += l;
@@ -1107,16 +1117,21 @@ fn train_step<M: GuidingModel + Send + Sync>(
             let mut views: Vec<&mut [f32]> = bufs.iter_mut().map(|b| &mut b[..]).collect();
             reduce_range(&mut state.grad, &mut views);
         } else {
+            // views[range][buffer]: the chunk buffers cut like the gradient.
             let mut splits: Vec<_> = bufs.iter_mut().map(|b| b.chunks_mut(rl)).collect();
-            thread::scope(|s| {
-                for total in state.grad.chunks_mut(rl) {
-                    let mut views: Vec<&mut [f32]> = splits
+            let views: Vec<Vec<&mut [f32]>> = (0..n.div_ceil(rl))
+                .map(|_| {
+                    splits
                         .iter_mut()
                         .map(|it| it.next().expect("same length as the gradient"))
-                        .collect();
-                    s.spawn(move || reduce_range(total, &mut views));
-                }
-            });
+                        .collect()
+                })
+                .collect();
+            state
+                .grad
+                .par_chunks_mut(rl)
+                .zip(views)
+                .for_each(|(total, mut v)| reduce_range(total, &mut v));
         }
     }
     let loss = loss / len as f64;
@@ -1138,17 +1153,11 @@ fn train_step<M: GuidingModel + Send + Sync>(
     let (finite, max_abs) = if elem_threads == 1 {
         scale(&mut state.grad)
     } else {
-        thread::scope(|s| {
-            let handles: Vec<_> = state
-                .grad
-                .chunks_mut(rl)
-                .map(|g| s.spawn(move || scale(g)))
-                .collect();
-            handles.into_iter().fold((true, 0.0f32), |(ok, max), h| {
-                let (o, m) = h.join().expect("scale pass panicked");
-                (ok & o, max.max(m))
-            })
-        })
+        state
+            .grad
+            .par_chunks_mut(rl)
+            .map(scale)
+            .reduce(|| (true, 0.0f32), |(a, x), (b, y)| (a & b, x.max(y)))
     };
     if !finite || !loss.is_finite() {
         state.grad.fill(0.0);
@@ -1185,21 +1194,15 @@ fn train_step<M: GuidingModel + Send + Sync>(
             &mut state.ema,
         )
     } else {
-        thread::scope(|s| {
-            let handles: Vec<_> = state
-                .params
-                .chunks_mut(rl)
-                .zip(state.grad.chunks_mut(rl))
-                .zip(state.adam_m.chunks_mut(rl))
-                .zip(state.adam_v.chunks_mut(rl))
-                .zip(state.ema.chunks_mut(rl))
-                .map(|((((p, g), m), v), e)| s.spawn(move || apply(p, g, m, v, e)))
-                .collect();
-            handles
-                .into_iter()
-                .map(|h| h.join().expect("Adam pass panicked"))
-                .sum()
-        })
+        state
+            .params
+            .par_chunks_mut(rl)
+            .zip(state.grad.par_chunks_mut(rl))
+            .zip(state.adam_m.par_chunks_mut(rl))
+            .zip(state.adam_v.par_chunks_mut(rl))
+            .zip(state.ema.par_chunks_mut(rl))
+            .map(|((((p, g), m), v), e)| apply(p, g, m, v, e))
+            .sum()
     };
     state.steps += 1;
     StepOutcome::Applied {
@@ -1209,36 +1212,32 @@ fn train_step<M: GuidingModel + Send + Sync>(
     }
 }
 
-/// `out[i] = f(i)` for every `i`, the index range split between `threads`
-/// threads (the calling thread takes the first part).
-fn parallel_fill<O: Send, F: Fn(usize) -> O + Sync>(threads: usize, out: &mut [O], f: F) {
+/// `out[i] = f(i)` for every `i`, spread over `pool` in pieces of at least
+/// half of `PARALLEL_MIN_QUERIES` (serial without a pool or for a short
+/// `out`).
+fn parallel_fill<O: Send, F: Fn(usize) -> O + Sync>(
+    pool: Option<&rayon::ThreadPool>,
+    out: &mut [O],
+    f: F,
+) {
     let n = out.len();
-    // Each thread gets at least half of PARALLEL_MIN_QUERIES queries.
-    let parts = if n < PARALLEL_MIN_QUERIES {
-        1
-    } else {
-        threads.clamp(1, n / (PARALLEL_MIN_QUERIES / 2))
-    };
-    if parts == 1 {
-        for (i, o) in out.iter_mut().enumerate() {
-            *o = f(i);
-        }
-        return;
-    }
-    let len = n.div_ceil(parts);
-    let f = &f;
-    thread::scope(|s| {
-        let mut pieces = out.chunks_mut(len).enumerate();
-        let (_, first) = pieces.next().expect("n > 0");
-        for (k, piece) in pieces {
-            s.spawn(move || {
-                for (j, o) in piece.iter_mut().enumerate() {
-                    *o = f(k * len + j);
-                }
+    match pool {
+        Some(pool) if n >= PARALLEL_MIN_QUERIES => {
+            let len = n
+                .div_ceil(pool.current_num_threads())
+                .max(PARALLEL_MIN_QUERIES / 2);
+            pool.install(|| {
+                out.par_chunks_mut(len).enumerate().for_each(|(k, piece)| {
+                    for (j, o) in piece.iter_mut().enumerate() {
+                        *o = f(k * len + j);
+                    }
+                });
             });
         }
-        for (j, o) in first.iter_mut().enumerate() {
-            *o = f(j);
+        _ => {
+            for (i, o) in out.iter_mut().enumerate() {
+                *o = f(i);
+            }
         }
-    });
+    }
 }

@@ -7,6 +7,7 @@ use crate::models::{self, with_field, AnyField, Decode, Decoded};
 use glam::{Vec2, Vec3};
 use guiding_core::field::{FieldState, UpdateReport};
 use guiding_core::lobe::DirectionSample;
+use guiding_core::model::wavefront::DfVertex;
 use guiding_core::model::{GuidingModel, QueryPoint};
 use guiding_core::sample::{TrainingSample, REJECTION_KINDS};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -53,9 +54,9 @@ pub struct FieldStats {
 pub struct GuidingField {
     config: GuidingConfig,
     bounds: ([f32; 3], [f32; 3]),
-    id: u64,
-    generation: u64,
-    inner: AnyField,
+    pub(crate) id: u64,
+    pub(crate) generation: u64,
+    pub(crate) inner: AnyField,
 }
 
 impl std::fmt::Debug for GuidingField {
@@ -373,12 +374,12 @@ impl GuidingField {
         models::model_bytes(&self.inner)
     }
 
-    fn sample_df(&self, query: &QueryPoint, u: Vec2) -> DirectionSample {
-        with_field!(&self.inner, f => f.sample(query, u))
+    fn sample_df(&self, vertex: &DfVertex, u: Vec2) -> DirectionSample {
+        with_field!(&self.inner, f => f.model().sample_vertex_any(f.ema_params(), vertex, u))
     }
 
-    fn pdf_df(&self, query: &QueryPoint, direction: Vec3) -> f32 {
-        with_field!(&self.inner, f => f.pdf(query, direction))
+    fn pdf_df(&self, vertex: &DfVertex, direction: Vec3) -> f32 {
+        with_field!(&self.inner, f => f.model().pdf_vertex_any(f.ema_params(), vertex, direction))
     }
 }
 
@@ -415,7 +416,7 @@ impl<'f> Distribution<'f> {
         match &self.decoded {
             Decoded::Vmf { mixture, .. } => mixture.sample(u),
             Decoded::Nasg(mixture) => mixture.sample(u),
-            Decoded::Df { query, .. } => self.field.sample_df(query, u),
+            Decoded::Df { vertex, .. } => self.field.sample_df(vertex, u),
         }
     }
 
@@ -424,7 +425,7 @@ impl<'f> Distribution<'f> {
         match &self.decoded {
             Decoded::Vmf { mixture, .. } => mixture.pdf(direction),
             Decoded::Nasg(mixture) => mixture.pdf(direction),
-            Decoded::Df { query, .. } => self.field.pdf_df(query, direction),
+            Decoded::Df { vertex, .. } => self.field.pdf_df(vertex, direction),
         }
     }
 
@@ -460,4 +461,14 @@ pub struct DecodedDistribution {
     field_id: u64,
     generation: u64,
     decoded: Decoded,
+}
+
+impl DecodedDistribution {
+    pub(crate) fn new(field_id: u64, generation: u64, decoded: Decoded) -> Self {
+        Self {
+            field_id,
+            generation,
+            decoded,
+        }
+    }
 }

@@ -46,6 +46,7 @@
 //! # Ok::<(), guiding::GuidingError>(())
 //! ```
 
+pub mod batch;
 pub mod config;
 pub mod error;
 pub mod field;
@@ -53,6 +54,7 @@ pub mod file;
 mod models;
 pub mod recorder;
 
+pub use batch::DistributionBatch;
 pub use config::{GuidingConfig, ModelSize, Representation, Target};
 pub use error::GuidingError;
 pub use field::{DecodedDistribution, Distribution, FieldStats, GuidingField, ModelExport};

@@ -4,7 +4,9 @@
 
 use crate::config::{compact_grid, GuidingConfig, ModelSize, Representation, Target};
 use crate::error::GuidingError;
+use glam::{Vec2, Vec3};
 use guiding_core::field::{Field, FieldState};
+use guiding_core::lobe::DirectionSample;
 use guiding_core::mixture::nasg::NasgMixture;
 use guiding_core::mixture::vmf::VmfMixture;
 use guiding_core::model::df::{Df, DfProduct, DfRadiance, DfSmallProduct, DfSmallRadiance};
@@ -14,6 +16,7 @@ use guiding_core::model::nasg::{
 use guiding_core::model::npm::{
     Npm, NpmProduct, NpmRadiance, NpmSmallProduct, NpmSmallRadiance, NPM_LOBES,
 };
+use guiding_core::model::wavefront::DfVertex;
 use guiding_core::model::{GuidingModel, QueryPoint};
 use guiding_core::pdf1d::Interpolation;
 
@@ -57,15 +60,117 @@ pub(crate) enum Decoded {
         selection: f32,
     },
     Nasg(NasgMixture<NASG_LOBES>),
+    /// DF keeps its base input and marginal: sampling and pdfs run only the
+    /// conditional network.
     Df {
-        query: QueryPoint,
+        vertex: DfVertex,
         selection: f32,
     },
 }
 
-/// Per-family decode of a model at a query.
+/// The per-family buffers of a [`crate::batch::DistributionBatch`]; only
+/// the model's family is filled.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct BatchItems {
+    pub(crate) vmf: Vec<VmfMixture<NPM_LOBES>>,
+    pub(crate) nasg: Vec<NasgMixture<NASG_LOBES>>,
+    pub(crate) df: Vec<DfVertex>,
+    /// The constant selection probability (NPM, DF).
+    pub(crate) selection: f32,
+}
+
+impl BatchItems {
+    pub(crate) fn clear(&mut self) {
+        self.vmf.clear();
+        self.nasg.clear();
+        self.df.clear();
+    }
+
+    pub(crate) fn len(&self) -> usize {
+        self.vmf.len().max(self.nasg.len()).max(self.df.len())
+    }
+
+    /// Lane `i` as a [`Decoded`] value (`None` out of range).
+    pub(crate) fn get(&self, i: usize) -> Option<Decoded> {
+        let selection = self.selection;
+        if let Some(m) = self.vmf.get(i) {
+            return Some(Decoded::Vmf {
+                mixture: *m,
+                selection,
+            });
+        }
+        if let Some(m) = self.nasg.get(i) {
+            return Some(Decoded::Nasg(*m));
+        }
+        self.df.get(i).map(|v| Decoded::Df {
+            vertex: *v,
+            selection,
+        })
+    }
+
+    /// The guide-selection probability of lane `i` (0 out of range).
+    pub(crate) fn selection_probability(&self, i: usize) -> f32 {
+        if let Some(m) = self.nasg.get(i) {
+            return m.selection_probability;
+        }
+        if i < self.len() {
+            self.selection
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Decoding of one family of models, per query and per batch. The DF
+/// methods have a default for the mixture families (which never store DF
+/// vertices): the uniform density.
 pub(crate) trait Decode: GuidingModel {
     fn decode_at(&self, params: &[f32], query: &QueryPoint) -> Decoded;
+
+    /// Decodes every query into `out` (cleared first), one batched network
+    /// pass per chunk.
+    fn decode_batch_into(&self, params: &[f32], queries: &[QueryPoint], out: &mut BatchItems);
+
+    /// A DF sample from a decoded vertex.
+    fn sample_vertex_any(&self, _params: &[f32], _v: &DfVertex, u: Vec2) -> DirectionSample {
+        DirectionSample {
+            direction: guiding_core::factorised::direction_from_square(u),
+            pdf: guiding_core::math::INV_FOUR_PI,
+        }
+    }
+
+    /// A DF density from a decoded vertex.
+    fn pdf_vertex_any(&self, _params: &[f32], _v: &DfVertex, _direction: Vec3) -> f32 {
+        guiding_core::math::INV_FOUR_PI
+    }
+
+    /// DF samples of many lanes, the conditional network batched.
+    fn sample_vertices_any(
+        &self,
+        params: &[f32],
+        vertices: &[DfVertex],
+        lanes: &[u32],
+        u: &[Vec2],
+        out: &mut [DirectionSample],
+    ) {
+        for ((o, &l), &ub) in out.iter_mut().zip(lanes).zip(u) {
+            *o = self.sample_vertex_any(params, &vertices[l as usize], ub);
+        }
+    }
+
+    /// DF densities of many lanes, the conditional network batched.
+    fn pdf_vertices_any(
+        &self,
+        params: &[f32],
+        vertices: &[DfVertex],
+        lanes: &[u32],
+        directions: &[Vec3],
+        out: &mut [f32],
+    ) {
+        for ((o, &l), &d) in out.iter_mut().zip(lanes).zip(directions) {
+            *o = self.pdf_vertex_any(params, &vertices[l as usize], d);
+        }
+    }
 }
 
 impl<const IN: usize, const W: usize, const H: usize> Decode for Npm<IN, W, H> {
@@ -75,11 +180,25 @@ impl<const IN: usize, const W: usize, const H: usize> Decode for Npm<IN, W, H> {
             selection: self.selection_probability(params, query),
         }
     }
+
+    fn decode_batch_into(&self, params: &[f32], queries: &[QueryPoint], out: &mut BatchItems) {
+        out.clear();
+        out.selection = self.selection_probability(params, &QueryPoint::default());
+        out.vmf.resize(queries.len(), VmfMixture::ZERO);
+        self.decode_batch(params, queries, &mut out.vmf);
+    }
 }
 
 impl<const IN: usize, const W: usize, const H: usize> Decode for Nasg<IN, W, H> {
     fn decode_at(&self, params: &[f32], query: &QueryPoint) -> Decoded {
         Decoded::Nasg(self.decode(params, query))
+    }
+
+    fn decode_batch_into(&self, params: &[f32], queries: &[QueryPoint], out: &mut BatchItems) {
+        out.clear();
+        out.selection = 0.0;
+        out.nasg.resize(queries.len(), NasgMixture::ZERO);
+        self.decode_batch(params, queries, &mut out.nasg);
     }
 }
 
@@ -94,10 +213,49 @@ impl<
     > Decode for Df<IN_M, IN_C, IN_R, W, H, WR, HR>
 {
     fn decode_at(&self, params: &[f32], query: &QueryPoint) -> Decoded {
+        let mut v = [DfVertex::ZERO];
+        self.decode_batch(params, std::slice::from_ref(query), &mut v);
         Decoded::Df {
-            query: *query,
+            vertex: v[0],
             selection: self.selection_probability(params, query),
         }
+    }
+
+    fn decode_batch_into(&self, params: &[f32], queries: &[QueryPoint], out: &mut BatchItems) {
+        out.clear();
+        out.selection = self.selection_probability(params, &QueryPoint::default());
+        out.df.resize(queries.len(), DfVertex::ZERO);
+        self.decode_batch(params, queries, &mut out.df);
+    }
+
+    fn sample_vertex_any(&self, params: &[f32], v: &DfVertex, u: Vec2) -> DirectionSample {
+        self.sample_vertex(params, v, u)
+    }
+
+    fn pdf_vertex_any(&self, params: &[f32], v: &DfVertex, direction: Vec3) -> f32 {
+        self.pdf_vertex(params, v, direction)
+    }
+
+    fn sample_vertices_any(
+        &self,
+        params: &[f32],
+        vertices: &[DfVertex],
+        lanes: &[u32],
+        u: &[Vec2],
+        out: &mut [DirectionSample],
+    ) {
+        self.sample_vertices(params, vertices, lanes, u, out);
+    }
+
+    fn pdf_vertices_any(
+        &self,
+        params: &[f32],
+        vertices: &[DfVertex],
+        lanes: &[u32],
+        directions: &[Vec3],
+        out: &mut [f32],
+    ) {
+        self.pdf_vertices(params, vertices, lanes, directions, out);
     }
 }
 

@@ -56,8 +56,7 @@ use crate::integrator::{
 use crate::math::{power_heuristic, Frame};
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
-use guiding::Distribution;
-use guiding::GuidingField;
+use guiding::{DirectionSample, DistributionBatch, GuidingField};
 use guiding_core::model::QueryPoint;
 use guiding_core::sample::TrainingSample;
 use guiding_gpu::GpuError;
@@ -209,17 +208,20 @@ pub(crate) struct GuidedWorker<'g> {
     v_nee: Vec<Option<NeeCandidate>>,
     // Guidable vertices of a bounce.
     g_query: Vec<QueryPoint>,
-    /// The guide's distribution at each guidable vertex, decoded once per bounce.
-    g_dist: Vec<Distribution<'g>>,
+    /// The guide's distributions at the guidable vertices, decoded by one batched call
+    /// per bounce.
+    g_batch: DistributionBatch,
     g_c: Vec<f32>,
     // Guide samples: guidable-vertex index, random numbers, vertex.
     s_query: Vec<u32>,
     s_u: Vec<Vec2>,
     s_vert: Vec<u32>,
+    s_out: Vec<DirectionSample>,
     // Guide pdf evaluations; `p_vert` high bit set = the NEE direction of the vertex.
     p_query: Vec<u32>,
     p_dir: Vec<Vec3>,
     p_vert: Vec<u32>,
+    p_out: Vec<f32>,
 }
 
 /// Light sample drawn for a vertex in the guide-query stage.
@@ -261,14 +263,16 @@ impl<'g> GuidedWorker<'g> {
             v_qpdf: Vec::new(),
             v_nee: Vec::new(),
             g_query: Vec::new(),
-            g_dist: Vec::new(),
+            g_batch: DistributionBatch::new(),
             g_c: Vec::new(),
             s_query: Vec::new(),
             s_u: Vec::new(),
             s_vert: Vec::new(),
+            s_out: Vec::new(),
             p_query: Vec::new(),
             p_dir: Vec::new(),
             p_vert: Vec::new(),
+            p_out: Vec::new(),
         }
     }
 
@@ -375,37 +379,32 @@ pub(crate) fn stage_guide_query(w: &mut Worker<'_>, nee: bool) {
     }
     let nq = g.g_query.len();
     g.guided_vertices += nq as u64;
-    // One network pass per guidable vertex: selection, sampling and every pdf below reuse
-    // the decoded distribution (DF evaluates its conditional network per sample / pdf).
+    // One batched decode per bounce (one network pass per guidable vertex): selection,
+    // sampling and every pdf below reuse it (DF runs its conditional network per
+    // direction, batched). With `--device gpu` the network runs there and its raw outputs
+    // go through the same decoders; a device or decode failure ends the render.
     let t0 = Instant::now();
     let field = g.guide;
-    g.g_dist.clear();
-    let on_gpu = match g.gpu {
-        Some(gpu) if g.gpu_error.is_none() => match gpu.infer(&g.g_query, &mut g.g_raw) {
-            Ok(()) => true,
-            Err(e) => {
+    match g.gpu {
+        Some(gpu) if g.gpu_error.is_none() => {
+            let decoded = gpu.infer(&g.g_query, &mut g.g_raw).and_then(|()| {
+                field
+                    .decode_raw_batch(&g.g_raw, &mut g.g_batch)
+                    .map_err(|e| {
+                        GpuError::BadArgument(format!("decoding the device's outputs: {e}"))
+                    })
+            });
+            if let Err(e) = decoded {
                 g.gpu_error = Some(e);
-                false
+                g.g_batch = DistributionBatch::new();
             }
-        },
-        _ => false,
-    };
-    if on_gpu {
-        let r = g.gpu.map_or(1, GpuGuide::raw_outputs).max(1);
-        for (q, raw) in g.g_query.iter().zip(g.g_raw.chunks_exact(r)) {
-            // The length always matches; fall back to the CPU network otherwise.
-            let d = field
-                .distribution_from_raw(raw)
-                .unwrap_or_else(|_| field.distribution(q));
-            g.g_dist.push(d);
         }
-    } else {
-        g.g_dist
-            .extend(g.g_query.iter().map(|q| field.distribution(q)));
+        Some(_) => g.g_batch = DistributionBatch::new(),
+        None => field.decode_batch(&g.g_query, &mut g.g_batch),
     }
     g.g_c.clear();
     g.g_c
-        .extend(g.g_dist.iter().map(|d| d.selection_probability()));
+        .extend((0..nq).map(|i| g.g_batch.selection_probability(i)));
     g.queries += nq as u64;
     g.query_time += t0.elapsed();
 
@@ -477,17 +476,41 @@ pub(crate) fn stage_guide_query(w: &mut Worker<'_>, nee: bool) {
             }
         }
     }
-    // Guide samples and pdfs from the decoded distributions.
+    // Guide samples and pdfs from the decoded distributions, one batched call each.
     let t0 = Instant::now();
-    for (k, &i) in g.s_vert.iter().enumerate() {
-        let ds = g.g_dist[g.s_query[k] as usize].sample(g.s_u[k]);
+    g.s_out.clear();
+    g.s_out.resize(
+        g.s_query.len(),
+        DirectionSample {
+            direction: Vec3::ZERO,
+            pdf: 0.0,
+        },
+    );
+    if field
+        .sample_decoded(&g.g_batch, &g.s_query, &g.s_u, &mut g.s_out)
+        .is_err()
+    {
+        // Only a batch left empty by a device failure (the render ends after this pass).
+        g.s_out.fill(DirectionSample {
+            direction: Vec3::ZERO,
+            pdf: 0.0,
+        });
+    }
+    for (ds, &i) in g.s_out.iter().zip(&g.s_vert) {
         if ds.direction.is_finite() && ds.pdf.is_finite() && ds.pdf > 0.0 {
             g.v_dir[i as usize] = ds.direction.normalize();
             g.v_qpdf[i as usize] = ds.pdf;
         }
     }
-    for (k, &v) in g.p_vert.iter().enumerate() {
-        let p = g.g_dist[g.p_query[k] as usize].pdf(g.p_dir[k]);
+    g.p_out.clear();
+    g.p_out.resize(g.p_query.len(), 0.0);
+    if field
+        .pdf_decoded(&g.g_batch, &g.p_query, &g.p_dir, &mut g.p_out)
+        .is_err()
+    {
+        g.p_out.fill(0.0);
+    }
+    for (&p, &v) in g.p_out.iter().zip(&g.p_vert) {
         let q = if p.is_finite() { p.max(0.0) } else { 0.0 };
         if v & NEE_BIT != 0 {
             if let Some(c) = g.v_nee[(v & !NEE_BIT) as usize].as_mut() {

@@ -5,7 +5,10 @@
 
 use crate::lobe::vmf::{dlog_pdf_dkappa, VmfLobe};
 use crate::lobe::DirectionSample;
-use crate::math::{exp, exp_nonpositive, ln, sanitize, sigmoid, sin_cos, sqrt, PI, TWO_PI};
+use crate::math::{
+    exp, exp_nonpositive, expm1_nonpositive, ln, sanitize, sigmoid, sin_cos_turns, sqrt,
+    INV_FOUR_PI, PI, TWO_PI,
+};
 use crate::mixture::{pairwise_sum, select_component, softmax};
 use crate::sphere::one_minus_cos_angle;
 use bytemuck::{Pod, Zeroable};
@@ -76,8 +79,8 @@ fn decode_lobe(raw: &[f32; VMF_RAW_PER_LOBE]) -> DecodedLobe {
     let inside = r_kappa > VMF_LOG_KAPPA_MIN && r_kappa < VMF_LOG_KAPPA_MAX;
     let s_theta = sigmoid(sanitize(raw[2], VMF_RAW_LIMIT));
     let s_phi = sigmoid(sanitize(raw[3], VMF_RAW_LIMIT));
-    let (sin_t, cos_t) = sin_cos(PI * s_theta);
-    let (sin_p, cos_p) = sin_cos(TWO_PI * s_phi);
+    let (sin_t, cos_t) = sin_cos_turns(0.5 * s_theta);
+    let (sin_p, cos_p) = sin_cos_turns(s_phi);
     let mean = Vec3::new(sin_t * cos_p, sin_t * sin_p, cos_t);
     let dtheta = PI * s_theta * (1.0 - s_theta);
     let dphi = TWO_PI * s_phi * (1.0 - s_phi);
@@ -151,14 +154,52 @@ impl<const K: usize> VmfMixture<K> {
     /// logits, `κ = exp(clamp(ln κ, −10, 10))`, mean from sigmoid-activated
     /// spherical angles. Any input, including NaN and ±∞, gives a valid
     /// mixture.
+    ///
+    /// Written lobe-parallel (one index loop per quantity over `[f32; K]`,
+    /// every function inlined and branch-free: [`exp`], [`sigmoid`],
+    /// [`sin_cos_turns`], [`expm1_nonpositive`]) so that a CPU evaluates
+    /// the `K = 8` lobes as one SIMD vector. The values are those of
+    /// [`VmfLobe::new`] of the decoded mean and κ: the mean
+    /// `(sin θ cos φ, sin θ sin φ, cos θ)` renormalised, κ clamped to
+    /// `[0, VMF_KAPPA_MAX]`, the normaliser `2κ / (1 − e^{−2κ}) / 4π`.
     #[must_use]
     pub fn decode(raw: &[[f32; VMF_RAW_PER_LOBE]; K]) -> Self {
         let mut m = Self::ZERO;
         softmax(&weight_logits(raw), &mut m.weight);
+        // Transposed first, so every loop below runs over contiguous arrays.
+        let (mut r_kappa, mut r_theta, mut r_phi) = ([0.0f32; K], [0.0f32; K], [0.0f32; K]);
         let mut k = 0;
         while k < K {
-            let d = decode_lobe(&raw[k]);
-            m.set_lobe(k, &VmfLobe::new(d.mean, d.kappa));
+            r_kappa[k] = raw[k][1];
+            r_theta[k] = raw[k][2];
+            r_phi[k] = raw[k][3];
+            k += 1;
+        }
+        k = 0;
+        while k < K {
+            let r = sanitize(r_kappa[k], VMF_RAW_LIMIT);
+            m.kappa[k] = exp(r.clamp(VMF_LOG_KAPPA_MIN, VMF_LOG_KAPPA_MAX));
+            // θ = π s_θ and φ = 2π s_φ, in turns: s_θ / 2 and s_φ.
+            let s_theta = sigmoid(sanitize(r_theta[k], VMF_RAW_LIMIT));
+            let s_phi = sigmoid(sanitize(r_phi[k], VMF_RAW_LIMIT));
+            let (sin_t, cos_t) = sin_cos_turns(0.5 * s_theta);
+            let (sin_p, cos_p) = sin_cos_turns(s_phi);
+            let (x, y, z) = (sin_t * cos_p, sin_t * sin_p, cos_t);
+            // |μ| = 1 up to rounding: renormalise as VmfLobe::new does.
+            let inv = 1.0 / sqrt(x * x + y * y + z * z);
+            m.mean_x[k] = x * inv;
+            m.mean_y[k] = y * inv;
+            m.mean_z[k] = z * inv;
+            k += 1;
+        }
+        k = 0;
+        while k < K {
+            // κ ∈ [e⁻¹⁰, e¹⁰] here, far above VMF_KAPPA_UNIFORM and below
+            // VMF_KAPPA_MAX: the normal branch of VmfLobe::new.
+            let two_kappa = 2.0 * m.kappa[k];
+            let one_minus = -expm1_nonpositive(-two_kappa);
+            m.one_minus_e2k[k] = one_minus;
+            m.norm[k] = two_kappa / one_minus * INV_FOUR_PI;
             k += 1;
         }
         m

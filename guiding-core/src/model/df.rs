@@ -425,13 +425,13 @@ impl<
     }
 
     #[inline]
-    fn fits(&self, params: &[f32]) -> bool {
+    pub(crate) fn fits(&self, params: &[f32]) -> bool {
         params.len() >= self.param_count()
     }
 
     /// `b = [grid | product inputs]` of `query`.
     #[inline]
-    fn base_input(&self, params: &[f32], query: &QueryPoint) -> [f32; IN_M] {
+    pub(crate) fn base_input(&self, params: &[f32], query: &QueryPoint) -> [f32; IN_M] {
         let mut b = [0.0f32; IN_M];
         encode_inputs(params, &self.grid, self.target, query, &mut b);
         b
@@ -439,7 +439,7 @@ impl<
 
     /// `[b | TW₁₂(ε₁)]`.
     #[inline]
-    fn conditional_input(base: &[f32; IN_M], eps1: f32) -> [f32; IN_C] {
+    pub(crate) fn conditional_input(base: &[f32; IN_M], eps1: f32) -> [f32; IN_C] {
         let mut x = [0.0f32; IN_C];
         let mut i = 0;
         while i < IN_M && i < IN_C {
@@ -464,7 +464,11 @@ impl<
         x
     }
 
-    fn marginal_from(&self, params: &[f32], base: &[f32; IN_M]) -> Pdf1d<DF_MARGINAL_BINS> {
+    pub(crate) fn marginal_from(
+        &self,
+        params: &[f32],
+        base: &[f32; IN_M],
+    ) -> Pdf1d<DF_MARGINAL_BINS> {
         let logits = Mlp::<IN_M, WIDTH, DF_MARGINAL_BINS, HIDDEN>::infer(
             params,
             self.marginal_offset as usize,
@@ -473,7 +477,7 @@ impl<
         Pdf1d::from_logits(&logits, self.interpolation(), Boundary::Wrap)
     }
 
-    fn conditional_from(
+    pub(crate) fn conditional_from(
         &self,
         params: &[f32],
         base: &[f32; IN_M],

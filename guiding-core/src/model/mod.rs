@@ -9,6 +9,8 @@
 pub mod df;
 pub mod nasg;
 pub mod npm;
+#[cfg(feature = "std")]
+pub mod wavefront;
 
 use crate::gradient::GradientSink;
 use crate::lobe::DirectionSample;
@@ -88,6 +90,27 @@ pub trait GuidingModel: Copy {
         sample: &TrainingSample,
         grad: &mut G,
     ) -> f32;
+
+    /// Adds the gradients of every sample of `samples` into `grad`, each
+    /// gradient element summed over the samples in their order, and returns
+    /// the summed loss (in `f64`). The default calls
+    /// [`Self::accumulate_gradient`] per sample; NPM and NASG override it
+    /// with the batched network kernels (`std`, [`wavefront`]), which round
+    /// differently within the bound stated in [`crate::mlp`].
+    fn accumulate_gradient_batch(
+        &self,
+        params: &[f32],
+        samples: &[TrainingSample],
+        grad: &mut [f32],
+    ) -> f64 {
+        let mut loss = 0.0f64;
+        let mut i = 0;
+        while i < samples.len() {
+            loss += self.accumulate_gradient(params, &samples[i], grad) as f64;
+            i += 1;
+        }
+        loss
+    }
 }
 
 /// Models whose network output at a query is a fixed-size vector that fully

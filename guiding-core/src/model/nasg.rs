@@ -198,13 +198,13 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Nasg<IN, WIDTH, H
     }
 
     #[inline]
-    fn fits(&self, params: &[f32]) -> bool {
+    pub(crate) fn fits(&self, params: &[f32]) -> bool {
         params.len() >= region_end(self.mlp_offset, Self::MLP_PARAMS)
     }
 
     /// `e` as used: clamped to `[0, 1]`, NaN → [`NASG_MIS_BLEND`].
     #[inline]
-    fn blend(&self) -> f32 {
+    pub(crate) fn blend(&self) -> f32 {
         if self.mis_blend.is_nan() {
             NASG_MIS_BLEND
         } else {
@@ -243,6 +243,17 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Nasg<IN, WIDTH, H
 impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> GuidingModel
     for Nasg<IN, WIDTH, HIDDEN>
 {
+    /// The batched kernels of [`super::wavefront`].
+    #[cfg(feature = "std")]
+    fn accumulate_gradient_batch(
+        &self,
+        params: &[f32],
+        samples: &[TrainingSample],
+        grad: &mut [f32],
+    ) -> f64 {
+        self.gradient_batch(params, samples, grad)
+    }
+
     /// `mlp_offset + MLP_PARAMS`.
     fn param_count(&self) -> usize {
         region_end(self.mlp_offset, Self::MLP_PARAMS)

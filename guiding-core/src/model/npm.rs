@@ -170,7 +170,33 @@ pub fn encode_inputs<const N: usize>(
     query: &QueryPoint,
     out: &mut [f32; N],
 ) -> usize {
-    let mut o = grid_forward(params, grid, query.position(), out, 0);
+    let o = grid_forward(params, grid, query.position(), out, 0);
+    encode_product_inputs(target, query, out, o)
+}
+
+/// [`encode_inputs`] with the grid read by [`grid_forward_fast`] (the same
+/// bits, CPU fast path of the batched decode).
+#[cfg(feature = "std")]
+pub fn encode_inputs_fast<const N: usize>(
+    params: &[f32],
+    grid: &GridConfig,
+    target: u32,
+    query: &QueryPoint,
+    out: &mut [f32; N],
+) -> usize {
+    let o = crate::encoding::grid::grid_forward_fast(params, grid, query.position(), out, 0);
+    encode_product_inputs(target, query, out, o)
+}
+
+/// The product inputs of [`encode_inputs`] from `out[o]` on (nothing for the
+/// radiance target); returns the end offset.
+#[inline]
+fn encode_product_inputs<const N: usize>(
+    target: u32,
+    query: &QueryPoint,
+    out: &mut [f32; N],
+    mut o: usize,
+) -> usize {
     if target != 0 {
         o = sh_encode(Vec3::from_array(query.wo), PRODUCT_SH_DEGREE, out, o);
         let mut c = 0;
@@ -428,7 +454,7 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Npm<IN, WIDTH, HI
 
     /// Whether `params` holds the whole model (the MLP is read unchecked).
     #[inline]
-    fn fits(&self, params: &[f32]) -> bool {
+    pub(crate) fn fits(&self, params: &[f32]) -> bool {
         params.len() >= region_end(self.mlp_offset, Self::MLP_PARAMS)
     }
 
@@ -458,6 +484,17 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Npm<IN, WIDTH, HI
 impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> GuidingModel
     for Npm<IN, WIDTH, HIDDEN>
 {
+    /// The batched kernels of [`super::wavefront`].
+    #[cfg(feature = "std")]
+    fn accumulate_gradient_batch(
+        &self,
+        params: &[f32],
+        samples: &[TrainingSample],
+        grad: &mut [f32],
+    ) -> f64 {
+        self.gradient_batch(params, samples, grad)
+    }
+
     /// `mlp_offset + MLP_PARAMS`.
     fn param_count(&self) -> usize {
         region_end(self.mlp_offset, Self::MLP_PARAMS)

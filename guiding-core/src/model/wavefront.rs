@@ -1,0 +1,757 @@
+//! Wavefront (batched) evaluation of the models on the CPU (`std`): one call
+//! decodes the distributions of a whole batch of shading points, and one call
+//! accumulates the training gradient of a whole batch of samples.
+//!
+//! The per-query kernels of [`super::npm`], [`super::nasg`] and [`super::df`]
+//! stay the reference (and the SPIR-V path); this module computes the same
+//! functions with the network run over blocks of queries:
+//!
+//! ```text
+//! for each chunk of WAVEFRONT_CHUNK queries:
+//!     x_b = encode_inputs(q_b)                 (grid gather per query, as per query)
+//!     Y   = Mlp::infer_batch(X)                (blocked, SIMD over queries; FMA where available)
+//!     d_b = decode(Y_b)                        (vMF / NASG mixture, or DF marginal + features)
+//! ```
+//!
+//! Training: `Mlp::forward_batch` keeps every hidden activation, the
+//! per-sample output gradients are formed as in `accumulate_gradient`, then
+//! `Mlp::backward_batch` adds the parameter gradients of the chunk and each
+//! sample's input gradient is scattered into the grid. Every gradient element
+//! is summed over the samples in the order they are given, so the result
+//! does not depend on how a caller distributes chunks over threads.
+//!
+//! The batched MLP may round differently from the per-query kernel (fused
+//! multiply-adds, another summation order); see [`crate::mlp`] for the bound.
+//! Everything else (encodings, decoders, losses) is the per-query code.
+//!
+//! Chunks live in stack arrays (no allocation): `WAVEFRONT_CHUNK · IN` inputs,
+//! `WAVEFRONT_CHUNK · OUT` outputs and, for training,
+//! `TRAIN_CHUNK · HIDDEN · WIDTH` activations (at most 64 KiB for the paper
+//! NASG network, 4 × 128).
+
+use super::df::{Df, DF_CONDITIONAL_BINS, DF_MARGINAL_BINS};
+use super::nasg::{Nasg, NASG_LOBES, NASG_OUTPUTS, NASG_SELECTION_OUTPUT};
+use super::npm::{
+    all_finite, encode_inputs_fast, join_rows, split_rows, Npm, NPM_LOBES, NPM_OUTPUTS,
+};
+use super::{GuidingModel, QueryPoint};
+use crate::encoding::grid_backward;
+use crate::factorised::{self, direction_from_square, square_from_direction};
+use crate::lobe::DirectionSample;
+use crate::loss::{kl_weight, nasg_mis_loss};
+use crate::math::INV_FOUR_PI;
+use crate::mixture::nasg::{decode_selection, NasgMixture, NASG_RAW_PER_LOBE};
+use crate::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
+use crate::mlp::{Mlp, MlpContext};
+use crate::pdf1d::{Boundary, Pdf1d};
+use crate::sample::TrainingSample;
+use bytemuck::{Pod, Zeroable};
+use glam::{Vec2, Vec3};
+
+/// Queries per chunk of a batched decode (inputs and outputs of one chunk
+/// stay in L1).
+pub const WAVEFRONT_CHUNK: usize = 64;
+
+/// Samples per chunk of a batched gradient.
+pub const TRAIN_CHUNK: usize = 32;
+
+/// Largest DF base input (`[grid | product inputs]`) a [`DfVertex`] holds:
+/// 64, the paper product model's `IN_M`.
+pub const DF_MAX_BASE: usize = 64;
+
+/// What a DF model keeps of one shading point after the batched decode: the
+/// network input `b = [grid | product inputs]` (the conditional network's
+/// input starts with it) and the marginal density of `ε₁`. Sampling and pdfs
+/// then run only the conditional network, once per direction.
+///
+/// `repr(C)`, [`Pod`], `4 · (64 + 32 + 2)` = 392 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DfVertex {
+    /// `b`, zero past the model's `IN_M`.
+    pub base: [f32; DF_MAX_BASE],
+    /// `p(ε₁)` at this point.
+    pub marginal: Pdf1d<DF_MARGINAL_BINS>,
+}
+
+// SAFETY: `repr(C)` struct of an `[f32; 64]` and a `Pod` `Pdf1d` (f32 values
+// and two u32 codes, align 4): no padding, every bit pattern valid.
+unsafe impl Zeroable for DfVertex {}
+// SAFETY: see above.
+unsafe impl Pod for DfVertex {}
+
+impl DfVertex {
+    /// All zeros (an invalid marginal; only a placeholder to overwrite).
+    pub const ZERO: Self = Self {
+        base: [0.0; DF_MAX_BASE],
+        marginal: Pdf1d::ZERO,
+    };
+}
+
+impl Default for DfVertex {
+    fn default() -> Self {
+        Self::ZERO
+    }
+}
+
+/// Encodes `queries` (at most `WAVEFRONT_CHUNK`) and runs the MLP at
+/// `offset` over them: `ys[b] = MLP(encode(queries[b]))`.
+fn infer_chunk<const IN: usize, const W: usize, const OUT: usize, const H: usize>(
+    params: &[f32],
+    grid: &crate::encoding::GridConfig,
+    target: u32,
+    offset: usize,
+    queries: &[QueryPoint],
+    xs: &mut [[f32; IN]; WAVEFRONT_CHUNK],
+    ys: &mut [[f32; OUT]; WAVEFRONT_CHUNK],
+) {
+    let m = queries.len();
+    for (x, q) in xs.iter_mut().zip(queries) {
+        *x = [0.0; IN];
+        encode_inputs_fast(params, grid, target, q, x);
+    }
+    Mlp::<IN, W, OUT, H>::infer_batch(params, offset, &xs[..m], &mut ys[..m]);
+}
+
+impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Npm<IN, WIDTH, HIDDEN> {
+    /// [`Self::decode`] of every query, written to `out` (same length): one
+    /// batched network pass per chunk (module docs).
+    ///
+    /// # Panics
+    /// If `queries` and `out` differ in length.
+    pub fn decode_batch(
+        &self,
+        params: &[f32],
+        queries: &[QueryPoint],
+        out: &mut [VmfMixture<NPM_LOBES>],
+    ) {
+        assert_eq!(queries.len(), out.len(), "one output per query");
+        if !self.fits(params) {
+            for (o, q) in out.iter_mut().zip(queries) {
+                *o = self.decode(params, q);
+            }
+            return;
+        }
+        let mut xs = [[0.0f32; IN]; WAVEFRONT_CHUNK];
+        let mut ys = [[0.0f32; NPM_OUTPUTS]; WAVEFRONT_CHUNK];
+        for (qs, os) in queries
+            .chunks(WAVEFRONT_CHUNK)
+            .zip(out.chunks_mut(WAVEFRONT_CHUNK))
+        {
+            infer_chunk::<IN, WIDTH, NPM_OUTPUTS, HIDDEN>(
+                params,
+                &self.grid,
+                self.target,
+                self.mlp_offset as usize,
+                qs,
+                &mut xs,
+                &mut ys,
+            );
+            decode_vmf_batch(&ys[..qs.len()], os);
+        }
+    }
+
+    /// The batched form of `accumulate_gradient` over `samples` (module
+    /// docs); returns the summed loss. Samples the per-query kernel would
+    /// skip (invalid, zero weight, non-finite output or gradient) add
+    /// nothing here either.
+    pub(crate) fn gradient_batch(
+        &self,
+        params: &[f32],
+        samples: &[TrainingSample],
+        grad: &mut [f32],
+    ) -> f64 {
+        let count = self.param_count();
+        if params.len() < count || grad.len() < count {
+            return 0.0;
+        }
+        let offset = self.mlp_offset as usize;
+        let mut xs = [[0.0f32; IN]; TRAIN_CHUNK];
+        let mut ys = [[0.0f32; NPM_OUTPUTS]; TRAIN_CHUNK];
+        let mut dys = [[0.0f32; NPM_OUTPUTS]; TRAIN_CHUNK];
+        let mut dxs = [[0.0f32; IN]; TRAIN_CHUNK];
+        let mut ctxs = [MlpContext::<WIDTH, HIDDEN>::ZERO; TRAIN_CHUNK];
+        let mut live = [0usize; TRAIN_CHUNK];
+        let mut losses = [0.0f32; TRAIN_CHUNK];
+        let mut ok = [false; TRAIN_CHUNK];
+        let mut total = 0.0f64;
+        for chunk in samples.chunks(TRAIN_CHUNK) {
+            // Samples with a usable weight, encoded.
+            let mut m = 0;
+            for (j, s) in chunk.iter().enumerate() {
+                if s.validate().is_err() || kl_weight(s, self.target()) == 0.0 {
+                    continue;
+                }
+                live[m] = j;
+                xs[m] = [0.0; IN];
+                encode_inputs_fast(
+                    params,
+                    &self.grid,
+                    self.target,
+                    &QueryPoint::of_sample(s),
+                    &mut xs[m],
+                );
+                m += 1;
+            }
+            if m == 0 {
+                continue;
+            }
+            Mlp::<IN, WIDTH, NPM_OUTPUTS, HIDDEN>::forward_batch(
+                params,
+                offset,
+                &xs[..m],
+                &mut ys[..m],
+                &mut ctxs[..m],
+            );
+            for k in 0..m {
+                let s = &chunk[live[k]];
+                let w = kl_weight(s, self.target());
+                let raw: [[f32; VMF_RAW_PER_LOBE]; NPM_LOBES] = split_rows(&ys[k]);
+                let mut g = [[0.0f32; VMF_RAW_PER_LOBE]; NPM_LOBES];
+                let log_q = VmfMixture::grad_log_pdf(&raw, s.wi(), &mut g);
+                let loss = -w * log_q;
+                join_rows(&g, &mut dys[k]);
+                for d in &mut dys[k] {
+                    *d *= -w;
+                }
+                ok[k] = loss.is_finite() && all_finite(&ys[k]) && all_finite(&dys[k]);
+                if ok[k] {
+                    losses[k] = loss;
+                } else {
+                    exclude(&mut dys[k], &mut xs[k], &mut ctxs[k], &mut losses[k]);
+                }
+            }
+            Mlp::<IN, WIDTH, NPM_OUTPUTS, HIDDEN>::backward_batch(
+                params,
+                offset,
+                &xs[..m],
+                &ctxs[..m],
+                &dys[..m],
+                grad,
+                &mut dxs[..m],
+            );
+            for k in 0..m {
+                if ok[k] {
+                    grid_backward(&self.grid, chunk[live[k]].position(), &dxs[k], 0, grad);
+                    total += f64::from(losses[k]);
+                }
+            }
+        }
+        total
+    }
+}
+
+/// Queries decoded together by [`decode_vmf_block`]: `8 × 8 = 64` lobes,
+/// a loop the vectoriser keeps (a `K = 8` lobe loop is fully unrolled first
+/// and then left scalar).
+const DECODE_BLOCK: usize = 8;
+/// Lobes of one [`decode_vmf_block`].
+const BLOCK_LOBES: usize = DECODE_BLOCK * NPM_LOBES;
+
+/// The vMF mixtures of raw outputs (`out[i] = VmfMixture::decode(ys[i])`,
+/// bit for bit), with the widest vectors this CPU runs: AVX2 only widens
+/// the lanes (Rust never contracts into FMA), so every variant gives the
+/// same bits.
+///
+/// # Panics
+/// If `ys` and `out` differ in length.
+pub fn decode_vmf_batch(ys: &[[f32; NPM_OUTPUTS]], out: &mut [VmfMixture<NPM_LOBES>]) {
+    assert_eq!(ys.len(), out.len(), "one output per raw row");
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: AVX2 support was just checked.
+        unsafe { decode_vmf_avx2(ys, out) };
+        return;
+    }
+    decode_vmf_batch_portable(ys, out);
+}
+
+/// [`decode_vmf_batch`] compiled for the target's baseline features (the
+/// variant a CPU without AVX2 runs; public so tests check both).
+///
+/// # Panics
+/// If `ys` and `out` differ in length.
+#[inline(always)]
+pub fn decode_vmf_batch_portable(ys: &[[f32; NPM_OUTPUTS]], out: &mut [VmfMixture<NPM_LOBES>]) {
+    assert_eq!(ys.len(), out.len(), "one output per raw row");
+    for (y, o) in ys.chunks(DECODE_BLOCK).zip(out.chunks_mut(DECODE_BLOCK)) {
+        decode_vmf_block(y, o);
+    }
+}
+
+/// [`decode_vmf_batch_portable`] compiled for AVX2.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn decode_vmf_avx2(ys: &[[f32; NPM_OUTPUTS]], out: &mut [VmfMixture<NPM_LOBES>]) {
+    decode_vmf_batch_portable(ys, out);
+}
+
+/// [`VmfMixture::decode`] of up to [`DECODE_BLOCK`] queries at once, the
+/// same operations in the same order per lobe (so the same bits), laid out
+/// lobe-major (`[k · DECODE_BLOCK + b]`) so every loop runs over 64
+/// contiguous lanes; unused lanes decode zeros and are dropped.
+#[inline(always)]
+fn decode_vmf_block(ys: &[[f32; NPM_OUTPUTS]], out: &mut [VmfMixture<NPM_LOBES>]) {
+    use crate::math::{exp, expm1_nonpositive, sanitize, sigmoid, sin_cos_turns};
+    use crate::mixture::vmf::{VMF_LOG_KAPPA_MAX, VMF_LOG_KAPPA_MIN, VMF_RAW_LIMIT};
+    let n = ys.len().min(DECODE_BLOCK);
+    let mut raw = [[0.0f32; BLOCK_LOBES]; VMF_RAW_PER_LOBE];
+    for (b, y) in ys[..n].iter().enumerate() {
+        for k in 0..NPM_LOBES {
+            for (r, lane) in raw.iter_mut().enumerate() {
+                lane[k * DECODE_BLOCK + b] = y[k * VMF_RAW_PER_LOBE + r];
+            }
+        }
+    }
+    // Weights: softmax per query (max and sum in lobe order, as `softmax`).
+    let mut logit = raw[0];
+    for l in &mut logit {
+        *l = sanitize(*l, VMF_RAW_LIMIT);
+    }
+    let mut max = [f32::MIN; DECODE_BLOCK];
+    for k in 0..NPM_LOBES {
+        for (m, &l) in max.iter_mut().zip(&logit[k * DECODE_BLOCK..]) {
+            *m = m.max(l);
+        }
+    }
+    let mut w = [0.0f32; BLOCK_LOBES];
+    for (i, (wi, &l)) in w.iter_mut().zip(&logit).enumerate() {
+        *wi = exp(l - max[i % DECODE_BLOCK]);
+    }
+    let mut sum = [0.0f32; DECODE_BLOCK];
+    for k in 0..NPM_LOBES {
+        for (s, &wi) in sum.iter_mut().zip(&w[k * DECODE_BLOCK..]) {
+            *s += wi;
+        }
+    }
+    let mut inv_sum = [0.0f32; DECODE_BLOCK];
+    for (v, &s) in inv_sum.iter_mut().zip(&sum) {
+        *v = 1.0 / s;
+    }
+    // Lobes: κ, mean, normaliser.
+    let (mut kappa, mut mx, mut my, mut mz) = (
+        [0.0f32; BLOCK_LOBES],
+        [0.0f32; BLOCK_LOBES],
+        [0.0f32; BLOCK_LOBES],
+        [0.0f32; BLOCK_LOBES],
+    );
+    let (mut norm, mut one_minus) = ([0.0f32; BLOCK_LOBES], [0.0f32; BLOCK_LOBES]);
+    for i in 0..BLOCK_LOBES {
+        let r = sanitize(raw[1][i], VMF_RAW_LIMIT);
+        kappa[i] = exp(r.clamp(VMF_LOG_KAPPA_MIN, VMF_LOG_KAPPA_MAX));
+        let s_theta = sigmoid(sanitize(raw[2][i], VMF_RAW_LIMIT));
+        let s_phi = sigmoid(sanitize(raw[3][i], VMF_RAW_LIMIT));
+        let (sin_t, cos_t) = sin_cos_turns(0.5 * s_theta);
+        let (sin_p, cos_p) = sin_cos_turns(s_phi);
+        let (x, y, z) = (sin_t * cos_p, sin_t * sin_p, cos_t);
+        let inv = 1.0 / (x * x + y * y + z * z).sqrt();
+        mx[i] = x * inv;
+        my[i] = y * inv;
+        mz[i] = z * inv;
+        let two_kappa = 2.0 * kappa[i];
+        let om = -expm1_nonpositive(-two_kappa);
+        one_minus[i] = om;
+        norm[i] = two_kappa / om * INV_FOUR_PI;
+    }
+    for (b, o) in out[..n].iter_mut().enumerate() {
+        for k in 0..NPM_LOBES {
+            let i = k * DECODE_BLOCK + b;
+            o.weight[k] = w[i] * inv_sum[b];
+            o.kappa[k] = kappa[i];
+            o.mean_x[k] = mx[i];
+            o.mean_y[k] = my[i];
+            o.mean_z[k] = mz[i];
+            o.norm[k] = norm[i];
+            o.one_minus_e2k[k] = one_minus[i];
+        }
+    }
+}
+
+/// Takes a sample out of a chunk after its forward pass: zero output
+/// gradient, input and activations (so `0 · NaN` cannot reach the
+/// gradient) and zero loss.
+fn exclude<const IN: usize, const OUT: usize, const W: usize, const H: usize>(
+    dy: &mut [f32; OUT],
+    x: &mut [f32; IN],
+    ctx: &mut MlpContext<W, H>,
+    loss: &mut f32,
+) {
+    *dy = [0.0; OUT];
+    *x = [0.0; IN];
+    *ctx = MlpContext::ZERO;
+    *loss = 0.0;
+}
+
+impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Nasg<IN, WIDTH, HIDDEN> {
+    /// [`Self::decode`] of every query (mixture and learned selection
+    /// probability), written to `out`: one batched network pass per chunk.
+    ///
+    /// # Panics
+    /// If `queries` and `out` differ in length.
+    pub fn decode_batch(
+        &self,
+        params: &[f32],
+        queries: &[QueryPoint],
+        out: &mut [NasgMixture<NASG_LOBES>],
+    ) {
+        assert_eq!(queries.len(), out.len(), "one output per query");
+        if !self.fits(params) {
+            for (o, q) in out.iter_mut().zip(queries) {
+                *o = self.decode(params, q);
+            }
+            return;
+        }
+        let mut xs = [[0.0f32; IN]; WAVEFRONT_CHUNK];
+        let mut ys = [[0.0f32; NASG_OUTPUTS]; WAVEFRONT_CHUNK];
+        for (qs, os) in queries
+            .chunks(WAVEFRONT_CHUNK)
+            .zip(out.chunks_mut(WAVEFRONT_CHUNK))
+        {
+            infer_chunk::<IN, WIDTH, NASG_OUTPUTS, HIDDEN>(
+                params,
+                &self.grid,
+                self.target,
+                self.mlp_offset as usize,
+                qs,
+                &mut xs,
+                &mut ys,
+            );
+            for (o, y) in os.iter_mut().zip(&ys) {
+                *o = NasgMixture::decode(&split_rows(y), y[NASG_SELECTION_OUTPUT]);
+            }
+        }
+    }
+
+    /// The batched form of `accumulate_gradient` (see
+    /// [`Npm::gradient_batch`]); returns the summed loss.
+    pub(crate) fn gradient_batch(
+        &self,
+        params: &[f32],
+        samples: &[TrainingSample],
+        grad: &mut [f32],
+    ) -> f64 {
+        let count = self.param_count();
+        if params.len() < count || grad.len() < count {
+            return 0.0;
+        }
+        let offset = self.mlp_offset as usize;
+        let mut xs = [[0.0f32; IN]; TRAIN_CHUNK];
+        let mut ys = [[0.0f32; NASG_OUTPUTS]; TRAIN_CHUNK];
+        let mut dys = [[0.0f32; NASG_OUTPUTS]; TRAIN_CHUNK];
+        let mut dxs = [[0.0f32; IN]; TRAIN_CHUNK];
+        let mut ctxs = [MlpContext::<WIDTH, HIDDEN>::ZERO; TRAIN_CHUNK];
+        let mut live = [0usize; TRAIN_CHUNK];
+        let mut losses = [0.0f32; TRAIN_CHUNK];
+        let mut ok = [false; TRAIN_CHUNK];
+        let mut total = 0.0f64;
+        for chunk in samples.chunks(TRAIN_CHUNK) {
+            let mut m = 0;
+            for (j, s) in chunk.iter().enumerate() {
+                if s.validate().is_err() || kl_weight(s, self.target()) == 0.0 {
+                    continue;
+                }
+                live[m] = j;
+                xs[m] = [0.0; IN];
+                encode_inputs_fast(
+                    params,
+                    &self.grid,
+                    self.target,
+                    &QueryPoint::of_sample(s),
+                    &mut xs[m],
+                );
+                m += 1;
+            }
+            if m == 0 {
+                continue;
+            }
+            Mlp::<IN, WIDTH, NASG_OUTPUTS, HIDDEN>::forward_batch(
+                params,
+                offset,
+                &xs[..m],
+                &mut ys[..m],
+                &mut ctxs[..m],
+            );
+            for k in 0..m {
+                let s = &chunk[live[k]];
+                let w = kl_weight(s, self.target());
+                let y = &ys[k];
+                let raw: [[f32; NASG_RAW_PER_LOBE]; NASG_LOBES] = split_rows(y);
+                let mut g = [[0.0f32; NASG_RAW_PER_LOBE]; NASG_LOBES];
+                let log_q = NasgMixture::grad_log_pdf(&raw, s.wi(), &mut g);
+                let (c, dc_dr) = decode_selection(y[NASG_SELECTION_OUTPUT]);
+                let terms = nasg_mis_loss(w, log_q, c, s.bsdf_pdf, self.blend());
+                let dy = &mut dys[k];
+                *dy = [0.0; NASG_OUTPUTS];
+                join_rows(&g, dy);
+                for d in &mut dy[..NASG_SELECTION_OUTPUT] {
+                    *d *= terms.dloss_dlog_guide;
+                }
+                dy[NASG_SELECTION_OUTPUT] = terms.dloss_dselection * dc_dr;
+                ok[k] = terms.loss.is_finite() && all_finite(y) && all_finite(dy);
+                if ok[k] {
+                    losses[k] = terms.loss;
+                } else {
+                    exclude(&mut dys[k], &mut xs[k], &mut ctxs[k], &mut losses[k]);
+                }
+            }
+            Mlp::<IN, WIDTH, NASG_OUTPUTS, HIDDEN>::backward_batch(
+                params,
+                offset,
+                &xs[..m],
+                &ctxs[..m],
+                &dys[..m],
+                grad,
+                &mut dxs[..m],
+            );
+            for k in 0..m {
+                if ok[k] {
+                    grid_backward(&self.grid, chunk[live[k]].position(), &dxs[k], 0, grad);
+                    total += f64::from(losses[k]);
+                }
+            }
+        }
+        total
+    }
+}
+
+impl<
+        const IN_M: usize,
+        const IN_C: usize,
+        const IN_R: usize,
+        const WIDTH: usize,
+        const HIDDEN: usize,
+        const CACHE_WIDTH: usize,
+        const CACHE_HIDDEN: usize,
+    > Df<IN_M, IN_C, IN_R, WIDTH, HIDDEN, CACHE_WIDTH, CACHE_HIDDEN>
+{
+    const BASE_FITS: () = assert!(IN_M <= DF_MAX_BASE, "DfVertex holds at most 64 inputs");
+
+    /// The base input held by `v`.
+    #[inline]
+    fn base_of(v: &DfVertex) -> [f32; IN_M] {
+        let mut b = [0.0f32; IN_M];
+        b.copy_from_slice(&v.base[..IN_M]);
+        b
+    }
+
+    /// The uniform marginal of a too short `params` (as [`Self::marginal`]).
+    fn uniform_marginal(&self) -> Pdf1d<DF_MARGINAL_BINS> {
+        Pdf1d::from_logits(
+            &[0.0; DF_MARGINAL_BINS],
+            self.interpolation(),
+            Boundary::Wrap,
+        )
+    }
+
+    /// The base input and marginal at every query (one batched marginal
+    /// pass per chunk), written to `out`.
+    ///
+    /// # Panics
+    /// If `queries` and `out` differ in length.
+    pub fn decode_batch(&self, params: &[f32], queries: &[QueryPoint], out: &mut [DfVertex]) {
+        let () = Self::BASE_FITS;
+        assert_eq!(queries.len(), out.len(), "one output per query");
+        if !self.fits(params) {
+            for o in out.iter_mut() {
+                *o = DfVertex {
+                    base: [0.0; DF_MAX_BASE],
+                    marginal: self.uniform_marginal(),
+                };
+            }
+            return;
+        }
+        let mut xs = [[0.0f32; IN_M]; WAVEFRONT_CHUNK];
+        let mut ys = [[0.0f32; DF_MARGINAL_BINS]; WAVEFRONT_CHUNK];
+        for (qs, os) in queries
+            .chunks(WAVEFRONT_CHUNK)
+            .zip(out.chunks_mut(WAVEFRONT_CHUNK))
+        {
+            infer_chunk::<IN_M, WIDTH, DF_MARGINAL_BINS, HIDDEN>(
+                params,
+                &self.grid,
+                self.target,
+                self.marginal_offset as usize,
+                qs,
+                &mut xs,
+                &mut ys,
+            );
+            for ((o, x), y) in os.iter_mut().zip(&xs).zip(&ys) {
+                o.base = [0.0; DF_MAX_BASE];
+                o.base[..IN_M].copy_from_slice(x);
+                o.marginal = Pdf1d::from_logits(y, self.interpolation(), Boundary::Wrap);
+            }
+        }
+    }
+
+    /// The conditional density `p(ε₂ | ε₁)` at the vertex `v` (one
+    /// per-query conditional pass).
+    fn conditional_at(
+        &self,
+        params: &[f32],
+        v: &DfVertex,
+        eps1: f32,
+    ) -> Pdf1d<DF_CONDITIONAL_BINS> {
+        self.conditional_from(params, &Self::base_of(v), eps1)
+    }
+
+    /// [`GuidingModel::sample`] from a decoded vertex: the same draw and
+    /// pdf, without the grid and marginal passes.
+    #[must_use]
+    pub fn sample_vertex(&self, params: &[f32], v: &DfVertex, u: Vec2) -> DirectionSample {
+        if !self.fits(params) {
+            return DirectionSample {
+                direction: direction_from_square(u),
+                pdf: INV_FOUR_PI,
+            };
+        }
+        let (e1, p1) = factorised::sample_marginal(&v.marginal, u.x);
+        let conditional = self.conditional_at(params, v, e1);
+        self.finish_sample(params, v, e1, p1, &conditional, u.y)
+    }
+
+    /// The second half of a sample: `ε₂`, the direction, and its density as
+    /// [`Self::pdf_vertex`] evaluates it.
+    fn finish_sample(
+        &self,
+        params: &[f32],
+        v: &DfVertex,
+        e1: f32,
+        p1: f32,
+        conditional: &Pdf1d<DF_CONDITIONAL_BINS>,
+        uy: f32,
+    ) -> DirectionSample {
+        let (e2, p2) = factorised::sample_conditional(conditional, uy);
+        let direction = direction_from_square(Vec2::new(e1, e2));
+        let eps = square_from_direction(direction);
+        let p_cond = if eps.x == e1 {
+            conditional.pdf(eps.y)
+        } else {
+            self.conditional_at(params, v, eps.x).pdf(eps.y)
+        };
+        let mut pdf = v.marginal.pdf(eps.x) * p_cond * INV_FOUR_PI;
+        if pdf <= 0.0 || pdf.is_nan() {
+            pdf = p1 * p2 * INV_FOUR_PI;
+        }
+        DirectionSample { direction, pdf }
+    }
+
+    /// [`GuidingModel::pdf`] from a decoded vertex (one conditional pass).
+    #[must_use]
+    pub fn pdf_vertex(&self, params: &[f32], v: &DfVertex, direction: Vec3) -> f32 {
+        if !self.fits(params) {
+            return INV_FOUR_PI;
+        }
+        let eps = square_from_direction(direction);
+        let conditional = self.conditional_at(params, v, eps.x);
+        factorised::pdf(&v.marginal, &conditional, direction)
+    }
+
+    /// Conditional logits at `(vertex, ε₁)` pairs, batched: `ys[b] =
+    /// MLP_c([base(vertices[lanes[b]]) | TW(eps1[b])])`.
+    fn conditional_chunk(
+        &self,
+        params: &[f32],
+        vertices: &[DfVertex],
+        lanes: &[u32],
+        eps1: &[f32],
+        ys: &mut [[f32; DF_CONDITIONAL_BINS]; WAVEFRONT_CHUNK],
+    ) {
+        let mut xs = [[0.0f32; IN_C]; WAVEFRONT_CHUNK];
+        let m = lanes.len();
+        for b in 0..m {
+            xs[b] = Self::conditional_input(&Self::base_of(&vertices[lanes[b] as usize]), eps1[b]);
+        }
+        Mlp::<IN_C, WIDTH, DF_CONDITIONAL_BINS, HIDDEN>::infer_batch(
+            params,
+            self.conditional_offset as usize,
+            &xs[..m],
+            &mut ys[..m],
+        );
+    }
+
+    /// [`Self::sample_vertex`] for `out[b]` = a sample of vertex
+    /// `vertices[lanes[b]]` with `u[b]`, the conditional network batched
+    /// over the lanes.
+    ///
+    /// # Panics
+    /// If `lanes`, `u` and `out` differ in length or a lane is out of range.
+    pub fn sample_vertices(
+        &self,
+        params: &[f32],
+        vertices: &[DfVertex],
+        lanes: &[u32],
+        u: &[Vec2],
+        out: &mut [DirectionSample],
+    ) {
+        assert!(lanes.len() == u.len() && lanes.len() == out.len());
+        if !self.fits(params) {
+            for (o, &ub) in out.iter_mut().zip(u) {
+                *o = DirectionSample {
+                    direction: direction_from_square(ub),
+                    pdf: INV_FOUR_PI,
+                };
+            }
+            return;
+        }
+        let mut e1 = [0.0f32; WAVEFRONT_CHUNK];
+        let mut p1 = [0.0f32; WAVEFRONT_CHUNK];
+        let mut ys = [[0.0f32; DF_CONDITIONAL_BINS]; WAVEFRONT_CHUNK];
+        for ((ls, us), os) in lanes
+            .chunks(WAVEFRONT_CHUNK)
+            .zip(u.chunks(WAVEFRONT_CHUNK))
+            .zip(out.chunks_mut(WAVEFRONT_CHUNK))
+        {
+            for b in 0..ls.len() {
+                (e1[b], p1[b]) =
+                    factorised::sample_marginal(&vertices[ls[b] as usize].marginal, us[b].x);
+            }
+            self.conditional_chunk(params, vertices, ls, &e1[..ls.len()], &mut ys);
+            for b in 0..ls.len() {
+                let conditional = Pdf1d::from_logits(&ys[b], self.interpolation(), Boundary::Clamp);
+                let v = &vertices[ls[b] as usize];
+                os[b] = self.finish_sample(params, v, e1[b], p1[b], &conditional, us[b].y);
+            }
+        }
+    }
+
+    /// [`Self::pdf_vertex`] for `out[b]` = the density of `directions[b]` at
+    /// vertex `vertices[lanes[b]]`, the conditional network batched over the
+    /// lanes.
+    ///
+    /// # Panics
+    /// If `lanes`, `directions` and `out` differ in length or a lane is out
+    /// of range.
+    pub fn pdf_vertices(
+        &self,
+        params: &[f32],
+        vertices: &[DfVertex],
+        lanes: &[u32],
+        directions: &[Vec3],
+        out: &mut [f32],
+    ) {
+        assert!(lanes.len() == directions.len() && lanes.len() == out.len());
+        if !self.fits(params) {
+            out.fill(INV_FOUR_PI);
+            return;
+        }
+        let mut e1 = [0.0f32; WAVEFRONT_CHUNK];
+        let mut ys = [[0.0f32; DF_CONDITIONAL_BINS]; WAVEFRONT_CHUNK];
+        for ((ls, ds), os) in lanes
+            .chunks(WAVEFRONT_CHUNK)
+            .zip(directions.chunks(WAVEFRONT_CHUNK))
+            .zip(out.chunks_mut(WAVEFRONT_CHUNK))
+        {
+            for b in 0..ls.len() {
+                e1[b] = square_from_direction(ds[b]).x;
+            }
+            self.conditional_chunk(params, vertices, ls, &e1[..ls.len()], &mut ys);
+            for b in 0..ls.len() {
+                let conditional = Pdf1d::from_logits(&ys[b], self.interpolation(), Boundary::Clamp);
+                os[b] = factorised::pdf(&vertices[ls[b] as usize].marginal, &conditional, ds[b]);
+            }
+        }
+    }
+}

@@ -1,0 +1,244 @@
+//! [`DistributionBatch`]: the decoded distributions of a whole wavefront,
+//! from one [`GuidingField::decode_batch`] call.
+//!
+//! A wavefront renderer has a few thousand shading points per bounce. One
+//! call decodes them all (grid features gathered per point, the network run
+//! over blocks of points by the batched SIMD kernel, the decoder per point);
+//! the guide samples and the densities of the BSDF-sampled and NEE
+//! directions then take lanes of the batch:
+//!
+//! ```text
+//! field.decode_batch(&queries, &mut batch);              // one network pass per point
+//! c_i = batch.selection_probability(i);                  // NPM / DF: constant; NASG: learned
+//! field.sample_decoded(&batch, &lanes, &u, &mut samples); // NPM / NASG: no network
+//! field.pdf_decoded(&batch, &lanes, &dirs, &mut pdfs);    // DF: the conditional network, batched
+//! ```
+//!
+//! NPM and NASG keep the decoded mixture per lane, so sampling and pdfs run
+//! no network at all. DF keeps the network input and the marginal density
+//! ([`guiding_core::model::wavefront::DfVertex`]); each sample or pdf then
+//! runs only the conditional network, batched over the lanes of the call.
+//!
+//! A batch remembers the field and generation it was decoded with; using it
+//! after an [`GuidingField::update`] that changed the parameters is
+//! [`GuidingError::StaleDistribution`].
+
+use crate::error::GuidingError;
+use crate::field::{DecodedDistribution, GuidingField};
+use crate::models::{self, with_field, BatchItems, Decode};
+use glam::{Vec2, Vec3};
+use guiding_core::lobe::DirectionSample;
+use guiding_core::model::{GuidingModel, QueryPoint};
+
+/// Decoded distributions of a batch of shading points (see the [module
+/// docs](self)). Reusable: decoding into it again keeps its allocations.
+#[derive(Clone, Debug, Default)]
+pub struct DistributionBatch {
+    field_id: u64,
+    generation: u64,
+    items: BatchItems,
+}
+
+impl DistributionBatch {
+    /// An empty batch.
+    #[must_use]
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Number of decoded lanes (the length of the latest decode).
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.items.len()
+    }
+
+    /// Whether it holds no lane.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Probability of sampling the guide rather than the BSDF at lane `i`
+    /// (NASG: learned per point; NPM, DF: the configuration's constant); 0
+    /// for a lane out of range.
+    #[must_use]
+    pub fn selection_probability(&self, i: usize) -> f32 {
+        self.items.selection_probability(i)
+    }
+
+    /// Lane `i` as a plain value, to [attach](GuidingField::attach) to its
+    /// field later (`None` out of range).
+    #[must_use]
+    pub fn get(&self, i: usize) -> Option<DecodedDistribution> {
+        self.items
+            .get(i)
+            .map(|d| DecodedDistribution::new(self.field_id, self.generation, d))
+    }
+}
+
+impl GuidingField {
+    /// Decodes the distribution at every query into `out`, on the calling
+    /// thread: grid encoding, the network over blocks of queries with the
+    /// batched SIMD kernel, and the decoder (see [`crate::batch`]). Lane `i`
+    /// of `out` is the distribution at `queries[i]`.
+    pub fn decode_batch(&self, queries: &[QueryPoint], out: &mut DistributionBatch) {
+        out.field_id = self.id;
+        out.generation = self.generation;
+        with_field!(&self.inner, f => f
+            .model()
+            .decode_batch_into(f.ema_params(), queries, &mut out.items));
+    }
+
+    /// Decodes raw network outputs computed elsewhere (a GPU running the
+    /// model's inference kernel, [`GuidingField::export_model`]) into `out`:
+    /// `raw` holds `n · raw_outputs` values, lane `i` at `raw[i ·
+    /// raw_outputs ..]`. The same decoders as [`Self::decode_batch`].
+    ///
+    /// # Errors
+    /// [`GuidingError::InvalidConfig`] for DF (no fixed-size outputs),
+    /// [`GuidingError::LengthMismatch`] if `raw.len()` is not a multiple of
+    /// the model's output count; `out` is left empty then.
+    pub fn decode_raw_batch(
+        &self,
+        raw: &[f32],
+        out: &mut DistributionBatch,
+    ) -> Result<(), GuidingError> {
+        use guiding_core::batch::{nasg_mixture_from_raw, vmf_mixture_from_raw};
+        out.items.clear();
+        out.field_id = self.id;
+        out.generation = self.generation;
+        let r = models::raw_outputs(&self.inner);
+        if r == 0 {
+            return Err(GuidingError::InvalidConfig(
+                "DF models have no raw outputs (the conditional network depends on the \
+                 direction)"
+                    .into(),
+            ));
+        }
+        if raw.len() % r != 0 {
+            return Err(GuidingError::LengthMismatch {
+                what: format!("{} raw outputs for a {r}-output model", raw.len()),
+            });
+        }
+        let n = raw.len() / r;
+        if r == guiding_core::model::npm::NPM_OUTPUTS {
+            out.items.selection = with_field!(&self.inner, f => f
+                .model()
+                .selection_probability(f.ema_params(), &QueryPoint::default()));
+            out.items
+                .vmf
+                .extend((0..n).map(|i| vmf_mixture_from_raw(raw, i * r)));
+        } else {
+            out.items
+                .nasg
+                .extend((0..n).map(|i| nasg_mixture_from_raw(raw, i * r)));
+        }
+        Ok(())
+    }
+
+    /// Checks that `batch` was decoded by this field at its current
+    /// generation and that every lane index is in range.
+    fn check_batch(&self, batch: &DistributionBatch, lanes: &[u32]) -> Result<(), GuidingError> {
+        if batch.field_id != self.id || batch.generation != self.generation {
+            return Err(GuidingError::StaleDistribution {
+                field_id: batch.field_id,
+                generation: batch.generation,
+                used_id: self.id,
+                used_generation: self.generation,
+            });
+        }
+        let n = batch.len();
+        if let Some(&bad) = lanes.iter().find(|&&l| l as usize >= n) {
+            return Err(GuidingError::LengthMismatch {
+                what: format!("lane {bad} of a batch of {n} distributions"),
+            });
+        }
+        Ok(())
+    }
+
+    /// Samples lane `lanes[k]` of `batch` with `u[k]` into `out[k]`, for
+    /// every `k`. NPM / NASG sample their mixtures; DF runs its conditional
+    /// network once per sample, batched over the call (and a second time
+    /// for the rare direction whose `ε₁` rounds into another bin, as
+    /// [`crate::Distribution::sample`]).
+    ///
+    /// # Errors
+    /// [`GuidingError::LengthMismatch`] if the slices differ in length or a
+    /// lane is out of range; [`GuidingError::StaleDistribution`] if `batch`
+    /// is from another field or an older generation. Nothing is written then.
+    pub fn sample_decoded(
+        &self,
+        batch: &DistributionBatch,
+        lanes: &[u32],
+        u: &[Vec2],
+        out: &mut [DirectionSample],
+    ) -> Result<(), GuidingError> {
+        if lanes.len() != u.len() || lanes.len() != out.len() {
+            return Err(GuidingError::LengthMismatch {
+                what: format!(
+                    "{} lanes, {} random pairs, {} outputs",
+                    lanes.len(),
+                    u.len(),
+                    out.len()
+                ),
+            });
+        }
+        self.check_batch(batch, lanes)?;
+        let items = &batch.items;
+        if !items.vmf.is_empty() {
+            for ((o, &l), &ub) in out.iter_mut().zip(lanes).zip(u) {
+                *o = items.vmf[l as usize].sample(ub);
+            }
+        } else if !items.nasg.is_empty() {
+            for ((o, &l), &ub) in out.iter_mut().zip(lanes).zip(u) {
+                *o = items.nasg[l as usize].sample(ub);
+            }
+        } else if !items.df.is_empty() {
+            with_field!(&self.inner, f => f
+                .model()
+                .sample_vertices_any(f.ema_params(), &items.df, lanes, u, out));
+        }
+        Ok(())
+    }
+
+    /// The density of `directions[k]` (unit vectors) under lane `lanes[k]`
+    /// of `batch`, into `out[k]`. DF runs its conditional network once per
+    /// direction, batched over the call.
+    ///
+    /// # Errors
+    /// As [`Self::sample_decoded`].
+    pub fn pdf_decoded(
+        &self,
+        batch: &DistributionBatch,
+        lanes: &[u32],
+        directions: &[Vec3],
+        out: &mut [f32],
+    ) -> Result<(), GuidingError> {
+        if lanes.len() != directions.len() || lanes.len() != out.len() {
+            return Err(GuidingError::LengthMismatch {
+                what: format!(
+                    "{} lanes, {} directions, {} outputs",
+                    lanes.len(),
+                    directions.len(),
+                    out.len()
+                ),
+            });
+        }
+        self.check_batch(batch, lanes)?;
+        let items = &batch.items;
+        if !items.vmf.is_empty() {
+            for ((o, &l), &d) in out.iter_mut().zip(lanes).zip(directions) {
+                *o = items.vmf[l as usize].pdf(d);
+            }
+        } else if !items.nasg.is_empty() {
+            for ((o, &l), &d) in out.iter_mut().zip(lanes).zip(directions) {
+                *o = items.nasg[l as usize].pdf(d);
+            }
+        } else if !items.df.is_empty() {
+            with_field!(&self.inner, f => f
+                .model()
+                .pdf_vertices_any(f.ema_params(), &items.df, lanes, directions, out));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,465 @@
+//! The wavefront (batched) decode and training paths against the per-query
+//! reference kernels: `guiding_core::model::wavefront`, the `guiding`
+//! crate's `DistributionBatch`, and the batched gradient the CPU runtime
+//! trains with.
+//!
+//! Each stage is compared where the two paths compute the same function
+//! with the same operations: the decoders and encoders bit for bit (the
+//! fast paths only widen vectors, Rust never contracts into FMA), the whole
+//! pipeline against the per-query decoders applied to the batched network's
+//! own outputs (bit for bit), and the network itself in `tests/mlp.rs`
+//! (within the FMA rounding bound stated there).
+
+use guiding::{
+    DistributionBatch, FieldConfig, GuidingConfig, GuidingError, GuidingField, ModelSize,
+    QueryPoint, Representation, Target,
+};
+use guiding_core::encoding::grid::{grid_forward, grid_forward_fast};
+use guiding_core::encoding::GridConfig;
+use guiding_core::glam::{Vec2, Vec3};
+use guiding_core::math::INV_FOUR_PI;
+use guiding_core::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
+use guiding_core::mlp::Mlp;
+use guiding_core::model::df::DfCompactRadiance;
+use guiding_core::model::nasg::NasgCompactProduct;
+use guiding_core::model::npm::{
+    encode_inputs, encode_inputs_fast, NpmCompactProduct, NpmCompactRadiance, NPM_LOBES,
+    NPM_OUTPUTS,
+};
+use guiding_core::model::wavefront::{decode_vmf_batch, decode_vmf_batch_portable, DfVertex};
+use guiding_core::model::GuidingModel;
+use guiding_core::pdf1d::Interpolation;
+use guiding_core::sample::TrainingSample;
+use guiding_core::sphere::square_to_uniform_sphere;
+use guiding_tests::rng::Pcg32;
+
+const LO: [f32; 3] = [-1.0, -2.0, 0.0];
+const HI: [f32; 3] = [1.0, 2.0, 3.0];
+
+fn query(rng: &mut Pcg32) -> QueryPoint {
+    let n = square_to_uniform_sphere(rng.next_vec2());
+    let wo = square_to_uniform_sphere(rng.next_vec2());
+    QueryPoint {
+        // Slightly outside the box too (clamped to its faces).
+        position: [
+            rng.uniform(LO[0] - 0.1, HI[0] + 0.1),
+            rng.uniform(LO[1] - 0.1, HI[1] + 0.1),
+            rng.uniform(LO[2] - 0.1, HI[2] + 0.1),
+        ],
+        roughness: rng.next_f32(),
+        normal: n.to_array(),
+        wo: wo.to_array(),
+        ..QueryPoint::default()
+    }
+}
+
+fn queries(n: usize, seed: u64) -> Vec<QueryPoint> {
+    let mut rng = Pcg32::new(seed, 1);
+    (0..n).map(|_| query(&mut rng)).collect()
+}
+
+/// Parameters far from the initialisation (so lobes are sharp and the
+/// weights uneven): uniform in `[−scale, scale]`.
+fn random_params(n: usize, scale: f32, seed: u64) -> Vec<f32> {
+    let mut rng = Pcg32::new(seed, 7);
+    (0..n).map(|_| rng.uniform(-scale, scale)).collect()
+}
+
+fn same_bits(a: &[f32], b: &[f32]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+}
+
+fn vmf_floats(m: &VmfMixture<NPM_LOBES>) -> Vec<f32> {
+    bytemuck::cast_slice(std::slice::from_ref(m)).to_vec()
+}
+
+/// Raw rows: ordinary values, the clamps' edges and non-finite values.
+fn raw_rows(n: usize, seed: u64) -> Vec<[f32; NPM_OUTPUTS]> {
+    let specials = [
+        0.0,
+        -0.0,
+        f32::NAN,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        1e30,
+        -1e30,
+        10.0,
+        -10.0,
+        87.0,
+        -87.0,
+        1e-40,
+    ];
+    let mut rng = Pcg32::new(seed, 3);
+    (0..n)
+        .map(|i| {
+            std::array::from_fn(|j| {
+                if i % 5 == 4 && rng.next_f32() < 0.3 {
+                    specials[rng.next_u32() as usize % specials.len()]
+                } else {
+                    rng.uniform(-12.0, 12.0) * if j % 4 == 0 { 0.5 } else { 1.0 }
+                }
+            })
+        })
+        .collect()
+}
+
+#[test]
+fn batched_vmf_decoder_is_the_per_query_decoder_bit_for_bit() {
+    for n in [1, 3, 8, 9, 64, 1001] {
+        let rows = raw_rows(n, n as u64);
+        let mut fast = vec![VmfMixture::ZERO; n];
+        let mut portable = vec![VmfMixture::ZERO; n];
+        decode_vmf_batch(&rows, &mut fast);
+        decode_vmf_batch_portable(&rows, &mut portable);
+        for (i, row) in rows.iter().enumerate() {
+            let raw: [[f32; VMF_RAW_PER_LOBE]; NPM_LOBES] =
+                std::array::from_fn(|k| std::array::from_fn(|r| row[k * VMF_RAW_PER_LOBE + r]));
+            let reference = vmf_floats(&VmfMixture::decode(&raw));
+            assert!(
+                same_bits(&vmf_floats(&fast[i]), &reference),
+                "n {n} row {i}: {row:?}\nfast {:?}\nref  {:?}",
+                fast[i],
+                VmfMixture::decode(&raw)
+            );
+            assert!(
+                same_bits(&vmf_floats(&portable[i]), &reference),
+                "portable, row {i}"
+            );
+        }
+    }
+}
+
+#[test]
+fn fast_grid_gather_is_the_grid_forward_bit_for_bit() {
+    let grids = [
+        GridConfig::new(LO, HI, 4, 4, 2.0, 4),
+        GridConfig::new(LO, HI, 2, 2, 2.0, 4).with_smoothstep(true),
+        GridConfig::new(LO, HI, 3, 5, 1.5, 4).with_offset(17),
+        // Not 4 features: the fast path falls back to grid_forward.
+        GridConfig::new(LO, HI, 2, 3, 2.0, 2),
+    ];
+    for grid in grids {
+        let params = random_params(grid.offset as usize + grid.param_count(), 1.0, 5);
+        for q in queries(500, 9) {
+            let (mut a, mut b) = ([0.0f32; 20], [0.0f32; 20]);
+            let ea = grid_forward(&params, &grid, q.position(), &mut a, 2);
+            let eb = grid_forward_fast(&params, &grid, q.position(), &mut b, 2);
+            assert_eq!(ea, eb);
+            assert!(same_bits(&a, &b), "{grid:?} at {:?}", q.position);
+        }
+        // A too short buffer (reads as zeros past its end) falls back too.
+        let short = &params[..params.len() / 2];
+        let q = queries(1, 3)[0];
+        let (mut a, mut b) = ([0.0f32; 20], [0.0f32; 20]);
+        grid_forward(short, &grid, q.position(), &mut a, 0);
+        grid_forward_fast(short, &grid, q.position(), &mut b, 0);
+        assert!(same_bits(&a, &b));
+    }
+    // The product encoding around it.
+    let model = NpmCompactProduct::new(guiding::config::compact_grid(LO, HI), Target::Product);
+    let params = random_params(model.param_count(), 1.0, 8);
+    for q in queries(200, 4) {
+        let (mut a, mut b) = ([0.0f32; 48], [0.0f32; 48]);
+        encode_inputs(&params, &model.grid, model.target, &q, &mut a);
+        encode_inputs_fast(&params, &model.grid, model.target, &q, &mut b);
+        assert!(same_bits(&a, &b));
+    }
+}
+
+/// NPM: `decode_batch` is the per-query decoder applied to the batched
+/// network's outputs, for every lane of batches of several lengths.
+#[test]
+fn npm_decode_batch_composes_encoder_network_and_decoder() {
+    type Net = Mlp<16, 32, NPM_OUTPUTS, 2>;
+    let model = NpmCompactRadiance::new(guiding::config::compact_grid(LO, HI), Target::Radiance);
+    let params = random_params(model.param_count(), 0.5, 11);
+    for n in [1, 7, 64, 65, 300] {
+        let qs = queries(n, n as u64);
+        let mut out = vec![VmfMixture::ZERO; n];
+        model.decode_batch(&params, &qs, &mut out);
+        let xs: Vec<[f32; 16]> = qs
+            .iter()
+            .map(|q| {
+                let mut x = [0.0; 16];
+                encode_inputs(&params, &model.grid, model.target, q, &mut x);
+                x
+            })
+            .collect();
+        let mut ys = vec![[0.0f32; NPM_OUTPUTS]; n];
+        Net::infer_batch(&params, model.mlp_offset as usize, &xs, &mut ys);
+        for i in 0..n {
+            let raw = std::array::from_fn(|k| std::array::from_fn(|r| ys[i][4 * k + r]));
+            assert!(same_bits(
+                &vmf_floats(&out[i]),
+                &vmf_floats(&VmfMixture::decode(&raw))
+            ));
+        }
+    }
+}
+
+fn small_config(rep: Representation, target: Target, size: ModelSize) -> GuidingConfig {
+    GuidingConfig {
+        representation: rep,
+        target,
+        ..GuidingConfig::npm_radiance()
+    }
+    .with_size(size)
+    .with_training(FieldConfig::DEFAULT.with_batch_size(256).with_threads(1))
+}
+
+fn training_samples(n: usize, seed: u64) -> Vec<TrainingSample> {
+    let mut rng = Pcg32::new(seed, 5);
+    (0..n)
+        .map(|i| {
+            let q = query(&mut rng);
+            let wi = square_to_uniform_sphere(rng.next_vec2());
+            let l = if wi.z > 0.8 { 5.0 } else { 0.2 };
+            let mut s = TrainingSample {
+                position: q.position,
+                roughness: q.roughness,
+                normal: q.normal,
+                sample_pdf: INV_FOUR_PI,
+                wo: q.wo,
+                bsdf_pdf: 0.1,
+                wi: wi.to_array(),
+                pad0: 0.0,
+                radiance: [l; 3],
+                pad1: 0.0,
+                bsdf_cos: [0.3; 3],
+                pad2: 0.0,
+            };
+            // Invalid and zero-weight samples mixed in: both paths skip them.
+            match i % 13 {
+                3 => s.radiance = [f32::NAN; 3],
+                7 => s.radiance = [0.0; 3],
+                11 => s.sample_pdf = 0.0,
+                _ => {}
+            }
+            s
+        })
+        .collect()
+}
+
+/// Through the facade: every representation's batch decode, selection
+/// probability, batched samples and pdfs agree with the per-lane
+/// `Distribution` (decoded per query), and sample pdfs with the pdfs.
+#[test]
+fn facade_batch_agrees_with_per_lane_distributions() -> Result<(), GuidingError> {
+    for rep in Representation::ALL {
+        for target in [Target::Radiance, Target::Product] {
+            let mut field = GuidingField::new(small_config(rep, target, ModelSize::Small), LO, HI)?;
+            // A few steps, so the network is not at its initialisation.
+            for _ in 0..3 {
+                field.add_samples(&training_samples(512, 1));
+                field.update();
+            }
+            let qs = queries(150, 2);
+            let mut batch = DistributionBatch::new();
+            field.decode_batch(&qs, &mut batch);
+            assert_eq!(batch.len(), qs.len());
+            let mut rng = Pcg32::new(4, 4);
+            let lanes: Vec<u32> = (0..400).map(|_| rng.next_u32() % qs.len() as u32).collect();
+            let u: Vec<Vec2> = lanes.iter().map(|_| rng.next_vec2()).collect();
+            let mut samples = vec![
+                guiding::DirectionSample {
+                    direction: Vec3::ZERO,
+                    pdf: 0.0
+                };
+                lanes.len()
+            ];
+            field.sample_decoded(&batch, &lanes, &u, &mut samples)?;
+            let dirs: Vec<Vec3> = samples.iter().map(|s| s.direction).collect();
+            let mut pdfs = vec![0.0f32; lanes.len()];
+            field.pdf_decoded(&batch, &lanes, &dirs, &mut pdfs)?;
+            for (k, &l) in lanes.iter().enumerate() {
+                let d = field.distribution(&qs[l as usize]);
+                assert_eq!(
+                    batch.selection_probability(l as usize),
+                    d.selection_probability(),
+                    "{rep:?} {target:?}"
+                );
+                let s = d.sample(u[k]);
+                let rel = |a: f32, b: f32| (a - b).abs() / b.abs().max(1e-30);
+                assert!(
+                    s.direction.distance(samples[k].direction) <= 1e-5,
+                    "{rep:?} {target:?} lane {l}: {:?} vs {:?}",
+                    s.direction,
+                    samples[k].direction
+                );
+                assert!(
+                    rel(s.pdf, samples[k].pdf) <= 1e-4,
+                    "{rep:?}: {} vs {}",
+                    s.pdf,
+                    samples[k].pdf
+                );
+                assert!(rel(d.pdf(dirs[k]), pdfs[k]) <= 1e-4);
+                // The sampled direction's pdf is the pdf of that direction.
+                assert!(
+                    rel(samples[k].pdf, pdfs[k]) <= 1e-4,
+                    "{rep:?}: {} vs {}",
+                    samples[k].pdf,
+                    pdfs[k]
+                );
+                assert!(pdfs[k] > 0.0 && pdfs[k].is_finite());
+            }
+        }
+    }
+    Ok(())
+}
+
+#[test]
+fn batch_use_is_checked() -> Result<(), GuidingError> {
+    let config = small_config(Representation::Npm, Target::Radiance, ModelSize::Small);
+    let mut field = GuidingField::new(config, LO, HI)?;
+    let other = GuidingField::new(config, LO, HI)?;
+    let qs = queries(10, 1);
+    let mut batch = DistributionBatch::new();
+    field.decode_batch(&qs, &mut batch);
+    let mut out = vec![
+        guiding::DirectionSample {
+            direction: Vec3::ZERO,
+            pdf: 0.0
+        };
+        2
+    ];
+    let u = [Vec2::splat(0.5); 2];
+    // Lane out of range, lengths, another field: errors, nothing written.
+    assert!(matches!(
+        field.sample_decoded(&batch, &[0, 10], &u, &mut out),
+        Err(GuidingError::LengthMismatch { .. })
+    ));
+    assert!(matches!(
+        field.sample_decoded(&batch, &[0], &u, &mut out),
+        Err(GuidingError::LengthMismatch { .. })
+    ));
+    assert!(matches!(
+        other.pdf_decoded(&batch, &[0], &[Vec3::Z], &mut [0.0]),
+        Err(GuidingError::StaleDistribution { .. })
+    ));
+    assert!(out.iter().all(|s| s.pdf == 0.0));
+    // After an update that changed the parameters the batch is stale.
+    field.add_samples(&training_samples(256, 3));
+    assert!(field.update().steps > 0);
+    assert!(matches!(
+        field.sample_decoded(&batch, &[0, 1], &u, &mut out),
+        Err(GuidingError::StaleDistribution { .. })
+    ));
+    // get() gives values that attach only to a current field.
+    let old = batch.get(3).expect("lane 3");
+    assert!(field.attach(old).is_err());
+    field.decode_batch(&qs, &mut batch);
+    assert!(field.attach(batch.get(3).expect("lane 3")).is_ok());
+    assert!(batch.get(10).is_none());
+    Ok(())
+}
+
+/// GPU outputs go through the same decoders: raw outputs written by the
+/// model's own `write_raw` decode to the per-query distributions.
+#[test]
+fn raw_outputs_decode_like_the_field() -> Result<(), GuidingError> {
+    use guiding_core::model::RawOutputs;
+    for rep in [Representation::Npm, Representation::Nasg] {
+        let field = GuidingField::new(
+            small_config(rep, Target::Product, ModelSize::Compact),
+            LO,
+            HI,
+        )?;
+        let export = field.export_model();
+        let qs = queries(40, 6);
+        let raw = field_raw(&field, &qs, export.raw_outputs);
+        let mut batch = DistributionBatch::new();
+        field.decode_raw_batch(&raw, &mut batch)?;
+        assert_eq!(batch.len(), qs.len());
+        let lanes: Vec<u32> = (0..qs.len() as u32).collect();
+        let mut pdfs = vec![0.0; qs.len()];
+        field.pdf_decoded(&batch, &lanes, &vec![Vec3::Z; qs.len()], &mut pdfs)?;
+        for (q, p) in qs.iter().zip(&pdfs) {
+            assert_eq!(*p, field.distribution(q).pdf(Vec3::Z));
+        }
+        assert!(field
+            .decode_raw_batch(&raw[..raw.len() - 1], &mut batch)
+            .is_err());
+        let _ = NasgCompactProduct::RAW_OUTPUTS;
+    }
+    let df = GuidingField::new(
+        small_config(Representation::DfLinear, Target::Radiance, ModelSize::Small),
+        LO,
+        HI,
+    )?;
+    assert!(df
+        .decode_raw_batch(&[0.0; 32], &mut DistributionBatch::new())
+        .is_err());
+    Ok(())
+}
+
+/// The per-query raw outputs (what a GPU's inference kernel writes).
+fn field_raw(field: &GuidingField, qs: &[QueryPoint], r: usize) -> Vec<f32> {
+    use guiding_core::model::nasg::NasgCompactProduct as N;
+    use guiding_core::model::RawOutputs;
+    let export = field.export_model();
+    let mut raw = vec![0.0; qs.len() * r];
+    let params = &export.state.ema;
+    if export.kernel_prefix.starts_with("npm") {
+        let m: NpmCompactProduct = *bytemuck::from_bytes(&export.model);
+        for (i, q) in qs.iter().enumerate() {
+            m.write_raw(params, q, &mut raw, i * r);
+        }
+    } else {
+        let m: N = *bytemuck::from_bytes(&export.model);
+        for (i, q) in qs.iter().enumerate() {
+            m.write_raw(params, q, &mut raw, i * r);
+        }
+    }
+    raw
+}
+
+/// DF: the decoded vertex carries what sampling needs; vertex-based
+/// samples and pdfs are the model's per-query ones.
+#[test]
+fn df_vertices_sample_and_evaluate_like_the_model() {
+    let model = DfCompactRadiance::new(
+        guiding::config::compact_grid(LO, HI),
+        Target::Radiance,
+        Interpolation::Linear,
+    );
+    let params = random_params(model.param_count(), 0.3, 21);
+    let qs = queries(90, 8);
+    let mut vs = vec![DfVertex::ZERO; qs.len()];
+    model.decode_batch(&params, &qs, &mut vs);
+    let mut rng = Pcg32::new(1, 9);
+    for (q, v) in qs.iter().zip(&vs) {
+        let u = rng.next_vec2();
+        let a = model.sample(&params, q, u);
+        let b = model.sample_vertex(&params, v, u);
+        assert_eq!(a.direction, b.direction);
+        assert_eq!(a.pdf, b.pdf);
+        let d = square_to_uniform_sphere(rng.next_vec2());
+        assert_eq!(model.pdf(&params, q, d), model.pdf_vertex(&params, v, d));
+    }
+}
+
+/// The batched gradient (what `Field::update` trains with) is the sum of
+/// the per-sample gradients, invalid samples skipped alike.
+#[test]
+fn batched_gradient_is_the_per_sample_gradient() {
+    let npm = NpmCompactProduct::new(guiding::config::compact_grid(LO, HI), Target::Product);
+    let nasg = NasgCompactProduct::new(guiding::config::compact_grid(LO, HI), Target::Product);
+    check_gradient(&npm, 1);
+    check_gradient(&nasg, 2);
+}
+
+fn check_gradient<M: GuidingModel>(model: &M, seed: u64) {
+    let n = model.param_count();
+    let params = random_params(n, 0.3, seed);
+    let samples = training_samples(333, seed);
+    let mut batched = vec![0.0f32; n];
+    let loss_b = model.accumulate_gradient_batch(&params, &samples, &mut batched);
+    let mut reference = vec![0.0f32; n];
+    let mut loss_r = 0.0f64;
+    for s in &samples {
+        loss_r += f64::from(model.accumulate_gradient(&params, s, reference.as_mut_slice()));
+    }
+    assert_eq!(loss_b, loss_r);
+    assert!(same_bits(&batched, &reference));
+    assert!(batched.iter().any(|&g| g != 0.0));
+}
