@@ -542,6 +542,9 @@ mod batch {
         ldb: usize,
         c: &'a mut [f32],
         ldc: usize,
+        /// A second destination for the results (empty: none).
+        c2: &'a mut [f32],
+        ldc2: usize,
         bias: &'a [f32],
         h: &'a [f32],
         ldh: usize,
@@ -590,14 +593,19 @@ mod batch {
         );
         assert!((g.k - 1) * g.ldb + n <= g.b.len(), "B out of bounds");
         assert!((g.rows - 1) * g.ldc + n <= g.c.len(), "C out of bounds");
+        assert!(
+            g.c2.is_empty() || (g.rows - 1) * g.ldc2 + n <= g.c2.len(),
+            "C2 out of bounds"
+        );
         assert!(INIT != INIT_BIAS || n <= g.bias.len(), "bias out of bounds");
         assert!(
             EPI != EPI_MASK || (g.rows - 1) * g.ldh + n <= g.h.len(),
             "mask out of bounds"
         );
         // SAFETY: the kernel reads A[r][k], B[k][0..n], C[r][0..n], bias[0..n]
-        // and h[r][0..n] for r < rows, k < k only: all within the bounds
-        // checked above.
+        // and h[r][0..n] and writes C[r][0..n] and C2[r][0..n] (if not
+        // empty) for r < rows, k < k only: all within the bounds checked
+        // above.
         unsafe { s.kernel::<INIT, EPI>(g) }
     }
 
@@ -669,6 +677,7 @@ mod batch {
         let l = S::LANES;
         let (a_rs, a_ks, ldb, ldc, ldh) = (g.a_rs, g.a_ks, g.ldb, g.ldc, g.ldh);
         let c = g.c.as_mut_ptr();
+        let (dual, c2, ldc2) = (!g.c2.is_empty(), g.c2.as_mut_ptr(), g.ldc2);
         let mut acc = [[s.zero(); NV]; R];
         if INIT == INIT_BIAS {
             for v in 0..NV {
@@ -709,6 +718,9 @@ mod batch {
                     y = s.mask(y, s.load(g.h.as_ptr().add((r0 + r) * ldh + n0 + v * l)));
                 }
                 s.store(c.add((r0 + r) * ldc + n0 + v * l), y);
+                if dual {
+                    s.store(c2.add((r0 + r) * ldc2 + n0 + v * l), y);
+                }
             }
         }
     }
@@ -926,6 +938,14 @@ mod batch {
     {
         /// The blocked forward pass; stores hidden activations when `ctxs`
         /// is non-empty (then it has one entry per query).
+        ///
+        /// Per block of [`BLOCK`] queries, each layer is one [`gemm`] with
+        /// the queries as rows: `A` the layer's inputs (query-major, the
+        /// caller's inputs for the first layer), `B = Wᵀ` packed once per
+        /// call as `[fan_in][fan_out padded]`. Hidden layers go to a scratch
+        /// block and, when `WIDTH` is a multiple of the vector width,
+        /// straight into the contexts too (a second store); the output layer
+        /// goes straight to `outputs` when `OUT` is.
         fn forward_impl<S: Simd>(
             s: S,
             params: &[f32],
@@ -967,61 +987,63 @@ mod batch {
                 })
                 .collect();
             let (wp, op) = (pad(WIDTH, lanes), pad(OUT, lanes));
+            let hw = HIDDEN * WIDTH;
+            let direct_ctx = store && WIDTH % lanes == 0;
+            let direct_out = OUT % lanes == 0;
             let mut cur = vec![0.0f32; BLOCK * wp];
             let mut next = vec![0.0f32; BLOCK * wp];
-            let mut y = vec![0.0f32; BLOCK * op];
+            let mut y = vec![0.0f32; if direct_out { 0 } else { BLOCK * op }];
+            let ctx_flat: &mut [f32] = bytemuck::cast_slice_mut(ctxs);
+            let out_flat: &mut [f32] = outputs.as_flattened_mut();
             for (k, block) in inputs.chunks(BLOCK).enumerate() {
                 let (start, nb) = (k * BLOCK, block.len());
-                gemm::<S, INIT_BIAS, EPI_RELU>(
-                    s,
-                    &mut Gemm {
-                        rows: nb,
-                        nvecs: wp / lanes,
-                        k: IN,
-                        a: block.as_flattened(),
-                        a_rs: IN,
-                        a_ks: 1,
-                        b: &packed[0].0,
-                        ldb: wp,
-                        c: &mut cur,
-                        ldc: wp,
-                        bias: &packed[0].1,
-                        h: &[],
-                        ldh: 0,
-                    },
-                );
-                if store {
-                    for (ctx, h) in ctxs[start..start + nb].iter_mut().zip(cur.chunks_exact(wp)) {
-                        ctx.hidden[0].copy_from_slice(&h[..WIDTH]);
-                    }
-                }
-                for (layer, (wt, bias)) in packed.iter().enumerate().take(HIDDEN).skip(1) {
+                let ctx_block: &mut [f32] = if store {
+                    &mut ctx_flat[start * hw..(start + nb) * hw]
+                } else {
+                    &mut []
+                };
+                for layer in 0..HIDDEN {
+                    let (a, a_rs, fi): (&[f32], usize, usize) = if layer == 0 {
+                        (block.as_flattened(), IN, IN)
+                    } else {
+                        (&cur, wp, WIDTH)
+                    };
                     gemm::<S, INIT_BIAS, EPI_RELU>(
                         s,
                         &mut Gemm {
                             rows: nb,
                             nvecs: wp / lanes,
-                            k: WIDTH,
-                            a: &cur,
-                            a_rs: wp,
+                            k: fi,
+                            a,
+                            a_rs,
                             a_ks: 1,
-                            b: wt,
+                            b: &packed[layer].0,
                             ldb: wp,
                             c: &mut next,
                             ldc: wp,
-                            bias,
+                            c2: if direct_ctx {
+                                &mut ctx_block[layer * WIDTH..]
+                            } else {
+                                &mut []
+                            },
+                            ldc2: hw,
+                            bias: &packed[layer].1,
                             h: &[],
                             ldh: 0,
                         },
                     );
                     core::mem::swap(&mut cur, &mut next);
-                    if store {
-                        for (ctx, h) in ctxs[start..start + nb].iter_mut().zip(cur.chunks_exact(wp))
-                        {
-                            ctx.hidden[layer].copy_from_slice(&h[..WIDTH]);
+                    if store && !direct_ctx {
+                        for (ctx, h) in ctx_block.chunks_exact_mut(hw).zip(cur.chunks_exact(wp)) {
+                            ctx[layer * WIDTH..(layer + 1) * WIDTH].copy_from_slice(&h[..WIDTH]);
                         }
                     }
                 }
+                let (c, ldc): (&mut [f32], usize) = if direct_out {
+                    (&mut out_flat[start * OUT..(start + nb) * OUT], OUT)
+                } else {
+                    (&mut y, op)
+                };
                 gemm::<S, INIT_BIAS, EPI_NONE>(
                     s,
                     &mut Gemm {
@@ -1033,18 +1055,22 @@ mod batch {
                         a_ks: 1,
                         b: &packed[HIDDEN].0,
                         ldb: op,
-                        c: &mut y,
-                        ldc: op,
+                        c,
+                        ldc,
+                        c2: &mut [],
+                        ldc2: 0,
                         bias: &packed[HIDDEN].1,
                         h: &[],
                         ldh: 0,
                     },
                 );
-                for (out, yq) in outputs[start..start + nb]
-                    .iter_mut()
-                    .zip(y.chunks_exact(op))
-                {
-                    out.copy_from_slice(&yq[..OUT]);
+                if !direct_out {
+                    for (out, yq) in out_flat[start * OUT..(start + nb) * OUT]
+                        .chunks_exact_mut(OUT)
+                        .zip(y.chunks_exact(op))
+                    {
+                        out.copy_from_slice(&yq[..OUT]);
+                    }
                 }
             }
         }
@@ -1221,7 +1247,7 @@ mod batch {
                 return;
             }
             let lanes = S::LANES;
-            let (ip, wp, op) = (pad(IN, lanes), pad(WIDTH, lanes), pad(OUT, lanes));
+            let (ip, wp) = (pad(IN, lanes), pad(WIDTH, lanes));
             let mut layers: Vec<BackLayer> = (0..=HIDDEN)
                 .map(|layer| {
                     let (off, fan_in, fan_out) = (
@@ -1270,53 +1296,69 @@ mod batch {
                 }
             };
             load(&mut layers, grad);
-            // Padded, query-major copies of the block's inputs, hidden
-            // activations (layer j at j · BLOCK · wp) and output gradients;
-            // the deltas of two consecutive layers; the input gradients.
-            let mut xin = vec![0.0f32; BLOCK * ip];
-            let mut hs = vec![0.0f32; HIDDEN * BLOCK * wp];
-            let mut dy = vec![0.0f32; BLOCK * op];
+            // The block's inputs and hidden activations are read in place
+            // when their widths are multiples of the vector width, else from
+            // padded query-major copies (hidden layer j at j · BLOCK · wp);
+            // the deltas of two consecutive layers live in scratch blocks.
+            let hw = HIDDEN * WIDTH;
+            let direct_in = IN % lanes == 0;
+            let direct_h = WIDTH % lanes == 0;
+            let in_flat = inputs.as_flattened();
+            let ctx_flat: &[f32] = bytemuck::cast_slice(ctxs);
+            let dy_flat = d_outputs.as_flattened();
+            let mut xin = vec![0.0f32; if direct_in { 0 } else { BLOCK * ip }];
+            let mut dxin = vec![0.0f32; if direct_in { 0 } else { BLOCK * ip }];
+            let mut hs = vec![0.0f32; if direct_h { 0 } else { HIDDEN * BLOCK * wp }];
             let mut d_cur = vec![0.0f32; BLOCK * wp];
             let mut d_next = vec![0.0f32; BLOCK * wp];
-            let mut dxin = vec![0.0f32; BLOCK * ip];
             let mut start = 0;
             while start < n {
                 let nb = BLOCK.min(n - start);
-                let block = start..start + nb;
-                let mut finite = true;
-                for (dst, src) in xin.chunks_exact_mut(ip).zip(&inputs[block.clone()]) {
-                    dst[..IN].copy_from_slice(src);
-                    finite &= src.iter().fold(true, |ok, v| ok & v.is_finite());
-                }
-                for (j, hj) in hs.chunks_exact_mut(BLOCK * wp).enumerate() {
-                    for (dst, ctx) in hj.chunks_exact_mut(wp).zip(&ctxs[block.clone()]) {
-                        let src = &ctx.hidden[j];
-                        dst[..WIDTH].copy_from_slice(src);
-                        finite &= src.iter().fold(true, |ok, v| ok & v.is_finite());
-                    }
-                }
-                if !finite {
+                let x_blk = &in_flat[start * IN..(start + nb) * IN];
+                let h_blk = &ctx_flat[start * hw..(start + nb) * hw];
+                if !x_blk
+                    .iter()
+                    .chain(h_blk)
+                    .fold(true, |ok, v| ok & v.is_finite())
+                {
                     save(&layers, grad);
                     Self::backward_per_query(
-                        params, offset, inputs, ctxs, d_outputs, grad, d_inputs, block,
+                        params,
+                        offset,
+                        inputs,
+                        ctxs,
+                        d_outputs,
+                        grad,
+                        d_inputs,
+                        start..start + nb,
                     );
                     load(&mut layers, grad);
                     start += nb;
                     continue;
                 }
-                for (dst, src) in dy.chunks_exact_mut(op).zip(&d_outputs[block.clone()]) {
-                    dst[..OUT].copy_from_slice(src);
+                if !direct_in {
+                    for (dst, src) in xin.chunks_exact_mut(ip).zip(x_blk.chunks_exact(IN)) {
+                        dst[..IN].copy_from_slice(src);
+                    }
+                }
+                if !direct_h {
+                    for (j, hj) in hs.chunks_exact_mut(BLOCK * wp).enumerate() {
+                        for (dst, src) in hj.chunks_exact_mut(wp).zip(h_blk.chunks_exact(hw)) {
+                            dst[..WIDTH].copy_from_slice(&src[j * WIDTH..(j + 1) * WIDTH]);
+                        }
+                    }
                 }
                 for layer in (0..=HIDDEN).rev() {
                     let bl = &mut layers[layer];
                     let fo = bl.fan_out;
-                    let (x, ldx): (&[f32], usize) = if layer == 0 {
-                        (&xin, ip)
-                    } else {
-                        (&hs[(layer - 1) * BLOCK * wp..layer * BLOCK * wp], wp)
+                    let (x, ldx): (&[f32], usize) = match (layer, direct_in, direct_h) {
+                        (0, true, _) => (x_blk, IN),
+                        (0, false, _) => (&xin, ip),
+                        (_, _, true) => (&h_blk[(layer - 1) * WIDTH..], hw),
+                        _ => (&hs[(layer - 1) * BLOCK * wp..layer * BLOCK * wp], wp),
                     };
                     let (delta, ldd): (&[f32], usize) = if layer == HIDDEN {
-                        (&dy, op)
+                        (&dy_flat[start * OUT..(start + nb) * OUT], OUT)
                     } else {
                         (&d_cur, wp)
                     };
@@ -1334,6 +1376,8 @@ mod batch {
                             ldb: ldx,
                             c: &mut bl.gw,
                             ldc: bl.in_pad,
+                            c2: &mut [],
+                            ldc2: 0,
                             bias: &[],
                             h: &[],
                             ldh: 0,
@@ -1345,6 +1389,14 @@ mod batch {
                         }
                     }
                     // δ ← (Wᵀ δ) ⊙ [h > 0], or the input gradient.
+                    let (c, ldc): (&mut [f32], usize) = match (layer, direct_in) {
+                        (0, true) => (
+                            &mut d_inputs.as_flattened_mut()[start * IN..(start + nb) * IN],
+                            IN,
+                        ),
+                        (0, false) => (&mut dxin, ip),
+                        _ => (&mut d_next, wp),
+                    };
                     let mut prod = Gemm {
                         rows: nb,
                         nvecs: bl.in_pad / lanes,
@@ -1354,8 +1406,10 @@ mod batch {
                         a_ks: 1,
                         b: &bl.w,
                         ldb: bl.in_pad,
-                        c: if layer == 0 { &mut dxin } else { &mut d_next },
-                        ldc: bl.in_pad,
+                        c,
+                        ldc,
+                        c2: &mut [],
+                        ldc2: 0,
                         bias: &[],
                         h: x,
                         ldh: ldx,
@@ -1367,8 +1421,13 @@ mod batch {
                         core::mem::swap(&mut d_cur, &mut d_next);
                     }
                 }
-                for (dst, src) in d_inputs[block].iter_mut().zip(dxin.chunks_exact(ip)) {
-                    dst.copy_from_slice(&src[..IN]);
+                if !direct_in {
+                    for (dst, src) in d_inputs[start..start + nb]
+                        .iter_mut()
+                        .zip(dxin.chunks_exact(ip))
+                    {
+                        dst.copy_from_slice(&src[..IN]);
+                    }
                 }
                 start += nb;
             }
