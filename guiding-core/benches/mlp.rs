@@ -36,13 +36,13 @@ fn values<const N: usize>(seed: u32) -> Vec<[f32; N]> {
         .collect()
 }
 
-/// Seconds per call of `f`: the best of `rounds` rounds of ≥ 50 ms each.
+/// Seconds per call of `f`: the best of `rounds` rounds of ≥ 30 ms each.
 fn seconds_per_call(rounds: usize, mut f: impl FnMut()) -> f64 {
     f();
     let mut best = f64::INFINITY;
     for _ in 0..rounds {
         let (mut calls, t0) = (0u32, Instant::now());
-        while t0.elapsed() < Duration::from_millis(50) {
+        while t0.elapsed() < Duration::from_millis(30) {
             f();
             calls += 1;
         }
@@ -282,24 +282,26 @@ impl<const IN: usize, const WIDTH: usize, const OUT: usize, const HIDDEN: usize>
         kernel.map_or_else(|| String::from("per-query"), |k| format!("{k:?}"))
     }
 
-    /// The summary table rows of this size.
-    fn summary(&mut self, peak: f64) {
+    /// The summary table rows of this size: `(label, flop/s, queries/s)`.
+    fn summary(&mut self, rows: &mut Vec<(String, f64, f64)>) {
         let macs = M::<IN, WIDTH, OUT, HIDDEN>::MACS as f64;
         for (what, flops_per_query) in [("infer", 2.0 * macs), ("forward+backward", 6.0 * macs)] {
             for kernel in Self::kernels() {
                 let t = if what == "infer" {
-                    seconds_per_call(7, || self.infer(kernel))
+                    seconds_per_call(15, || self.infer(kernel))
                 } else {
-                    seconds_per_call(7, || self.train(kernel))
+                    seconds_per_call(15, || self.train(kernel))
                 };
                 let qps = BATCH as f64 / t;
-                let gflops = qps * flops_per_query / 1e9;
-                println!(
-                    "{:<18} {what:<17} {:<10} {qps:>12.4e} queries/s {gflops:>7.1} GFLOP/s {:>5.1} % of peak",
-                    Self::name(),
-                    Self::label(kernel),
-                    100.0 * gflops * 1e9 / peak
-                );
+                rows.push((
+                    format!(
+                        "{:<18} {what:<17} {:<10}",
+                        Self::name(),
+                        Self::label(kernel)
+                    ),
+                    qps * flops_per_query,
+                    qps,
+                ));
             }
         }
     }
@@ -327,22 +329,38 @@ impl<const IN: usize, const WIDTH: usize, const OUT: usize, const HIDDEN: usize>
 }
 
 fn mlp(c: &mut Criterion) {
-    let (peak, kind) = measured_peak();
-    println!(
-        "batch {BATCH}, one thread; % of the measured {kind} FMA peak ({:.1} GFLOP/s); \
-         detect() = {:?}",
-        peak / 1e9,
-        BatchKernel::detect()
-    );
     let mut a = Bench::<16, 32, 32, 2>::new();
     let mut b = Bench::<48, 32, 32, 2>::new();
     let mut p = Bench::<32, 64, 32, 3>::new();
     // `MLP_BENCH_SUMMARY=0` skips the table (e.g. to profile one criterion
-    // benchmark alone).
+    // benchmark alone). Every time is the best of several rounds, and the
+    // peak the better of two measurements, before and after the table (this
+    // machine may be shared).
     if std::env::var("MLP_BENCH_SUMMARY").as_deref() != Ok("0") {
-        a.summary(peak);
-        b.summary(peak);
-        p.summary(peak);
+        let (peak0, kind0) = measured_peak();
+        let mut rows = Vec::new();
+        a.summary(&mut rows);
+        b.summary(&mut rows);
+        p.summary(&mut rows);
+        let (peak1, kind1) = measured_peak();
+        let (peak, kind) = if peak1 > peak0 {
+            (peak1, kind1)
+        } else {
+            (peak0, kind0)
+        };
+        println!(
+            "batch {BATCH}, one thread; % of the measured {kind} FMA peak ({:.1} GFLOP/s); \
+             detect() = {:?}",
+            peak / 1e9,
+            BatchKernel::detect()
+        );
+        for (label, flops, qps) in rows {
+            println!(
+                "{label} {qps:>12.4e} queries/s {:>7.1} GFLOP/s {:>5.1} % of peak",
+                flops / 1e9,
+                100.0 * flops / peak
+            );
+        }
     }
     a.criterion(c);
     b.criterion(c);

@@ -581,6 +581,10 @@ mod batch {
         /// # Safety
         /// `g` must have passed the bounds checks of [`gemm`].
         unsafe fn kernel<const INIT: u8, const EPI: u8>(self, g: &mut Gemm<'_>);
+        /// Runs `f` inside a function compiled for this set's target
+        /// features, so that the glue code inlined into it (copies, bias
+        /// gradients, finiteness checks) uses them too.
+        fn vectorize<R>(self, f: impl FnOnce() -> R) -> R;
     }
 
     /// Checks every bound that [`gemm_body`] relies on, then runs it.
@@ -769,6 +773,10 @@ mod batch {
         unsafe fn kernel<const INIT: u8, const EPI: u8>(self, g: &mut Gemm<'_>) {
             gemm_body::<Self, 4, 2, INIT, EPI>(self, g);
         }
+        #[inline(always)]
+        fn vectorize<R>(self, f: impl FnOnce() -> R) -> R {
+            f()
+        }
     }
 
     /// The x86-64 instruction sets, with `core::arch` intrinsics.
@@ -794,6 +802,12 @@ mod batch {
 
             /// # Safety
             /// As [`Simd::kernel`]; `self` proves AVX2 and FMA.
+            /// Runs `f` compiled with this set's features (`f` is inlined).
+            #[target_feature(enable = "avx2,fma")]
+            fn vectorize_tf<R>(self, f: impl FnOnce() -> R) -> R {
+                f()
+            }
+
             #[target_feature(enable = "avx2,fma")]
             unsafe fn kernel_tf<const INIT: u8, const EPI: u8>(self, g: &mut Gemm<'_>) {
                 gemm_body::<Self, 6, 2, INIT, EPI>(self, g);
@@ -842,6 +856,11 @@ mod batch {
             unsafe fn kernel<const INIT: u8, const EPI: u8>(self, g: &mut Gemm<'_>) {
                 self.kernel_tf::<INIT, EPI>(g);
             }
+            #[inline(always)]
+            fn vectorize<R>(self, f: impl FnOnce() -> R) -> R {
+                // SAFETY: see the impl.
+                unsafe { self.vectorize_tf(f) }
+            }
         }
 
         /// AVX-512F + AVX2 + FMA; only constructed when all are detected.
@@ -858,6 +877,12 @@ mod batch {
 
             /// # Safety
             /// As [`Simd::kernel`]; `self` proves AVX-512F, AVX2 and FMA.
+            /// Runs `f` compiled with this set's features (`f` is inlined).
+            #[target_feature(enable = "avx512f,avx2,fma")]
+            fn vectorize_tf<R>(self, f: impl FnOnce() -> R) -> R {
+                f()
+            }
+
             #[target_feature(enable = "avx512f,avx2,fma")]
             unsafe fn kernel_tf<const INIT: u8, const EPI: u8>(self, g: &mut Gemm<'_>) {
                 gemm_body::<Self, 8, 2, INIT, EPI>(self, g);
@@ -909,6 +934,11 @@ mod batch {
             unsafe fn kernel<const INIT: u8, const EPI: u8>(self, g: &mut Gemm<'_>) {
                 self.kernel_tf::<INIT, EPI>(g);
             }
+            #[inline(always)]
+            fn vectorize<R>(self, f: impl FnOnce() -> R) -> R {
+                // SAFETY: see the impl.
+                unsafe { self.vectorize_tf(f) }
+            }
         }
     }
 
@@ -946,6 +976,7 @@ mod batch {
         /// block and, when `WIDTH` is a multiple of the vector width,
         /// straight into the contexts too (a second store); the output layer
         /// goes straight to `outputs` when `OUT` is.
+        #[inline(always)]
         fn forward_impl<S: Simd>(
             s: S,
             params: &[f32],
@@ -988,8 +1019,8 @@ mod batch {
                 .collect();
             let (wp, op) = (pad(WIDTH, lanes), pad(OUT, lanes));
             let hw = HIDDEN * WIDTH;
-            let direct_ctx = store && WIDTH % lanes == 0;
-            let direct_out = OUT % lanes == 0;
+            let direct_ctx = store && WIDTH.is_multiple_of(lanes);
+            let direct_out = OUT.is_multiple_of(lanes);
             let mut cur = vec![0.0f32; BLOCK * wp];
             let mut next = vec![0.0f32; BLOCK * wp];
             let mut y = vec![0.0f32; if direct_out { 0 } else { BLOCK * op }];
@@ -1093,12 +1124,12 @@ mod batch {
                 #[cfg(target_arch = "x86_64")]
                 BatchKernel::Avx2Fma => {
                     let s = x86::Avx2Fma::new().unwrap_or_else(|| unsupported());
-                    Self::forward_impl(s, params, offset, inputs, outputs, ctxs);
+                    s.vectorize(|| Self::forward_impl(s, params, offset, inputs, outputs, ctxs));
                 }
                 #[cfg(target_arch = "x86_64")]
                 BatchKernel::Avx512 => {
                     let s = x86::Avx512::new().unwrap_or_else(|| unsupported());
-                    Self::forward_impl(s, params, offset, inputs, outputs, ctxs);
+                    s.vectorize(|| Self::forward_impl(s, params, offset, inputs, outputs, ctxs));
                 }
                 #[cfg(not(target_arch = "x86_64"))]
                 _ => unsupported(),
@@ -1209,6 +1240,7 @@ mod batch {
         /// The blocked backward pass (see [`Self::backward_batch`]).
         #[allow(clippy::too_many_arguments)]
         #[allow(clippy::too_many_lines)]
+        #[inline(always)]
         fn backward_impl<S: Simd>(
             s: S,
             params: &[f32],
@@ -1301,8 +1333,8 @@ mod batch {
             // padded query-major copies (hidden layer j at j · BLOCK · wp);
             // the deltas of two consecutive layers live in scratch blocks.
             let hw = HIDDEN * WIDTH;
-            let direct_in = IN % lanes == 0;
-            let direct_h = WIDTH % lanes == 0;
+            let direct_in = IN.is_multiple_of(lanes);
+            let direct_h = WIDTH.is_multiple_of(lanes);
             let in_flat = inputs.as_flattened();
             let ctx_flat: &[f32] = bytemuck::cast_slice(ctxs);
             let dy_flat = d_outputs.as_flattened();
@@ -1493,12 +1525,20 @@ mod batch {
                 #[cfg(target_arch = "x86_64")]
                 BatchKernel::Avx2Fma => {
                     let s = x86::Avx2Fma::new().unwrap_or_else(|| unsupported());
-                    Self::backward_impl(s, params, offset, inputs, ctxs, d_outputs, grad, d_inputs);
+                    s.vectorize(|| {
+                        Self::backward_impl(
+                            s, params, offset, inputs, ctxs, d_outputs, grad, d_inputs,
+                        );
+                    });
                 }
                 #[cfg(target_arch = "x86_64")]
                 BatchKernel::Avx512 => {
                     let s = x86::Avx512::new().unwrap_or_else(|| unsupported());
-                    Self::backward_impl(s, params, offset, inputs, ctxs, d_outputs, grad, d_inputs);
+                    s.vectorize(|| {
+                        Self::backward_impl(
+                            s, params, offset, inputs, ctxs, d_outputs, grad, d_inputs,
+                        );
+                    });
                 }
                 #[cfg(not(target_arch = "x86_64"))]
                 _ => unsupported(),
