@@ -897,6 +897,66 @@ fn batched_kernels_match_the_per_query_kernels_within_the_rounding_bound() {
     }
 }
 
+/// Non-finite inputs (a NaN, an ∞, in different blocks of 48 queries):
+/// every batched result has the per-query result's class (NaN, ±∞, finite),
+/// and the finite ones are within the bound. The backward pass of a block
+/// with a non-finite input or context is the per-query one, so dead units
+/// never turn `0 · ∞` into NaN.
+#[test]
+fn non_finite_inputs_give_the_per_query_classes() {
+    type M = Mlp<16, 32, 32, 2>;
+    let mut rng = Pcg32::new(31, 13);
+    let p = random_params::<16, 32, 32, 2>(&mut rng);
+    let n = 150;
+    let mut xs: Vec<[f32; 16]> = (0..n).map(|_| random_input::<16>(&mut rng)).collect();
+    let dys: Vec<[f32; 32]> = (0..n).map(|_| random_input::<32>(&mut rng)).collect();
+    xs[10][0] = f32::NAN;
+    xs[60][3] = f32::INFINITY;
+    xs[61][5] = f32::NEG_INFINITY;
+    let g0 = vec![0.0; p.len()];
+    let r = Reference::<16, 32, 32, 2>::new(&p, &g0, &xs, &dys);
+    let class = |v: f32| {
+        (
+            v.is_nan(),
+            v.is_infinite() && v > 0.0,
+            v.is_infinite() && v < 0.0,
+        )
+    };
+    let same_class = |what: &str, a: &[f32], b: &[f32]| {
+        for (k, (&x, &y)) in a.iter().zip(b).enumerate() {
+            assert_eq!(class(x), class(y), "{what}[{k}]: {x:e} vs {y:e}");
+        }
+    };
+    // The ∞ reaches the contexts (so the backward sees non-finite activations).
+    assert!(r.ctxs[60].hidden[0].iter().any(|v| v.is_infinite()));
+    for kernel in BatchKernel::ALL.into_iter().filter(|k| k.is_available()) {
+        let mut ys = vec![[0.0; 32]; n];
+        let mut ctxs = vec![MlpContext::ZERO; n];
+        M::forward_batch_with(kernel, &p, 0, &xs, &mut ys, &mut ctxs);
+        same_class("outputs", ys.as_flattened(), r.ys.as_flattened());
+        let flat = |c: &[MlpContext<32, 2>]| -> Vec<f32> {
+            c.iter().flat_map(|c| c.hidden.concat()).collect()
+        };
+        same_class("contexts", &flat(&ctxs), &flat(&r.ctxs));
+        assert!(finite_within(
+            ys.as_flattened(),
+            r.ys.as_flattened(),
+            &r.out_bound.concat()
+        ));
+        let mut g = g0.clone();
+        let mut dx = vec![[0.0; 16]; n];
+        M::backward_batch_with(kernel, &p, 0, &xs, &r.ctxs, &dys, &mut g, &mut dx);
+        same_class("grad", &g, &r.grad);
+        same_class("d_input", dx.as_flattened(), r.dxs.as_flattened());
+        assert!(finite_within(&g, &r.grad, &r.grad_bound));
+        assert!(finite_within(
+            dx.as_flattened(),
+            r.dxs.as_flattened(),
+            &r.dx_bound.concat()
+        ));
+    }
+}
+
 /// The tolerance is not vacuous: a relative 10⁻⁴ perturbation of one weight
 /// of the first layer (in the batched call only) fails the first hidden
 /// layer's check (`2 γ_{17} A₀`, the tightest bound), for every kernel. The
