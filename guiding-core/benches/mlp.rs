@@ -288,9 +288,9 @@ impl<const IN: usize, const WIDTH: usize, const OUT: usize, const HIDDEN: usize>
         for (what, flops_per_query) in [("infer", 2.0 * macs), ("forward+backward", 6.0 * macs)] {
             for kernel in Self::kernels() {
                 let t = if what == "infer" {
-                    seconds_per_call(15, || self.infer(kernel))
+                    seconds_per_call(30, || self.infer(kernel))
                 } else {
-                    seconds_per_call(15, || self.train(kernel))
+                    seconds_per_call(30, || self.train(kernel))
                 };
                 let qps = BATCH as f64 / t;
                 rows.push((
