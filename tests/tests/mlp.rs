@@ -17,7 +17,14 @@
 //!   absolutely against that floor, and 1 % may fail (ReLU kinks within the
 //!   difference step — the network is piecewise linear in every parameter,
 //!   so central differences are otherwise exact up to f64 rounding — and the
-//!   rare near-cancelling sums with `κ > 10`).
+//!   rare near-cancelling sums with `κ > 10`);
+//! - the batched kernels (fused multiply–adds, their own tiling) against the
+//!   per-query kernels: both satisfy the first bound, so each layer's sums
+//!   differ by at most `2 γ_{n+1}` times the absolute network's magnitude,
+//!   accumulated layer by layer (`err_l = |W_l| err_{l−1} + 2 γ_{n_l+1} A_l`,
+//!   in f64), and likewise for the deltas and the parameter gradients summed
+//!   over the batch (see [`forward_error_bounds`], [`backward_error_bounds`],
+//!   [`gradient_error_bounds`]).
 //!
 //! Every bound is printed with the largest observed error/bound ratio.
 
