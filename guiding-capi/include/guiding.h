@@ -609,6 +609,20 @@ enum PgStatus pg_field_add_samples(struct PgField *field,
 enum PgStatus pg_field_update(struct PgField *field, struct PgUpdateReport *report);
 
 /**
+ * `pg_field_update` with as many Adam steps as `epochs` passes over the
+ * buffered samples take, capped at `steps_per_update`: `clamp(ceil(epochs ·
+ * buffered / batch_size), 1, steps_per_update)` (a non-finite or negative
+ * `epochs` reads as 1), training proportional to what the render pass
+ * produced. Otherwise as `pg_field_update`.
+ *
+ * # Safety
+ * `field` must be NULL or a live handle; `report` NULL or writable.
+ */
+enum PgStatus pg_field_update_proportional(struct PgField *field,
+                                           float epochs,
+                                           struct PgUpdateReport *report);
+
+/**
  * Writes to `*out` whether training is over (stopped, plateaued or at its
  * step limit).
  *

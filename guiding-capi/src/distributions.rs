@@ -4,8 +4,8 @@
 use crate::field::{check_unit_square, read, unit_directions};
 use crate::ptr::{self, disjoint, region, times};
 use crate::status::{guard, guard_void, Failure, PgStatus};
-use guiding::{DecodedDistribution, Distribution, GuidingField, QueryPoint};
-use guiding_core::glam::Vec2;
+use guiding::{DirectionSample, DistributionBatch, GuidingField, QueryPoint};
+use guiding_core::glam::{Vec2, Vec3};
 use std::sync::{Arc, RwLock};
 
 /// Decoded distributions (opaque), one per query of the latest
@@ -15,43 +15,49 @@ use std::sync::{Arc, RwLock};
 #[derive(Default)]
 pub struct PgDistributions {
     field: Option<Arc<RwLock<GuidingField>>>,
-    items: Vec<DecodedDistribution>,
+    /// The batched decodes of the latest query, `QUERY_CHUNK` lanes each.
+    batches: Vec<DistributionBatch>,
+    len: usize,
 }
 
 impl PgDistributions {
-    /// Empties it (keeps the allocation, drops the field reference).
+    /// Empties it (drops the field reference).
     pub(crate) fn clear(&mut self) {
         self.field = None;
-        self.items.clear();
+        self.batches.clear();
+        self.len = 0;
     }
 
-    /// Decodes `queries` with `field` into it.
+    /// Decodes `queries` with `field` into it (batched, spread over the
+    /// field's threads).
     pub(crate) fn fill(
         &mut self,
         field: &Arc<RwLock<GuidingField>>,
         queries: &[QueryPoint],
     ) -> Result<(), Failure> {
         let f = read(field)?;
-        let decoded = f.query(queries);
-        self.items.extend(decoded.iter().map(Distribution::detach));
+        self.batches = f.decode_chunks(queries);
+        self.len = queries.len();
         self.field = Some(Arc::clone(field));
         Ok(())
     }
 
-    /// Runs `body` with the first `n` distributions attached to their field
-    /// (`PG_SIZE_MISMATCH` if it holds fewer, `PG_STALE` if the field was
-    /// updated since they were decoded). Nothing is called on failure.
-    fn with_attached(
+    /// Runs `body(field, batch, start)` for each decoded batch that holds
+    /// some of the first `n` lanes (`start`: its first lane), with the field
+    /// read-locked (`PG_SIZE_MISMATCH` if it holds fewer than `n`,
+    /// `PG_STALE` if the field was updated since they were decoded, checked
+    /// before anything is written).
+    fn with_batches(
         &self,
         n: usize,
-        mut body: impl FnMut(usize, &Distribution<'_>),
+        mut body: impl FnMut(&GuidingField, &DistributionBatch, usize, usize) -> Result<(), Failure>,
     ) -> Result<(), Failure> {
-        if n > self.items.len() {
+        if n > self.len {
             return Err(Failure::new(
                 PgStatus::PG_SIZE_MISMATCH,
                 format!(
                     "n = {n} but the distributions hold {} (from the latest pg_field_query)",
-                    self.items.len()
+                    self.len
                 ),
             ));
         }
@@ -59,11 +65,18 @@ impl PgDistributions {
             return Ok(());
         };
         let f = read(field)?;
-        // All items were decoded together (one field, one generation):
-        // checking the first decides for all, before any output is written.
-        f.attach(self.items[0])?;
-        for (i, item) in self.items[..n].iter().enumerate() {
-            body(i, &f.attach(*item)?);
+        // All batches were decoded together (one field, one generation).
+        if let Some(first) = self.batches.first().and_then(|b| b.get(0)) {
+            f.attach(first)?;
+        }
+        let mut start = 0;
+        for b in &self.batches {
+            if start >= n {
+                break;
+            }
+            let m = b.len().min(n - start);
+            body(&f, b, start, m)?;
+            start += b.len();
         }
         Ok(())
     }
@@ -111,7 +124,7 @@ pub unsafe extern "C" fn pg_distributions_len(
     guard("pg_distributions_len", || {
         let d = unsafe { ptr::as_ref(distributions, "distributions") }?;
         let out = unsafe { ptr::as_mut(out, "out") }?;
-        *out = d.items.len();
+        *out = d.len;
         Ok(())
     })
 }
@@ -144,10 +157,26 @@ pub unsafe extern "C" fn pg_distributions_sample(
         let dirs = unsafe { ptr::slice_mut(dirs, n3, "dirs") }?;
         let pdfs = unsafe { ptr::slice_mut(pdfs, n, "pdfs") }?;
         check_unit_square(u)?;
-        d.with_attached(n, |i, dist| {
-            let s = dist.sample(Vec2::new(u[2 * i], u[2 * i + 1]));
-            dirs[3 * i..3 * i + 3].copy_from_slice(&s.direction.to_array());
-            pdfs[i] = s.pdf;
+        let mut samples = Vec::new();
+        d.with_batches(n, |f, b, start, m| {
+            let lanes: Vec<u32> = (0..m as u32).collect();
+            let us: Vec<Vec2> = (start..start + m)
+                .map(|i| Vec2::new(u[2 * i], u[2 * i + 1]))
+                .collect();
+            samples.resize(
+                m,
+                DirectionSample {
+                    direction: Vec3::ZERO,
+                    pdf: 0.0,
+                },
+            );
+            f.sample_decoded(b, &lanes, &us, &mut samples)?;
+            for (k, s) in samples.iter().enumerate() {
+                let i = start + k;
+                dirs[3 * i..3 * i + 3].copy_from_slice(&s.direction.to_array());
+                pdfs[i] = s.pdf;
+            }
+            Ok(())
         })
     })
 }
@@ -173,7 +202,16 @@ pub unsafe extern "C" fn pg_distributions_pdf(
         let dirs = unsafe { ptr::slice(dirs, n3, "dirs") }?;
         let pdfs = unsafe { ptr::slice_mut(pdfs, n, "pdfs") }?;
         let dirs = unit_directions(dirs)?;
-        d.with_attached(n, |i, dist| pdfs[i] = dist.pdf(dirs[i]))
+        d.with_batches(n, |f, b, start, m| {
+            let lanes: Vec<u32> = (0..m as u32).collect();
+            f.pdf_decoded(
+                b,
+                &lanes,
+                &dirs[start..start + m],
+                &mut pdfs[start..start + m],
+            )?;
+            Ok(())
+        })
     })
 }
 
@@ -191,6 +229,11 @@ pub unsafe extern "C" fn pg_distributions_selection_probability(
     guard("pg_distributions_selection_probability", || {
         let d = unsafe { ptr::as_ref(distributions, "distributions") }?;
         let out = unsafe { ptr::slice_mut(out, n, "out") }?;
-        d.with_attached(n, |i, dist| out[i] = dist.selection_probability())
+        d.with_batches(n, |_, b, start, m| {
+            for (k, o) in out[start..start + m].iter_mut().enumerate() {
+                *o = b.selection_probability(k);
+            }
+            Ok(())
+        })
     })
 }

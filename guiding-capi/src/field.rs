@@ -316,6 +316,35 @@ pub unsafe extern "C" fn pg_field_update(
     })
 }
 
+/// `pg_field_update` with as many Adam steps as `epochs` passes over the
+/// buffered samples take, capped at `steps_per_update`: `clamp(ceil(epochs ·
+/// buffered / batch_size), 1, steps_per_update)` (a non-finite or negative
+/// `epochs` reads as 1), training proportional to what the render pass
+/// produced. Otherwise as `pg_field_update`.
+///
+/// # Safety
+/// `field` must be NULL or a live handle; `report` NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn pg_field_update_proportional(
+    field: *mut PgField,
+    epochs: f32,
+    report: *mut PgUpdateReport,
+) -> PgStatus {
+    guard("pg_field_update_proportional", || {
+        let field = unsafe { ptr::as_ref(field, "field") }?;
+        let report = if report.is_null() {
+            None
+        } else {
+            Some(unsafe { ptr::as_mut(report, "report") }?)
+        };
+        let r = write(&field.inner)?.update_proportional(epochs);
+        if let Some(out) = report {
+            *out = r.into();
+        }
+        Ok(())
+    })
+}
+
 /// Writes to `*out` whether training is over (stopped, plateaued or at its
 /// step limit).
 ///

@@ -738,6 +738,12 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
         &self.config
     }
 
+    /// The persistent worker pool (`None` when the field runs on one
+    /// thread), for callers that spread batched inference over it.
+    pub fn pool(&self) -> Option<&rayon::ThreadPool> {
+        self.pool.as_deref()
+    }
+
     /// Worker threads in use (the resolved [`FieldConfig::threads`]).
     pub fn threads(&self) -> usize {
         self.threads
@@ -867,6 +873,36 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
     /// Trains on the buffered samples (see the [module docs](self#training))
     /// and clears the buffer. Does nothing once converged.
     pub fn update(&mut self) -> UpdateReport {
+        self.update_steps(self.config.steps_per_update)
+    }
+
+    /// Adam steps for `epochs` passes over the buffered samples, capped:
+    /// `clamp(⌈epochs · buffered / batch_size⌉, 1, steps_per_update)` —
+    /// training effort proportional to the samples a render pass produced,
+    /// with [`FieldConfig::steps_per_update`] as the ceiling (a small pass is
+    /// not trained on 32 times over). A non-finite or negative `epochs`
+    /// reads as 1.
+    #[must_use]
+    pub fn proportional_steps(&self, epochs: f32) -> u32 {
+        let e = if epochs.is_finite() && epochs >= 0.0 {
+            f64::from(epochs)
+        } else {
+            1.0
+        };
+        let batches = (e * self.buffer.len() as f64 / self.config.batch_size.max(1) as f64).ceil();
+        let cap = self.config.steps_per_update.max(1);
+        if batches >= f64::from(cap) {
+            cap
+        } else {
+            (batches as u32).max(1)
+        }
+    }
+
+    /// [`Self::update`] with `steps` Adam steps instead of
+    /// [`FieldConfig::steps_per_update`] (at least one; see
+    /// [`Self::proportional_steps`]).
+    pub fn update_steps(&mut self, steps: u32) -> UpdateReport {
+        let steps = steps.max(1);
         let mut report = UpdateReport {
             mean_loss: f64::NAN,
             ..UpdateReport::default()
@@ -887,7 +923,7 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
         shuffle(&mut self.buffer, &mut rng);
         let mut pos = 0;
         let mut loss_sum = 0.0f64;
-        for _ in 0..self.config.steps_per_update {
+        for _ in 0..steps {
             if self.state.steps.saturating_add(self.state.skipped_steps) >= self.config.max_steps {
                 break;
             }

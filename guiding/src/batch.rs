@@ -66,6 +66,23 @@ impl DistributionBatch {
         self.items.selection_probability(i)
     }
 
+    /// Multiplies every lane's vMF mixture by the clamped cosine
+    /// `max(0, n·ω)` of its shading normal `normals[i]` (the vMF
+    /// approximation of NPM §4.2; Open PGL's `ApplyCosineProduct`): a
+    /// radiance-target guide then samples `∝ L_i · cos` instead of `∝ L_i`,
+    /// which on diffuse surfaces is the product with the BSDF. Samples and
+    /// pdfs of the batch use the product afterwards (still exact densities
+    /// of what is sampled). Returns `false` and changes nothing for NASG and
+    /// DF (no closed-form product) or when the lengths differ.
+    pub fn apply_cosine_product(&mut self, normals: &[Vec3]) -> bool {
+        let vmf = &mut self.items.vmf;
+        if vmf.is_empty() || vmf.len() != normals.len() {
+            return false;
+        }
+        guiding_core::model::wavefront::cosine_product_batch(vmf, normals);
+        true
+    }
+
     /// Lane `i` as a plain value, to [attach](GuidingField::attach) to its
     /// field later (`None` out of range).
     #[must_use]

@@ -14,6 +14,11 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 static NEXT_FIELD_ID: AtomicU64 = AtomicU64::new(1);
 
+/// Queries per batched decode of the field-level batch calls
+/// ([`GuidingField::query`], [`GuidingField::sample_batch`], …): one task of
+/// the worker pool each.
+pub const QUERY_CHUNK: usize = 1024;
+
 /// Counters of a field's training, for the renderer's statistics.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -176,6 +181,22 @@ impl GuidingField {
         report
     }
 
+    /// [`Self::update`] with as many Adam steps as `epochs` passes over the
+    /// buffered samples take, capped at the configuration's
+    /// `steps_per_update` (`clamp(⌈epochs · buffered / batch_size⌉, 1,
+    /// steps_per_update)`): training proportional to what the render pass
+    /// produced. The renderer's default between passes.
+    pub fn update_proportional(&mut self, epochs: f32) -> UpdateReport {
+        let report = with_field!(&mut self.inner, f => {
+            let steps = f.proportional_steps(epochs);
+            f.update_steps(steps)
+        });
+        if report.steps > 0 {
+            self.generation += 1;
+        }
+        report
+    }
+
     /// Whether training is over (stopped, plateaued or at its step limit).
     pub fn is_converged(&self) -> bool {
         with_field!(&self.inner, f => f.is_converged())
@@ -197,34 +218,32 @@ impl GuidingField {
         }
     }
 
-    /// [`Self::distribution`] for every query, spread over the field's
-    /// threads; `out` is cleared first.
+    /// [`Self::distribution`] for every query (batched decodes spread over
+    /// the field's worker pool); `out` is cleared first.
     pub fn query_into<'f>(&'f self, queries: &[QueryPoint], out: &mut Vec<Distribution<'f>>) {
         out.clear();
-        let threads = with_field!(&self.inner, f => f.threads()).max(1);
-        let chunk = queries.len().div_ceil(threads).max(256);
-        if threads == 1 || queries.len() <= chunk {
-            out.extend(queries.iter().map(|q| self.distribution(q)));
-            return;
+        let batches = self.decode_chunks(queries);
+        for b in &batches {
+            out.extend((0..b.len()).filter_map(|i| b.get(i).and_then(|d| self.attach(d).ok())));
         }
-        std::thread::scope(|scope| {
-            let handles: Vec<_> = queries
-                .chunks(chunk)
-                .map(|part| {
-                    scope.spawn(move || {
-                        part.iter()
-                            .map(|q| self.distribution(q))
-                            .collect::<Vec<_>>()
-                    })
-                })
-                .collect();
-            for h in handles {
-                match h.join() {
-                    Ok(part) => out.extend(part),
-                    Err(payload) => std::panic::resume_unwind(payload),
-                }
+    }
+
+    /// Decodes `queries` in chunks of [`QUERY_CHUNK`], spread over the
+    /// field's pool (one chunk per task, results in query order).
+    pub fn decode_chunks(&self, queries: &[QueryPoint]) -> Vec<crate::DistributionBatch> {
+        use rayon::prelude::*;
+        let decode = |part: &[QueryPoint]| {
+            let mut b = crate::DistributionBatch::new();
+            self.decode_batch(part, &mut b);
+            b
+        };
+        let pool = with_field!(&self.inner, f => f.pool());
+        match pool {
+            Some(pool) if queries.len() > QUERY_CHUNK => {
+                pool.install(|| queries.par_chunks(QUERY_CHUNK).map(decode).collect())
             }
-        });
+            _ => queries.chunks(QUERY_CHUNK.max(1)).map(decode).collect(),
+        }
     }
 
     /// [`Self::query_into`] into a new vector.
@@ -255,7 +274,15 @@ impl GuidingField {
                 ),
             });
         }
-        with_field!(&self.inner, f => f.sample_batch(queries, u, out));
+        let batches = self.decode_chunks(queries);
+        for ((b, u), out) in batches
+            .iter()
+            .zip(u.chunks(QUERY_CHUNK))
+            .zip(out.chunks_mut(QUERY_CHUNK))
+        {
+            let lanes: Vec<u32> = (0..u.len() as u32).collect();
+            self.sample_decoded(b, &lanes, u, out)?;
+        }
         Ok(())
     }
 
@@ -279,7 +306,15 @@ impl GuidingField {
                 ),
             });
         }
-        with_field!(&self.inner, f => f.pdf_batch(queries, directions, out));
+        let batches = self.decode_chunks(queries);
+        for ((b, d), out) in batches
+            .iter()
+            .zip(directions.chunks(QUERY_CHUNK))
+            .zip(out.chunks_mut(QUERY_CHUNK))
+        {
+            let lanes: Vec<u32> = (0..d.len() as u32).collect();
+            self.pdf_decoded(b, &lanes, d, out)?;
+        }
         Ok(())
     }
 
@@ -297,7 +332,12 @@ impl GuidingField {
                 what: format!("{} queries, {} outputs", queries.len(), out.len()),
             });
         }
-        with_field!(&self.inner, f => f.selection_probability_batch(queries, out));
+        let batches = self.decode_chunks(queries);
+        for (b, out) in batches.iter().zip(out.chunks_mut(QUERY_CHUNK)) {
+            for (i, o) in out.iter_mut().enumerate() {
+                *o = b.selection_probability(i);
+            }
+        }
         Ok(())
     }
 
@@ -374,12 +414,28 @@ impl GuidingField {
         models::model_bytes(&self.inner)
     }
 
+    /// A DF sample as one lane of a batch (the batched conditional network,
+    /// so a `Distribution` agrees bit for bit with the batch calls).
     fn sample_df(&self, vertex: &DfVertex, u: Vec2) -> DirectionSample {
-        with_field!(&self.inner, f => f.model().sample_vertex_any(f.ema_params(), vertex, u))
+        let mut out = [DirectionSample {
+            direction: Vec3::Z,
+            pdf: 0.0,
+        }];
+        let v = std::slice::from_ref(vertex);
+        with_field!(&self.inner, f => f
+            .model()
+            .sample_vertices_any(f.ema_params(), v, &[0], &[u], &mut out));
+        out[0]
     }
 
+    /// A DF density as one lane of a batch (see [`Self::sample_df`]).
     fn pdf_df(&self, vertex: &DfVertex, direction: Vec3) -> f32 {
-        with_field!(&self.inner, f => f.model().pdf_vertex_any(f.ema_params(), vertex, direction))
+        let mut out = [0.0f32];
+        let v = std::slice::from_ref(vertex);
+        with_field!(&self.inner, f => f
+            .model()
+            .pdf_vertices_any(f.ema_params(), v, &[0], &[direction], &mut out));
+        out[0]
     }
 }
 

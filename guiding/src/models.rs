@@ -174,9 +174,13 @@ pub(crate) trait Decode: GuidingModel {
 }
 
 impl<const IN: usize, const W: usize, const H: usize> Decode for Npm<IN, W, H> {
+    /// A batch of one: the same kernels (and bits) as every lane of a
+    /// batched decode.
     fn decode_at(&self, params: &[f32], query: &QueryPoint) -> Decoded {
+        let mut m = [VmfMixture::ZERO];
+        self.decode_batch(params, std::slice::from_ref(query), &mut m);
         Decoded::Vmf {
-            mixture: self.decode(params, query),
+            mixture: m[0],
             selection: self.selection_probability(params, query),
         }
     }
@@ -190,8 +194,11 @@ impl<const IN: usize, const W: usize, const H: usize> Decode for Npm<IN, W, H> {
 }
 
 impl<const IN: usize, const W: usize, const H: usize> Decode for Nasg<IN, W, H> {
+    /// A batch of one (see the NPM implementation).
     fn decode_at(&self, params: &[f32], query: &QueryPoint) -> Decoded {
-        Decoded::Nasg(self.decode(params, query))
+        let mut m = [NasgMixture::ZERO];
+        self.decode_batch(params, std::slice::from_ref(query), &mut m);
+        Decoded::Nasg(m[0])
     }
 
     fn decode_batch_into(&self, params: &[f32], queries: &[QueryPoint], out: &mut BatchItems) {

@@ -75,6 +75,12 @@ pub struct GuidedOptions {
     pub selection_probability: f32,
     /// Rough conductors with a GGX alpha below this are not guided (near-specular).
     pub min_alpha: f32,
+    /// Adam steps per training pass: this many passes over the pass's samples, capped at the
+    /// configuration's `steps_per_update` ([`GuidingField::update_proportional`]).
+    pub train_epochs: f32,
+    /// Radiance-target vMF guides (NPM) are multiplied by the clamped cosine of the shading
+    /// normal before sampling (Open PGL's `ApplyCosineProduct`).
+    pub cosine_product: bool,
 }
 
 impl Default for GuidedOptions {
@@ -84,6 +90,8 @@ impl Default for GuidedOptions {
             train_fraction: 0.3,
             selection_probability: 0.5,
             min_alpha: 0.05,
+            cosine_product: true,
+            train_epochs: 4.0,
         }
     }
 }
@@ -99,6 +107,9 @@ pub struct GuidedStats {
     pub passes: u32,
     /// Passes whose vertices were recorded and trained on.
     pub training_passes: u32,
+    /// Passes the schedule gave to training (more than `training_passes` when the loss
+    /// converged first).
+    pub passes_planned_for_training: u32,
     /// Guide queries (selection + sample + pdf evaluations).
     pub guide_queries: u64,
     /// Guide queries during the training passes.
@@ -119,6 +130,10 @@ pub struct GuidedStats {
     pub overflowed_samples: u64,
     /// Mean training loss of the last update (`NaN` if none).
     pub last_loss: f64,
+    /// Mean training loss of every update, in order.
+    pub loss_history: Vec<f64>,
+    /// The first training pass skipped because the loss had converged (plateau), if any.
+    pub converged_at_pass: Option<u32>,
     /// Wall time of the rendering passes (includes the guide queries).
     pub trace: Duration,
     /// Thread time spent in guide queries, summed over the render threads.
@@ -154,6 +169,15 @@ impl std::fmt::Display for GuidedStats {
             self.overflowed_samples,
             self.last_loss
         )?;
+        if let Some(p) = self.converged_at_pass {
+            writeln!(
+                f,
+                "skipped: training stopped at pass {p} (loss converged), {} training passes \
+                 not recorded",
+                self.passes_planned_for_training
+                    .saturating_sub(self.training_passes)
+            )?;
+        }
         write!(
             f,
             "time: trace {:.3} s (wall; guide queries {:.3} thread-s of it), training {:.3} s",
@@ -211,6 +235,8 @@ pub(crate) struct GuidedWorker<'g> {
     /// The guide's distributions at the guidable vertices, decoded by one batched call
     /// per bounce.
     g_batch: DistributionBatch,
+    /// Shading normals of the guidable vertices (cosine product).
+    g_normal: Vec<Vec3>,
     g_c: Vec<f32>,
     // Guide samples: guidable-vertex index, random numbers, vertex.
     s_query: Vec<u32>,
@@ -264,6 +290,7 @@ impl<'g> GuidedWorker<'g> {
             v_nee: Vec::new(),
             g_query: Vec::new(),
             g_batch: DistributionBatch::new(),
+            g_normal: Vec::new(),
             g_c: Vec::new(),
             s_query: Vec::new(),
             s_u: Vec::new(),
@@ -401,6 +428,12 @@ pub(crate) fn stage_guide_query(w: &mut Worker<'_>, nee: bool) {
         }
         Some(_) => g.g_batch = DistributionBatch::new(),
         None => field.decode_batch(&g.g_query, &mut g.g_batch),
+    }
+    if g.gopts.cosine_product && field.config().target == guiding::Target::Radiance {
+        g.g_normal.clear();
+        g.g_normal
+            .extend(g.g_query.iter().map(|q| Vec3::from_array(q.normal)));
+        g.g_batch.apply_cosine_product(&g.g_normal);
     }
     g.g_c.clear();
     g.g_c
@@ -681,7 +714,13 @@ fn render_guided_on(
     let mut sched = crate::schedule::Schedule::new(&opts, gopts.train_fraction);
     let mut stopped = false;
     while let Some(pass) = sched.next_pass() {
-        let (s, record) = (pass.index, pass.train);
+        // Training ends early when the loss has converged (plateau): the remaining training
+        // passes render without recording.
+        let converged = gpu.is_none() && guide.is_converged();
+        if pass.train && converged && stats.converged_at_pass.is_none() {
+            stats.converged_at_pass = Some(pass.index);
+        }
+        let (s, record) = (pass.index, pass.train && !converged);
         if !record && !stopped {
             guide.stop_training();
             if let Some(d) = gpu.as_deref_mut() {
@@ -690,6 +729,7 @@ fn render_guided_on(
             stopped = true;
         }
         stats.training_passes += u32::from(record);
+        stats.passes_planned_for_training += u32::from(pass.train);
         let t_pass = Instant::now();
         let next = AtomicUsize::new(0);
         // Per block: radiance of this pass and its training samples (kept in block order).
@@ -791,9 +831,11 @@ fn render_guided_on(
             } else {
                 let steps_before = guide.stats().steps;
                 guide.add_samples(&train);
-                let rep = guide.update();
+                // Adam steps proportional to the samples of this pass (capped).
+                let rep = guide.update_proportional(gopts.train_epochs);
                 if rep.steps > 0 {
                     stats.last_loss = rep.mean_loss;
+                    stats.loss_history.push(rep.mean_loss);
                 }
                 if !record {
                     stats.training_steps_after_training += guide.stats().steps - steps_before;

@@ -5,7 +5,7 @@
 //! `host-demo render builtin:door --integrator guided --guide npm --spp 64 --out door-guided.exr`
 
 use clap::{Parser, Subcommand, ValueEnum};
-use guiding_core::field::FieldConfig;
+use guiding_core::field::{FieldConfig, PlateauConfig};
 use guiding_core::loss::Target;
 use host_demo::guide::{build_guide, GuideKind, ModelSize};
 use host_demo::guided::{render_guided, render_guided_gpu, GuidedOptions};
@@ -158,6 +158,15 @@ enum Cmd {
         /// Learning rate of the guide's Adam optimiser.
         #[arg(long, default_value_t = 3e-2)]
         learning_rate: f32,
+        /// Stop training when the mean loss has not improved by --plateau-margin (relative)
+        /// over the best so far for this many consecutive passes (0: train for the whole
+        /// training fraction).
+        #[arg(long, default_value_t = 4)]
+        plateau_window: u32,
+        /// Relative improvement of the mean loss that counts as progress (see
+        /// --plateau-window).
+        #[arg(long, default_value_t = 0.01)]
+        plateau_margin: f32,
         /// NEE in the guided integrator (default: on when the scene has an emitter NEE can sample).
         #[arg(long, value_enum)]
         nee: Option<OnOff>,
@@ -423,6 +432,8 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         steps_per_pass,
         batch_size,
         learning_rate,
+        plateau_window,
+        plateau_margin,
         nee,
         device,
         vk_device,
@@ -459,6 +470,9 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
     }
     if !(learning_rate.is_finite() && learning_rate > 0.0) {
         return bad(format!("--learning-rate {learning_rate} must be > 0"));
+    }
+    if !(plateau_margin.is_finite() && plateau_margin >= 0.0) {
+        return bad(format!("--plateau-margin {plateau_margin} must be >= 0"));
     }
     let mut params = Vec::new();
     for d in &define {
@@ -560,6 +574,7 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
             .with_batch_size(batch_size)
             .with_steps_per_update(steps_per_pass)
             .with_learning_rate(learning_rate)
+            .with_plateau(PlateauConfig::new(plateau_window, plateau_margin))
             .with_threads(threads)
             .with_seed(seed as u32);
         let mut g = build_guide(
@@ -730,6 +745,10 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
                     "ran": g.training_passes > 0,
                     "passes": g.training_passes,
                     "stopped_after_pass": g.training_passes,
+                    "planned_passes": g.passes_planned_for_training,
+                    "converged_at_pass": g.converged_at_pass,
+                    "skipped_passes": g.passes_planned_for_training.saturating_sub(g.training_passes),
+                    "loss_history": g.loss_history,
                     "steps": g.training_steps,
                     "steps_after_stop": g.training_steps_after_training,
                     "last_loss": if g.last_loss.is_finite() { json!(g.last_loss) } else { json!(null) },

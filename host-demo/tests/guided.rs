@@ -63,8 +63,11 @@ fn guided(
         .with_threads(o.threads)
         .with_seed(o.seed as u32);
     let mut g = build_guide(kind, target, size, scene.bounds(), 0.5, config).expect("guide");
+    // Every training pass takes `steps` Adam steps (the cap): these tests are about what a
+    // trained guide does, not about the step schedule.
     let gopts = GuidedOptions {
         nee,
+        train_epochs: f32::MAX,
         ..GuidedOptions::default()
     };
     render_guided(scene, o, &gopts, &mut g)

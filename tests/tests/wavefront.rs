@@ -240,6 +240,15 @@ fn training_samples(n: usize, seed: u64) -> Vec<TrainingSample> {
         .collect()
 }
 
+/// Where the batched network (FMA, blocked) and the per-query network both
+/// run, results differ by the network's rounding: each output within the
+/// FMA bound of `tests/mlp.rs` (below 10⁻⁶ relative for these small,
+/// trained networks), which the decoders (softmax, exp, sigmoid, sin/cos:
+/// Lipschitz in log space with constants ≤ 4 for the pdfs) amplify at most
+/// a few times. 10⁻⁴ leaves two orders of magnitude of margin; a wrong lane,
+/// a wrong model or a stale parameter set moves these values by percents.
+const NETWORK_REL: f32 = 1e-4;
+
 /// Through the facade: every representation's batch decode, selection
 /// probability, batched samples and pdfs agree with the per-lane
 /// `Distribution` (decoded per query), and sample pdfs with the pdfs.
@@ -273,15 +282,15 @@ fn facade_batch_agrees_with_per_lane_distributions() -> Result<(), GuidingError>
             field.pdf_decoded(&batch, &lanes, &dirs, &mut pdfs)?;
             for (k, &l) in lanes.iter().enumerate() {
                 let d = field.distribution(&qs[l as usize]);
-                assert_eq!(
-                    batch.selection_probability(l as usize),
-                    d.selection_probability(),
+                assert!(
+                    (batch.selection_probability(l as usize) - d.selection_probability()).abs()
+                        <= NETWORK_REL * d.selection_probability(),
                     "{rep:?} {target:?}"
                 );
                 let s = d.sample(u[k]);
                 let rel = |a: f32, b: f32| (a - b).abs() / b.abs().max(1e-30);
                 assert!(
-                    s.direction.distance(samples[k].direction) <= 1e-5,
+                    s.direction.distance(samples[k].direction) <= NETWORK_REL,
                     "{rep:?} {target:?} lane {l}: {:?} vs {:?}",
                     s.direction,
                     samples[k].direction
@@ -373,8 +382,11 @@ fn raw_outputs_decode_like_the_field() -> Result<(), GuidingError> {
         let lanes: Vec<u32> = (0..qs.len() as u32).collect();
         let mut pdfs = vec![0.0; qs.len()];
         field.pdf_decoded(&batch, &lanes, &vec![Vec3::Z; qs.len()], &mut pdfs)?;
+        // The raw outputs come from the per-query network, the field's
+        // distributions from the batched one.
         for (q, p) in qs.iter().zip(&pdfs) {
-            assert_eq!(*p, field.distribution(q).pdf(Vec3::Z));
+            let r = field.distribution(q).pdf(Vec3::Z);
+            assert!((p - r).abs() <= NETWORK_REL * r, "{p} vs {r}");
         }
         assert!(field
             .decode_raw_batch(&raw[..raw.len() - 1], &mut batch)
@@ -413,10 +425,15 @@ fn field_raw(field: &GuidingField, qs: &[QueryPoint], r: usize) -> Vec<f32> {
     raw
 }
 
-/// DF: the decoded vertex carries what sampling needs; vertex-based
-/// samples and pdfs are the model's per-query ones.
+/// DF: the decoded vertex carries what sampling needs. A vertex built by
+/// the per-query kernels (base input, marginal) samples and evaluates
+/// exactly like the model's per-query `sample` / `pdf`; the batched decode
+/// gives the batched network's marginal bit for bit; the batched
+/// conditional agrees lane by lane with itself (a lane alone or in a
+/// batch) and with the per-query conditional within `NETWORK_REL`.
 #[test]
 fn df_vertices_sample_and_evaluate_like_the_model() {
+    type Marginal = Mlp<16, 32, 32, 2>;
     let model = DfCompactRadiance::new(
         guiding::config::compact_grid(LO, HI),
         Target::Radiance,
@@ -427,14 +444,67 @@ fn df_vertices_sample_and_evaluate_like_the_model() {
     let mut vs = vec![DfVertex::ZERO; qs.len()];
     model.decode_batch(&params, &qs, &mut vs);
     let mut rng = Pcg32::new(1, 9);
-    for (q, v) in qs.iter().zip(&vs) {
+    let mut lanes = Vec::new();
+    let mut dirs = Vec::new();
+    let mut us = Vec::new();
+    for (i, (q, v)) in qs.iter().zip(&vs).enumerate() {
+        // Per-query vertex: exactly the model.
+        let mut base = [0.0f32; 16];
+        encode_inputs(&params, &model.grid, model.target, q, &mut base);
+        let mut pq = DfVertex::ZERO;
+        pq.base[..16].copy_from_slice(&base);
+        pq.marginal = model.marginal(&params, q);
         let u = rng.next_vec2();
-        let a = model.sample(&params, q, u);
-        let b = model.sample_vertex(&params, v, u);
-        assert_eq!(a.direction, b.direction);
-        assert_eq!(a.pdf, b.pdf);
+        let (a, b) = (
+            model.sample(&params, q, u),
+            model.sample_vertex(&params, &pq, u),
+        );
+        assert_eq!((a.direction, a.pdf), (b.direction, b.pdf));
         let d = square_to_uniform_sphere(rng.next_vec2());
-        assert_eq!(model.pdf(&params, q, d), model.pdf_vertex(&params, v, d));
+        assert_eq!(model.pdf(&params, q, d), model.pdf_vertex(&params, &pq, d));
+        // Batched vertex: the batched marginal network's logits, decoded.
+        assert_eq!(v.base, pq.base);
+        let mut logits = [[0.0f32; 32]];
+        Marginal::infer_batch(
+            &params,
+            model.marginal_offset as usize,
+            &[base],
+            &mut logits,
+        );
+        let m = guiding_core::pdf1d::Pdf1d::from_logits(
+            &logits[0],
+            Interpolation::Linear,
+            guiding_core::pdf1d::Boundary::Wrap,
+        );
+        assert!(same_bits(&v.marginal.values, &m.values));
+        lanes.push(i as u32);
+        dirs.push(d);
+        us.push(u);
+    }
+    let rel = |a: f32, b: f32| (a - b).abs() / b.abs().max(1e-30);
+    let mut pdfs = vec![0.0f32; lanes.len()];
+    model.pdf_vertices(&params, &vs, &lanes, &dirs, &mut pdfs);
+    let mut samples = vec![
+        guiding::DirectionSample {
+            direction: Vec3::ZERO,
+            pdf: 0.0
+        };
+        lanes.len()
+    ];
+    model.sample_vertices(&params, &vs, &lanes, &us, &mut samples);
+    for (k, &l) in lanes.iter().enumerate() {
+        let mut one = [0.0f32];
+        model.pdf_vertices(&params, &vs, &[l], &dirs[k..=k], &mut one);
+        assert_eq!(
+            one[0].to_bits(),
+            pdfs[k].to_bits(),
+            "lane {l} alone vs in the batch"
+        );
+        let v = &vs[l as usize];
+        assert!(rel(pdfs[k], model.pdf_vertex(&params, v, dirs[k])) <= NETWORK_REL);
+        let s = model.sample_vertex(&params, v, us[k]);
+        assert!(s.direction.distance(samples[k].direction) <= NETWORK_REL);
+        assert!(rel(samples[k].pdf, s.pdf) <= NETWORK_REL);
     }
 }
 
@@ -459,7 +529,58 @@ fn check_gradient<M: GuidingModel>(model: &M, seed: u64) {
     for s in &samples {
         loss_r += f64::from(model.accumulate_gradient(&params, s, reference.as_mut_slice()));
     }
-    assert_eq!(loss_b, loss_r);
-    assert!(same_bits(&batched, &reference));
-    assert!(batched.iter().any(|&g| g != 0.0));
+    // The network's gradients differ by its FMA rounding (tests/mlp.rs
+    // bounds them); summed over 333 samples the comparison is the
+    // tiny-cuda-nn one: symmetric relative error per element, the worst 1 %
+    // ignored (grid gradients sum few terms and can cancel), at most 10⁻³.
+    assert!((loss_b - loss_r).abs() <= 1e-6 * loss_r.abs());
+    let scale = reference.iter().fold(0.0f32, |m, g| m.max(g.abs()));
+    let mut errs: Vec<f32> = batched
+        .iter()
+        .zip(&reference)
+        .filter(|(a, b)| a.abs().max(b.abs()) > 1e-6 * scale)
+        .map(|(a, b)| (a - b).abs() / (0.5 * (a.abs() + b.abs())))
+        .collect();
+    assert!(errs.len() > 100);
+    errs.sort_by(f32::total_cmp);
+    let p99 = errs[errs.len() * 99 / 100];
+    assert!(p99 <= 1e-3, "99th percentile relative gradient error {p99}");
+    // Zero contributions stay zero (skipped samples add nothing).
+    for (a, b) in batched.iter().zip(&reference) {
+        assert_eq!(*a == 0.0, *b == 0.0);
+    }
+}
+
+/// The batched cosine product is `product_with_clamped_cosine` up to the
+/// rounding of its different evaluation (linear-space weights instead of
+/// `ln`, inlined `expm1`): every field within 8 ulp-scale relative error
+/// (2⁻²⁴ · 2⁷ ≈ 7.6·10⁻⁶) or 10⁻⁶ absolute for means near zero.
+#[test]
+fn batched_cosine_product_is_the_per_mixture_product() {
+    use guiding_core::model::wavefront::cosine_product_batch;
+    let rows = raw_rows(300, 77);
+    let mut ms = vec![VmfMixture::ZERO; rows.len()];
+    decode_vmf_batch(&rows, &mut ms);
+    let mut rng = Pcg32::new(3, 3);
+    let normals: Vec<Vec3> = (0..ms.len())
+        .map(|i| match i % 7 {
+            0 => Vec3::ZERO,
+            1 => Vec3::new(0.0, 0.0, -3.0),
+            _ => square_to_uniform_sphere(rng.next_vec2()),
+        })
+        .collect();
+    let mut batched = ms.clone();
+    cosine_product_batch(&mut batched, &normals);
+    let tol = 128.0 * f32::EPSILON / 2.0;
+    for ((m, b), &n) in ms.iter().zip(&batched).zip(&normals) {
+        let r = m.product_with_clamped_cosine(n);
+        for (x, y) in vmf_floats(b).iter().zip(vmf_floats(&r)) {
+            assert!(
+                (x - y).abs() <= tol * y.abs().max(x.abs()) + 1e-6,
+                "{x} vs {y} (normal {n:?})\n{b:?}\n{r:?}"
+            );
+        }
+        let w: f32 = b.weight.iter().sum();
+        assert!((w - 1.0).abs() <= 1e-5);
+    }
 }

@@ -262,20 +262,168 @@ fn models(quick: bool) -> Result<Vec<MicroResult>, guiding::GuidingError> {
     Ok(out)
 }
 
-/// Nominal single-core f32 peak: clock (from `/proc/cpuinfo`, the first
-/// `cpu MHz` line) × 32 flop/cycle (two 256-bit FMA pipes × 8 lanes × 2).
-/// `None` where the clock cannot be read.
-fn nominal_peak_gflops() -> Option<(f64, f64)> {
-    let info = std::fs::read_to_string("/proc/cpuinfo").ok()?;
-    let mhz: f64 = info
-        .lines()
-        .find(|l| l.starts_with("cpu MHz"))?
-        .split(':')
-        .nth(1)?
-        .trim()
-        .parse()
-        .ok()?;
-    Some((mhz, mhz * 1e-3 * 32.0))
+/// ns per closest-hit ray on `builtin:door`: camera rays through random
+/// pixels and, from each hit, one ray in a uniformly drawn direction of the
+/// hemisphere (the mix a path tracer's bounces trace), one thread.
+fn door_ray_ns(repeats: usize) -> Option<f64> {
+    let scene = crate::builtin::load_builtin("door").ok()?;
+    let mut rng = Rng::new(17);
+    let mut rays = Vec::with_capacity(2 * TABLE);
+    for _ in 0..TABLE {
+        let (o, d) = scene.camera.ray(rng.next_f32(), rng.next_f32());
+        rays.push((o, d));
+        if let Some(hit) = scene.intersect(o, d, 0.0, f32::INFINITY) {
+            let mut w = square_to_uniform_sphere(Vec2::new(rng.next_f32(), rng.next_f32()));
+            if w.dot(hit.ng) < 0.0 {
+                w = -w;
+            }
+            rays.push((hit.p + hit.ng * 1e-4, w));
+        }
+    }
+    let secs = median_secs(repeats, || {
+        let mut hits = 0u32;
+        for &(o, d) in &rays {
+            hits += u32::from(
+                scene
+                    .intersect(black_box(o), d, 0.0, f32::INFINITY)
+                    .is_some(),
+            );
+        }
+        black_box(hits);
+    });
+    Some(secs * 1e9 / rays.len() as f64)
+}
+
+/// ns per guided vertex, all-in, as the wavefront integrator spends it:
+/// one batched decode of 4096 vertices (grid, network, decoder), the
+/// selection probability of each, one guide sample each and two pdfs each
+/// (the BSDF-sampled and the NEE direction), one thread; next to the
+/// per-query path (`distribution` + `sample` + two `pdf` per vertex) and the
+/// cost of one closest-hit ray on `builtin:door` measured in the same run.
+fn guided_vertex(quick: bool) -> Result<Vec<MicroResult>, guiding::GuidingError> {
+    let repeats = if quick { 3 } else { 7 };
+    let sizes: &[ModelSize] = if quick {
+        &[ModelSize::Compact]
+    } else {
+        &[ModelSize::Compact, ModelSize::Paper]
+    };
+    const N: usize = 4096;
+    let mut rng = Rng::new(23);
+    let queries: Vec<QueryPoint> = (0..N).map(|_| query(&mut rng)).collect();
+    let us = table(29);
+    let lanes: Vec<u32> = (0..N as u32).collect();
+    let lanes2: Vec<u32> = (0..2 * N as u32).map(|i| i % N as u32).collect();
+    let dirs: Vec<Vec3> = (0..2 * N)
+        .map(|_| square_to_uniform_sphere(Vec2::new(rng.next_f32(), rng.next_f32())))
+        .collect();
+    let ray = door_ray_ns(repeats);
+    let mut out = Vec::new();
+    if let Some(r) = ray {
+        out.push(MicroResult {
+            group: "vertex",
+            name: "closest-hit ray on builtin:door (baseline)".into(),
+            value: r,
+            unit: "ns (1 thread)",
+            ratio: Some(1.0),
+            note: "camera rays and one hemisphere bounce from each hit".into(),
+        });
+    }
+    for &size in sizes {
+        for rep in Representation::ALL {
+            for target in [guiding::Target::Radiance, guiding::Target::Product] {
+                let config = GuidingConfig {
+                    representation: rep,
+                    target,
+                    ..GuidingConfig::npm_radiance()
+                }
+                .with_size(size)
+                .with_training(FieldConfig::DEFAULT.with_threads(1));
+                let field = GuidingField::new(config, [-1.0; 3], [1.0; 3])?;
+                let mut batch = guiding::DistributionBatch::new();
+                let mut samples = vec![
+                    guiding::DirectionSample {
+                        direction: Vec3::ZERO,
+                        pdf: 0.0
+                    };
+                    N
+                ];
+                let mut pdfs = vec![0.0f32; 2 * N];
+                let mut sel = vec![0.0f32; N];
+                let batched = median_secs(repeats, || {
+                    field.decode_batch(&queries, &mut batch);
+                    for (i, c) in sel.iter_mut().enumerate() {
+                        *c = batch.selection_probability(i);
+                    }
+                    let ok = field
+                        .sample_decoded(&batch, &lanes, &us, &mut samples)
+                        .is_ok()
+                        && field.pdf_decoded(&batch, &lanes2, &dirs, &mut pdfs).is_ok();
+                    black_box((ok, &samples, &pdfs, &sel));
+                });
+                let per_query = median_secs(repeats.min(3), || {
+                    let mut acc = 0.0f32;
+                    for (i, q) in queries.iter().enumerate() {
+                        let d = field.distribution(q);
+                        acc += d.selection_probability()
+                            + d.sample(us[i]).pdf
+                            + d.pdf(dirs[i])
+                            + d.pdf(dirs[N + i]);
+                    }
+                    black_box(acc);
+                });
+                let ns = batched * 1e9 / N as f64;
+                let ns_q = per_query * 1e9 / N as f64;
+                out.push(MicroResult {
+                    group: "vertex",
+                    name: format!("{rep:?} {size:?} {target:?}: guided vertex (batched)"),
+                    value: ns,
+                    unit: "ns (1 thread)",
+                    ratio: ray.map(|r| ns / r),
+                    note: format!(
+                        "× one ray; per-query path {ns_q:.0} ns ({:.1}× the batched)",
+                        ns_q / ns
+                    ),
+                });
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Single-core f32 FMA peak measured in this process: twelve independent
+/// 8-lane chains of fused multiply-adds (two FMA pipes × 4 cycles of
+/// latency, with margin), in GFLOP/s (2 flops per lane per FMA). `None`
+/// without AVX2 + FMA.
+fn measured_fma_peak_gflops() -> Option<f64> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if !(std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")) {
+            return None;
+        }
+        const ITERS: usize = 1 << 22;
+        /// # Safety
+        /// The CPU must support AVX2 and FMA.
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn chains() -> f32 {
+            let mut acc = [[1.0f32; 8]; 12];
+            let (a, b) = (black_box(0.999_999_9f32), black_box(1e-7f32));
+            for _ in 0..ITERS {
+                for chain in &mut acc {
+                    for x in chain.iter_mut() {
+                        *x = x.mul_add(a, b);
+                    }
+                }
+            }
+            acc.iter().flatten().sum()
+        }
+        // SAFETY: AVX2 and FMA were checked above.
+        let secs = median_secs(5, || {
+            black_box(unsafe { chains() });
+        });
+        Some(12.0 * 8.0 * 2.0 * ITERS as f64 / secs * 1e-9)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    None
 }
 
 fn mlp(quick: bool) -> Vec<MicroResult> {
@@ -301,12 +449,10 @@ fn mlp(quick: bool) -> Vec<MicroResult> {
         Net::infer_batch(&params, 0, &inputs, &mut outputs);
         black_box(&outputs);
     });
-    let peak = nominal_peak_gflops();
+    let peak = measured_fma_peak_gflops();
     let note = match peak {
-        Some((mhz, g)) => {
-            format!("nominal 1-core peak {g:.0} GFLOP/s ({mhz:.0} MHz × 32 flop/cycle)")
-        }
-        None => "peak unknown (no /proc/cpuinfo clock)".into(),
+        Some(g) => format!("measured 1-core FMA peak {g:.0} GFLOP/s (12 × 8-lane FMA chains)"),
+        None => "peak unknown (no AVX2 + FMA)".into(),
     };
     let mut out = Vec::new();
     for (name, secs, ratio_base) in [
@@ -321,7 +467,7 @@ fn mlp(quick: bool) -> Vec<MicroResult> {
             unit: "GFLOP/s (1 thread)",
             ratio: Some(ratio_base / secs),
             note: match peak {
-                Some((_, g)) => format!("{:.0} % of {note}", 100.0 * gflops / g),
+                Some(g) => format!("{:.0} % of the {note}", 100.0 * gflops / g),
                 None => note.clone(),
             },
         });
@@ -335,6 +481,7 @@ fn mlp(quick: bool) -> Vec<MicroResult> {
 /// If a guiding field cannot be built (never with the built-in configurations).
 pub fn run(quick: bool) -> Result<Vec<MicroResult>, guiding::GuidingError> {
     let mut out = distributions(quick);
+    out.extend(guided_vertex(quick)?);
     out.extend(models(quick)?);
     out.extend(mlp(quick));
     Ok(out)

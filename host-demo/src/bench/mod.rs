@@ -39,9 +39,14 @@ pub struct Method {
 
 impl Method {
     /// Parses `pt`, `pt-nee`, or `GUIDE-TARGET` with GUIDE in npm|nasg|df-n|df-l and TARGET in
-    /// radiance|product (e.g. `npm-product`).
-    pub fn parse(name: &str) -> Result<Self> {
-        let args: Vec<&str> = match name {
+    /// radiance|product (e.g. `npm-product`), optionally followed by `-nonee`: the guided
+    /// integrator without next-event estimation (the papers' setting, compared with `pt`).
+    pub fn parse(full: &str) -> Result<Self> {
+        let (name, no_nee) = match full.strip_suffix("-nonee") {
+            Some(base) if base != "pt" && base != "pt-nee" => (base, true),
+            _ => (full, false),
+        };
+        let mut args: Vec<&str> = match name {
             "pt" => vec!["--integrator", "pt"],
             "pt-nee" => vec!["--integrator", "pt-nee"],
             _ => {
@@ -67,8 +72,11 @@ impl Method {
                 ]
             }
         };
+        if no_nee {
+            args.extend(["--nee", "off"]);
+        }
         Ok(Self {
-            name: name.to_string(),
+            name: full.to_string(),
             args: args.into_iter().map(String::from).collect(),
         })
     }
