@@ -120,7 +120,9 @@ impl GuidingField {
         raw: &[f32],
         out: &mut DistributionBatch,
     ) -> Result<(), GuidingError> {
-        use guiding_core::batch::{nasg_mixture_from_raw, vmf_mixture_from_raw};
+        use guiding_core::model::nasg::NASG_OUTPUTS;
+        use guiding_core::model::npm::NPM_OUTPUTS;
+        use guiding_core::model::wavefront::{decode_nasg_batch, decode_vmf_batch};
         out.items.clear();
         out.field_id = self.id;
         out.generation = self.generation;
@@ -138,17 +140,28 @@ impl GuidingField {
             });
         }
         let n = raw.len() / r;
-        if r == guiding_core::model::npm::NPM_OUTPUTS {
+        if r == NPM_OUTPUTS {
             out.items.selection = with_field!(&self.inner, f => f
                 .model()
                 .selection_probability(f.ema_params(), &QueryPoint::default()));
+            let rows: Vec<[f32; NPM_OUTPUTS]> = raw
+                .chunks_exact(r)
+                .map(|c| c.try_into().unwrap_or([0.0; NPM_OUTPUTS]))
+                .collect();
             out.items
                 .vmf
-                .extend((0..n).map(|i| vmf_mixture_from_raw(raw, i * r)));
+                .resize(n, guiding_core::mixture::vmf::VmfMixture::ZERO);
+            decode_vmf_batch(&rows, &mut out.items.vmf);
         } else {
+            // The batched decoders, as decode_batch: rows of the model's outputs.
+            let rows: Vec<[f32; NASG_OUTPUTS]> = raw
+                .chunks_exact(r)
+                .map(|c| c.try_into().unwrap_or([0.0; NASG_OUTPUTS]))
+                .collect();
             out.items
                 .nasg
-                .extend((0..n).map(|i| nasg_mixture_from_raw(raw, i * r)));
+                .resize(n, guiding_core::mixture::nasg::NasgMixture::ZERO);
+            decode_nasg_batch(&rows, &mut out.items.nasg);
         }
         Ok(())
     }

@@ -493,6 +493,141 @@ fn cosine_product_block(ms: &mut [VmfMixture<NPM_LOBES>], normals: &[Vec3]) {
     }
 }
 
+/// The NASG mixtures of raw outputs (`[8 × 6 lobe values | selection]`
+/// per row), lane-parallel like [`decode_vmf_batch`]: the activations of
+/// [`NasgMixture::decode`] (NASG Table 2 as read in `mixture/nasg.rs`) with
+/// every transcendental function inlined — `sin_cos_turns` for the Euler
+/// angles (`α = 2π s_α`, `β = π s_β`, `γ = π s_γ` in turns), `ln_inline`,
+/// `ln_1p_inline`, `expm1_nonpositive` for the normaliser — so 8 mixtures
+/// (64 lobes) run as SIMD. `NasgMixture::decode` goes through libm's
+/// out-of-line `sincosf` / `logf` / `expm1f`: the two agree within a few
+/// ulp (tested), not bit for bit.
+///
+/// # Panics
+/// If `ys` and `out` differ in length.
+pub fn decode_nasg_batch(ys: &[[f32; NASG_OUTPUTS]], out: &mut [NasgMixture<NASG_LOBES>]) {
+    assert_eq!(ys.len(), out.len(), "one output per raw row");
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: AVX2 support was just checked.
+        unsafe { decode_nasg_avx2(ys, out) };
+        return;
+    }
+    decode_nasg_portable(ys, out);
+}
+
+#[inline(always)]
+fn decode_nasg_portable(ys: &[[f32; NASG_OUTPUTS]], out: &mut [NasgMixture<NASG_LOBES>]) {
+    for (y, o) in ys.chunks(DECODE_BLOCK).zip(out.chunks_mut(DECODE_BLOCK)) {
+        decode_nasg_block(y, o);
+    }
+}
+
+/// [`decode_nasg_portable`] compiled for AVX2.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn decode_nasg_avx2(ys: &[[f32; NASG_OUTPUTS]], out: &mut [NasgMixture<NASG_LOBES>]) {
+    decode_nasg_portable(ys, out);
+}
+
+#[inline(always)]
+fn decode_nasg_block(ys: &[[f32; NASG_OUTPUTS]], out: &mut [NasgMixture<NASG_LOBES>]) {
+    use crate::lobe::nasg::{NASG_A_MAX, NASG_EPSILON, NASG_LAMBDA_MAX, NASG_LAMBDA_MIN};
+    use crate::math::{
+        exp, expm1_nonpositive, ln_1p_inline, ln_inline, sanitize, sigmoid, sin_cos_turns, FOUR_PI,
+    };
+    use crate::mixture::nasg::{
+        NASG_LN_A_MAX, NASG_LN_A_MIN, NASG_LN_LAMBDA_MAX, NASG_LN_LAMBDA_MIN, NASG_RAW_LIMIT,
+    };
+    let n = ys.len().min(DECODE_BLOCK);
+    let mut raw = [[0.0f32; BLOCK_LOBES]; NASG_RAW_PER_LOBE];
+    for (b, y) in ys[..n].iter().enumerate() {
+        for k in 0..NASG_LOBES {
+            for (r, lane) in raw.iter_mut().enumerate() {
+                lane[k * DECODE_BLOCK + b] = y[k * NASG_RAW_PER_LOBE + r];
+            }
+        }
+    }
+    // Weights: softmax per query, as `softmax` (max and sum in lobe order).
+    let mut logit = raw[0];
+    for l in &mut logit {
+        *l = sanitize(*l, NASG_RAW_LIMIT);
+    }
+    let mut max = [f32::MIN; DECODE_BLOCK];
+    for k in 0..NASG_LOBES {
+        for (m, &l) in max.iter_mut().zip(&logit[k * DECODE_BLOCK..]) {
+            *m = m.max(l);
+        }
+    }
+    let mut w = [0.0f32; BLOCK_LOBES];
+    for (i, (wi, &l)) in w.iter_mut().zip(&logit).enumerate() {
+        *wi = exp(l - max[i % DECODE_BLOCK]);
+    }
+    let mut sum = [0.0f32; DECODE_BLOCK];
+    for k in 0..NASG_LOBES {
+        for (s, &wi) in sum.iter_mut().zip(&w[k * DECODE_BLOCK..]) {
+            *s += wi;
+        }
+    }
+    let log_eps = 0.5 * ln_1p_inline(NASG_EPSILON) - ln_inline(FOUR_PI);
+    let mut f = [[0.0f32; BLOCK_LOBES]; 14];
+    for i in 0..BLOCK_LOBES {
+        let lambda =
+            exp(sanitize(raw[1][i], NASG_RAW_LIMIT).clamp(NASG_LN_LAMBDA_MIN, NASG_LN_LAMBDA_MAX))
+                .clamp(NASG_LAMBDA_MIN, NASG_LAMBDA_MAX);
+        let a = exp(sanitize(raw[2][i], NASG_RAW_LIMIT).clamp(NASG_LN_A_MIN, NASG_LN_A_MAX))
+            .min(NASG_A_MAX);
+        let s_alpha = sigmoid(sanitize(raw[3][i], NASG_RAW_LIMIT));
+        let s_beta = sigmoid(sanitize(raw[4][i], NASG_RAW_LIMIT));
+        let s_gamma = sigmoid(sanitize(raw[5][i], NASG_RAW_LIMIT));
+        let (sa, ca) = sin_cos_turns(s_alpha);
+        let (sb, cb) = sin_cos_turns(0.5 * s_beta);
+        let (sg, cg) = sin_cos_turns(0.5 * s_gamma);
+        // The frame of NASG eq. 13 (`euler_frame`).
+        f[0][i] = ca * cb * cg - sa * sg;
+        f[1][i] = sa * cb * cg + ca * sg;
+        f[2][i] = -sb * cg;
+        f[3][i] = -ca * cb * sg - sa * cg;
+        f[4][i] = -sa * cb * sg + ca * cg;
+        f[5][i] = sb * sg;
+        f[6][i] = ca * sb;
+        f[7][i] = sa * sb;
+        f[8][i] = cb;
+        f[9][i] = lambda;
+        f[10][i] = a;
+        // log_norm = ln(2λ / (1 − e^{−2λ})) − ln 4π + ½ (ln(1 + ε) + ln(1 + ε + a)).
+        let one_minus = -expm1_nonpositive(-2.0 * lambda);
+        f[11][i] =
+            ln_inline(2.0 * lambda / one_minus) + log_eps + 0.5 * ln_1p_inline(NASG_EPSILON + a);
+        f[12][i] = one_minus;
+    }
+    for (b, o) in out[..n].iter_mut().enumerate() {
+        let inv = 1.0 / sum[b];
+        for k in 0..NASG_LOBES {
+            let i = k * DECODE_BLOCK + b;
+            o.weight[k] = w[i] * inv;
+            o.x_x[k] = f[0][i];
+            o.x_y[k] = f[1][i];
+            o.x_z[k] = f[2][i];
+            o.y_x[k] = f[3][i];
+            o.y_y[k] = f[4][i];
+            o.y_z[k] = f[5][i];
+            o.z_x[k] = f[6][i];
+            o.z_y[k] = f[7][i];
+            o.z_z[k] = f[8][i];
+            o.lambda[k] = f[9][i];
+            o.a[k] = f[10][i];
+            o.epsilon[k] = NASG_EPSILON;
+            o.log_norm[k] = f[11][i];
+            o.one_minus_e2l[k] = f[12][i];
+        }
+        o.selection_probability = decode_selection(ys[b][NASG_SELECTION_OUTPUT]).0;
+    }
+}
+
 /// Takes a sample out of a chunk after its forward pass: zero output
 /// gradient, input and activations (so `0 · NaN` cannot reach the
 /// gradient) and zero loss.
@@ -542,9 +677,7 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Nasg<IN, WIDTH, H
                 &mut xs,
                 &mut ys,
             );
-            for (o, y) in os.iter_mut().zip(&ys) {
-                *o = NasgMixture::decode(&split_rows(y), y[NASG_SELECTION_OUTPUT]);
-            }
+            decode_nasg_batch(&ys[..qs.len()], os);
         }
     }
 
