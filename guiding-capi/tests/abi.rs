@@ -1306,3 +1306,33 @@ fn queries_from_many_threads_during_updates() {
         pg_field_release(field.0);
     }
 }
+
+/// `pg_field_update_proportional`: as many steps as `epochs` passes over the
+/// buffer take (batch 256 here), capped at `steps_per_update` (2), and
+/// NULL is refused.
+#[test]
+fn proportional_update_takes_steps_by_buffer_size() {
+    let mut rng = Pcg32::new(31, 2);
+    let field = new_field(&args(PG_REPRESENTATION_NPM));
+    for (n, epochs, expected) in [(100usize, 1.0f32, 1u32), (300, 1.0, 2), (100, 3.0, 2)] {
+        let s = samples(&mut rng, n);
+        let mut report = PgUpdateReport::default();
+        // SAFETY: valid pointers and lengths.
+        unsafe {
+            assert_eq!(pg_field_add_samples(field, s.as_ptr(), s.len()), PG_OK);
+            assert_eq!(
+                pg_field_update_proportional(field, epochs, &mut report),
+                PG_OK
+            );
+        }
+        assert_eq!(report.steps, expected, "{n} samples, {epochs} epochs");
+    }
+    // SAFETY: NULL is checked; the field is live until released.
+    unsafe {
+        assert_eq!(
+            pg_field_update_proportional(null_mut(), 1.0, null_mut()),
+            PG_NULL_POINTER
+        );
+        pg_field_release(field);
+    }
+}

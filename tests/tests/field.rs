@@ -761,3 +761,45 @@ fn config_validation() {
     assert!(Field::new(model, d.with_threads(0)).unwrap().threads() >= 1);
     assert_eq!(Field::new(model, d.with_threads(5)).unwrap().threads(), 5);
 }
+
+/// Proportional training: `clamp(⌈epochs · buffered / batch⌉, 1, steps_per_update)`
+/// Adam steps, and `update_steps` takes exactly that many.
+#[test]
+fn proportional_steps_follow_the_buffer() {
+    let config = FieldConfig::DEFAULT
+        .with_batch_size(100)
+        .with_steps_per_update(8)
+        .with_threads(1);
+    let mut field = Field::new(TinyGrid { res: 2 }, config).expect("valid config");
+    assert_eq!(
+        field.proportional_steps(1.0),
+        1,
+        "an empty buffer still takes one step"
+    );
+    for (n, epochs, expected) in [
+        (50usize, 1.0f32, 1u32),
+        (100, 1.0, 1),
+        (101, 1.0, 2),
+        (250, 1.0, 3),
+        (250, 2.0, 5),
+        (250, 0.1, 1),
+        (5000, 1.0, 8),
+        (250, f32::NAN, 3),
+        (250, -1.0, 3),
+        (250, f32::MAX, 8),
+    ] {
+        let mut f = Field::new(TinyGrid { res: 2 }, config).expect("valid config");
+        f.add_samples(&stream(7, n));
+        assert_eq!(
+            f.proportional_steps(epochs),
+            expected,
+            "n {n} epochs {epochs}"
+        );
+        if epochs == 1.0 {
+            let report = f.update_steps(expected);
+            assert_eq!(report.steps + report.skipped_steps, expected);
+        }
+    }
+    field.add_samples(&stream(8, 250));
+    assert_eq!(field.update_steps(0).steps, 1, "zero steps reads as one");
+}

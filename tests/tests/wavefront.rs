@@ -514,8 +514,14 @@ fn df_vertices_sample_and_evaluate_like_the_model() {
 fn batched_gradient_is_the_per_sample_gradient() {
     let npm = NpmCompactProduct::new(guiding::config::compact_grid(LO, HI), Target::Product);
     let nasg = NasgCompactProduct::new(guiding::config::compact_grid(LO, HI), Target::Product);
+    let df = DfCompactRadiance::new(
+        guiding::config::compact_grid(LO, HI),
+        Target::Radiance,
+        Interpolation::Linear,
+    );
     check_gradient(&npm, 1);
     check_gradient(&nasg, 2);
+    check_gradient(&df, 3);
 }
 
 fn check_gradient<M: GuidingModel>(model: &M, seed: u64) {

@@ -139,7 +139,7 @@ impl DfWeightSource {
 /// Softplus `ln(1 + eʳ)` of the clamped raw output, and its derivative
 /// `sigmoid(r)` (0 where clamped).
 #[inline]
-fn softplus(raw: f32) -> (f32, f32) {
+pub(crate) fn softplus(raw: f32) -> (f32, f32) {
     let r = sanitize(raw, DF_CACHE_RAW_LIMIT);
     let v = r.max(0.0) + ln_1p(exp(-r.abs()));
     let inside = raw > -DF_CACHE_RAW_LIMIT && raw < DF_CACHE_RAW_LIMIT;
@@ -405,7 +405,7 @@ impl<
 
     /// `λ_c` as used.
     #[inline]
-    fn cache_weight(&self) -> f32 {
+    pub(crate) fn cache_weight(&self) -> f32 {
         let c = self.cache_loss_weight;
         if c.is_finite() && c >= 0.0 {
             c
@@ -452,7 +452,7 @@ impl<
 
     /// `[grid features of b | SH₄(ω)]`.
     #[inline]
-    fn cache_input(&self, base: &[f32; IN_M], direction: Vec3) -> [f32; IN_R] {
+    pub(crate) fn cache_input(&self, base: &[f32; IN_M], direction: Vec3) -> [f32; IN_R] {
         let g = self.grid.output_dims();
         let mut x = [0.0f32; IN_R];
         let mut i = 0;
@@ -554,6 +554,17 @@ impl<
         const CACHE_HIDDEN: usize,
     > GuidingModel for Df<IN_M, IN_C, IN_R, WIDTH, HIDDEN, CACHE_WIDTH, CACHE_HIDDEN>
 {
+    /// The batched kernels of [`super::wavefront`].
+    #[cfg(feature = "std")]
+    fn accumulate_gradient_batch(
+        &self,
+        params: &[f32],
+        samples: &[TrainingSample],
+        grad: &mut [f32],
+    ) -> f64 {
+        self.gradient_batch(params, samples, grad)
+    }
+
     /// The end of the last network (the cache, for the presets).
     fn param_count(&self) -> usize {
         let (m, c, r) = self.ends();

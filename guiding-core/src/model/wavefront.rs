@@ -1011,3 +1011,205 @@ impl<
         }
     }
 }
+
+impl<
+        const IN_M: usize,
+        const IN_C: usize,
+        const IN_R: usize,
+        const WIDTH: usize,
+        const HIDDEN: usize,
+        const CACHE_WIDTH: usize,
+        const CACHE_HIDDEN: usize,
+    > Df<IN_M, IN_C, IN_R, WIDTH, HIDDEN, CACHE_WIDTH, CACHE_HIDDEN>
+{
+    /// The batched form of DF's `accumulate_gradient` (module docs): the
+    /// cache, marginal and conditional networks each run forward and
+    /// backward over the chunk; the guide term is skipped where its weight
+    /// is zero and a sample the per-query kernel would reject (invalid,
+    /// non-finite output or gradient) adds nothing. Returns the summed loss.
+    pub(crate) fn gradient_batch(
+        &self,
+        params: &[f32],
+        samples: &[TrainingSample],
+        grad: &mut [f32],
+    ) -> f64 {
+        use super::df::{guide_weight, softplus, DfWeightSource};
+        use crate::loss::relative_l2;
+        let count = self.param_count();
+        if params.len() < count || grad.len() < count {
+            return 0.0;
+        }
+        let (off_m, off_c, off_r) = (
+            self.marginal_offset as usize,
+            self.conditional_offset as usize,
+            self.cache_offset as usize,
+        );
+        type Ctx<const W: usize, const H: usize> = MlpContext<W, H>;
+        let mut xb = [[0.0f32; IN_M]; TRAIN_CHUNK];
+        let mut xc = [[0.0f32; IN_C]; TRAIN_CHUNK];
+        let mut xr = [[0.0f32; IN_R]; TRAIN_CHUNK];
+        let mut yr = [[0.0f32; 3]; TRAIN_CHUNK];
+        let mut ym = [[0.0f32; DF_MARGINAL_BINS]; TRAIN_CHUNK];
+        let mut yc = [[0.0f32; DF_CONDITIONAL_BINS]; TRAIN_CHUNK];
+        let mut dr = [[0.0f32; 3]; TRAIN_CHUNK];
+        let mut dm = [[0.0f32; DF_MARGINAL_BINS]; TRAIN_CHUNK];
+        let mut dc = [[0.0f32; DF_CONDITIONAL_BINS]; TRAIN_CHUNK];
+        let mut dxb = [[0.0f32; IN_M]; TRAIN_CHUNK];
+        let mut dxc = [[0.0f32; IN_C]; TRAIN_CHUNK];
+        let mut dxr = [[0.0f32; IN_R]; TRAIN_CHUNK];
+        let mut cr = [Ctx::<CACHE_WIDTH, CACHE_HIDDEN>::ZERO; TRAIN_CHUNK];
+        let mut cm = [Ctx::<WIDTH, HIDDEN>::ZERO; TRAIN_CHUNK];
+        let mut cc = [Ctx::<WIDTH, HIDDEN>::ZERO; TRAIN_CHUNK];
+        let mut live = [0usize; TRAIN_CHUNK];
+        let mut ok = [false; TRAIN_CHUNK];
+        let mut losses = [0.0f32; TRAIN_CHUNK];
+        let lambda_c = self.cache_weight();
+        let g = self.grid.output_dims();
+        let mut total = 0.0f64;
+        for chunk in samples.chunks(TRAIN_CHUNK) {
+            let mut m = 0;
+            for (j, s) in chunk.iter().enumerate() {
+                if s.validate().is_err() {
+                    continue;
+                }
+                live[m] = j;
+                xb[m] = [0.0; IN_M];
+                encode_inputs_fast(
+                    params,
+                    &self.grid,
+                    self.target,
+                    &QueryPoint::of_sample(s),
+                    &mut xb[m],
+                );
+                xr[m] = self.cache_input(&xb[m], s.wi());
+                xc[m] = Self::conditional_input(&xb[m], square_from_direction(s.wi()).x);
+                m += 1;
+            }
+            if m == 0 {
+                continue;
+            }
+            Mlp::<IN_R, CACHE_WIDTH, 3, CACHE_HIDDEN>::forward_batch(
+                params,
+                off_r,
+                &xr[..m],
+                &mut yr[..m],
+                &mut cr[..m],
+            );
+            Mlp::<IN_M, WIDTH, DF_MARGINAL_BINS, HIDDEN>::forward_batch(
+                params,
+                off_m,
+                &xb[..m],
+                &mut ym[..m],
+                &mut cm[..m],
+            );
+            Mlp::<IN_C, WIDTH, DF_CONDITIONAL_BINS, HIDDEN>::forward_batch(
+                params,
+                off_c,
+                &xc[..m],
+                &mut yc[..m],
+                &mut cc[..m],
+            );
+            for k in 0..m {
+                let s = &chunk[live[k]];
+                let mut pred = [0.0f32; 3];
+                let mut dpred = [0.0f32; 3];
+                for c in 0..3 {
+                    (pred[c], dpred[c]) = softplus(yr[k][c]);
+                }
+                let (loss_r, dl) = relative_l2(pred, s.radiance);
+                for c in 0..3 {
+                    dr[k][c] = lambda_c * dl[c] * dpred[c];
+                }
+                let mut loss = lambda_c * loss_r;
+                let mut finite = all_finite(&yr[k]);
+                let l = match self.weight_source() {
+                    DfWeightSource::Cache => pred,
+                    DfWeightSource::Sample => s.radiance,
+                };
+                let w = guide_weight(l, s, self.target());
+                dm[k] = [0.0; DF_MARGINAL_BINS];
+                dc[k] = [0.0; DF_CONDITIONAL_BINS];
+                if w != 0.0 {
+                    finite = finite && all_finite(&ym[k]) && all_finite(&yc[k]);
+                    let log_q = factorised::grad_log_pdf(
+                        &ym[k],
+                        &yc[k],
+                        self.interpolation(),
+                        s.wi(),
+                        &mut dm[k],
+                        &mut dc[k],
+                    );
+                    loss += -w * log_q;
+                    for d in &mut dm[k] {
+                        *d *= -w;
+                    }
+                    for d in &mut dc[k] {
+                        *d *= -w;
+                    }
+                } else {
+                    // The per-query kernel never runs these networks here.
+                    xb[k] = [0.0; IN_M];
+                    xc[k] = [0.0; IN_C];
+                    cm[k] = MlpContext::ZERO;
+                    cc[k] = MlpContext::ZERO;
+                }
+                ok[k] = finite
+                    && loss.is_finite()
+                    && all_finite(&dr[k])
+                    && all_finite(&dm[k])
+                    && all_finite(&dc[k]);
+                if ok[k] {
+                    losses[k] = loss;
+                } else {
+                    exclude(&mut dr[k], &mut xr[k], &mut cr[k], &mut losses[k]);
+                    exclude(&mut dm[k], &mut xb[k], &mut cm[k], &mut 0.0);
+                    exclude(&mut dc[k], &mut xc[k], &mut cc[k], &mut 0.0);
+                }
+            }
+            Mlp::<IN_M, WIDTH, DF_MARGINAL_BINS, HIDDEN>::backward_batch(
+                params,
+                off_m,
+                &xb[..m],
+                &cm[..m],
+                &dm[..m],
+                grad,
+                &mut dxb[..m],
+            );
+            Mlp::<IN_C, WIDTH, DF_CONDITIONAL_BINS, HIDDEN>::backward_batch(
+                params,
+                off_c,
+                &xc[..m],
+                &cc[..m],
+                &dc[..m],
+                grad,
+                &mut dxc[..m],
+            );
+            Mlp::<IN_R, CACHE_WIDTH, 3, CACHE_HIDDEN>::backward_batch(
+                params,
+                off_r,
+                &xr[..m],
+                &cr[..m],
+                &dr[..m],
+                grad,
+                &mut dxr[..m],
+            );
+            for k in 0..m {
+                if !ok[k] {
+                    continue;
+                }
+                // d_base = marginal + conditional + cache input gradients, in
+                // the per-query kernel's order.
+                let mut d = dxb[k];
+                for i in 0..IN_M.min(IN_C) {
+                    d[i] += dxc[k][i];
+                }
+                for i in 0..g.min(IN_M).min(IN_R) {
+                    d[i] += dxr[k][i];
+                }
+                grid_backward(&self.grid, chunk[live[k]].position(), &d, 0, grad);
+                total += f64::from(losses[k]);
+            }
+        }
+        total
+    }
+}
