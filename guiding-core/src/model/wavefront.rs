@@ -161,84 +161,103 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Npm<IN, WIDTH, HI
         samples: &[TrainingSample],
         grad: &mut [f32],
     ) -> f64 {
-        let count = self.param_count();
-        if params.len() < count || grad.len() < count {
+        if params.len() < self.param_count() || grad.len() < self.param_count() {
             return 0.0;
         }
-        let offset = self.mlp_offset as usize;
-        let mut xs = [[0.0f32; IN]; TRAIN_CHUNK];
-        let mut ys = [[0.0f32; NPM_OUTPUTS]; TRAIN_CHUNK];
-        let mut dys = [[0.0f32; NPM_OUTPUTS]; TRAIN_CHUNK];
-        let mut dxs = [[0.0f32; IN]; TRAIN_CHUNK];
-        let mut ctxs = [MlpContext::<WIDTH, HIDDEN>::ZERO; TRAIN_CHUNK];
-        let mut live = [0usize; TRAIN_CHUNK];
-        let mut losses = [0.0f32; TRAIN_CHUNK];
-        let mut ok = [false; TRAIN_CHUNK];
-        let mut total = 0.0f64;
-        for chunk in samples.chunks(TRAIN_CHUNK) {
-            // Samples with a usable weight, encoded.
-            let mut m = 0;
-            for (j, s) in chunk.iter().enumerate() {
-                if s.validate().is_err() || kl_weight(s, self.target()) == 0.0 {
-                    continue;
-                }
-                live[m] = j;
-                xs[m] = [0.0; IN];
-                encode_inputs_fast(
-                    params,
-                    &self.grid,
-                    self.target,
-                    &QueryPoint::of_sample(s),
-                    &mut xs[m],
-                );
-                m += 1;
-            }
-            if m == 0 {
-                continue;
-            }
-            Mlp::<IN, WIDTH, NPM_OUTPUTS, HIDDEN>::forward_batch(
-                params,
-                offset,
-                &xs[..m],
-                &mut ys[..m],
-                &mut ctxs[..m],
-            );
-            for k in 0..m {
-                let s = &chunk[live[k]];
-                let w = kl_weight(s, self.target());
-                let raw: [[f32; VMF_RAW_PER_LOBE]; NPM_LOBES] = split_rows(&ys[k]);
+        let target = self.target();
+        mixture_gradient_batch::<IN, WIDTH, NPM_OUTPUTS, HIDDEN>(
+            params,
+            &self.grid,
+            self.target,
+            self.mlp_offset as usize,
+            samples,
+            grad,
+            |s, y, dy| {
+                // NPM eq. 9: ℓ = −w ln q(ωᵢ), ∂ℓ/∂y = −w ∇_y ln q.
+                let w = kl_weight(s, target);
+                let raw: [[f32; VMF_RAW_PER_LOBE]; NPM_LOBES] = split_rows(y);
                 let mut g = [[0.0f32; VMF_RAW_PER_LOBE]; NPM_LOBES];
                 let log_q = VmfMixture::grad_log_pdf(&raw, s.wi(), &mut g);
-                let loss = -w * log_q;
-                join_rows(&g, &mut dys[k]);
-                for d in &mut dys[k] {
+                join_rows(&g, dy);
+                for d in dy.iter_mut() {
                     *d *= -w;
                 }
-                ok[k] = loss.is_finite() && all_finite(&ys[k]) && all_finite(&dys[k]);
-                if ok[k] {
-                    losses[k] = loss;
-                } else {
-                    exclude(&mut dys[k], &mut xs[k], &mut ctxs[k], &mut losses[k]);
-                }
+                -w * log_q
+            },
+        )
+    }
+}
+
+/// The batched gradient of the mixture models (NPM, NASG): per chunk of
+/// [`TRAIN_CHUNK`] samples, the samples with a usable weight are encoded,
+/// run forward through the network at `offset` in one batched call, given
+/// their output gradient by `output_grad(sample, y, dy) -> loss`, taken
+/// out again if anything is not finite (as the per-query kernels do), run
+/// backward in one batched call and scattered into the grid. Returns the
+/// summed loss.
+#[allow(clippy::too_many_arguments)] // the model's layout plus the loss
+fn mixture_gradient_batch<const IN: usize, const W: usize, const OUT: usize, const H: usize>(
+    params: &[f32],
+    grid: &crate::encoding::GridConfig,
+    target: u32,
+    offset: usize,
+    samples: &[TrainingSample],
+    grad: &mut [f32],
+    output_grad: impl Fn(&TrainingSample, &[f32; OUT], &mut [f32; OUT]) -> f32,
+) -> f64 {
+    let t = super::npm::target_from_code(target);
+    let mut xs = [[0.0f32; IN]; TRAIN_CHUNK];
+    let mut ys = [[0.0f32; OUT]; TRAIN_CHUNK];
+    let mut dys = [[0.0f32; OUT]; TRAIN_CHUNK];
+    let mut dxs = [[0.0f32; IN]; TRAIN_CHUNK];
+    let mut ctxs = [MlpContext::<W, H>::ZERO; TRAIN_CHUNK];
+    let mut live = [0usize; TRAIN_CHUNK];
+    let mut losses = [0.0f32; TRAIN_CHUNK];
+    let mut ok = [false; TRAIN_CHUNK];
+    let mut total = 0.0f64;
+    for chunk in samples.chunks(TRAIN_CHUNK) {
+        // Samples with a usable weight, encoded.
+        let mut m = 0;
+        for (j, s) in chunk.iter().enumerate() {
+            if s.validate().is_err() || kl_weight(s, t) == 0.0 {
+                continue;
             }
-            Mlp::<IN, WIDTH, NPM_OUTPUTS, HIDDEN>::backward_batch(
-                params,
-                offset,
-                &xs[..m],
-                &ctxs[..m],
-                &dys[..m],
-                grad,
-                &mut dxs[..m],
-            );
-            for k in 0..m {
-                if ok[k] {
-                    grid_backward(&self.grid, chunk[live[k]].position(), &dxs[k], 0, grad);
-                    total += f64::from(losses[k]);
-                }
+            live[m] = j;
+            xs[m] = [0.0; IN];
+            encode_inputs_fast(params, grid, target, &QueryPoint::of_sample(s), &mut xs[m]);
+            m += 1;
+        }
+        if m == 0 {
+            continue;
+        }
+        Mlp::<IN, W, OUT, H>::forward_batch(params, offset, &xs[..m], &mut ys[..m], &mut ctxs[..m]);
+        for k in 0..m {
+            dys[k] = [0.0; OUT];
+            let loss = output_grad(&chunk[live[k]], &ys[k], &mut dys[k]);
+            ok[k] = loss.is_finite() && all_finite(&ys[k]) && all_finite(&dys[k]);
+            if ok[k] {
+                losses[k] = loss;
+            } else {
+                exclude(&mut dys[k], &mut xs[k], &mut ctxs[k], &mut losses[k]);
             }
         }
-        total
+        Mlp::<IN, W, OUT, H>::backward_batch(
+            params,
+            offset,
+            &xs[..m],
+            &ctxs[..m],
+            &dys[..m],
+            grad,
+            &mut dxs[..m],
+        );
+        for k in 0..m {
+            if ok[k] {
+                grid_backward(grid, chunk[live[k]].position(), &dxs[k], 0, grad);
+                total += f64::from(losses[k]);
+            }
+        }
     }
+    total
 }
 
 /// Queries decoded together by [`decode_vmf_block`]: `8 × 8 = 64` lobes,
@@ -689,87 +708,33 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Nasg<IN, WIDTH, H
         samples: &[TrainingSample],
         grad: &mut [f32],
     ) -> f64 {
-        let count = self.param_count();
-        if params.len() < count || grad.len() < count {
+        if params.len() < self.param_count() || grad.len() < self.param_count() {
             return 0.0;
         }
-        let offset = self.mlp_offset as usize;
-        let mut xs = [[0.0f32; IN]; TRAIN_CHUNK];
-        let mut ys = [[0.0f32; NASG_OUTPUTS]; TRAIN_CHUNK];
-        let mut dys = [[0.0f32; NASG_OUTPUTS]; TRAIN_CHUNK];
-        let mut dxs = [[0.0f32; IN]; TRAIN_CHUNK];
-        let mut ctxs = [MlpContext::<WIDTH, HIDDEN>::ZERO; TRAIN_CHUNK];
-        let mut live = [0usize; TRAIN_CHUNK];
-        let mut losses = [0.0f32; TRAIN_CHUNK];
-        let mut ok = [false; TRAIN_CHUNK];
-        let mut total = 0.0f64;
-        for chunk in samples.chunks(TRAIN_CHUNK) {
-            let mut m = 0;
-            for (j, s) in chunk.iter().enumerate() {
-                if s.validate().is_err() || kl_weight(s, self.target()) == 0.0 {
-                    continue;
-                }
-                live[m] = j;
-                xs[m] = [0.0; IN];
-                encode_inputs_fast(
-                    params,
-                    &self.grid,
-                    self.target,
-                    &QueryPoint::of_sample(s),
-                    &mut xs[m],
-                );
-                m += 1;
-            }
-            if m == 0 {
-                continue;
-            }
-            Mlp::<IN, WIDTH, NASG_OUTPUTS, HIDDEN>::forward_batch(
-                params,
-                offset,
-                &xs[..m],
-                &mut ys[..m],
-                &mut ctxs[..m],
-            );
-            for k in 0..m {
-                let s = &chunk[live[k]];
-                let w = kl_weight(s, self.target());
-                let y = &ys[k];
+        let (target, blend) = (self.target(), self.blend());
+        mixture_gradient_batch::<IN, WIDTH, NASG_OUTPUTS, HIDDEN>(
+            params,
+            &self.grid,
+            self.target,
+            self.mlp_offset as usize,
+            samples,
+            grad,
+            |s, y, dy| {
+                // NASG eq. 18 on the lobes and the selection output.
+                let w = kl_weight(s, target);
                 let raw: [[f32; NASG_RAW_PER_LOBE]; NASG_LOBES] = split_rows(y);
                 let mut g = [[0.0f32; NASG_RAW_PER_LOBE]; NASG_LOBES];
                 let log_q = NasgMixture::grad_log_pdf(&raw, s.wi(), &mut g);
                 let (c, dc_dr) = decode_selection(y[NASG_SELECTION_OUTPUT]);
-                let terms = nasg_mis_loss(w, log_q, c, s.bsdf_pdf, self.blend());
-                let dy = &mut dys[k];
-                *dy = [0.0; NASG_OUTPUTS];
+                let terms = nasg_mis_loss(w, log_q, c, s.bsdf_pdf, blend);
                 join_rows(&g, dy);
                 for d in &mut dy[..NASG_SELECTION_OUTPUT] {
                     *d *= terms.dloss_dlog_guide;
                 }
                 dy[NASG_SELECTION_OUTPUT] = terms.dloss_dselection * dc_dr;
-                ok[k] = terms.loss.is_finite() && all_finite(y) && all_finite(dy);
-                if ok[k] {
-                    losses[k] = terms.loss;
-                } else {
-                    exclude(&mut dys[k], &mut xs[k], &mut ctxs[k], &mut losses[k]);
-                }
-            }
-            Mlp::<IN, WIDTH, NASG_OUTPUTS, HIDDEN>::backward_batch(
-                params,
-                offset,
-                &xs[..m],
-                &ctxs[..m],
-                &dys[..m],
-                grad,
-                &mut dxs[..m],
-            );
-            for k in 0..m {
-                if ok[k] {
-                    grid_backward(&self.grid, chunk[live[k]].position(), &dxs[k], 0, grad);
-                    total += f64::from(losses[k]);
-                }
-            }
-        }
-        total
+                terms.loss
+            },
+        )
     }
 }
 
