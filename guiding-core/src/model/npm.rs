@@ -174,7 +174,8 @@ pub fn encode_inputs<const N: usize>(
     encode_product_inputs(target, query, out, o)
 }
 
-/// [`encode_inputs`] with the grid read by [`grid_forward_fast`] (the same
+/// [`encode_inputs`] with the grid read by
+/// [`grid_forward_fast`](crate::encoding::grid::grid_forward_fast) (the same
 /// bits, CPU fast path of the batched decode).
 #[cfg(feature = "std")]
 pub fn encode_inputs_fast<const N: usize>(
