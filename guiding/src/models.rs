@@ -123,26 +123,13 @@ impl BatchItems {
 
 /// Decoding of one family of models, per query and per batch. The DF
 /// methods have a default for the mixture families (which never store DF
-/// vertices): the uniform density.
+/// vertices, so it never runs): the uniform density.
 pub(crate) trait Decode: GuidingModel {
     fn decode_at(&self, params: &[f32], query: &QueryPoint) -> Decoded;
 
     /// Decodes every query into `out` (cleared first), one batched network
     /// pass per chunk.
     fn decode_batch_into(&self, params: &[f32], queries: &[QueryPoint], out: &mut BatchItems);
-
-    /// A DF sample from a decoded vertex.
-    fn sample_vertex_any(&self, _params: &[f32], _v: &DfVertex, u: Vec2) -> DirectionSample {
-        DirectionSample {
-            direction: guiding_core::factorised::direction_from_square(u),
-            pdf: guiding_core::math::INV_FOUR_PI,
-        }
-    }
-
-    /// A DF density from a decoded vertex.
-    fn pdf_vertex_any(&self, _params: &[f32], _v: &DfVertex, _direction: Vec3) -> f32 {
-        guiding_core::math::INV_FOUR_PI
-    }
 
     /// DF samples of many lanes, the conditional network batched.
     fn sample_vertices_any(
@@ -153,8 +140,12 @@ pub(crate) trait Decode: GuidingModel {
         u: &[Vec2],
         out: &mut [DirectionSample],
     ) {
-        for ((o, &l), &ub) in out.iter_mut().zip(lanes).zip(u) {
-            *o = self.sample_vertex_any(params, &vertices[l as usize], ub);
+        let _ = (params, vertices, lanes);
+        for (o, &ub) in out.iter_mut().zip(u) {
+            *o = DirectionSample {
+                direction: guiding_core::factorised::direction_from_square(ub),
+                pdf: guiding_core::math::INV_FOUR_PI,
+            };
         }
     }
 
@@ -167,9 +158,8 @@ pub(crate) trait Decode: GuidingModel {
         directions: &[Vec3],
         out: &mut [f32],
     ) {
-        for ((o, &l), &d) in out.iter_mut().zip(lanes).zip(directions) {
-            *o = self.pdf_vertex_any(params, &vertices[l as usize], d);
-        }
+        let _ = (params, vertices, lanes, directions);
+        out.fill(guiding_core::math::INV_FOUR_PI);
     }
 }
 
@@ -233,14 +223,6 @@ impl<
         out.selection = self.selection_probability(params, &QueryPoint::default());
         out.df.resize(queries.len(), DfVertex::ZERO);
         self.decode_batch(params, queries, &mut out.df);
-    }
-
-    fn sample_vertex_any(&self, params: &[f32], v: &DfVertex, u: Vec2) -> DirectionSample {
-        self.sample_vertex(params, v, u)
-    }
-
-    fn pdf_vertex_any(&self, params: &[f32], v: &DfVertex, direction: Vec3) -> f32 {
-        self.pdf_vertex(params, v, direction)
     }
 
     fn sample_vertices_any(

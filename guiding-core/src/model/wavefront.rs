@@ -113,6 +113,31 @@ fn infer_chunk<const IN: usize, const W: usize, const OUT: usize, const H: usize
     Mlp::<IN, W, OUT, H>::infer_batch(params, offset, &xs[..m], &mut ys[..m]);
 }
 
+/// The chunk loop of the mixture models' batched decode: each chunk of
+/// [`WAVEFRONT_CHUNK`] queries is encoded, run through the network at
+/// `offset` ([`infer_chunk`]) and its raw outputs decoded into `out` by
+/// `decode` (a lane-parallel decoder).
+#[allow(clippy::too_many_arguments)] // the model's layout plus the decoder
+fn infer_and_decode<const IN: usize, const W: usize, const OUT: usize, const H: usize, T>(
+    params: &[f32],
+    grid: &crate::encoding::GridConfig,
+    target: u32,
+    offset: usize,
+    queries: &[QueryPoint],
+    out: &mut [T],
+    decode: impl Fn(&[[f32; OUT]], &mut [T]),
+) {
+    let mut xs = [[0.0f32; IN]; WAVEFRONT_CHUNK];
+    let mut ys = [[0.0f32; OUT]; WAVEFRONT_CHUNK];
+    for (qs, os) in queries
+        .chunks(WAVEFRONT_CHUNK)
+        .zip(out.chunks_mut(WAVEFRONT_CHUNK))
+    {
+        infer_chunk::<IN, W, OUT, H>(params, grid, target, offset, qs, &mut xs, &mut ys);
+        decode(&ys[..qs.len()], os);
+    }
+}
+
 impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Npm<IN, WIDTH, HIDDEN> {
     /// [`Self::decode`] of every query, written to `out` (same length): one
     /// batched network pass per chunk (module docs).
@@ -132,23 +157,15 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Npm<IN, WIDTH, HI
             }
             return;
         }
-        let mut xs = [[0.0f32; IN]; WAVEFRONT_CHUNK];
-        let mut ys = [[0.0f32; NPM_OUTPUTS]; WAVEFRONT_CHUNK];
-        for (qs, os) in queries
-            .chunks(WAVEFRONT_CHUNK)
-            .zip(out.chunks_mut(WAVEFRONT_CHUNK))
-        {
-            infer_chunk::<IN, WIDTH, NPM_OUTPUTS, HIDDEN>(
-                params,
-                &self.grid,
-                self.target,
-                self.mlp_offset as usize,
-                qs,
-                &mut xs,
-                &mut ys,
-            );
-            decode_vmf_batch(&ys[..qs.len()], os);
-        }
+        infer_and_decode::<IN, WIDTH, NPM_OUTPUTS, HIDDEN, _>(
+            params,
+            &self.grid,
+            self.target,
+            self.mlp_offset as usize,
+            queries,
+            out,
+            decode_vmf_batch,
+        );
     }
 
     /// The batched form of `accumulate_gradient` over `samples` (module
@@ -681,23 +698,15 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Nasg<IN, WIDTH, H
             }
             return;
         }
-        let mut xs = [[0.0f32; IN]; WAVEFRONT_CHUNK];
-        let mut ys = [[0.0f32; NASG_OUTPUTS]; WAVEFRONT_CHUNK];
-        for (qs, os) in queries
-            .chunks(WAVEFRONT_CHUNK)
-            .zip(out.chunks_mut(WAVEFRONT_CHUNK))
-        {
-            infer_chunk::<IN, WIDTH, NASG_OUTPUTS, HIDDEN>(
-                params,
-                &self.grid,
-                self.target,
-                self.mlp_offset as usize,
-                qs,
-                &mut xs,
-                &mut ys,
-            );
-            decode_nasg_batch(&ys[..qs.len()], os);
-        }
+        infer_and_decode::<IN, WIDTH, NASG_OUTPUTS, HIDDEN, _>(
+            params,
+            &self.grid,
+            self.target,
+            self.mlp_offset as usize,
+            queries,
+            out,
+            decode_nasg_batch,
+        );
     }
 
     /// The batched form of `accumulate_gradient` (see
