@@ -30,9 +30,10 @@
 //!   Fresnel reflectance `F_dr` from the fits of Egan & Hilgeman 1973 (η < 1) and d'Eon &
 //!   Irving 2011 (η ≥ 1) (Mitsuba's `fresnel_diffuse_reflectance`); the coating transmits
 //!   `(1 − F(θi))(1 − F(θo))/η²` (smooth) or `t(θi) t(θo)/η²` with `t = 1 −` the directional
-//!   albedo of the rough GGX interface, tabulated over 64 cosines (rough). Deviation: our
-//!   table is integrated with a 64 × 64 stratified visible-normal rule instead of Mitsuba's
-//!   quadrature (differences ≈ 10⁻³).
+//!   directional transmittance of the rough GGX interface (single scattering: what is masked
+//!   after one microfacet interaction is lost, as in Mitsuba), tabulated over 64 cosines,
+//!   and the internal reflectance `2·mean(μ·R(μ, 1/η))` over the same cosines (rough). Both
+//!   are integrated over visible normals with Mitsuba's Gauss–Legendre orders (32 or 128).
 
 use crate::math::sample_cosine_hemisphere;
 use glam::Vec3;
@@ -57,6 +58,8 @@ pub enum Material {
         eta: Vec3,
         /// Imaginary part (absorption).
         k: Vec3,
+        /// Multiplier of the reflection (Mitsuba's `specular_reflectance`).
+        specular: Vec3,
     },
     /// Smooth conductor (delta reflection with the conductor Fresnel term).
     Conductor {
@@ -141,7 +144,8 @@ pub struct Coating {
     pub spec_weight: f32,
     /// Internal diffuse reflectance of the coating (`F_dr(1/η)` smooth, tabulated rough).
     pub internal: f32,
-    /// Rough only: external transmittance `1 − albedo(μ)` at `μ = i / 63`.
+    /// Rough only: external transmittance of the coating at `μ = i / 63`
+    /// ([`rough_dielectric_transmittance`]).
     pub ext_t: [f32; ROUGH_TRANSMITTANCE_RES],
 }
 
@@ -167,7 +171,7 @@ impl Coating {
         let mut internal = 0.0f64;
         for (i, t) in ext_t.iter_mut().enumerate() {
             let mu = (i as f32 / (ROUGH_TRANSMITTANCE_RES - 1) as f32).max(1e-6);
-            *t = 1.0 - rough_dielectric_albedo(mu, alpha, eta);
+            *t = rough_dielectric_transmittance(mu, alpha, eta);
             internal += f64::from(rough_dielectric_albedo(mu, alpha, 1.0 / eta) * mu);
         }
         Self {
@@ -277,25 +281,84 @@ pub fn fresnel_diffuse_reflectance(eta: f32) -> f32 {
 
 /// Directional albedo of the reflection off a rough GGX dielectric interface at `cos θi = mu`,
 /// `∫ F D G / (4 cos θi) dωo`, estimated as `E[F(ωi·m) G1(ωo, m)]` over visible normals `m`
-/// with a 64 × 64 stratified (midpoint) rule.
+/// (Mitsuba 3 `eval_reflectance`, same quadrature: [`visible_normal_quadrature`]).
 pub fn rough_dielectric_albedo(mu: f32, alpha: f32, eta: f32) -> f32 {
+    visible_normal_quadrature(mu, alpha, eta, |wi, m| {
+        let wo = 2.0 * wi.dot(m) * m - wi;
+        if wo.z <= 0.0 {
+            return 0.0;
+        }
+        fresnel_dielectric(wi.dot(m), eta).0 * ggx_g1(wo, m, alpha)
+    })
+}
+
+/// Directional transmittance of a rough GGX dielectric interface at `cos θi = mu` (single
+/// scattering): `E[(1 − F(ωi·m)) G1(ωt, m)]` over visible normals `m`, `ωt` the refraction
+/// of `ωi` about `m` (Mitsuba 3 `eval_transmittance`). Less than `1 −` the albedo: the
+/// energy masked after one microfacet interaction is neither reflected nor transmitted.
+pub fn rough_dielectric_transmittance(mu: f32, alpha: f32, eta: f32) -> f32 {
+    visible_normal_quadrature(mu, alpha, eta, |wi, m| {
+        let wim = wi.dot(m);
+        let (f, cos_t, _, eta_ti) = fresnel_dielectric(wim, eta);
+        let wt = m * (wim * eta_ti + cos_t) - wi * eta_ti;
+        if wt.z >= 0.0 {
+            return 0.0;
+        }
+        (1.0 - f) * ggx_g1(wt, m, alpha)
+    })
+}
+
+/// `E[g(ωi, m)]` over the GGX visible normals of `ωi = (√(1−μ²), 0, μ)`, by a tensor
+/// Gauss–Legendre rule over the two sample dimensions of [`sample_ggx_vndf`], of order 32
+/// per dimension for `η > 1` and 128 for `η < 1` (the total internal reflection edge needs
+/// more), as Mitsuba 3's `eval_reflectance` / `eval_transmittance` integrate.
+fn visible_normal_quadrature(mu: f32, alpha: f32, eta: f32, g: impl Fn(Vec3, Vec3) -> f32) -> f32 {
     let wi = Vec3::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu);
-    const N: usize = 64;
+    let rule = if eta > 1.0 {
+        &*GAUSS_LEGENDRE_32
+    } else {
+        &*GAUSS_LEGENDRE_128
+    };
     let mut acc = 0.0f64;
-    for a in 0..N {
-        for b in 0..N {
-            let (u1, u2) = ((a as f32 + 0.5) / N as f32, (b as f32 + 0.5) / N as f32);
-            let m = sample_ggx_vndf(wi, alpha, u1, u2);
-            let wo = 2.0 * wi.dot(m) * m - wi;
-            if wo.z <= 0.0 {
-                continue;
-            }
-            let f = fresnel_dielectric(wi.dot(m), eta).0;
-            acc += f64::from(f * ggx_g1(wo, m, alpha));
+    for &(x1, w1) in rule {
+        for &(x2, w2) in rule {
+            let m = sample_ggx_vndf(wi, alpha, x1, x2);
+            acc += w1 * w2 * f64::from(g(wi, m));
         }
     }
-    (acc / (N * N) as f64) as f32
+    acc as f32
 }
+
+/// Gauss–Legendre nodes and weights on `[0, 1]` (weights sum to 1).
+fn gauss_legendre_unit(n: usize) -> Vec<(f32, f64)> {
+    (0..n)
+        .map(|i| {
+            // Newton iteration on P_n from the Chebyshev-like initial guess.
+            let mut x = (std::f64::consts::PI * (i as f64 + 0.75) / (n as f64 + 0.5)).cos();
+            let mut dp = 1.0;
+            for _ in 0..100 {
+                let (mut p0, mut p1) = (1.0f64, x);
+                for k in 2..=n {
+                    let k = k as f64;
+                    (p0, p1) = (p1, ((2.0 * k - 1.0) * x * p1 - (k - 1.0) * p0) / k);
+                }
+                dp = n as f64 * (x * p1 - p0) / (x * x - 1.0);
+                let dx = p1 / dp;
+                x -= dx;
+                if dx.abs() < 1e-15 {
+                    break;
+                }
+            }
+            let w = 2.0 / ((1.0 - x * x) * dp * dp);
+            ((0.5 * x + 0.5) as f32, 0.5 * w)
+        })
+        .collect()
+}
+
+static GAUSS_LEGENDRE_32: std::sync::LazyLock<Vec<(f32, f64)>> =
+    std::sync::LazyLock::new(|| gauss_legendre_unit(32));
+static GAUSS_LEGENDRE_128: std::sync::LazyLock<Vec<(f32, f64)>> =
+    std::sync::LazyLock::new(|| gauss_legendre_unit(128));
 
 /// Reflectance of a thin dielectric sheet at `|cos θi| = cos_i` (Mitsuba 3
 /// `thindielectric`): one interface reflects `F`, the internal bounces add
@@ -407,12 +470,17 @@ impl Material {
             Material::Diffuse { reflectance } => {
                 (reflectance * (FRAC_1_PI * wo.z), FRAC_1_PI * wo.z)
             }
-            Material::RoughConductor { alpha, eta, k } => {
+            Material::RoughConductor {
+                alpha,
+                eta,
+                k,
+                specular,
+            } => {
                 let m = (wi + wo).normalize();
                 let d = ggx_d(m, alpha);
                 let g1i = ggx_g1(wi, m, alpha);
                 let g = g1i * ggx_g1(wo, m, alpha);
-                let f = fresnel_conductor(wi.dot(m), eta, k);
+                let f = specular * fresnel_conductor(wi.dot(m), eta, k);
                 let value = f * (d * g / (4.0 * wi.z));
                 let pdf = g1i * wi.dot(m).max(0.0) * d / wi.z / (4.0 * wo.dot(m));
                 (value, pdf)
@@ -532,7 +600,12 @@ impl Material {
                     pdf: wo.z * FRAC_1_PI,
                 })
             }
-            Material::RoughConductor { alpha, eta, k } => {
+            Material::RoughConductor {
+                alpha,
+                eta,
+                k,
+                specular,
+            } => {
                 let m = sample_ggx_vndf(wi, alpha, u1, u2);
                 let wo = 2.0 * wi.dot(m) * m - wi;
                 if wo.z <= 0.0 {
@@ -545,7 +618,7 @@ impl Material {
                 let d = ggx_d(m, alpha);
                 let pdf = g1i * wi.dot(m).max(0.0) * d / wi.z / (4.0 * wo.dot(m));
                 // f cos / pdf = F G1(wi) G1(wo) / G1(wi) = F G1(wo) (separable Smith G).
-                let weight = fresnel_conductor(wi.dot(m), eta, k) * ggx_g1(wo, m, alpha);
+                let weight = specular * fresnel_conductor(wi.dot(m), eta, k) * ggx_g1(wo, m, alpha);
                 if pdf.is_nan() || pdf <= 0.0 || !weight.is_finite() {
                     return None;
                 }
@@ -778,6 +851,7 @@ mod tests {
                 alpha: 0.3,
                 eta: Vec3::new(0.2, 0.92, 1.1),
                 k: Vec3::new(3.9, 2.45, 2.14),
+                specular: Vec3::new(1.0, 0.8, 0.6),
             },
             Material::RoughDielectric {
                 alpha: 0.3,
@@ -906,6 +980,7 @@ mod tests {
             alpha: 0.4,
             eta: Vec3::ZERO,
             k: Vec3::ONE,
+            specular: Vec3::ONE,
         };
         let wi = Vec3::new(0.5, 0.0, 0.8).normalize();
         let mut rng = Rng::new(7, 0, 0);

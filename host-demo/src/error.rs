@@ -20,6 +20,11 @@ pub enum Error {
         /// What is wrong.
         msg: String,
     },
+    /// Every problem of a scene that cannot be rendered, collected in one load (each entry
+    /// names its file and line): the loader goes on after an error so that one run reports
+    /// them all.
+    #[error("{}", problems_text(.0))]
+    Problems(Vec<String>),
     /// The file is not well-formed XML.
     #[error("{file}: XML syntax error: {source}")]
     XmlSyntax {
@@ -77,6 +82,17 @@ pub enum Error {
     /// `--device gpu`: no usable Vulkan device, shaders not built, or a GPU failure.
     #[error("GPU: {0}")]
     Gpu(#[from] guiding_gpu::GpuError),
+}
+
+fn problems_text(list: &[String]) -> String {
+    match list {
+        [one] => one.clone(),
+        _ => format!(
+            "{} problems in the scene:\n  {}",
+            list.len(),
+            list.join("\n  ")
+        ),
+    }
 }
 
 /// Convenience alias.

@@ -394,7 +394,12 @@ impl<'s> Worker<'s> {
                 (x + rng.next_f32()) / width as f32,
                 (y + rng.next_f32()) / height as f32,
             );
-            let (o, d) = self.scene.camera.ray(u, v);
+            let cam = &self.scene.camera;
+            let (o, d) = if cam.has_lens() {
+                cam.ray_lens(u, v, rng.next_f32(), rng.next_f32())
+            } else {
+                cam.ray(u, v)
+            };
             self.rng.push(rng);
             self.paths.push(i as u32, o, d, Vec3::ONE, 0.0, true);
         }

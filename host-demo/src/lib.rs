@@ -13,6 +13,7 @@ pub mod bench;
 pub mod bsdf;
 pub mod builtin;
 pub mod compare;
+pub mod conductors;
 pub mod emitter;
 pub mod error;
 pub mod gpu;

@@ -116,6 +116,11 @@ enum Cmd {
         /// `<default name="NAME" value=.../>` (repeatable).
         #[arg(short = 'D', value_name = "NAME=VALUE")]
         define: Vec<String>,
+        /// Refuse what the scene loader does not know (an unknown plugin type, property or
+        /// element is an error, as before warnings existed); by default it is ignored or
+        /// replaced with a warning naming file and line.
+        #[arg(long)]
+        strict: bool,
         /// Random seed.
         #[arg(long, default_value_t = 0)]
         seed: u64,
@@ -419,6 +424,7 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         stats: stats_path,
         threads,
         define,
+        strict,
         seed,
         max_depth,
         width,
@@ -490,7 +496,7 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         }
     }
     let t0 = Instant::now();
-    let sc = host_demo::load_scene_with(&scene, &host_demo::xml::LoadOptions { params })?;
+    let sc = host_demo::load_scene_with(&scene, &host_demo::xml::LoadOptions { params, strict })?;
     let load_s = t0.elapsed().as_secs_f64();
     println!(
         "loaded {} primitives, {} textures ({:.1} MiB of texel data) in {load_s:.3} s",

@@ -255,8 +255,9 @@ pub struct SurfaceHit {
     pub uv: Vec2,
 }
 
-/// Pinhole camera with Mitsuba's perspective conventions (local +z forward, image x towards
-/// local -x, image y towards local -y).
+/// Perspective camera with Mitsuba's conventions (local +z forward, image x towards local
+/// -x, image y towards local -y): a pinhole, or Mitsuba's `thinlens` when `aperture_radius`
+/// is positive.
 #[derive(Clone, Copy, Debug)]
 pub struct Camera {
     /// Camera-to-world transform.
@@ -265,6 +266,10 @@ pub struct Camera {
     pub tan_x: f32,
     /// tan(fov_y / 2).
     pub tan_y: f32,
+    /// Radius of the thin lens (0: pinhole).
+    pub aperture_radius: f32,
+    /// Distance of the plane in focus along the local z axis (thin lens only).
+    pub focus_distance: f32,
 }
 
 impl Camera {
@@ -294,7 +299,44 @@ impl Camera {
             to_world,
             tan_x,
             tan_y,
+            aperture_radius: 0.0,
+            focus_distance: 1.0,
         })
+    }
+
+    /// The same camera with a thin lens (Mitsuba `thinlens`): rays start on a disk of
+    /// `aperture_radius` in the lens plane and pass through the point of the pinhole ray at
+    /// depth `focus_distance` (local z).
+    pub fn with_thin_lens(self, aperture_radius: f32, focus_distance: f32) -> Self {
+        Self {
+            aperture_radius,
+            focus_distance,
+            ..self
+        }
+    }
+
+    /// True if primary rays need a lens sample ([`Camera::ray_lens`]).
+    pub fn has_lens(&self) -> bool {
+        self.aperture_radius > 0.0
+    }
+
+    /// Primary ray through film position `(u, v)` and lens sample `(lu, lv)` in `[0,1)^2`
+    /// (a concentric-disk point on the aperture; a pinhole ignores it).
+    pub fn ray_lens(&self, u: f32, v: f32, lu: f32, lv: f32) -> (Vec3, Vec3) {
+        if !self.has_lens() {
+            return self.ray(u, v);
+        }
+        let dir = Vec3::new(
+            (1.0 - 2.0 * u) * self.tan_x,
+            (1.0 - 2.0 * v) * self.tan_y,
+            1.0,
+        );
+        let focus = dir * self.focus_distance;
+        let (dx, dy) = crate::math::sample_concentric_disk(lu, lv);
+        let lens = Vec3::new(dx * self.aperture_radius, dy * self.aperture_radius, 0.0);
+        let o = self.to_world.transform_point3(lens);
+        let d = self.to_world.transform_vector3(focus - lens).normalize();
+        (o, d)
     }
 
     /// Primary ray through film position `(u, v)` in `[0,1]^2` (top-left origin).
@@ -849,10 +891,16 @@ impl Scene {
                 k,
                 specular: tex(t.specular, specular),
             },
-            Material::RoughConductor { alpha: a, eta, k } => Material::RoughConductor {
+            Material::RoughConductor {
+                alpha: a,
+                eta,
+                k,
+                specular,
+            } => Material::RoughConductor {
                 alpha: alpha(t.scalar, a),
                 eta,
                 k,
+                specular: tex(t.specular, specular),
             },
             Material::Dielectric {
                 eta,

@@ -22,6 +22,7 @@
 //! error that names the element and its line: nothing is dropped silently.
 
 use crate::bsdf::{Coating, Material};
+use crate::conductors::named_conductor;
 use crate::emitter::{EnvMap, Environment, PointLight};
 use crate::error::{Error, Result};
 use crate::obj::parse_obj_uv;
@@ -31,7 +32,7 @@ use crate::texture::{Filter, ImageCache, Param, Texture, UvMap, Wrap};
 use glam::{Mat4, Vec2, Vec3};
 use roxmltree::{Document, Node};
 use std::borrow::Cow;
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::path::{Component, Path, PathBuf};
 
 /// Options of a scene load.
@@ -40,6 +41,9 @@ pub struct LoadOptions {
     /// `$name` parameter values (`-D name=value` on the command line); they override the
     /// scene's `<default>` values.
     pub params: Vec<(String, String)>,
+    /// `--strict`: everything the loader does not know (a plugin type, a property, an
+    /// element) is an error instead of a warning. Approximations stay warnings.
+    pub strict: bool,
 }
 
 /// Loads a Mitsuba XML scene from disk (meshes are resolved relative to its folder).
@@ -93,6 +97,10 @@ pub fn load_str_opts(
         root_base: base.to_path_buf(),
         read,
         params: opts.params.iter().cloned().collect(),
+        strict: opts.strict,
+        errors: Vec::new(),
+        failed_bsdfs: HashSet::new(),
+        aniso: [None, None],
         includes: vec![normalize(&PathBuf::from(file))],
         bsdfs: HashMap::new(),
         mask_opacity: HashMap::new(),
@@ -238,6 +246,16 @@ struct Ctx<'r> {
     root_base: PathBuf,
     read: &'r dyn Fn(&Path) -> std::io::Result<Vec<u8>>,
     params: HashMap<String, String>,
+    /// Unknown constructs are errors ([`LoadOptions::strict`]).
+    strict: bool,
+    /// Errors of the top-level elements read so far: the load goes on after one so that a
+    /// single run reports every problem of the scene.
+    errors: Vec<String>,
+    /// Ids of top-level BSDFs that failed to load (their error is already reported; a
+    /// `<ref>` to them uses the default material instead of adding an "unknown id" error).
+    failed_bsdfs: HashSet<String>,
+    /// `alpha_u`, `alpha_v` of the rough BSDF being read (see [`Ctx::check_rough`]).
+    aniso: [Option<f32>; 2],
     /// Include chain (cycle detection).
     includes: Vec<PathBuf>,
     bsdfs: HashMap<String, u32>,
@@ -326,19 +344,23 @@ impl Ctx<'_> {
     }
 
     fn unsupported(&self, n: Node, what: &str) -> Error {
-        let ty = n
-            .attribute("type")
-            .or_else(|| n.attribute("name"))
-            .unwrap_or("");
-        self.err(
-            n,
-            format!(
-                "unsupported {what} <{} {}> (element \"{}\")",
-                n.tag_name().name(),
-                quoted(ty),
-                n.tag_name().name()
-            ),
-        )
+        self.err(n, format!("unsupported {what} {}", describe(n)))
+    }
+
+    /// Something the loader does not know (a property, an element): ignored with a warning,
+    /// or an error with [`LoadOptions::strict`].
+    fn ignore(&mut self, n: Node, what: &str) -> Result<()> {
+        self.fallback(n, what, "ignored")
+    }
+
+    /// An unknown construct replaced by `instead` (said in the warning), or an error with
+    /// [`LoadOptions::strict`].
+    fn fallback(&mut self, n: Node, what: &str, instead: &str) -> Result<()> {
+        if self.strict {
+            return Err(self.unsupported(n, what));
+        }
+        self.warn(n, format!("unsupported {what} {}: {instead}", describe(n)));
+        Ok(())
     }
 
     fn floats(&self, n: Node, s: &str) -> Result<Vec<f32>> {
@@ -580,11 +602,18 @@ impl Ctx<'_> {
     fn scene(&mut self, root: Node) -> Result<Scene> {
         self.check_root(root)?;
         for n in elements(root) {
-            self.top(n)?;
+            self.top_or_record(n);
         }
-        let (camera, width, height, spp) = self
-            .sensor
-            .ok_or_else(|| self.err(root, "the scene has no <sensor>"))?;
+        if self.sensor.is_none() && self.errors.is_empty() {
+            self.errors
+                .push(self.err(root, "the scene has no <sensor>").to_string());
+        }
+        if !self.errors.is_empty() {
+            return Err(Error::Problems(std::mem::take(&mut self.errors)));
+        }
+        let Some((camera, width, height, spp)) = self.sensor else {
+            unreachable!("a missing sensor is recorded as an error above")
+        };
         let settings = Settings {
             width,
             height,
@@ -608,6 +637,23 @@ impl Ctx<'_> {
             ));
         }
         Ok(())
+    }
+
+    /// [`Ctx::top`], recording its error and going on with the next element (a failed
+    /// top-level BSDF leaves its id in `failed_bsdfs`).
+    fn top_or_record(&mut self, n: Node) {
+        if let Err(e) = self.top(n) {
+            if n.tag_name().name() == "bsdf" {
+                if let Some(id) = n.attribute("id") {
+                    self.failed_bsdfs.insert(id.to_string());
+                }
+            }
+            match e {
+                // An include's own list of problems joins this one.
+                Error::Problems(list) => self.errors.extend(list),
+                e => self.errors.push(e.to_string()),
+            }
+        }
     }
 
     /// One top-level element of the scene (or of an included file).
@@ -638,7 +684,7 @@ impl Ctx<'_> {
                 self.attr(n, "name")?;
                 self.attr(n, "value")?;
             }
-            _ => return Err(self.unsupported(n, "scene element")),
+            _ => self.ignore(n, "scene element")?,
         }
         Ok(())
     }
@@ -673,11 +719,10 @@ impl Ctx<'_> {
             path.parent().map(Path::to_path_buf).unwrap_or_default(),
         );
         self.includes.push(key);
-        let result = self.check_root(doc.root_element()).and_then(|()| {
+        let result = self.check_root(doc.root_element()).map(|()| {
             for c in elements(doc.root_element()) {
-                self.top(c)?;
+                self.top_or_record(c);
             }
-            Ok(())
         });
         self.includes.pop();
         self.file = saved_file;
@@ -685,14 +730,28 @@ impl Ctx<'_> {
         result
     }
 
-    /// `(max_depth, rr_depth)` of `<integrator type="path">`.
+    /// `(max_depth, rr_depth)` of the `<integrator>`. `path` is read; every other type is
+    /// rendered with `path` at its `max_depth` (`direct`: at 2, i.e. direct light only) with
+    /// a warning, an error with `--strict`; a wrapper such as `aov` is read through its
+    /// nested `<integrator>`.
     fn integrator(&mut self, n: Node) -> Result<(u32, u32)> {
-        if n.attribute("type") != Some("path") {
-            return Err(self.unsupported(n, "integrator type (only \"path\")"));
+        let ty = n.attribute("type").unwrap_or("");
+        let known = ty == "path";
+        let (mut depth, mut rr_depth) = (if ty == "direct" { 2 } else { 1024 }, 5);
+        if !known {
+            let instead = match ty {
+                "direct" => "rendered with \"path\" at max_depth 2 (direct light)",
+                _ => "rendered with \"path\" at its max_depth (its other properties are ignored)",
+            };
+            self.fallback(n, "integrator type", instead)?;
         }
-        let (mut depth, mut rr_depth) = (1024, 5);
         for p in elements(n) {
-            match (p.tag_name().name(), self.name(p)?.as_ref()) {
+            let tag = p.tag_name().name();
+            if tag == "integrator" {
+                (depth, rr_depth) = self.integrator(p)?;
+                continue;
+            }
+            match (tag, self.name(p)?.as_ref()) {
                 ("integer", "max_depth") => {
                     let d = self.integer(p)?;
                     depth = if d < 0 { 1024 } else { d.min(1 << 20) as u32 };
@@ -701,22 +760,32 @@ impl Ctx<'_> {
                 ("integer", "rr_depth") => {
                     rr_depth = self.integer(p)?.clamp(1, 1 << 20) as u32;
                 }
-                ("boolean", "strict_normals") => self.warn(
+                ("boolean", "strict_normals") if known => self.warn(
                     p,
                     "strict_normals is ignored (light leaks through shading normals are \
                      rejected by a geometric side test instead)",
                 ),
-                ("boolean", "hide_emitters") if !self.boolean(p)? => {}
-                _ => return Err(self.unsupported(p, "integrator property")),
+                ("boolean", "hide_emitters") if known && self.boolean(p)? => self.warn(
+                    p,
+                    "hide_emitters=true is not supported: emitters seen directly stay visible",
+                ),
+                ("boolean", "hide_emitters") => {}
+                _ if known => self.ignore(p, "integrator property")?,
+                _ => {}
             }
         }
         Ok((depth, rr_depth))
     }
 
     fn sensor(&mut self, n: Node) -> Result<(Camera, u32, u32, u32)> {
-        if n.attribute("type") != Some("perspective") {
-            return Err(self.unsupported(n, "sensor type (only \"perspective\")"));
-        }
+        let thin_lens = match n.attribute("type") {
+            Some("perspective") => false,
+            Some("thinlens") => true,
+            _ => {
+                return Err(self.unsupported(n, "sensor type (perspective or thinlens)"));
+            }
+        };
+        let (mut aperture, mut focus) = (0.0f32, 0.0f32);
         let (mut fov, mut axis, mut to_world) = (None, "x".to_string(), Mat4::IDENTITY);
         let (mut w, mut h, mut spp) = (768u32, 576u32, 4u32);
         for p in elements(n) {
@@ -727,6 +796,8 @@ impl Ctx<'_> {
             };
             match (tag, pname.as_ref()) {
                 ("float", "fov") => fov = Some(self.float(p)?),
+                ("float", "aperture_radius") if thin_lens => aperture = self.float(p)?,
+                ("float", "focus_distance") if thin_lens => focus = self.float(p)?,
                 // Clipping planes do not change the image of a closed-form pinhole for these scenes.
                 ("float", "near_clip" | "far_clip") => {}
                 ("string", "fov_axis") => axis = self.attr(p, "value")?.to_string(),
@@ -740,7 +811,11 @@ impl Ctx<'_> {
                             p,
                             format!("sampler \"{ty}\" is replaced by \"independent\" (same expected image, different noise)"),
                         ),
-                        _ => return Err(self.unsupported(p, "sampler type")),
+                        _ => self.fallback(
+                            p,
+                            "sampler type",
+                            "replaced by \"independent\" (same expected image, different noise)",
+                        )?,
                     }
                     for q in elements(p) {
                         match (q.tag_name().name(), self.name(q)?.as_ref()) {
@@ -749,7 +824,7 @@ impl Ctx<'_> {
                             ("integer", "dimension" | "scramble")
                             | ("boolean", "jitter" | "randomize")
                                 if ty != "independent" => {}
-                            _ => return Err(self.unsupported(q, "sampler property")),
+                            _ => self.ignore(q, "sampler property")?,
                         }
                     }
                 }
@@ -761,7 +836,7 @@ impl Ctx<'_> {
                             p,
                             "ldrfilm: the image is written as EXR plus an sRGB PNG preview; its tonemapping parameters are ignored",
                         ),
-                        _ => return Err(self.unsupported(p, "film type")),
+                        _ => self.fallback(p, "film type", "written as hdrfilm (EXR + PNG)")?,
                     }
                     for q in elements(p) {
                         let qtag = q.tag_name().name();
@@ -773,7 +848,11 @@ impl Ctx<'_> {
                                     let f = f.to_string();
                                     self.warn(q, format!("reconstruction filter \"{f}\" is replaced by \"box\" (slightly sharper image)"));
                                 }
-                                _ => return Err(self.unsupported(q, "reconstruction filter")),
+                                _ => self.fallback(
+                                    q,
+                                    "reconstruction filter",
+                                    "replaced by \"box\"",
+                                )?,
                             }
                             continue;
                         }
@@ -787,19 +866,33 @@ impl Ctx<'_> {
                                 "string" | "float" | "boolean",
                                 "tonemap_method" | "gamma" | "exposure" | "key" | "burn",
                             ) if ty == "ldrfilm" => {}
-                            _ => return Err(self.unsupported(q, "film property")),
+                            _ => self.ignore(q, "film property")?,
                         }
                     }
                 }
-                _ => return Err(self.unsupported(p, "sensor property")),
+                _ => self.ignore(p, "sensor property")?,
             }
         }
         let fov = fov.ok_or_else(|| self.err(n, "perspective sensor needs a \"fov\" float"))?;
         if !(fov > 0.0 && fov < 180.0) {
             return Err(self.err(n, format!("fov {fov} must be in (0, 180) degrees")));
         }
-        let cam =
+        let mut cam =
             Camera::new(to_world, fov, &axis, w, h).map_err(|e| self.err(n, e.to_string()))?;
+        if thin_lens {
+            if !(aperture.is_finite() && aperture >= 0.0) {
+                return Err(self.err(n, format!("aperture_radius {aperture} must be >= 0")));
+            }
+            if aperture > 0.0 {
+                if !(focus.is_finite() && focus > 0.0) {
+                    return Err(self.err(
+                        n,
+                        format!("thinlens needs a positive focus_distance (got {focus})"),
+                    ));
+                }
+                cam = cam.with_thin_lens(aperture, focus);
+            }
+        }
         Ok((cam, w, h, spp))
     }
 
@@ -841,6 +934,8 @@ impl Ctx<'_> {
         match (p.tag_name().name(), self.name(p)?.as_ref()) {
             ("string", "distribution") => *distribution = self.attr(p, "value")?.to_string(),
             ("float", "alpha") => *alpha = self.float(p)?,
+            ("float", "alpha_u") => self.aniso[0] = Some(self.float(p)?),
+            ("float", "alpha_v") => self.aniso[1] = Some(self.float(p)?),
             ("texture" | "ref", "alpha") => {
                 *alpha_tex = Some(self.texture_param(p)?);
             }
@@ -853,6 +948,18 @@ impl Ctx<'_> {
 
     fn check_rough(&mut self, n: Node, distribution: &str, alpha: f32) -> Result<f32> {
         let ty = n.attribute("type").unwrap_or("");
+        let alpha = match std::mem::take(&mut self.aniso) {
+            [None, None] => alpha,
+            [u, v] => {
+                let (u, v) = (u.unwrap_or(alpha), v.unwrap_or(alpha));
+                let iso = (u * v).sqrt();
+                self.warn(
+                    n,
+                    format!("{ty}: anisotropic roughness alpha_u {u}, alpha_v {v} is approximated by the isotropic alpha {iso} = sqrt(alpha_u alpha_v)"),
+                );
+                iso
+            }
+        };
         match distribution {
             "ggx" => {}
             "beckmann" => self.warn(
@@ -910,7 +1017,12 @@ impl Ctx<'_> {
             return Ok(t);
         }
         let def = self.texture_def(p)?;
-        self.instantiate(p, def)
+        let t = self.instantiate(p, def)?;
+        if let Some(id) = p.attribute("id") {
+            // A nested texture with an id can be referenced later, as in Mitsuba.
+            self.tex_ids.insert(id.to_string(), t);
+        }
+        Ok(t)
     }
 
     fn instantiate(&mut self, p: Node, def: TexDef) -> Result<u32> {
@@ -942,6 +1054,19 @@ impl Ctx<'_> {
     /// Parses a `<texture>` element (`bitmap` or `checkerboard`); images are not decoded yet.
     fn texture_def(&mut self, n: Node) -> Result<TexDef> {
         let ty = n.attribute("type").unwrap_or("");
+        if !matches!(ty, "bitmap" | "checkerboard") {
+            self.fallback(
+                n,
+                "texture type (bitmap or checkerboard)",
+                "replaced by a constant 0.5 grey",
+            )?;
+            let grey = Vec3::splat(0.5);
+            return Ok(TexDef::Checker(Texture::Checkerboard {
+                color0: grey,
+                color1: grey,
+                uv: UvMap::default(),
+            }));
+        }
         let mut uv = UvMap::default();
         let (mut off, mut scale) = (Vec2::ZERO, Vec2::ONE);
         let mut has_06 = false;
@@ -1010,7 +1135,7 @@ impl Ctx<'_> {
                 }
                 (_, "color0", "checkerboard") => c0 = self.color(p)?,
                 (_, "color1", "checkerboard") => c1 = self.color(p)?,
-                _ => return Err(self.unsupported(p, &format!("property of texture \"{ty}\""))),
+                _ => self.ignore(p, &format!("property of texture \"{ty}\""))?,
             }
         }
         if has_06 {
@@ -1039,7 +1164,7 @@ impl Ctx<'_> {
                 color1: c1,
                 uv,
             })),
-            _ => Err(self.unsupported(n, "texture type (bitmap or checkerboard)")),
+            _ => unreachable!("unknown texture types return early"),
         }
     }
 
@@ -1075,18 +1200,29 @@ impl Ctx<'_> {
         true
     }
 
-    /// A nested `<bsdf>` or `<ref>` of a wrapper BSDF.
-    fn nested_bsdf(&mut self, p: Node, what: &str) -> Result<u32> {
+    /// A nested `<bsdf>` or `<ref>` of a wrapper BSDF; `None` (with a warning, an error
+    /// with `--strict`) for anything else.
+    fn nested_bsdf(&mut self, p: Node, what: &str) -> Result<Option<u32>> {
         match p.tag_name().name() {
-            "bsdf" => self.bsdf(p),
-            "ref" => self.bsdf_ref(p),
-            _ => Err(self.unsupported(p, what)),
+            "bsdf" => self.bsdf(p).map(Some),
+            "ref" => self.bsdf_ref(p).map(Some),
+            _ => self.ignore(p, what).map(|()| None),
         }
     }
 
     /// Parses a `<bsdf>` (nested ones of wrappers first), adds it to the scene and returns
-    /// its material index.
+    /// its material index. An `id` registers it for later `<ref>`s, nested or not (as
+    /// Mitsuba does: a BSDF inside a `twosided` or `bumpmap` can be referenced by id).
     fn bsdf(&mut self, n: Node) -> Result<u32> {
+        let idx = self.bsdf_body(n)?;
+        if let Some(id) = n.attribute("id") {
+            self.bsdfs.insert(id.to_string(), idx);
+        }
+        Ok(idx)
+    }
+
+    fn bsdf_body(&mut self, n: Node) -> Result<u32> {
+        self.aniso = [None, None];
         let ty = n.attribute("type").unwrap_or("");
         let mut tex = MaterialTextures::default();
         let m = match ty {
@@ -1098,14 +1234,14 @@ impl Ctx<'_> {
                             let v = self.param(p)?;
                             reflectance = Self::split(v, &mut tex.diffuse);
                         }
-                        _ => return Err(self.unsupported(p, "diffuse property")),
+                        _ => self.ignore(p, "diffuse property")?,
                     }
                 }
                 Material::Diffuse { reflectance }
             }
             "conductor" | "roughconductor" => {
                 let (mut alpha, mut eta, mut k) = (0.1f32, Vec3::ZERO, Vec3::ONE);
-                let mut specular = Vec3::ONE;
+                let (mut ext_eta, mut specular) = (1.0f32, Vec3::ONE);
                 let mut distribution = "beckmann".to_string();
                 for p in elements(n) {
                     if ty == "roughconductor"
@@ -1115,26 +1251,40 @@ impl Ctx<'_> {
                     }
                     match (p.tag_name().name(), self.name(p)?.as_ref()) {
                         ("string", "material") => {
-                            if self.attr(p, "value")? != "none" {
-                                return Err(self.err(p, format!("named conductor material \"{}\" is not supported (use rgb eta/k, or \"none\")", self.attr(p, "value")?)));
-                            }
-                            eta = Vec3::ZERO;
-                            k = Vec3::ONE;
+                            let name = self.attr(p, "value")?;
+                            let (e, kk) = named_conductor(name).ok_or_else(|| {
+                                self.err(p, format!("unknown conductor material \"{name}\" (Mitsuba's names: Ag, Al, Au, Cu, Cr, ...; see host-demo/src/conductors.rs)"))
+                            })?;
+                            (eta, k) = (Vec3::from(e), Vec3::from(kk));
                         }
                         (_, "eta") => eta = self.color(p)?,
                         (_, "k") => k = self.color(p)?,
-                        (_, "specular_reflectance") if ty == "conductor" => {
+                        // Mitsuba 0.6: the exterior medium's real IOR (a float or a name).
+                        (_, "ext_eta") => ext_eta = self.ior(p)?,
+                        (_, "specular_reflectance") => {
                             let v = self.param(p)?;
                             specular = Self::split(v, &mut tex.specular);
                         }
-                        _ => return Err(self.unsupported(p, &format!("{ty} property"))),
+                        // Research forks of 0.6 put a roughness on smooth conductors; 0.6
+                        // itself ignores it.
+                        (_, "alpha" | "alpha_u" | "alpha_v" | "distribution") if ty == "conductor" => {
+                            self.warn(p, "a roughness on a smooth conductor is ignored (as Mitsuba 0.6 does); use roughconductor")
+                        }
+                        _ => self.ignore(p, &format!("{ty} property"))?,
                     }
                 }
+                // 0.6's `extEta`: the Fresnel term sees the IOR relative to the exterior.
+                let (eta, k) = (eta / ext_eta, k / ext_eta);
                 if ty == "conductor" {
                     Material::Conductor { eta, k, specular }
                 } else {
                     let alpha = self.check_rough(n, &distribution, alpha)?;
-                    Material::RoughConductor { alpha, eta, k }
+                    Material::RoughConductor {
+                        alpha,
+                        eta,
+                        k,
+                        specular,
+                    }
                 }
             }
             "dielectric" | "roughdielectric" | "thindielectric" => {
@@ -1158,7 +1308,10 @@ impl Ctx<'_> {
                             let v = self.param(p)?;
                             transmittance = Self::split(v, &mut tex.transmittance);
                         }
-                        _ => return Err(self.unsupported(p, &format!("{ty} property"))),
+                        "alpha" | "alpha_u" | "alpha_v" | "distribution" if ty != "roughdielectric" => {
+                            self.warn(p, format!("a roughness on {ty} is ignored (as Mitsuba 0.6 does); use roughdielectric"))
+                        }
+                        _ => self.ignore(p, &format!("{ty} property"))?,
                     }
                 }
                 if int_ior == ext_ior {
@@ -1214,7 +1367,7 @@ impl Ctx<'_> {
                             specular = Self::split(v, &mut tex.specular);
                         }
                         ("boolean", "nonlinear") => nonlinear = self.boolean(p)?,
-                        _ => return Err(self.unsupported(p, &format!("{ty} property"))),
+                        _ => self.ignore(p, &format!("{ty} property"))?,
                     }
                 }
                 if int_ior == ext_ior {
@@ -1231,7 +1384,9 @@ impl Ctx<'_> {
             "twosided" => {
                 let mut sides = Vec::new();
                 for p in elements(n) {
-                    let idx = self.nested_bsdf(p, "twosided property")?;
+                    let Some(idx) = self.nested_bsdf(p, "twosided property")? else {
+                        continue;
+                    };
                     if !self.wrappable(idx) {
                         return Err(self.err(p, "twosided can only wrap opaque, one-sided BSDFs (not dielectrics or another twosided)"));
                     }
@@ -1258,10 +1413,10 @@ impl Ctx<'_> {
                         p.attribute("name").map(prop_name).as_deref(),
                     ) {
                         ("bsdf", _) | ("ref", None) => {
-                            parts.push(self.nested_bsdf(p, "blendbsdf property")?)
+                            parts.extend(self.nested_bsdf(p, "blendbsdf property")?)
                         }
                         (_, Some("weight")) => weight = self.unit_param(p)?,
-                        _ => return Err(self.unsupported(p, "blendbsdf property")),
+                        _ => self.ignore(p, "blendbsdf property")?,
                     }
                 }
                 let [a, b] = parts[..] else {
@@ -1291,10 +1446,10 @@ impl Ctx<'_> {
                         p.attribute("name").map(prop_name).as_deref(),
                     ) {
                         ("bsdf", _) | ("ref", None) => {
-                            nested = Some(self.nested_bsdf(p, "mask property")?)
+                            nested = self.nested_bsdf(p, "mask property")?
                         }
                         (_, Some("opacity")) => opacity = self.unit_param(p)?,
-                        _ => return Err(self.unsupported(p, "mask property")),
+                        _ => self.ignore(p, "mask property")?,
                     }
                 }
                 let inner = nested.ok_or_else(|| self.err(n, "mask needs a nested BSDF"))?;
@@ -1317,11 +1472,11 @@ impl Ctx<'_> {
                         "bsdf" | "ref"
                             if p.attribute("name").is_none() || p.tag_name().name() == "bsdf" =>
                         {
-                            nested = Some(self.nested_bsdf(p, &format!("{ty} property"))?)
+                            nested = self.nested_bsdf(p, &format!("{ty} property"))?
                         }
                         // The bump / normal texture itself and its scale are not used.
                         "texture" | "ref" | "float" => {}
-                        _ => return Err(self.unsupported(p, &format!("{ty} property"))),
+                        _ => self.ignore(p, &format!("{ty} property"))?,
                     }
                 }
                 let inner =
@@ -1332,7 +1487,16 @@ impl Ctx<'_> {
             "phong" | "ward" | "modifiedphong" => {
                 return Err(self.err(n, format!("bsdf type \"{ty}\" is not supported (no energy-consistent equivalent here); replace it by roughconductor or roughplastic with a GGX alpha")));
             }
-            _ => return Err(self.unsupported(n, "bsdf type")),
+            _ => {
+                self.fallback(
+                    n,
+                    "bsdf type",
+                    "rendered as a grey diffuse (reflectance 0.5)",
+                )?;
+                Material::Diffuse {
+                    reflectance: Vec3::splat(0.5),
+                }
+            }
         };
         Ok(self.add_material(m, tex))
     }
@@ -1340,6 +1504,9 @@ impl Ctx<'_> {
     /// A top-level `<emitter>`: `point`, `constant` or `envmap` (area emitters live in shapes).
     fn emitter(&mut self, n: Node) -> Result<()> {
         let ty = n.attribute("type").unwrap_or("");
+        if !matches!(ty, "point" | "constant" | "envmap") {
+            return self.fallback(n, "emitter type", "skipped (it emits no light)");
+        }
         let mut to_world = None;
         let mut value = Vec3::ONE;
         let mut position = None;
@@ -1360,7 +1527,7 @@ impl Ctx<'_> {
                 }
                 ("boolean", "mis_compensation", "envmap")
                     if p.attribute("value") == Some("false") => {}
-                _ => return Err(self.unsupported(p, &format!("property of emitter \"{ty}\""))),
+                _ => self.ignore(p, &format!("property of emitter \"{ty}\""))?,
             }
         }
         if !value.is_finite() || value.min_element() < 0.0 {
@@ -1413,7 +1580,7 @@ impl Ctx<'_> {
                     to_world: m,
                 }
             }
-            _ => return Err(self.unsupported(n, "emitter type")),
+            _ => unreachable!("unknown emitter types return early"),
         };
         if !self.builder.environment(env) {
             return Err(self.err(
@@ -1424,12 +1591,28 @@ impl Ctx<'_> {
         Ok(())
     }
 
-    fn bsdf_ref(&self, p: Node) -> Result<u32> {
+    fn bsdf_ref(&mut self, p: Node) -> Result<u32> {
         let id = self.attr(p, "id")?;
-        self.bsdfs
-            .get(id)
-            .copied()
-            .ok_or_else(|| self.err(p, format!("reference to unknown bsdf id \"{id}\"")))
+        if let Some(&m) = self.bsdfs.get(id) {
+            return Ok(m);
+        }
+        if self.failed_bsdfs.contains(id) {
+            // Its own error is reported already; render the shape with the default.
+            return Ok(self.default_material());
+        }
+        Err(self.err(p, format!("reference to unknown bsdf id \"{id}\"")))
+    }
+
+    /// The grey diffuse material of shapes without a BSDF (created on first use).
+    fn default_material(&mut self) -> u32 {
+        if let Some(m) = self.default_material {
+            return m;
+        }
+        let m = self.builder.material(Material::Diffuse {
+            reflectance: Vec3::splat(0.5),
+        });
+        self.default_material = Some(m);
+        m
     }
 
     /// A top-level `<shape>`: `shapegroup` (kept for instances), `instance` (the group's
@@ -1442,7 +1625,8 @@ impl Ctx<'_> {
                 let mut shapes = Vec::new();
                 for c in elements(n) {
                     if c.tag_name().name() != "shape" {
-                        return Err(self.unsupported(c, "shapegroup element (only <shape>)"));
+                        self.ignore(c, "shapegroup element (only <shape>)")?;
+                        continue;
                     }
                     if matches!(c.attribute("type"), Some("shapegroup" | "instance")) {
                         return Err(self.err(
@@ -1474,7 +1658,7 @@ impl Ctx<'_> {
                             group = Some(g.clone());
                         }
                         ("transform", Some("to_world")) => to_world = self.transform(p)?,
-                        _ => return Err(self.unsupported(p, "instance property")),
+                        _ => self.ignore(p, "instance property")?,
                     }
                 }
                 let group = group.ok_or_else(|| {
@@ -1514,6 +1698,25 @@ impl Ctx<'_> {
 
     fn shape_data(&mut self, n: Node) -> Result<ShapeData> {
         let ty = n.attribute("type").unwrap_or("");
+        const KNOWN: [&str; 7] = [
+            "obj",
+            "ply",
+            "serialized",
+            "sphere",
+            "rectangle",
+            "cube",
+            "disk",
+        ];
+        if !KNOWN.contains(&ty) {
+            self.fallback(n, "shape type", "skipped")?;
+            return Ok(ShapeData {
+                prims: Vec::new(),
+                uvs: None,
+                material: self.default_material(),
+                emission: None,
+                opacity: None,
+            });
+        }
         let mut to_world = Mat4::IDENTITY;
         let (mut flip, mut face_normals) = (false, false);
         let mut material = None;
@@ -1554,18 +1757,19 @@ impl Ctx<'_> {
                 ("bsdf", _, _) => material = Some(self.bsdf(p)?),
                 ("emitter", _, _) => {
                     if p.attribute("type") != Some("area") {
-                        return Err(self.unsupported(p, "emitter type inside a shape"));
+                        self.fallback(p, "emitter type inside a shape", "skipped")?;
+                        continue;
                     }
                     let mut radiance = Vec3::ONE;
                     for q in elements(p) {
                         match q.attribute("name") {
                             Some("radiance") => radiance = self.color(q)?,
-                            _ => return Err(self.unsupported(q, "area emitter property")),
+                            _ => self.ignore(q, "area emitter property")?,
                         }
                     }
                     emission = Some(radiance);
                 }
-                _ => return Err(self.unsupported(p, &format!("property of shape \"{ty}\""))),
+                _ => self.ignore(p, &format!("property of shape \"{ty}\""))?,
             }
         }
         let nmat = Mat4::from_mat3(glam::Mat3::from_mat4(to_world).inverse().transpose());
@@ -1576,7 +1780,9 @@ impl Ctx<'_> {
                 let f = filename.ok_or_else(|| {
                     self.err(n, format!("{ty} shape needs a \"filename\" string"))
                 })?;
-                let (path, bytes) = self.read_rel(&f)?;
+                let (path, bytes) = self
+                    .read_rel(&f)
+                    .map_err(|e| self.err(n, format!("{ty} shape: {e}")))?;
                 let name = path.display().to_string();
                 let (mut tris, uv) = match ty {
                     "obj" => {
@@ -1700,7 +1906,7 @@ impl Ctx<'_> {
                     n: xf_n(Vec3::Z),
                 }]
             }
-            _ => return Err(self.unsupported(n, "shape type")),
+            _ => unreachable!("unknown shape types return early"),
         };
         if flip {
             if let Some(uv) = &mut uvs {
@@ -1724,16 +1930,7 @@ impl Ctx<'_> {
         }
         let material = match material {
             Some(m) => m,
-            None => match self.default_material {
-                Some(m) => m,
-                None => {
-                    let m = self.builder.material(Material::Diffuse {
-                        reflectance: Vec3::splat(0.5),
-                    });
-                    self.default_material = Some(m);
-                    m
-                }
-            },
+            None => self.default_material(),
         };
         let opacity = self.opacity_of(material);
         Ok(ShapeData {
@@ -1796,12 +1993,16 @@ fn prop_name(s: &str) -> Cow<'_, str> {
 
 use crate::texture::srgb_to_linear;
 
-fn quoted(s: &str) -> String {
-    if s.is_empty() {
-        String::new()
-    } else {
-        format!("type=\"{s}\"")
+/// `<tag type=".." name=".." id="..">` with the attributes the element has, for messages.
+fn describe(n: Node) -> String {
+    let mut s = format!("<{}", n.tag_name().name());
+    for a in ["type", "name", "id"] {
+        if let Some(v) = n.attribute(a) {
+            s.push_str(&format!(" {a}=\"{v}\""));
+        }
     }
+    s.push('>');
+    s
 }
 
 /// Mitsuba's named indices of refraction (`lookup_ior`).

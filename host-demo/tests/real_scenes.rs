@@ -421,6 +421,7 @@ fn params_and_cli_overrides() {
         &d.join("p.xml"),
         &LoadOptions {
             params: vec![("refl".into(), "0.7".into())],
+            ..LoadOptions::default()
         },
     )
     .expect("loads");
@@ -601,31 +602,62 @@ fn approximations_warn_and_refusals_name_the_line() {
         sc.materials[sc.shapes[0].material as usize],
         Material::RoughConductor { .. }
     ));
-    for (bsdf, needle) in [
-        (r#"<bsdf type="phong"/>"#, "phong"),
-        (r#"<bsdf type="ward"/>"#, "ward"),
-        (r#"<bsdf type="hair"/>"#, "hair"),
+    // Unknown plugins and properties: a warning naming the line and what was done, or
+    // with `strict` an error naming the file, line and plugin.
+    for (bsdf, needle, done) in [
+        (r#"<bsdf type="hair"/>"#, "hair", "grey diffuse"),
+        (r#"<bsdf type="bogus"/>"#, "bogus", "grey diffuse"),
         (
             r#"<bsdf type="diffuse"><float name="sheen" value="1"/></bsdf>"#,
-            "sheen",
+            "<float name=\"sheen\">",
+            "ignored",
         ),
     ] {
-        let e = load_err_in(
-            &scene_xml(
-                20.0,
-                4,
-                2,
-                &format!("<shape type=\"rectangle\">\n{bsdf}</shape>{light}"),
-            ),
-            Path::new("."),
+        let text = scene_xml(
+            20.0,
+            4,
+            2,
+            &format!("<shape type=\"rectangle\">\n{bsdf}</shape>{light}"),
         );
+        let e = load_strict_err_in(&text);
         assert!(e.starts_with("t.xml:8:") && e.contains(needle), "{e}");
+        let sc = load_in(&text, Path::new("."));
+        assert!(
+            sc.warnings
+                .iter()
+                .any(|w| w.starts_with("t.xml:8:") && w.contains(needle) && w.contains(done)),
+            "{:?}",
+            sc.warnings
+        );
     }
-    let e = load_err_in(
-        &scene_xml(20.0, 4, 2, "<shape type=\"hair\"/>"),
-        Path::new("."),
+    let text = scene_xml(
+        20.0,
+        4,
+        2,
+        &format!("<shape type=\"hair\"/><shape type=\"sphere\"/>{light}"),
     );
+    let e = load_strict_err_in(&text);
     assert!(e.starts_with("t.xml:7:") && e.contains("hair"), "{e}");
+    let sc = load_in(&text, Path::new("."));
+    assert_eq!(sc.prims.len(), 1, "hair is skipped, the sphere stays");
+    assert!(
+        sc.warnings
+            .iter()
+            .any(|w| w.starts_with("t.xml:7:") && w.contains("hair") && w.contains("skipped")),
+        "{:?}",
+        sc.warnings
+    );
+}
+
+fn load_strict_err_in(text: &str) -> String {
+    let opts = LoadOptions {
+        strict: true,
+        ..LoadOptions::default()
+    };
+    xml::load_str_opts(text, "t.xml", Path::new("."), &|p| std::fs::read(p), &opts)
+        .err()
+        .expect("must fail with strict")
+        .to_string()
 }
 
 /// A `mask` cut-out: the front quad's opacity checkerboard lets rays (camera and shadow)

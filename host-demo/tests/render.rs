@@ -66,31 +66,37 @@ fn check_mean(name: &str, img: &Image, reference: [f64; 3], ref_se: [f64; 3], sl
     }
 }
 
+/// A strict load (unknown constructs are errors).
+fn strict_load(text: &str) -> host_demo::Result<host_demo::scene::Scene> {
+    let opts = xml::LoadOptions {
+        strict: true,
+        ..xml::LoadOptions::default()
+    };
+    xml::load_str_opts(
+        text,
+        "t.xml",
+        std::path::Path::new("."),
+        &|p| std::fs::read(p),
+        &opts,
+    )
+}
+
 #[test]
 fn unsupported_plugin_error_names_element_and_line() {
     let text = "<scene version=\"3.0.0\">\n  <integrator type=\"path\"/>\n  <bsdf type=\"principled\" id=\"p\"/>\n</scene>\n";
-    let err = xml::load_str(text, "t.xml", std::path::Path::new("."))
-        .err()
-        .expect("must fail")
-        .to_string();
+    let err = strict_load(text).err().expect("must fail").to_string();
     assert!(err.contains("t.xml:3:"), "{err}");
     assert!(err.contains("principled") && err.contains("bsdf"), "{err}");
 
     let text = "<scene version=\"3.0.0\">\n<sensor type=\"perspective\">\n<float name=\"fov\" value=\"40\"/>\n<film type=\"hdrfilm\"><rfilter type=\"bogus\"/></film>\n</sensor>\n</scene>";
-    let err = xml::load_str(text, "t.xml", std::path::Path::new("."))
-        .err()
-        .expect("must fail")
-        .to_string();
+    let err = strict_load(text).err().expect("must fail").to_string();
     assert!(
         err.contains(":4:") && err.contains("bogus") && err.contains("rfilter"),
         "{err}"
     );
 
     let text = "<scene version=\"3.0.0\"><shape type=\"sphere\"><float name=\"radius\" value=\"1\"/><boolean name=\"foo\" value=\"true\"/></shape></scene>";
-    let err = xml::load_str(text, "t.xml", std::path::Path::new("."))
-        .err()
-        .expect("must fail")
-        .to_string();
+    let err = strict_load(text).err().expect("must fail").to_string();
     assert!(err.contains("foo"), "{err}");
 
     // Malformed XML, missing files and unknown references are errors, not panics.

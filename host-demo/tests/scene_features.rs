@@ -40,8 +40,13 @@ fn load(text: &str, base: &Path) -> Scene {
     xml::load_str(text, "t.xml", base).unwrap_or_else(|e| panic!("loads: {e}"))
 }
 
+/// The error of a strict load (unknown constructs are errors, see `LoadOptions::strict`).
 fn load_err(text: &str, base: &Path) -> String {
-    xml::load_str(text, "t.xml", base)
+    let opts = xml::LoadOptions {
+        strict: true,
+        ..xml::LoadOptions::default()
+    };
+    xml::load_str_opts(text, "t.xml", base, &|p| std::fs::read(p), &opts)
         .err()
         .expect("must fail")
         .to_string()
@@ -320,10 +325,28 @@ fn bsdfs_and_emitters_load() {
     assert!(err.contains("nope.exr"), "{err}");
     let err = e("<emitter type=\"envmap\"><string name=\"filename\" value=\"env.exr\"/><transform name=\"to_world\"><scale value=\"2\"/></transform></emitter>");
     assert!(err.contains("rotation"), "{err}");
-    let err = e(
-        "<bsdf type=\"roughdielectric\" id=\"x\"><float name=\"alpha_u\" value=\"0.1\"/></bsdf>",
+    // Anisotropic roughness: approximated (isotropic geometric mean) with a warning.
+    let aniso = load(
+        &scene_xml(
+            "0, -10, 0",
+            "0, 0, 0",
+            40.0,
+            8,
+            4,
+            "<shape type=\"sphere\"><bsdf type=\"roughdielectric\"><float name=\"alpha_u\" value=\"0.1\"/><float name=\"alpha_v\" value=\"0.4\"/></bsdf></shape>",
+        ),
+        &d,
     );
-    assert!(err.contains("alpha_u"), "{err}");
+    assert!(
+        matches!(aniso.materials[0], Material::RoughDielectric { alpha, .. } if (alpha - 0.2).abs() < 1e-6),
+        "{:?}",
+        aniso.materials
+    );
+    assert!(
+        aniso.warnings.iter().any(|w| w.contains("alpha_u")),
+        "{:?}",
+        aniso.warnings
+    );
     let err = e(
         "<bsdf type=\"plastic\" id=\"x\"><string name=\"int_ior\" value=\"unobtainium\"/></bsdf>",
     );

@@ -126,6 +126,7 @@ fn cases() -> Vec<(String, Material, Vec3, bool)> {
                 alpha: 0.25,
                 eta: Vec3::new(0.2, 0.92, 1.1),
                 k: Vec3::new(3.9, 2.45, 2.14),
+                specular: Vec3::ONE,
             },
             outside,
             false,
@@ -136,6 +137,7 @@ fn cases() -> Vec<(String, Material, Vec3, bool)> {
                 alpha: 0.6,
                 eta: Vec3::ZERO,
                 k: Vec3::ONE,
+                specular: Vec3::ONE,
             },
             grazing,
             false,
@@ -207,6 +209,7 @@ fn blendbsdf_sampling_matches_mixture_pdf() {
         alpha: 0.15,
         eta: Vec3::new(0.2, 0.92, 1.1),
         k: Vec3::new(3.9, 2.45, 2.14),
+        specular: Vec3::ONE,
     });
     let diffuse = b.material(Material::Diffuse {
         reflectance: Vec3::splat(0.7),

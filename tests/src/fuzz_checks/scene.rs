@@ -79,11 +79,17 @@ pub fn check_scene(what: &str, s: &Scene) {
     for m in &s.materials {
         let ok = match *m {
             Material::Diffuse { reflectance } => finite_non_negative(reflectance),
-            Material::RoughConductor { alpha, eta, k } => {
+            Material::RoughConductor {
+                alpha,
+                eta,
+                k,
+                specular,
+            } => {
                 alpha.is_finite()
                     && alpha > 0.0
                     && finite_non_negative(eta)
                     && finite_non_negative(k)
+                    && finite_non_negative(specular)
             }
             Material::Conductor { eta, k, specular } => {
                 finite_non_negative(eta) && finite_non_negative(k) && finite_non_negative(specular)
