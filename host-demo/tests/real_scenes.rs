@@ -602,8 +602,15 @@ fn approximations_warn_and_refusals_name_the_line() {
         Material::RoughConductor { .. }
     ));
     for (bsdf, needle) in [
-        (r#"<bsdf type="phong"/>"#, "phong"),
-        (r#"<bsdf type="ward"/>"#, "ward"),
+        (r#"<bsdf type="modifiedphong"/>"#, "modifiedphong"),
+        (
+            r#"<bsdf type="phong"><float name="exponent" value="-1"/></bsdf>"#,
+            "exponent",
+        ),
+        (
+            r#"<bsdf type="ward"><string name="variant" value="cook"/></bsdf>"#,
+            "variant",
+        ),
         (r#"<bsdf type="hair"/>"#, "hair"),
         (
             r#"<bsdf type="diffuse"><float name="sheen" value="1"/></bsdf>"#,
