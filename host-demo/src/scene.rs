@@ -219,9 +219,9 @@ pub struct Shape {
 /// constant stored in the [`Material`].
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct MaterialTextures {
-    /// `reflectance` (diffuse) or `diffuse_reflectance` (plastics).
+    /// `reflectance` (diffuse) or `diffuse_reflectance` (plastics, phong, ward).
     pub diffuse: Option<u32>,
-    /// `specular_reflectance` (conductor, dielectrics, plastics).
+    /// `specular_reflectance` (conductor, dielectrics, plastics, phong, ward).
     pub specular: Option<u32>,
     /// `specular_transmittance` (dielectrics).
     pub transmittance: Option<u32>,
@@ -937,6 +937,32 @@ impl Scene {
             Material::RoughPlastic(c) => Material::RoughPlastic(
                 c.with_albedo(tex(t.diffuse, c.diffuse), tex(t.specular, c.specular)),
             ),
+            Material::Phong {
+                exponent,
+                diffuse,
+                specular,
+                scale,
+            } => Material::Phong {
+                exponent,
+                diffuse: tex(t.diffuse, diffuse),
+                specular: tex(t.specular, specular),
+                scale,
+            },
+            Material::Ward {
+                variant,
+                alpha_u,
+                alpha_v,
+                diffuse,
+                specular,
+                scale,
+            } => Material::Ward {
+                variant,
+                alpha_u,
+                alpha_v,
+                diffuse: tex(t.diffuse, diffuse),
+                specular: tex(t.specular, specular),
+                scale,
+            },
             other => other,
         }
     }

@@ -317,6 +317,22 @@ impl Texture {
         self.eval(uv).element_sum() / 3.0
     }
 
+    /// Per-channel maxima over the texels (Mitsuba 0.6's `Texture::getMaximum`).
+    pub fn max_rgb(&self) -> Vec3 {
+        match self {
+            Texture::Bitmap { image, .. } => {
+                let mut m = Vec3::ZERO;
+                for y in 0..image.height {
+                    for x in 0..image.width {
+                        m = m.max(image.texel(x, y));
+                    }
+                }
+                m
+            }
+            Texture::Checkerboard { color0, color1, .. } => color0.max(*color1),
+        }
+    }
+
     /// Largest value any channel can take (for validation and sampling weights).
     pub fn max_value(&self) -> f32 {
         match self {

@@ -4,7 +4,9 @@
 //! to_world, near/far_clip), `sampler independent` (sample_count), `film hdrfilm` (width,
 //! height, rfilter box); BSDFs `diffuse`, `conductor`, `roughconductor`, `dielectric`,
 //! `thindielectric`, `roughdielectric`, `plastic`, `roughplastic` (rough ones GGX, isotropic
-//! alpha; IORs as numbers or Mitsuba's names), `twosided`, `blendbsdf` and `mask`; textures
+//! alpha; IORs as numbers or Mitsuba's names), Mitsuba 0.6's `phong` and `ward` (the three
+//! Ward variants, anisotropic alphas, textured reflectances), `twosided`, `blendbsdf` and
+//! `mask`; textures
 //! `bitmap` and `checkerboard` (see [`crate::texture`]) for the colour, alpha, weight and
 //! opacity parameters; shapes `obj`, `ply`, `serialized`, `sphere`, `rectangle`, `cube`, `disk`
 //! (to_world, flip_normals, face_normals for meshes), `shapegroup` + `instance` (flattened into
@@ -1484,8 +1486,96 @@ impl Ctx<'_> {
                 self.warn(n, format!("{ty} is ignored: the nested BSDF is rendered with the unperturbed shading normal"));
                 return Ok(inner);
             }
-            "phong" | "ward" | "modifiedphong" => {
-                return Err(self.err(n, format!("bsdf type \"{ty}\" is not supported (no energy-consistent equivalent here); replace it by roughconductor or roughplastic with a GGX alpha")));
+            "phong" | "ward" => {
+                // Mitsuba 0.6 `phong` / `ward`, with their defaults; `ensureEnergyConservation`
+                // (on by default) scales kd and ks by 0.99 / max_c(kd + ks) where that is > 1.
+                let (mut diffuse, mut specular) = (Vec3::splat(0.5), Vec3::splat(0.2));
+                let (mut exponent, mut variant) = (30.0f32, crate::bsdf::WardVariant::Balanced);
+                let (mut alpha, mut alpha_u, mut alpha_v) = (0.1f32, None, None);
+                let mut conserve = true;
+                for p in elements(n) {
+                    match (p.tag_name().name(), self.name(p)?.as_ref()) {
+                        (_, "diffuse_reflectance") => {
+                            let v = self.param(p)?;
+                            diffuse = Self::split(v, &mut tex.diffuse);
+                        }
+                        (_, "specular_reflectance") => {
+                            let v = self.param(p)?;
+                            specular = Self::split(v, &mut tex.specular);
+                        }
+                        ("boolean", "ensure_energy_conservation") => conserve = self.boolean(p)?,
+                        ("float", "exponent") if ty == "phong" => exponent = self.float(p)?,
+                        ("string", "variant") if ty == "ward" => {
+                            let v = self.attr(p, "value")?;
+                            variant = crate::bsdf::WardVariant::parse(v).ok_or_else(|| self.err(p, format!("ward variant \"{v}\" is not supported (\"ward\", \"ward-duer\" or \"balanced\")")))?;
+                        }
+                        ("float", "alpha") if ty == "ward" => alpha = self.float(p)?,
+                        ("float", "alpha_u") if ty == "ward" => alpha_u = Some(self.float(p)?),
+                        ("float", "alpha_v") if ty == "ward" => alpha_v = Some(self.float(p)?),
+                        (
+                            "texture" | "ref",
+                            name @ ("exponent" | "alpha" | "alpha_u" | "alpha_v"),
+                        ) => {
+                            return Err(self.err(
+                                p,
+                                format!("a textured {name} on {ty} is not supported; use a float"),
+                            ));
+                        }
+                        _ => self.ignore(p, &format!("{ty} property"))?,
+                    }
+                }
+                let tex_max = |t: Option<u32>, c: Vec3| {
+                    t.map_or(c, |t| self.builder.textures()[t as usize].max_rgb())
+                };
+                let (kd_max, ks_max) = (
+                    tex_max(tex.diffuse, diffuse),
+                    tex_max(tex.specular, specular),
+                );
+                let scale = if conserve {
+                    crate::bsdf::energy_scale(kd_max, ks_max)
+                } else {
+                    1.0
+                };
+                if !conserve && (kd_max + ks_max).max_element() > 1.0 {
+                    self.warn(n, format!("{ty}: diffuse_reflectance + specular_reflectance reach {} in a channel (> 1, not energy conserving; kept, as ensure_energy_conservation=false asks)", (kd_max + ks_max).max_element()));
+                }
+                if scale < 1.0 {
+                    self.warn(n, format!("{ty}: diffuse_reflectance + specular_reflectance reach {} in a channel (> 1, not energy conserving); both are scaled by {scale} as Mitsuba 0.6 does (set ensure_energy_conservation=false to keep them)", (kd_max + ks_max).max_element()));
+                }
+                if ty == "phong" {
+                    if !(exponent.is_finite() && exponent >= 0.0) {
+                        return Err(self.err(
+                            n,
+                            format!("phong exponent {exponent} must be finite and >= 0"),
+                        ));
+                    }
+                    Material::Phong {
+                        exponent,
+                        diffuse,
+                        specular,
+                        scale,
+                    }
+                } else {
+                    let (alpha_u, alpha_v) = (alpha_u.unwrap_or(alpha), alpha_v.unwrap_or(alpha));
+                    for a in [alpha_u, alpha_v] {
+                        if !(a.is_finite() && a > 0.0) {
+                            return Err(
+                                self.err(n, format!("ward alpha {a} must be finite and positive"))
+                            );
+                        }
+                    }
+                    if alpha_u != alpha_v {
+                        self.warn(n, format!("ward: anisotropic alphas ({alpha_u}, {alpha_v}) are oriented along the renderer's tangent frame built from the shading normal, not along dpdu as in Mitsuba 0.6 (the highlight's orientation may differ)"));
+                    }
+                    Material::Ward {
+                        variant,
+                        alpha_u,
+                        alpha_v,
+                        diffuse,
+                        specular,
+                        scale,
+                    }
+                }
             }
             _ => {
                 self.fallback(

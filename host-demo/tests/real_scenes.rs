@@ -602,11 +602,33 @@ fn approximations_warn_and_refusals_name_the_line() {
         sc.materials[sc.shapes[0].material as usize],
         Material::RoughConductor { .. }
     ));
+    // Invalid parameters of known BSDFs are errors in every mode.
+    for (bsdf, needle) in [
+        (
+            r#"<bsdf type="phong"><float name="exponent" value="-1"/></bsdf>"#,
+            "exponent",
+        ),
+        (
+            r#"<bsdf type="ward"><string name="variant" value="cook"/></bsdf>"#,
+            "variant",
+        ),
+    ] {
+        let e = load_err_in(
+            &scene_xml(
+                20.0,
+                4,
+                2,
+                &format!("<shape type=\"rectangle\">\n{bsdf}</shape>{light}"),
+            ),
+            Path::new("."),
+        );
+        assert!(e.starts_with("t.xml:8:") && e.contains(needle), "{e}");
+    }
     // Unknown plugins and properties: a warning naming the line and what was done, or
     // with `strict` an error naming the file, line and plugin.
     for (bsdf, needle, done) in [
         (r#"<bsdf type="hair"/>"#, "hair", "grey diffuse"),
-        (r#"<bsdf type="bogus"/>"#, "bogus", "grey diffuse"),
+        (r#"<bsdf type="modifiedphong"/>"#, "modifiedphong", "grey diffuse"),
         (
             r#"<bsdf type="diffuse"><float name="sheen" value="1"/></bsdf>"#,
             "<float name=\"sheen\">",

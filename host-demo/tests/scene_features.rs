@@ -1,5 +1,6 @@
 //! Loader and render tests of the scene features: PLY / cube / disk shapes, the conductor,
-//! dielectric, plastic and two-sided BSDFs, and the point, constant and envmap emitters.
+//! dielectric, plastic, Mitsuba 0.6 phong / ward and two-sided BSDFs, and the point, constant
+//! and envmap emitters.
 //! Run with `cargo test --release -p host-demo --test scene_features` (a few seconds).
 //!
 //! Render agreement is a per-block z-test: the image is cut into blocks of `B × B` pixels,
@@ -353,6 +354,138 @@ fn bsdfs_and_emitters_load() {
     assert!(err.contains("unobtainium"), "{err}");
 }
 
+/// Mitsuba 0.6's `phong` and `ward` in 0.6 spelling (camelCase names, `<spectrum>`, `<srgb>`):
+/// defaults, `alpha` / `alphaU` / `alphaV`, the variants, textured reflectances, the
+/// energy-conservation scaling (with its warning) and the errors for invalid parameters.
+#[test]
+fn phong_and_ward_load() {
+    use host_demo::bsdf::WardVariant;
+    let d = dir("phong-ward");
+    let body = r##"
+  <bsdf type="phong" id="ph"><float name="exponent" value="40"/><spectrum name="specularReflectance" value="0.3"/></bsdf>
+  <bsdf type="ward" id="w"><string name="variant" value="ward-duer"/><float name="alphaU" value="0.1"/><float name="alphaV" value="0.3"/></bsdf>
+  <bsdf type="ward" id="w2"><float name="alphaV" value="0.4"/><float name="alpha" value="0.2"/>
+    <rgb name="diffuseReflectance" value="0.1, 0.2, 0.3"/></bsdf>
+  <bsdf type="phong" id="hot"><srgb name="diffuseReflectance" value="#ffffff"/><spectrum name="specularReflectance" value="0.5"/></bsdf>
+  <bsdf type="ward" id="free"><boolean name="ensureEnergyConservation" value="false"/><spectrum name="diffuseReflectance" value="0.9"/></bsdf>
+  <bsdf type="phong" id="tex"><texture type="checkerboard" name="diffuseReflectance">
+    <rgb name="color0" value="0.9, 0.2, 0.1"/><rgb name="color1" value="0.1"/></texture></bsdf>
+  <bsdf type="phong" id="def"/>
+  <shape type="sphere"><ref id="ph"/></shape>"##;
+    let sc = load(&scene_xml("0, -10, 0", "0, 0, 0", 40.0, 8, 4, body), &d);
+    let m = &sc.materials;
+    assert_eq!(
+        m[0],
+        Material::Phong {
+            exponent: 40.0,
+            diffuse: Vec3::splat(0.5),
+            specular: Vec3::splat(0.3),
+            scale: 1.0
+        }
+    );
+    assert_eq!(
+        m[1],
+        Material::Ward {
+            variant: WardVariant::WardDuer,
+            alpha_u: 0.1,
+            alpha_v: 0.3,
+            diffuse: Vec3::splat(0.5),
+            specular: Vec3::splat(0.2),
+            scale: 1.0
+        }
+    );
+    // `alpha` sets the default of both, whatever the order; `balanced` is the default variant.
+    assert!(
+        matches!(m[2], Material::Ward { variant: WardVariant::Balanced, alpha_u, alpha_v, diffuse, .. }
+        if alpha_u == 0.2 && alpha_v == 0.4 && diffuse == Vec3::new(0.1, 0.2, 0.3))
+    );
+    // White + 0.5 = 1.5 > 1: both scaled by 0.99 / 1.5, with a warning.
+    assert!(
+        matches!(m[3], Material::Phong { scale, diffuse, .. } if (scale - 0.66).abs() < 1e-6 && diffuse == Vec3::ONE)
+    );
+    assert!(
+        sc.warnings
+            .iter()
+            .any(|w| w.contains("phong") && w.contains("scaled")),
+        "{:?}",
+        sc.warnings
+    );
+    assert!(
+        sc.warnings
+            .iter()
+            .any(|w| w.contains("t.xml:10:") && w.contains("anisotropic")),
+        "{:?}",
+        sc.warnings
+    );
+    assert!(matches!(m[4], Material::Ward { scale, .. } if scale == 1.0));
+    // Textured diffuse: the scale comes from the texture's per-channel maximum (0.9 + 0.2).
+    assert!(matches!(m[5], Material::Phong { scale, .. } if (scale - 0.9).abs() < 1e-6));
+    assert!(sc.material_textures[5].diffuse.is_some());
+    let red = sc.shade(5, glam::Vec2::new(0.1, 0.1));
+    let blue = sc.shade(5, glam::Vec2::new(0.6, 0.1));
+    assert!(
+        matches!((red, blue), (Material::Phong { diffuse: a, .. }, Material::Phong { diffuse: b, .. })
+            if a != b && (a == Vec3::new(0.9, 0.2, 0.1) || b == Vec3::new(0.9, 0.2, 0.1))),
+        "{red:?} {blue:?}"
+    );
+    assert!(
+        matches!(m[6], Material::Phong { exponent, diffuse, specular, scale }
+        if exponent == 30.0 && diffuse == Vec3::splat(0.5) && specular == Vec3::splat(0.2) && scale == 1.0)
+    );
+    for i in [0, 1, 2] {
+        assert!(m[i].guidable(0.05) && m[i].nee_connectable() && m[i].one_sided());
+        assert!(!m[i].is_delta() && !m[i].is_diffuse());
+    }
+
+    let e = |b: &str| load_err(&scene_xml("0, -10, 0", "0, 0, 0", 40.0, 8, 4, b), &d);
+    for (b, want) in [
+        (
+            r#"<bsdf type="phong" id="x"><float name="exponent" value="-1"/></bsdf>"#,
+            "exponent",
+        ),
+        (
+            r#"<bsdf type="phong" id="x"><float name="exponent" value="inf"/></bsdf>"#,
+            "exponent",
+        ),
+        (
+            r#"<bsdf type="ward" id="x"><float name="alphaU" value="0"/></bsdf>"#,
+            "alpha",
+        ),
+        (
+            r#"<bsdf type="ward" id="x"><float name="alpha" value="-0.1"/></bsdf>"#,
+            "alpha",
+        ),
+        (
+            r#"<bsdf type="ward" id="x"><string name="variant" value="cook-torrance"/></bsdf>"#,
+            "cook-torrance",
+        ),
+        (
+            r#"<bsdf type="phong" id="x"><float name="alphaU" value="0.1"/></bsdf>"#,
+            "alphaU",
+        ),
+        (
+            r#"<bsdf type="ward" id="x"><float name="exponent" value="3"/></bsdf>"#,
+            "exponent",
+        ),
+        (
+            r#"<bsdf type="phong" id="x"><float name="specularSamplingWeight" value="0.5"/></bsdf>"#,
+            "specularSamplingWeight",
+        ),
+        (
+            r#"<bsdf type="phong" id="x"><texture type="checkerboard" name="exponent"/></bsdf>"#,
+            "textured exponent",
+        ),
+        (
+            r#"<bsdf type="ward" id="x"><texture type="checkerboard" name="alphaV"/></bsdf>"#,
+            "textured alpha_v",
+        ),
+        (r#"<bsdf type="modifiedphong" id="x"/>"#, "modifiedphong"),
+    ] {
+        let err = e(b);
+        assert!(err.contains(want) && err.contains("t.xml:"), "{b}: {err}");
+    }
+}
+
 // ---------------------------------------------------------------------------------------
 // Render checks
 // ---------------------------------------------------------------------------------------
@@ -465,6 +598,84 @@ fn disk_light_pt_vs_nee() {
     let a = render_scene(&sc, IntegratorKind::Pt, 128, 30);
     let b = render_scene(&sc, IntegratorKind::PtNee, 64, 31);
     block_ztest("disk light pt vs pt-nee", &a, &b, 4);
+}
+
+/// Mitsuba 0.6 `phong` (exponents 40 and 300, with and without a diffuse part) and `ward`
+/// (all three variants, anisotropic) under a disk light and a dim constant environment: `pt`
+/// and `pt-nee` (light sampling with MIS through the new `eval` / pdf) agree per block.
+#[test]
+fn phong_ward_pt_vs_nee() {
+    let sc = phong_ward_scene("phong-ward-render");
+    let a = render_scene(&sc, IntegratorKind::Pt, 256, 40);
+    let b = render_scene(&sc, IntegratorKind::PtNee, 64, 41);
+    let mean = b.mean();
+    assert!(mean.iter().all(|&c| c > 0.05), "{mean:?}");
+    block_ztest("phong/ward pt vs pt-nee", &a, &b, 4);
+}
+
+/// The guided integrator (NPM, product target) on the phong / ward scene: its phong / ward
+/// vertices are guidable (equivalent roughness ≥ 0.05), and the render agrees with `pt-nee`
+/// per block.
+#[test]
+fn guided_phong_ward_agrees_with_pt_nee() {
+    use guiding_core::field::FieldConfig;
+    use guiding_core::loss::Target;
+    use host_demo::guide::{build_guide, GuideKind, ModelSize};
+    use host_demo::guided::{render_guided, GuidedOptions};
+    let sc = phong_ward_scene("phong-ward-guided");
+    let reference = render_scene(&sc, IntegratorKind::PtNee, 64, 42);
+    let mut o = opts(IntegratorKind::PtNee, 64, 43);
+    o.max_depth = sc.settings.max_depth;
+    let config = FieldConfig::DEFAULT
+        .with_batch_size(1024)
+        .with_steps_per_update(2)
+        .with_learning_rate(1e-2)
+        .with_seed(4);
+    let mut g = build_guide(
+        GuideKind::Npm,
+        Target::Product,
+        ModelSize::Small,
+        sc.bounds(),
+        0.5,
+        config,
+    )
+    .expect("guide");
+    let (img, st) = render_guided(&sc, &o, &GuidedOptions::default(), &mut g);
+    assert!(img.all_finite());
+    assert!(
+        st.guided_vertices > 0 && st.training_steps > 0 && st.nee,
+        "{st}"
+    );
+    block_ztest("guided phong/ward vs pt-nee", &img, &reference, 4);
+}
+
+/// Floor `ward-duer` (anisotropic), spheres `phong` n = 40 (with the default diffuse part),
+/// `phong` n = 300 (specular only) and `balanced` `ward` αu 0.05 / αv 0.3, a `ward` cube, a disk
+/// light and a dim constant environment.
+fn phong_ward_scene(name: &str) -> Scene {
+    let d = dir(name);
+    let body = r#"
+  <shape type="rectangle"><transform name="to_world"><scale value="3"/><translate z="-0.5"/></transform>
+    <bsdf type="ward"><string name="variant" value="ward-duer"/><float name="alphaU" value="0.1"/><float name="alphaV" value="0.3"/></bsdf></shape>
+  <shape type="sphere"><point name="center" x="-0.9" y="0" z="0"/><float name="radius" value="0.4"/>
+    <bsdf type="phong"><float name="exponent" value="40"/><spectrum name="specularReflectance" value="0.3"/></bsdf></shape>
+  <shape type="sphere"><point name="center" x="0" y="0" z="0"/><float name="radius" value="0.4"/>
+    <bsdf type="phong"><float name="exponent" value="300"/><spectrum name="diffuseReflectance" value="0"/>
+      <spectrum name="specularReflectance" value="0.8"/></bsdf></shape>
+  <shape type="sphere"><point name="center" x="0.9" y="0" z="0"/><float name="radius" value="0.4"/>
+    <bsdf type="ward"><float name="alphaU" value="0.05"/><float name="alphaV" value="0.3"/>
+      <rgb name="diffuseReflectance" value="0.2, 0.3, 0.4"/></bsdf></shape>
+  <shape type="cube"><transform name="to_world"><scale value="0.25"/><translate x="0" y="-0.9" z="-0.25"/></transform>
+    <bsdf type="ward"><string name="variant" value="ward"/><float name="alpha" value="0.2"/></bsdf></shape>
+  <shape type="disk"><transform name="to_world"><scale value="0.7"/><rotate x="1" angle="180"/><translate x="0.5" z="2"/></transform>
+    <emitter type="area"><rgb name="radiance" value="4"/></emitter></shape>
+  <emitter type="constant"><rgb name="radiance" value="0.3, 0.25, 0.2"/></emitter>"#;
+    let sc = load(&scene_xml("0, -4, 1.5", "0, 0, 0", 40.0, 32, 5, body), &d);
+    assert!(sc.materials.iter().all(|m| matches!(
+        m,
+        Material::Phong { .. } | Material::Ward { .. } | Material::Diffuse { .. }
+    )));
+    sc
 }
 
 /// A point light over a large diffuse plane, direct light only (max_depth 2): each pixel is

@@ -23,7 +23,7 @@ use guiding_tests::chi2::{run_chi2, Chi2Config, Warp};
 use guiding_tests::quadrature::integrate;
 use guiding_tests::rng::Pcg32;
 use guiding_tests::SphereDistribution;
-use host_demo::bsdf::{Coating, Material};
+use host_demo::bsdf::{Coating, Material, WardVariant};
 
 struct Conditioned {
     m: Material,
@@ -61,7 +61,7 @@ fn cases() -> Vec<(String, Material, Vec3, bool)> {
     let inside = Vec3::new(-0.3, 0.2, -0.8).normalize();
     let grazing = Vec3::new(0.95, 0.0, 0.2).normalize();
     let mid = Vec3::new(0.6, 0.0, 0.8);
-    vec![
+    let mut cases = vec![
         (
             "roughdielectric a0.3 eta1.5 outside".into(),
             rd(0.3, 1.5),
@@ -142,6 +142,117 @@ fn cases() -> Vec<(String, Material, Vec3, bool)> {
             grazing,
             false,
         ),
+    ];
+    cases.extend(phong_ward_cases());
+    cases
+}
+
+/// Mitsuba 0.6 `phong` (exponents 5, 30, 300, with and without the diffuse part) and `ward`
+/// (every variant, isotropic and anisotropic alphas 0.05 / 0.3), from several directions
+/// including grazing. `(name, material, wi, fine grid)`.
+fn phong_ward_cases() -> Vec<(String, Material, Vec3, bool)> {
+    let outside = Vec3::new(0.55, 0.1, 0.6).normalize();
+    let grazing = Vec3::new(0.95, 0.0, 0.2).normalize();
+    let mid = Vec3::new(0.6, 0.0, 0.8);
+    let normal = Vec3::new(0.02, -0.01, 1.0).normalize();
+    let kd = Vec3::new(0.5, 0.4, 0.3);
+    let phong = |n: f32, diffuse: Vec3| Material::Phong {
+        exponent: n,
+        diffuse,
+        specular: Vec3::splat(0.4),
+        scale: 1.0,
+    };
+    let ward = |variant, au, av, diffuse: Vec3| Material::Ward {
+        variant,
+        alpha_u: au,
+        alpha_v: av,
+        diffuse,
+        specular: Vec3::new(0.3, 0.4, 0.2),
+        scale: 1.0,
+    };
+    use WardVariant::{Balanced, Ward, WardDuer};
+    vec![
+        (
+            "phong n5 diffuse outside".into(),
+            phong(5.0, kd),
+            outside,
+            false,
+        ),
+        (
+            "phong n5 grazing".into(),
+            phong(5.0, Vec3::ZERO),
+            grazing,
+            false,
+        ),
+        ("phong n30 mid".into(), phong(30.0, Vec3::ZERO), mid, false),
+        (
+            "phong n30 diffuse grazing".into(),
+            phong(30.0, kd),
+            grazing,
+            false,
+        ),
+        (
+            "phong n300 normal".into(),
+            phong(300.0, Vec3::ZERO),
+            normal,
+            true,
+        ),
+        (
+            "phong n300 diffuse outside".into(),
+            phong(300.0, kd),
+            outside,
+            true,
+        ),
+        (
+            "phong n300 grazing".into(),
+            phong(300.0, Vec3::ZERO),
+            grazing,
+            true,
+        ),
+        (
+            "ward balanced a0.05/0.3 outside".into(),
+            ward(Balanced, 0.05, 0.3, Vec3::ZERO),
+            outside,
+            false,
+        ),
+        (
+            "ward balanced a0.3 diffuse grazing".into(),
+            ward(Balanced, 0.3, 0.3, kd),
+            grazing,
+            false,
+        ),
+        (
+            "ward balanced a0.05 normal".into(),
+            ward(Balanced, 0.05, 0.05, Vec3::ZERO),
+            normal,
+            true,
+        ),
+        (
+            "ward ward a0.05 mid".into(),
+            ward(Ward, 0.05, 0.05, Vec3::ZERO),
+            mid,
+            true,
+        ),
+        (
+            // Fine: at 101 × 51, order 6 the quadrature of the thin lobe cut by the horizon
+            // moves a cell by 1.9 σ between orders 6 and 12.
+            "ward ward a0.3/0.05 diffuse grazing".into(),
+            ward(Ward, 0.3, 0.05, kd),
+            grazing,
+            true,
+        ),
+        (
+            "ward ward-duer a0.05/0.3 diffuse outside".into(),
+            ward(WardDuer, 0.05, 0.3, kd),
+            outside,
+            false,
+        ),
+        (
+            "ward ward-duer a0.3 grazing".into(),
+            ward(WardDuer, 0.3, 0.3, Vec3::ZERO),
+            grazing,
+            false,
+        ),
     ]
 }
 
@@ -192,6 +303,148 @@ fn bsdf_sampling_matches_pdf() {
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// Samples of `sampled` (conditioned on a non-delta sample, as [`Conditioned`]) tested
+/// against the normalised pdf of `claimed`: a defect planted in the pdf (or, with `quadrant_bug`,
+/// in the Ward half-vector sampler) must make the chi² test reject.
+struct Mismatched {
+    sampled: Material,
+    claimed: Material,
+    wi: Vec3,
+    norm: f64,
+    /// Sample Ward's half vector with `φ = atan(αv/αu · tan 2πu)` and no quadrant
+    /// correction (φ only in (−π/2, π/2)): the classic slip Walter 2005 warns of.
+    quadrant_bug: bool,
+}
+
+impl SphereDistribution for Mismatched {
+    fn sample(&self, rng: &mut Pcg32) -> (Vec3, f32) {
+        for _ in 0..10_000 {
+            let (u0, u1, u2) = (rng.next_f32(), rng.next_f32(), rng.next_f32());
+            let wo = match self.sampled {
+                Material::Ward {
+                    alpha_u: au,
+                    alpha_v: av,
+                    ..
+                } if self.quadrant_bug => {
+                    let phi = (av / au * (2.0 * std::f32::consts::PI * u1).tan()).atan();
+                    let (sp, cp) = phi.sin_cos();
+                    let tan2 = -(1.0 - u2).ln() / (cp * cp / (au * au) + sp * sp / (av * av));
+                    let ct = 1.0 / (1.0 + tan2).sqrt();
+                    let h = Vec3::new(ct * tan2.sqrt() * cp, ct * tan2.sqrt() * sp, ct);
+                    Some(2.0 * self.wi.dot(h) * h - self.wi).filter(|w| w.z > 0.0)
+                }
+                m => m
+                    .sample(self.wi, u0, u1, u2)
+                    .filter(|s| s.pdf.is_finite())
+                    .map(|s| s.wo),
+            };
+            if let Some(wo) = wo {
+                let d = wo.normalize();
+                return (d, self.pdf(d));
+            }
+        }
+        (Vec3::NAN, f32::NAN)
+    }
+    fn pdf(&self, d: Vec3) -> f32 {
+        (f64::from(self.claimed.eval(self.wi, d).1) / self.norm) as f32
+    }
+}
+
+/// The chi² test catches defects of the `phong` / `ward` densities (each as one test at
+/// α = 0.01, the grid of the cases above): Phong's pdf with exponent `n + 1` instead of `n`,
+/// Ward's with `αu` 10 % too large, Ward's with the `ward` instead of the `balanced`
+/// normalisation claimed for the sampling (identical pdf: must pass, the variants differ in
+/// `f` only), and a Ward sampler without the quadrant correction of `φ`. The correct
+/// pairings pass under the same configuration.
+#[test]
+fn chi2_catches_wrong_phong_ward_pdf() {
+    let wi = Vec3::new(0.6, 0.0, 0.8);
+    let phong = |n: f32| Material::Phong {
+        exponent: n,
+        diffuse: Vec3::ZERO,
+        specular: Vec3::splat(0.5),
+        scale: 1.0,
+    };
+    let ward = |variant, au: f32| Material::Ward {
+        variant,
+        alpha_u: au,
+        alpha_v: 0.3,
+        diffuse: Vec3::splat(0.2),
+        specular: Vec3::splat(0.5),
+        scale: 1.0,
+    };
+    let (bal, plain) = (WardVariant::Balanced, WardVariant::Ward);
+    // (name, sampled, claimed, quadrant bug, must pass)
+    let runs = [
+        ("phong n30 right", phong(30.0), phong(30.0), false, true),
+        ("phong n30 pdf n+1", phong(30.0), phong(31.0), false, false),
+        (
+            "ward a0.1 right",
+            ward(bal, 0.1),
+            ward(bal, 0.1),
+            false,
+            true,
+        ),
+        (
+            "ward a0.1 pdf a0.11",
+            ward(bal, 0.1),
+            ward(bal, 0.11),
+            false,
+            false,
+        ),
+        (
+            "ward variant pdf",
+            ward(bal, 0.1),
+            ward(plain, 0.1),
+            false,
+            true,
+        ),
+        (
+            "ward quadrant bug",
+            ward(bal, 0.1),
+            ward(bal, 0.1),
+            true,
+            false,
+        ),
+    ];
+    for (i, (name, sampled, claimed, quadrant_bug, ok)) in runs.into_iter().enumerate() {
+        let cfg = Chi2Config {
+            seed: 700 + i as u64,
+            ..Chi2Config::default()
+        };
+        let warp = Warp::uniform();
+        let norm = integrate(
+            &warp,
+            |d| f64::from(claimed.eval(wi, d.as_vec3()).1),
+            cfg.res_u,
+            cfg.res_v,
+            16,
+        );
+        let case = Case {
+            name: format!("harness-selftest/{name}"),
+            dist: Box::new(Mismatched {
+                sampled,
+                claimed,
+                wi,
+                norm,
+                quadrant_bug,
+            }),
+            warp,
+        };
+        let r = run_chi2(&case, 1, &cfg);
+        eprintln!("{}", r.message);
+        if ok {
+            assert!(r.passed, "correct pairing rejected: {}", r.message);
+        } else {
+            assert!(
+                !r.passed && r.p_value < 1e-6,
+                "defect not caught: {}",
+                r.message
+            );
+        }
+    }
 }
 
 /// `blendbsdf` as the renderer realises it: [`Scene::resolve_material`] picks a component

@@ -127,6 +127,36 @@ pub fn check_scene(what: &str, s: &Scene) {
                     && c.internal.is_finite()
                     && c.ext_t.iter().all(|t| t.is_finite())
             }
+            Material::Phong {
+                exponent,
+                diffuse,
+                specular,
+                scale,
+            } => {
+                exponent.is_finite()
+                    && exponent >= 0.0
+                    && finite_non_negative(diffuse)
+                    && finite_non_negative(specular)
+                    && scale > 0.0
+                    && scale <= 1.0
+            }
+            Material::Ward {
+                alpha_u,
+                alpha_v,
+                diffuse,
+                specular,
+                scale,
+                ..
+            } => {
+                alpha_u.is_finite()
+                    && alpha_u > 0.0
+                    && alpha_v.is_finite()
+                    && alpha_v > 0.0
+                    && finite_non_negative(diffuse)
+                    && finite_non_negative(specular)
+                    && scale > 0.0
+                    && scale <= 1.0
+            }
             Material::ThinDielectric {
                 eta,
                 reflectance,
