@@ -10,8 +10,9 @@
 //! `bitmap` and `checkerboard` (see [`crate::texture`]) for the colour, alpha, weight and
 //! opacity parameters; shapes `obj`, `ply`, `serialized`, `sphere`, `rectangle`, `cube`, `disk`
 //! (to_world, flip_normals, face_normals for meshes), `shapegroup` + `instance` (flattened into
-//! world-space primitives); emitters `area` (nested in a shape), `point`, `constant` and
-//! `envmap` (EXR, to_world rotation, scale); `ref id`; `include` (with cycle detection);
+//! world-space primitives); emitters `area` (nested in a shape), `point`, `constant`,
+//! `envmap` (EXR, to_world rotation, scale) and `sunsky` / `sun` / `sky` (approximated with a
+//! warning, see [`crate::sunsky`]); `ref id`; `include` (with cycle detection);
 //! `<default>` + `$name` substitution ([`LoadOptions::params`] override the defaults); and
 //! `transform` with matrix/lookat/translate/rotate/scale. Mitsuba 0.6 spellings: camelCase
 //! property names become snake_case (`toWorld`, `maxDepth`, `intIOR`, ...), `<srgb>` colours
@@ -1594,6 +1595,9 @@ impl Ctx<'_> {
     /// A top-level `<emitter>`: `point`, `constant` or `envmap` (area emitters live in shapes).
     fn emitter(&mut self, n: Node) -> Result<()> {
         let ty = n.attribute("type").unwrap_or("");
+        if matches!(ty, "sunsky" | "sun" | "sky") {
+            return self.sunsky_emitter(n, ty);
+        }
         if !matches!(ty, "point" | "constant" | "envmap") {
             return self.fallback(n, "emitter type", "skipped (it emits no light)");
         }
@@ -1676,6 +1680,115 @@ impl Ctx<'_> {
             return Err(self.err(
                 n,
                 "only one environment emitter (constant or envmap) is supported",
+            ));
+        }
+        Ok(())
+    }
+
+    /// Mitsuba's daylight emitters `sunsky`, `sun` (sun only) and `sky` (sky only), baked
+    /// into an importance-sampled envmap by [`crate::sunsky`] (Mitsuba 0.6 names, and Mitsuba
+    /// 3's `sun_aperture`; a scene whose `version` is not `0.x` uses Mitsuba 3's z-up frame).
+    fn sunsky_emitter(&mut self, n: Node, ty: &str) -> Result<()> {
+        use crate::sunsky::{Convention, SunSkyParams};
+        let version = n.document().root_element().attribute("version");
+        let conv = match version {
+            Some(v) if !v.starts_with('0') && ty == "sunsky" => Convention::Mitsuba3,
+            _ => Convention::Mitsuba06,
+        };
+        let mut sp = SunSkyParams::new(conv);
+        (sp.sun, sp.sky) = (ty != "sky", ty != "sun");
+        let (mut scale, mut sun_scale, mut sky_scale, mut radius) = (None, None, None, None);
+        let mut when_where = None;
+        for p in elements(n) {
+            let pname = prop_name(p.attribute("name").unwrap_or(""));
+            let f = |s: &Self| s.float(p).map(f64::from);
+            match (p.tag_name().name(), pname.as_ref()) {
+                ("transform", "to_world") => {
+                    let m = glam::Mat3::from_mat4(self.transform(p)?);
+                    let rigid = (m.transpose() * m - glam::Mat3::IDENTITY)
+                        .to_cols_array()
+                        .iter()
+                        .all(|x| x.abs() < 1e-3)
+                        && m.determinant() > 0.0;
+                    if !rigid {
+                        return Err(self.err(
+                            p,
+                            format!(
+                                "{ty} to_world must be a rotation (no scale, shear or mirroring)"
+                            ),
+                        ));
+                    }
+                    sp.to_world = m;
+                }
+                (_, "sun_direction") => sp.sun_direction = Some(self.vec3(p)?),
+                (_, "turbidity") => sp.turbidity = f(self)?,
+                (_, "albedo") => sp.albedo = self.color(p)?.as_dvec3().to_array(),
+                (_, "stretch") => sp.stretch = f(self)?,
+                (_, "scale") => scale = Some(f(self)?),
+                (_, "sun_scale") => sun_scale = Some(f(self)?),
+                (_, "sky_scale") => sky_scale = Some(f(self)?),
+                (_, "sun_radius_scale") => radius = Some(f(self)? * crate::sunsky::SUN_RADIUS_DEG),
+                (_, "sun_aperture") => radius = Some(f(self)? / 2.0),
+                (_, "extend") => sp.extend = self.boolean(p)?,
+                (_, "resolution") => {
+                    sp.resolution = usize::try_from(self.integer(p)?)
+                        .map_err(|_| self.err(p, "resolution must be positive"))?
+                }
+                (_, k @ ("year" | "month" | "day")) => {
+                    let v = self.integer(p)?;
+                    *match k {
+                        "year" => &mut sp.year,
+                        "month" => &mut sp.month,
+                        _ => &mut sp.day,
+                    } = v;
+                    when_where = Some(p);
+                }
+                (_, k @ ("hour" | "minute" | "second" | "latitude" | "longitude" | "timezone")) => {
+                    let v = f(self)?;
+                    *match k {
+                        "hour" => &mut sp.hour,
+                        "minute" => &mut sp.minute,
+                        "second" => &mut sp.second,
+                        "latitude" => &mut sp.latitude,
+                        "longitude" => &mut sp.longitude,
+                        _ => &mut sp.timezone,
+                    } = v;
+                    when_where = Some(p);
+                }
+                _ => self.ignore(p, &format!("property of emitter \"{ty}\""))?,
+            }
+        }
+        if let (Some(p), Some(_)) = (when_where, sp.sun_direction) {
+            return Err(self.err(
+                p,
+                format!("{ty}: give sun_direction or the time and place, not both"),
+            ));
+        }
+        sp.sun_scale = sun_scale.or(scale).unwrap_or(1.0);
+        sp.sky_scale = sky_scale.or(scale).unwrap_or(1.0);
+        sp.sun_radius_deg = radius.unwrap_or(sp.sun_radius_deg);
+        sp.validate()
+            .map_err(|e| self.err(n, format!("{ty}: {e}")))?;
+        for w in sp.warnings() {
+            self.warn(n, format!("{ty}: {w}"));
+        }
+        let (w, h, rgb) = crate::sunsky::bake(&sp);
+        if rgb.iter().flatten().all(|v| *v == 0.0) {
+            self.warn(
+                n,
+                format!("{ty}: nothing is above the horizon; the emitter is left out"),
+            );
+            return Ok(());
+        }
+        let map = EnvMap::new(w, h, &rgb, 1.0).map_err(|e| self.err(n, format!("{ty}: {e}")))?;
+        let env = Environment::Map {
+            map: Box::new(map),
+            to_world: sp.map_to_world(),
+        };
+        if !self.builder.environment(env) {
+            return Err(self.err(
+                n,
+                "only one environment emitter (constant, envmap or sunsky) is supported",
             ));
         }
         Ok(())

@@ -628,7 +628,11 @@ fn approximations_warn_and_refusals_name_the_line() {
     // with `strict` an error naming the file, line and plugin.
     for (bsdf, needle, done) in [
         (r#"<bsdf type="hair"/>"#, "hair", "grey diffuse"),
-        (r#"<bsdf type="modifiedphong"/>"#, "modifiedphong", "grey diffuse"),
+        (
+            r#"<bsdf type="modifiedphong"/>"#,
+            "modifiedphong",
+            "grey diffuse",
+        ),
         (
             r#"<bsdf type="diffuse"><float name="sheen" value="1"/></bsdf>"#,
             "<float name=\"sheen\">",
