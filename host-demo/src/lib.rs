@@ -27,6 +27,7 @@ pub mod ply;
 pub mod scene;
 pub mod schedule;
 pub mod serialized;
+pub mod spectrum;
 pub mod sunsky;
 pub mod texture;
 pub mod xml;

@@ -98,12 +98,14 @@ pub fn load_str_opts(
         file: file.to_string(),
         base: base.to_path_buf(),
         root_base: base.to_path_buf(),
+        search: Vec::new(),
         read,
         params: opts.params.iter().cloned().collect(),
         strict: opts.strict,
         errors: Vec::new(),
         failed_bsdfs: HashSet::new(),
         aniso: [None, None],
+        spectrum_warned: false,
         includes: vec![normalize(&PathBuf::from(file))],
         bsdfs: HashMap::new(),
         mask_opacity: HashMap::new(),
@@ -247,6 +249,8 @@ struct Ctx<'r> {
     base: PathBuf,
     /// The main scene's folder (fallback for relative paths in included files).
     root_base: PathBuf,
+    /// Folders added by `<path value="..."/>` (Mitsuba 3), as given relative to their file.
+    search: Vec<PathBuf>,
     read: &'r dyn Fn(&Path) -> std::io::Result<Vec<u8>>,
     params: HashMap<String, String>,
     /// Unknown constructs are errors ([`LoadOptions::strict`]).
@@ -257,6 +261,8 @@ struct Ctx<'r> {
     /// Ids of top-level BSDFs that failed to load (their error is already reported; a
     /// `<ref>` to them uses the default material instead of adding an "unknown id" error).
     failed_bsdfs: HashSet<String>,
+    /// A spectral list in a Mitsuba 0.x file was already warned about.
+    spectrum_warned: bool,
     /// `alpha_u`, `alpha_v` of the rough BSDF being read (see [`Ctx::check_rough`]).
     aniso: [Option<f32>; 2],
     /// Include chain (cycle detection).
@@ -304,16 +310,30 @@ impl Ctx<'_> {
         self.builder.warnings.push(w);
     }
 
-    /// Reads `f` relative to the current file's folder, else the main scene's folder.
+    /// The folders a relative file name is looked up in, in order: the current file's, the
+    /// `<path>` folders declared so far (Mitsuba 3's file resolver), the main scene's.
+    fn search_dirs(&self) -> Vec<PathBuf> {
+        let mut dirs = vec![self.base.clone()];
+        for d in self.search.iter().chain(std::iter::once(&self.root_base)) {
+            if !dirs.contains(d) {
+                dirs.push(d.clone());
+            }
+        }
+        dirs
+    }
+
+    /// Reads `f` from the first of [`Ctx::search_dirs`] that has it (the error names the
+    /// path in the current file's folder).
     fn read_rel(&self, f: &str) -> Result<(PathBuf, Vec<u8>)> {
-        let first = self.base.join(f);
+        let dirs = self.search_dirs();
+        let first = dirs[0].join(f);
         match (self.read)(&first) {
             Ok(b) => Ok((first, b)),
             Err(source) => {
-                let second = self.root_base.join(f);
-                if second != first {
-                    if let Ok(b) = (self.read)(&second) {
-                        return Ok((second, b));
+                for d in &dirs[1..] {
+                    let p = d.join(f);
+                    if let Ok(b) = (self.read)(&p) {
+                        return Ok((p, b));
                     }
                 }
                 Err(Error::Io {
@@ -326,12 +346,11 @@ impl Ctx<'_> {
 
     /// The path `f` resolves to (as [`Ctx::read_rel`] would read it), without reading.
     fn resolve_rel(&self, f: &str) -> PathBuf {
-        let first = self.base.join(f);
-        if first.exists() || !self.root_base.join(f).exists() {
-            first
-        } else {
-            self.root_base.join(f)
-        }
+        let dirs = self.search_dirs();
+        dirs.iter()
+            .map(|d| d.join(f))
+            .find(|p| p.exists())
+            .unwrap_or_else(|| dirs[0].join(f))
     }
 
     fn attr<'n>(&self, n: Node<'n, '_>, name: &str) -> Result<&'n str> {
@@ -402,21 +421,28 @@ impl Ctx<'_> {
     /// `<rgb value="r, g, b"/>`, `<rgb value="v"/>` or `<float value="v"/>` (linear), and the
     /// Mitsuba 0.6 spellings `<srgb value="#rrggbb"/>` / `<srgb value="r, g, b"/>` (sRGB-encoded,
     /// decoded with the sRGB transfer function as Mitsuba 0.6's `Spectrum::fromSRGB` does) and
-    /// `<spectrum value="v"/>` with a single value (grey; wavelength:value lists are refused).
+    /// `<spectrum value="v"/>` with a single value (grey) or three (RGB), and `<spectrum
+    /// value="400:0.1, 500:0.5, ..."/>` (wavelength:value pairs, reduced to RGB as Mitsuba 3
+    /// does, see [`crate::spectrum`]) as a reflectance-like (bounded) spectrum.
     /// Every use (reflectance, radiance, IOR) needs finite values `>= 0`.
-    fn color(&self, n: Node) -> Result<Vec3> {
+    fn color(&mut self, n: Node) -> Result<Vec3> {
+        self.color_with(n, true)
+    }
+
+    /// [`Ctx::color`] for emission and indices of refraction: a spectral list is reduced to
+    /// RGB without the D65 weighting and not clamped to 1 (Mitsuba 3's unbounded spectra).
+    fn unbounded_color(&mut self, n: Node) -> Result<Vec3> {
+        self.color_with(n, false)
+    }
+
+    fn color_with(&mut self, n: Node, bounded: bool) -> Result<Vec3> {
         let tag = n.tag_name().name();
         match tag {
             "rgb" | "float" | "srgb" | "spectrum" => {
                 let s = self.attr(n, "value")?;
                 let v = match s.trim().strip_prefix('#') {
                     Some(hex) if tag == "srgb" => self.hex_color(n, hex)?,
-                    _ if tag == "spectrum" && s.contains(':') => {
-                        return Err(self.err(
-                            n,
-                            "<spectrum> with wavelength:value pairs is not supported (use a single value or <rgb>)",
-                        ))
-                    }
+                    _ if tag == "spectrum" && s.contains(':') => self.spectral_list(n, s, bounded)?,
                     _ => {
                         let v = self.floats(n, s)?;
                         match (v.len(), tag) {
@@ -451,6 +477,32 @@ impl Ctx<'_> {
     }
 
     /// `rrggbb` (hex digits, after the `#`) as sRGB-encoded values in `[0, 1]`.
+    /// `"400:0.1, 500:0.5, ..."` as linear sRGB ([`crate::spectrum::spectrum_to_rgb`]).
+    fn spectral_list(&mut self, n: Node, s: &str, bounded: bool) -> Result<Vec3> {
+        let mut pairs = Vec::new();
+        for item in s.split(',').map(str::trim).filter(|t| !t.is_empty()) {
+            let parsed = item
+                .split_once(':')
+                .and_then(|(l, v)| Some((l.trim().parse().ok()?, v.trim().parse().ok()?)));
+            let Some(pair) = parsed else {
+                return Err(self.err(n, format!("cannot parse wavelength:value \"{item}\"")));
+            };
+            pairs.push(pair);
+        }
+        let rgb = crate::spectrum::spectrum_to_rgb(&pairs, bounded).ok_or_else(|| {
+            self.err(
+                n,
+                "a spectrum needs two or more finite wavelength:value pairs in increasing wavelength",
+            )
+        })?;
+        let version = n.document().root_element().attribute("version");
+        if version.is_some_and(|v| v.starts_with('0')) && !self.spectrum_warned {
+            self.spectrum_warned = true;
+            self.warn(n, "spectra are reduced to RGB as Mitsuba 3 does (CIE 1931, D65-weighted reflectances); Mitsuba 0.6's own reduction differs slightly (further spectra in this file are converted the same way)");
+        }
+        Ok(Vec3::from(rgb))
+    }
+
     fn hex_color(&self, n: Node, hex: &str) -> Result<Vec3> {
         let bad = || {
             self.err(
@@ -682,6 +734,13 @@ impl Ctx<'_> {
             "shape" => self.shape(n)?,
             "emitter" => self.emitter(n)?,
             "include" => self.include(n)?,
+            // Mitsuba 3: a folder where relative file names are also looked up.
+            "path" => {
+                let dir = self.base.join(self.attr(n, "value")?);
+                if !self.search.contains(&dir) {
+                    self.search.push(dir);
+                }
+            }
             // Consumed by the `$name` substitution before parsing.
             "default" => {
                 self.attr(n, "name")?;
@@ -803,6 +862,8 @@ impl Ctx<'_> {
                 ("float", "focus_distance") if thin_lens => focus = self.float(p)?,
                 // Clipping planes do not change the image of a closed-form pinhole for these scenes.
                 ("float", "near_clip" | "far_clip") => {}
+                // Mitsuba's projective cameras all read it; a pinhole's image does not depend on it.
+                ("float", "focus_distance") => {}
                 ("string", "fov_axis") => axis = self.attr(p, "value")?.to_string(),
                 ("transform", "to_world") => to_world = self.transform(p)?,
                 ("sampler", _) => {
@@ -1260,8 +1321,8 @@ impl Ctx<'_> {
                             })?;
                             (eta, k) = (Vec3::from(e), Vec3::from(kk));
                         }
-                        (_, "eta") => eta = self.color(p)?,
-                        (_, "k") => k = self.color(p)?,
+                        (_, "eta") => eta = self.unbounded_color(p)?,
+                        (_, "k") => k = self.unbounded_color(p)?,
                         // Mitsuba 0.6: the exterior medium's real IOR (a float or a name).
                         (_, "ext_eta") => ext_eta = self.ior(p)?,
                         (_, "specular_reflectance") => {
@@ -1612,7 +1673,9 @@ impl Ctx<'_> {
                     to_world = Some(self.transform(p)?)
                 }
                 ("point", "position", "point") => position = Some(self.vec3(p)?),
-                (_, "intensity", "point") | (_, "radiance", "constant") => value = self.color(p)?,
+                (_, "intensity", "point") | (_, "radiance", "constant") => {
+                    value = self.unbounded_color(p)?
+                }
                 ("string", "filename", "envmap") => {
                     filename = Some(self.attr(p, "value")?.to_string())
                 }
@@ -1652,7 +1715,7 @@ impl Ctx<'_> {
             "envmap" => {
                 let f =
                     filename.ok_or_else(|| self.err(n, "envmap needs a \"filename\" string"))?;
-                let path = self.base.join(&f);
+                let path = self.resolve_rel(&f);
                 let img = crate::output::read_exr(&path)?;
                 let map = EnvMap::new(img.width, img.height, &img.pixels, scale)
                     .map_err(|e| self.err(n, format!("envmap {}: {e}", path.display())))?;
@@ -1966,7 +2029,7 @@ impl Ctx<'_> {
                     let mut radiance = Vec3::ONE;
                     for q in elements(p) {
                         match q.attribute("name") {
-                            Some("radiance") => radiance = self.color(q)?,
+                            Some("radiance") => radiance = self.unbounded_color(q)?,
                             _ => self.ignore(q, "area emitter property")?,
                         }
                     }
