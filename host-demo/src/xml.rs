@@ -1,28 +1,34 @@
-//! Loader for a subset of the Mitsuba 3 scene format, and of Mitsuba 0.6 / 0.5 files.
+//! Loader for Mitsuba 3 scenes and Mitsuba 0.6 / 0.5 files (README "Scene support" has the
+//! full table of what is supported, approximated, skipped or rejected).
 //!
-//! Supported: `integrator path` (max_depth, rr_depth), `sensor perspective` (fov, fov_axis,
-//! to_world, near/far_clip), `sampler independent` (sample_count), `film hdrfilm` (width,
-//! height, rfilter box); BSDFs `diffuse`, `conductor`, `roughconductor`, `dielectric`,
-//! `thindielectric`, `roughdielectric`, `plastic`, `roughplastic` (rough ones GGX, isotropic
-//! alpha; IORs as numbers or Mitsuba's names), Mitsuba 0.6's `phong` and `ward` (the three
-//! Ward variants, anisotropic alphas, textured reflectances), `twosided`, `blendbsdf` and
-//! `mask`; textures
-//! `bitmap` and `checkerboard` (see [`crate::texture`]) for the colour, alpha, weight and
-//! opacity parameters; shapes `obj`, `ply`, `serialized`, `sphere`, `rectangle`, `cube`, `disk`
-//! (to_world, flip_normals, face_normals for meshes), `shapegroup` + `instance` (flattened into
-//! world-space primitives); emitters `area` (nested in a shape), `point`, `constant`,
-//! `envmap` (EXR, to_world rotation, scale) and `sunsky` / `sun` / `sky` (approximated with a
-//! warning, see [`crate::sunsky`]); `ref id`; `include` (with cycle detection);
-//! `<default>` + `$name` substitution ([`LoadOptions::params`] override the defaults); and
-//! `transform` with matrix/lookat/translate/rotate/scale. Mitsuba 0.6 spellings: camelCase
-//! property names become snake_case (`toWorld`, `maxDepth`, `intIOR`, ...), `<srgb>` colours
-//! (`#rrggbb` or numbers, sRGB-decoded), `<spectrum>` with one value (grey) or three (RGB),
-//! `lookAt`.
+//! Supported: integrator `path` (max_depth, rr_depth); sensors `perspective` and `thinlens`
+//! (fov, fov_axis, to_world, clip planes, aperture_radius, focus_distance); sampler
+//! `independent` (sample_count); film `hdrfilm` (width, height, rfilter box); BSDFs `diffuse`,
+//! `conductor`, `roughconductor` (rgb `eta`/`k`, Mitsuba's named conductors, textured
+//! `specular_reflectance`, 0.6's `ext_eta`), `dielectric`, `thindielectric`, `roughdielectric`,
+//! `plastic`, `roughplastic` (IORs as numbers or Mitsuba's names), Mitsuba 0.6's `phong` and
+//! `ward` (the three Ward variants, anisotropic alphas, textured reflectances), `twosided`,
+//! `blendbsdf` and `mask`; textures `bitmap` and `checkerboard` (see [`crate::texture`]) for the
+//! colour, alpha, weight and opacity parameters; shapes `obj`, `ply`, `serialized`, `sphere`,
+//! `rectangle`, `cube`, `disk` (to_world, flip_normals, face_normals for meshes), `shapegroup` +
+//! `instance` (flattened into world-space primitives); emitters `area` (nested in a shape),
+//! `point`, `constant`, `envmap` (EXR, to_world rotation, scale) and `sunsky` / `sun` / `sky`
+//! (approximated, see [`crate::sunsky`]); `ref id` (also to BSDFs and textures nested in others);
+//! `include` (with cycle detection); `<path>` search folders; `<default>` + `$name`
+//! substitution ([`LoadOptions::params`] override the defaults); and `transform` with
+//! matrix/lookat/translate/rotate/scale. Mitsuba 0.6 spellings: camelCase property names become
+//! snake_case (`toWorld`, `maxDepth`, `intIOR`, ...), `<srgb>` colours (`#rrggbb` or numbers,
+//! sRGB-decoded), `<spectrum>` with one value (grey), three (RGB) or wavelength:value pairs
+//! ([`crate::spectrum`]), `lookAt`.
 //!
-//! Parts whose effect can be approximated (bumpmap/normalmap, Beckmann, other samplers and
-//! reconstruction filters, ldrfilm, ...) load with a warning naming the file and line (stderr
-//! and [`Scene::warnings`]); anything else unknown (an element, plugin type or property) is an
-//! error that names the element and its line: nothing is dropped silently.
+//! Policy: an **error** only where the scene cannot be rendered or the image would be silently
+//! wrong (malformed XML, missing files, unknown ids, non-finite values, invalid parameters);
+//! the load goes on after one, so [`Error::Problems`] lists every error of the scene with file
+//! and line. Everything else is a **warning** naming file and line and what was done (stderr
+//! and [`Scene::warnings`]): unknown properties and elements are ignored, unknown plugins are
+//! replaced (integrators by `path` at their max_depth, BSDFs by a grey diffuse, textures by
+//! grey; shapes and emitters are skipped), approximations are named. [`LoadOptions::strict`]
+//! turns every unknown construct into an error. Nothing is dropped silently.
 
 use crate::bsdf::{Coating, Material};
 use crate::conductors::named_conductor;

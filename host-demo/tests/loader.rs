@@ -418,3 +418,80 @@ fn mitsuba_06_spellings_equal_their_mitsuba_3_twins() {
     );
     assert!(e.contains("#ff88"), "{e}");
 }
+
+/// One load reports every error of a scene (each with its file and line), not only the first;
+/// unknown constructs are warnings there and join the errors with `strict`.
+#[test]
+fn every_problem_is_reported_in_one_run() {
+    let text = r#"<scene version="3.0.0">
+  <sensor type="perspective"><float name="fov" value="40"/>
+    <vector name="min_bounds" x="0" y="0" z="0"/>
+  </sensor>
+  <bsdf type="principled" id="p"/>
+  <shape type="obj"><string name="filename" value="missing.obj"/></shape>
+  <shape type="sphere"><ref id="nope"/></shape>
+  <shape type="sphere"><transform name="to_world"><translate x="nan"/></transform></shape>
+  <shape type="sphere"><emitter type="area"><rgb name="radiance" value="-1"/></emitter></shape>
+  <shape type="sphere"><bsdf type="diffuse"><boolean name="usePathGuiding" value="true"/></bsdf></shape>
+</scene>"#;
+    let lenient = load_err(text, Path::new("/nonexistent"));
+    let lines: Vec<&str> = lenient.lines().collect();
+    assert!(lines[0].contains("4 problems"), "{lenient}");
+    for (line, needle) in [
+        ("t.xml:6:", "missing.obj"),
+        ("t.xml:7:", "nope"),
+        ("t.xml:8:", "not finite"),
+        ("t.xml:9:", "-1"),
+    ] {
+        assert!(
+            lines.iter().any(|l| l.contains(line) && l.contains(needle)),
+            "{line} {needle}: {lenient}"
+        );
+    }
+    // The missing mesh names the shape that asked for it and the path it tried.
+    assert!(
+        lenient.contains("t.xml:6:3: obj shape: /nonexistent/missing.obj"),
+        "{lenient}"
+    );
+    let opts = xml::LoadOptions {
+        strict: true,
+        ..xml::LoadOptions::default()
+    };
+    let strict = xml::load_str_opts(
+        text,
+        "t.xml",
+        Path::new("/nonexistent"),
+        &|p| std::fs::read(p),
+        &opts,
+    )
+    .err()
+    .expect("must fail")
+    .to_string();
+    assert!(strict.lines().next().unwrap().contains("7 problems"), "{strict}");
+    for needle in [
+        "<vector name=\"min_bounds\">",
+        "<bsdf type=\"principled\" id=\"p\">",
+        "<boolean name=\"usePathGuiding\">",
+    ] {
+        assert!(strict.contains(needle), "{needle}: {strict}");
+    }
+
+    // Without the errors the scene loads, and the warnings name file, line and what was done.
+    let fixable: String = text
+        .lines()
+        .filter(|l| !l.contains("missing.obj") && !l.contains("nope") && !l.contains("nan") && !l.contains("-1"))
+        .collect::<Vec<_>>()
+        .join("\n");
+    let sc = xml::load_str(&fixable, "t.xml", Path::new(".")).expect("loads with warnings");
+    for (line, needle) in [
+        ("t.xml:3:", "<vector name=\"min_bounds\">: ignored"),
+        ("t.xml:5:", "grey diffuse"),
+        ("t.xml:6:", "<boolean name=\"usePathGuiding\">: ignored"),
+    ] {
+        assert!(
+            sc.warnings.iter().any(|w| w.starts_with(line) && w.contains(needle)),
+            "{line} {needle}: {:#?}",
+            sc.warnings
+        );
+    }
+}
