@@ -116,7 +116,7 @@ const BOUNDED: [[f32; 3]; GRID_LEN] = [
     [5.960464e-08, 0.000000e+00, 0.000000e+00],
     [2.980232e-08, 0.000000e+00, 0.000000e+00],
     [2.980232e-08, 0.000000e+00, 0.000000e+00],
-    [0.000000e+00, 0.000000e+00, 0.000000e+00]
+    [0.000000e+00, 0.000000e+00, 0.000000e+00],
 ];
 
 /// Response of unbounded (emission, IOR) spectra per grid node, per nm.
@@ -215,7 +215,7 @@ const UNBOUNDED: [[f32; 3]; GRID_LEN] = [
     [5.960464e-08, 0.000000e+00, 0.000000e+00],
     [5.960464e-08, 0.000000e+00, 0.000000e+00],
     [0.000000e+00, 0.000000e+00, 0.000000e+00],
-    [0.000000e+00, 0.000000e+00, 0.000000e+00]
+    [0.000000e+00, 0.000000e+00, 0.000000e+00],
 ];
 
 /// Linear sRGB of the piecewise-linear spectrum through `pairs` (`(nm, value)`, sorted by
@@ -253,7 +253,9 @@ fn value_at(pairs: &[(f32, f32)], lambda: f32) -> f32 {
     if lambda < first.0 || lambda > last.0 {
         return 0.0;
     }
-    let i = pairs.partition_point(|p| p.0 <= lambda).clamp(1, pairs.len() - 1);
+    let i = pairs
+        .partition_point(|p| p.0 <= lambda)
+        .clamp(1, pairs.len() - 1);
     let ((l0, v0), (l1, v1)) = (pairs[i - 1], pairs[i]);
     let t = (lambda - l0) / (l1 - l0);
     v0 + t * (v1 - v0)
@@ -275,7 +277,10 @@ mod tests {
         let light = [(400.0, 0.0), (500.0, 8.0), (600.0, 15.6), (700.0, 18.4)];
         let e = spectrum_to_rgb(&light, false).unwrap();
         let rel = |a: f32, b: f32| ((a - b) / b).abs() < 2e-3;
-        assert!(rel(e[0], 20.7108) && rel(e[1], 10.8546) && rel(e[2], 2.77115), "{e:?}");
+        assert!(
+            rel(e[0], 20.7108) && rel(e[1], 10.8546) && rel(e[2], 2.77115),
+            "{e:?}"
+        );
         // Bounded spectra clamp to 1, as Mitsuba does.
         assert_eq!(spectrum_to_rgb(&light, true), Some([1.0; 3]));
         // A flat reflectance spectrum over the visible range is (almost) grey.
@@ -290,6 +295,9 @@ mod tests {
         assert_eq!(spectrum_to_rgb(&[], true), None);
         assert_eq!(spectrum_to_rgb(&[(500.0, 1.0), (400.0, 1.0)], true), None);
         assert_eq!(spectrum_to_rgb(&[(500.0, 1.0)], false), None);
-        assert_eq!(spectrum_to_rgb(&[(400.0, 1.0), (500.0, f32::NAN)], false), None);
+        assert_eq!(
+            spectrum_to_rgb(&[(400.0, 1.0), (500.0, f32::NAN)], false),
+            None
+        );
     }
 }

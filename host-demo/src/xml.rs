@@ -448,7 +448,9 @@ impl Ctx<'_> {
                 let s = self.attr(n, "value")?;
                 let v = match s.trim().strip_prefix('#') {
                     Some(hex) if tag == "srgb" => self.hex_color(n, hex)?,
-                    _ if tag == "spectrum" && s.contains(':') => self.spectral_list(n, s, bounded)?,
+                    _ if tag == "spectrum" && s.contains(':') => {
+                        self.spectral_list(n, s, bounded)?
+                    }
                     _ => {
                         let v = self.floats(n, s)?;
                         match (v.len(), tag) {
@@ -456,7 +458,8 @@ impl Ctx<'_> {
                             // Mitsuba 0.6 reads a 3-value <spectrum> as linear RGB.
                             (3, "rgb" | "srgb" | "spectrum") => Vec3::new(v[0], v[1], v[2]),
                             _ if tag == "spectrum" => {
-                                return Err(self.err(n, "<spectrum> expects one value (grey) or three (RGB)"))
+                                return Err(self
+                                    .err(n, "<spectrum> expects one value (grey) or three (RGB)"))
                             }
                             _ if tag == "float" => {
                                 return Err(self.err(n, format!("<{tag}> expects a single number")))
@@ -1544,8 +1547,15 @@ impl Ctx<'_> {
                         {
                             nested = self.nested_bsdf(p, &format!("{ty} property"))?
                         }
-                        // The bump / normal texture itself and its scale are not used.
-                        "texture" | "ref" | "float" => {}
+                        // The bump / normal texture itself and its scale are not used; a
+                        // texture with an id stays available to later references.
+                        "texture" => {
+                            if let Some(id) = p.attribute("id") {
+                                let def = self.texture_def(p)?;
+                                self.tex_defs.insert(id.to_string(), def);
+                            }
+                        }
+                        "ref" | "float" => {}
                         _ => self.ignore(p, &format!("{ty} property"))?,
                     }
                 }

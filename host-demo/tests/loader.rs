@@ -467,7 +467,10 @@ fn every_problem_is_reported_in_one_run() {
     .err()
     .expect("must fail")
     .to_string();
-    assert!(strict.lines().next().unwrap().contains("7 problems"), "{strict}");
+    assert!(
+        strict.lines().next().unwrap().contains("7 problems"),
+        "{strict}"
+    );
     for needle in [
         "<vector name=\"min_bounds\">",
         "<bsdf type=\"principled\" id=\"p\">",
@@ -479,7 +482,12 @@ fn every_problem_is_reported_in_one_run() {
     // Without the errors the scene loads, and the warnings name file, line and what was done.
     let fixable: String = text
         .lines()
-        .filter(|l| !l.contains("missing.obj") && !l.contains("nope") && !l.contains("nan") && !l.contains("-1"))
+        .filter(|l| {
+            !l.contains("missing.obj")
+                && !l.contains("nope")
+                && !l.contains("nan")
+                && !l.contains("-1")
+        })
         .collect::<Vec<_>>()
         .join("\n");
     let sc = xml::load_str(&fixable, "t.xml", Path::new(".")).expect("loads with warnings");
@@ -489,7 +497,9 @@ fn every_problem_is_reported_in_one_run() {
         ("t.xml:6:", "<boolean name=\"usePathGuiding\">: ignored"),
     ] {
         assert!(
-            sc.warnings.iter().any(|w| w.starts_with(line) && w.contains(needle)),
+            sc.warnings
+                .iter()
+                .any(|w| w.starts_with(line) && w.contains(needle)),
             "{line} {needle}: {:#?}",
             sc.warnings
         );
