@@ -53,8 +53,10 @@ fn data_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/published")
 }
 
-/// `(name, width, height, mean, se)` rows of `mitsuba3.csv`.
-fn references() -> Vec<(String, u32, u32, [f64; 3], [f64; 3])> {
+/// `(name, width, height, mean, se)`: one row of `mitsuba3.csv`.
+type Reference = (String, u32, u32, [f64; 3], [f64; 3]);
+
+fn references() -> Vec<Reference> {
     let text = std::fs::read_to_string(data_dir().join("mitsuba3.csv")).expect("mitsuba3.csv");
     text.lines()
         .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
