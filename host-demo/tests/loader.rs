@@ -6,6 +6,7 @@
 //! * The obvhs CWBVH closest hit equals a brute-force loop over all primitives on random rays.
 
 use glam::Vec3;
+use host_demo::bsdf::Material;
 use host_demo::scene::Scene;
 use host_demo::xml;
 use std::path::{Path, PathBuf};
@@ -396,12 +397,23 @@ fn mitsuba_06_spellings_equal_their_mitsuba_3_twins() {
     let b = load_ok(&scene_06(cam3, tr3, &diffuse(&rgb([0.3; 3])), light3));
     assert_same_scene(&a, &b, "spectrum");
 
-    // Unsupported forms stay clear errors.
+    // Wavelength:value pairs are reduced to RGB (crate::spectrum); malformed ones are errors.
+    let sc = load_ok(&scene_06(
+        cam3,
+        tr3,
+        &diffuse(r#"<spectrum name="reflectance" value="400:0.1, 700:0.5"/>"#),
+        light3,
+    ));
+    assert!(
+        matches!(sc.materials[0], Material::Diffuse { reflectance } if reflectance.x > reflectance.z),
+        "{:?}",
+        sc.materials[0]
+    );
     let e = load_err(
         &scene_06(
             cam3,
             tr3,
-            &diffuse(r#"<spectrum name="reflectance" value="400:0.1, 700:0.5"/>"#),
+            &diffuse(r#"<spectrum name="reflectance" value="700:0.1, 400:0.5"/>"#),
             light3,
         ),
         Path::new("."),
