@@ -3,10 +3,10 @@
 //! Supported: `integrator path` (max_depth, rr_depth), `sensor perspective` (fov, fov_axis,
 //! to_world, near/far_clip), `sampler independent` (sample_count), `film hdrfilm` (width,
 //! height, rfilter box); BSDFs `diffuse`, `conductor`, `roughconductor`, `dielectric`,
-//! `thindielectric`, `roughdielectric`, `plastic`, `roughplastic` (rough ones GGX, isotropic
-//! alpha; IORs as numbers or Mitsuba's names), Mitsuba 0.6's `phong` and `ward` (the three
-//! Ward variants, anisotropic alphas, textured reflectances), `twosided`, `blendbsdf` and
-//! `mask`; textures
+//! `thindielectric`, `roughdielectric`, `plastic`, `roughplastic` (rough ones Beckmann, the
+//! default as in Mitsuba, or GGX, isotropic alpha; IORs as numbers or Mitsuba's names),
+//! Mitsuba 0.6's `phong` and `ward` (the three Ward variants, anisotropic alphas, textured
+//! reflectances), `twosided`, `blendbsdf` and `mask`; textures
 //! `bitmap` and `checkerboard` (see [`crate::texture`]) for the colour, alpha, weight and
 //! opacity parameters; shapes `obj`, `ply`, `serialized`, `sphere`, `rectangle`, `cube`, `disk`
 //! (to_world, flip_normals, face_normals for meshes), `shapegroup` + `instance` (flattened into
@@ -19,12 +19,12 @@
 //! (`#rrggbb` or numbers, sRGB-decoded), `<spectrum>` with one value (grey) or three (RGB),
 //! `lookAt`.
 //!
-//! Parts whose effect can be approximated (bumpmap/normalmap, Beckmann, other samplers and
+//! Parts whose effect can be approximated (bumpmap/normalmap, other samplers and
 //! reconstruction filters, ldrfilm, ...) load with a warning naming the file and line (stderr
 //! and [`Scene::warnings`]); anything else unknown (an element, plugin type or property) is an
 //! error that names the element and its line: nothing is dropped silently.
 
-use crate::bsdf::{Coating, Material};
+use crate::bsdf::{Coating, Material, Microfacet};
 use crate::conductors::named_conductor;
 use crate::emitter::{EnvMap, Environment, PointLight};
 use crate::error::{Error, Result};
@@ -986,8 +986,8 @@ impl Ctx<'_> {
         Ok(v)
     }
 
-    /// GGX roughness and distribution properties shared by the rough BSDFs; returns true if
-    /// the property was one of them. A textured `alpha` goes to `alpha_tex`.
+    /// Microfacet roughness and distribution properties shared by the rough BSDFs; returns true
+    /// if the property was one of them. A textured `alpha` goes to `alpha_tex`.
     fn rough_property(
         &mut self,
         p: Node,
@@ -1010,7 +1010,12 @@ impl Ctx<'_> {
         Ok(true)
     }
 
-    fn check_rough(&mut self, n: Node, distribution: &str, alpha: f32) -> Result<f32> {
+    fn check_rough(
+        &mut self,
+        n: Node,
+        distribution: &str,
+        alpha: f32,
+    ) -> Result<(Microfacet, f32)> {
         let ty = n.attribute("type").unwrap_or("");
         let alpha = match std::mem::take(&mut self.aniso) {
             [None, None] => alpha,
@@ -1024,23 +1029,16 @@ impl Ctx<'_> {
                 iso
             }
         };
-        match distribution {
-            "ggx" => {}
-            "beckmann" => self.warn(
+        let Some(distribution) = Microfacet::parse(distribution) else {
+            return Err(self.err(
                 n,
-                format!("{ty}: the Beckmann distribution is approximated by GGX with the same alpha (Mitsuba's default is beckmann; give <string name=\"distribution\" value=\"ggx\"/> to silence this)"),
-            ),
-            _ => {
-                return Err(self.err(
-                    n,
-                    format!("{ty} distribution \"{distribution}\" is not supported (only \"ggx\", and \"beckmann\" approximated by GGX)"),
-                ))
-            }
-        }
+                format!("{ty} distribution \"{distribution}\" is not supported (only \"beckmann\" and \"ggx\")"),
+            ));
+        };
         if !(alpha > 0.0 && alpha.is_finite()) {
             return Err(self.err(n, format!("alpha {alpha} must be positive")));
         }
-        Ok(alpha.max(1e-4))
+        Ok((distribution, alpha.max(1e-4)))
     }
 
     /// A colour parameter: a constant, an inline `<texture>` or a `<ref>` to a texture id.
@@ -1342,8 +1340,9 @@ impl Ctx<'_> {
                 if ty == "conductor" {
                     Material::Conductor { eta, k, specular }
                 } else {
-                    let alpha = self.check_rough(n, &distribution, alpha)?;
+                    let (distribution, alpha) = self.check_rough(n, &distribution, alpha)?;
                     Material::RoughConductor {
+                        distribution,
                         alpha,
                         eta,
                         k,
@@ -1394,8 +1393,9 @@ impl Ctx<'_> {
                         transmittance,
                     },
                     _ => {
-                        let alpha = self.check_rough(n, &distribution, alpha)?;
+                        let (distribution, alpha) = self.check_rough(n, &distribution, alpha)?;
                         Material::RoughDielectric {
+                            distribution,
                             alpha,
                             eta,
                             reflectance,
@@ -1441,8 +1441,15 @@ impl Ctx<'_> {
                 if ty == "plastic" {
                     Material::Plastic(Coating::smooth(diffuse, specular, eta, nonlinear))
                 } else {
-                    let alpha = self.check_rough(n, &distribution, alpha)?;
-                    Material::RoughPlastic(Coating::rough(diffuse, specular, eta, nonlinear, alpha))
+                    let (distribution, alpha) = self.check_rough(n, &distribution, alpha)?;
+                    Material::RoughPlastic(Coating::rough(
+                        diffuse,
+                        specular,
+                        eta,
+                        nonlinear,
+                        distribution,
+                        alpha,
+                    ))
                 }
             }
             "twosided" => {
