@@ -892,11 +892,13 @@ impl Scene {
                 specular: tex(t.specular, specular),
             },
             Material::RoughConductor {
+                distribution,
                 alpha: a,
                 eta,
                 k,
                 specular,
             } => Material::RoughConductor {
+                distribution,
                 alpha: alpha(t.scalar, a),
                 eta,
                 k,
@@ -921,11 +923,13 @@ impl Scene {
                 transmittance: tex(t.transmittance, transmittance),
             },
             Material::RoughDielectric {
+                distribution,
                 alpha: a,
                 eta,
                 reflectance,
                 transmittance,
             } => Material::RoughDielectric {
+                distribution,
                 alpha: alpha(t.scalar, a),
                 eta,
                 reflectance: tex(t.specular, reflectance),

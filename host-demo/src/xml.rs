@@ -6,7 +6,8 @@
 //! `independent` (sample_count); film `hdrfilm` (width, height, rfilter box); BSDFs `diffuse`,
 //! `conductor`, `roughconductor` (rgb `eta`/`k`, Mitsuba's named conductors, textured
 //! `specular_reflectance`, 0.6's `ext_eta`), `dielectric`, `thindielectric`, `roughdielectric`,
-//! `plastic`, `roughplastic` (IORs as numbers or Mitsuba's names), Mitsuba 0.6's `phong` and
+//! `plastic`, `roughplastic` (GGX or Beckmann microfacets, Beckmann by default as in Mitsuba;
+//! IORs as numbers or Mitsuba's names), Mitsuba 0.6's `phong` and
 //! `ward` (the three Ward variants, anisotropic alphas, textured reflectances), `twosided`,
 //! `blendbsdf` and `mask`; textures `bitmap` and `checkerboard` (see [`crate::texture`]) for the
 //! colour, alpha, weight and opacity parameters; shapes `obj`, `ply`, `serialized`, `sphere`,
@@ -30,7 +31,7 @@
 //! grey; shapes and emitters are skipped), approximations are named. [`LoadOptions::strict`]
 //! turns every unknown construct into an error. Nothing is dropped silently.
 
-use crate::bsdf::{Coating, Material};
+use crate::bsdf::{Coating, Material, Microfacet};
 use crate::conductors::named_conductor;
 use crate::emitter::{EnvMap, Environment, PointLight};
 use crate::error::{Error, Result};
@@ -995,8 +996,8 @@ impl Ctx<'_> {
         Ok(v)
     }
 
-    /// GGX roughness and distribution properties shared by the rough BSDFs; returns true if
-    /// the property was one of them. A textured `alpha` goes to `alpha_tex`.
+    /// Microfacet roughness and distribution properties shared by the rough BSDFs; returns true
+    /// if the property was one of them. A textured `alpha` goes to `alpha_tex`.
     fn rough_property(
         &mut self,
         p: Node,
@@ -1019,7 +1020,12 @@ impl Ctx<'_> {
         Ok(true)
     }
 
-    fn check_rough(&mut self, n: Node, distribution: &str, alpha: f32) -> Result<f32> {
+    fn check_rough(
+        &mut self,
+        n: Node,
+        distribution: &str,
+        alpha: f32,
+    ) -> Result<(Microfacet, f32)> {
         let ty = n.attribute("type").unwrap_or("");
         let alpha = match std::mem::take(&mut self.aniso) {
             [None, None] => alpha,
@@ -1033,23 +1039,16 @@ impl Ctx<'_> {
                 iso
             }
         };
-        match distribution {
-            "ggx" => {}
-            "beckmann" => self.warn(
+        let Some(distribution) = Microfacet::parse(distribution) else {
+            return Err(self.err(
                 n,
-                format!("{ty}: the Beckmann distribution is approximated by GGX with the same alpha (Mitsuba's default is beckmann; give <string name=\"distribution\" value=\"ggx\"/> to silence this)"),
-            ),
-            _ => {
-                return Err(self.err(
-                    n,
-                    format!("{ty} distribution \"{distribution}\" is not supported (only \"ggx\", and \"beckmann\" approximated by GGX)"),
-                ))
-            }
-        }
+                format!("{ty} distribution \"{distribution}\" is not supported (only \"beckmann\" and \"ggx\")"),
+            ));
+        };
         if !(alpha > 0.0 && alpha.is_finite()) {
             return Err(self.err(n, format!("alpha {alpha} must be positive")));
         }
-        Ok(alpha.max(1e-4))
+        Ok((distribution, alpha.max(1e-4)))
     }
 
     /// A colour parameter: a constant, an inline `<texture>` or a `<ref>` to a texture id.
@@ -1351,8 +1350,9 @@ impl Ctx<'_> {
                 if ty == "conductor" {
                     Material::Conductor { eta, k, specular }
                 } else {
-                    let alpha = self.check_rough(n, &distribution, alpha)?;
+                    let (distribution, alpha) = self.check_rough(n, &distribution, alpha)?;
                     Material::RoughConductor {
+                        distribution,
                         alpha,
                         eta,
                         k,
@@ -1403,8 +1403,9 @@ impl Ctx<'_> {
                         transmittance,
                     },
                     _ => {
-                        let alpha = self.check_rough(n, &distribution, alpha)?;
+                        let (distribution, alpha) = self.check_rough(n, &distribution, alpha)?;
                         Material::RoughDielectric {
+                            distribution,
                             alpha,
                             eta,
                             reflectance,
@@ -1450,8 +1451,15 @@ impl Ctx<'_> {
                 if ty == "plastic" {
                     Material::Plastic(Coating::smooth(diffuse, specular, eta, nonlinear))
                 } else {
-                    let alpha = self.check_rough(n, &distribution, alpha)?;
-                    Material::RoughPlastic(Coating::rough(diffuse, specular, eta, nonlinear, alpha))
+                    let (distribution, alpha) = self.check_rough(n, &distribution, alpha)?;
+                    Material::RoughPlastic(Coating::rough(
+                        diffuse,
+                        specular,
+                        eta,
+                        nonlinear,
+                        distribution,
+                        alpha,
+                    ))
                 }
             }
             "twosided" => {

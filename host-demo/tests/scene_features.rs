@@ -10,7 +10,7 @@
 //! Šidák-corrected level `1 − (1 − 0.01)^{1/3M}` (family-wise false alarm rate 1 %).
 
 use glam::Vec3;
-use host_demo::bsdf::Material;
+use host_demo::bsdf::{Material, Microfacet};
 use host_demo::integrator::{render, Image, IntegratorKind, RenderOptions};
 use host_demo::scene::{Prim, Scene};
 use host_demo::xml;
@@ -295,12 +295,14 @@ fn bsdfs_and_emitters_load() {
     assert!(matches!(m[0], Material::Conductor { .. }));
     assert!(matches!(m[1], Material::Dielectric { eta, .. } if (eta - 1.5).abs() < 1e-6));
     assert!(
-        matches!(m[2], Material::RoughDielectric { eta, alpha, .. } if (eta - 1.333 / 1.000_277).abs() < 1e-5 && alpha == 0.2)
+        matches!(m[2], Material::RoughDielectric { eta, alpha, distribution: Microfacet::Ggx, .. } if (eta - 1.333 / 1.000_277).abs() < 1e-5 && alpha == 0.2)
     );
     assert!(
         matches!(m[3], Material::Plastic(c) if c.nonlinear && c.diffuse == Vec3::new(0.1, 0.2, 0.3) && (c.eta - 1.49 / 1.000_277).abs() < 1e-5)
     );
-    assert!(matches!(m[4], Material::RoughPlastic(c) if c.alpha == 0.3));
+    assert!(
+        matches!(m[4], Material::RoughPlastic(c) if c.alpha == 0.3 && c.distribution == Microfacet::Ggx)
+    );
     // The nested diffuse is material 5, the twosided wrapper 6.
     assert!(matches!(m[6], Material::TwoSided { front: 5, back: 5 }));
     assert_eq!(sc.point_lights.len(), 1);
@@ -338,8 +340,9 @@ fn bsdfs_and_emitters_load() {
         ),
         &d,
     );
+    // No `distribution`: Beckmann, Mitsuba's default.
     assert!(
-        matches!(aniso.materials[0], Material::RoughDielectric { alpha, .. } if (alpha - 0.2).abs() < 1e-6),
+        matches!(aniso.materials[0], Material::RoughDielectric { alpha, distribution: Microfacet::Beckmann, .. } if (alpha - 0.2).abs() < 1e-6),
         "{:?}",
         aniso.materials
     );
@@ -352,6 +355,59 @@ fn bsdfs_and_emitters_load() {
         "<bsdf type=\"plastic\" id=\"x\"><string name=\"int_ior\" value=\"unobtainium\"/></bsdf>",
     );
     assert!(err.contains("unobtainium"), "{err}");
+    // The microfacet distribution: `beckmann` (also when absent, as in Mitsuba) and `ggx`, on
+    // every rough BSDF, without a warning; anything else is an error naming it.
+    let dist = load(
+        &scene_xml(
+            "0, -10, 0",
+            "0, 0, 0",
+            40.0,
+            8,
+            4,
+            r#"<bsdf type="roughconductor" id="a"/>
+  <bsdf type="roughconductor" id="b"><string name="distribution" value="beckmann"/></bsdf>
+  <bsdf type="roughplastic" id="c"/>
+  <bsdf type="roughdielectric" id="d"><string name="distribution" value="beckmann"/></bsdf>
+  <bsdf type="roughconductor" id="e"><string name="distribution" value="ggx"/></bsdf>
+  <shape type="sphere"><ref id="a"/></shape>"#,
+        ),
+        &d,
+    );
+    assert!(dist.warnings.is_empty(), "{:?}", dist.warnings);
+    let m = &dist.materials;
+    use Microfacet::{Beckmann, Ggx};
+    assert!(
+        matches!(m[0], Material::RoughConductor { distribution: Beckmann, alpha, .. } if alpha == 0.1)
+    );
+    assert!(matches!(
+        m[1],
+        Material::RoughConductor {
+            distribution: Beckmann,
+            ..
+        }
+    ));
+    assert!(
+        matches!(m[2], Material::RoughPlastic(c) if c.distribution == Beckmann && c.alpha == 0.1)
+    );
+    assert!(matches!(
+        m[3],
+        Material::RoughDielectric {
+            distribution: Beckmann,
+            ..
+        }
+    ));
+    assert!(matches!(
+        m[4],
+        Material::RoughConductor {
+            distribution: Ggx,
+            ..
+        }
+    ));
+    let err = e("<bsdf type=\"roughconductor\" id=\"x\"><string name=\"distribution\" value=\"phong\"/></bsdf>");
+    assert!(
+        err.contains("phong") && err.contains("distribution"),
+        "{err}"
+    );
 }
 
 /// Mitsuba 0.6's `phong` and `ward` in 0.6 spelling (camelCase names, `<spectrum>`, `<srgb>`):

@@ -15,7 +15,12 @@
 //! edge row are 40 % low and the test rejects with quadrature_z ≈ 6; at order 16 and on the finer
 //! grid it passes).
 //!
-//! Run with `cargo test --release -p guiding-tests --test bsdf_chi2` (a few seconds).
+//! Cases: GGX and Beckmann rough conductors, dielectrics (both sides) and plastics, `phong`,
+//! `ward`, `blendbsdf`; negative controls (`harness-selftest/...`) plant wrong densities (a
+//! Beckmann sampler against the GGX pdf or α·1.1, Phong's `n + 1`, Ward's quadrant slip) that
+//! must be rejected.
+//!
+//! Run with `cargo test --release -p guiding-tests --test bsdf_chi2` (about a minute).
 
 use glam::Vec3;
 use guiding_tests::cases::Case;
@@ -23,7 +28,7 @@ use guiding_tests::chi2::{run_chi2, Chi2Config, Warp};
 use guiding_tests::quadrature::integrate;
 use guiding_tests::rng::Pcg32;
 use guiding_tests::SphereDistribution;
-use host_demo::bsdf::{Coating, Material, WardVariant};
+use host_demo::bsdf::{Coating, Material, Microfacet, WardVariant};
 
 struct Conditioned {
     m: Material,
@@ -52,6 +57,7 @@ impl SphereDistribution for Conditioned {
 fn cases() -> Vec<(String, Material, Vec3, bool)> {
     let (d, s) = (Vec3::new(0.4, 0.5, 0.6), Vec3::ONE);
     let rd = |alpha, eta| Material::RoughDielectric {
+        distribution: Microfacet::Ggx,
         alpha,
         eta,
         reflectance: Vec3::ONE,
@@ -100,7 +106,7 @@ fn cases() -> Vec<(String, Material, Vec3, bool)> {
         ),
         (
             "roughplastic a0.2".into(),
-            Material::RoughPlastic(Coating::rough(d, s, 1.49, false, 0.2)),
+            Material::RoughPlastic(Coating::rough(d, s, 1.49, false, Microfacet::Ggx, 0.2)),
             outside,
             false,
         ),
@@ -108,7 +114,7 @@ fn cases() -> Vec<(String, Material, Vec3, bool)> {
             // A textured diffuse_reflectance re-weights the lobe selection per hit.
             "roughplastic a0.2 textured albedo".into(),
             Material::RoughPlastic(
-                Coating::rough(d, s, 1.49, false, 0.2)
+                Coating::rough(d, s, 1.49, false, Microfacet::Ggx, 0.2)
                     .with_albedo(Vec3::new(0.9, 0.1, 0.05), Vec3::splat(0.3)),
             ),
             outside,
@@ -123,6 +129,7 @@ fn cases() -> Vec<(String, Material, Vec3, bool)> {
         (
             "roughconductor a0.25".into(),
             Material::RoughConductor {
+                distribution: Microfacet::Ggx,
                 alpha: 0.25,
                 eta: Vec3::new(0.2, 0.92, 1.1),
                 k: Vec3::new(3.9, 2.45, 2.14),
@@ -134,6 +141,7 @@ fn cases() -> Vec<(String, Material, Vec3, bool)> {
         (
             "roughconductor a0.6 grazing".into(),
             Material::RoughConductor {
+                distribution: Microfacet::Ggx,
                 alpha: 0.6,
                 eta: Vec3::ZERO,
                 k: Vec3::ONE,
@@ -144,6 +152,90 @@ fn cases() -> Vec<(String, Material, Vec3, bool)> {
         ),
     ];
     cases.extend(phong_ward_cases());
+    cases.extend(beckmann_cases());
+    cases
+}
+
+/// A Beckmann rough conductor (copper) with roughness `alpha`.
+fn beckmann_conductor(alpha: f32) -> Material {
+    Material::RoughConductor {
+        distribution: Microfacet::Beckmann,
+        alpha,
+        eta: Vec3::new(0.2, 0.92, 1.1),
+        k: Vec3::new(3.9, 2.45, 2.14),
+        specular: Vec3::ONE,
+    }
+}
+
+/// Beckmann (Mitsuba's default distribution) rough conductor, rough dielectric (η 1.5 and
+/// 1/1.5, from outside and inside) and rough plastic at α 0.05 / 0.3 / 0.8, from several
+/// directions including grazing; the narrow α = 0.05 lobes on the fine grid.
+/// `(name, material, wi, fine grid)`.
+fn beckmann_cases() -> Vec<(String, Material, Vec3, bool)> {
+    let outside = Vec3::new(0.55, 0.1, 0.6).normalize();
+    let inside = Vec3::new(-0.3, 0.2, -0.8).normalize();
+    let grazing = Vec3::new(0.95, 0.0, 0.2).normalize();
+    let grazing_inside = Vec3::new(0.1, -0.97, -0.2).normalize();
+    let mid = Vec3::new(0.6, 0.0, 0.8);
+    let normal = Vec3::new(0.02, -0.01, 1.0).normalize();
+    let rd = |alpha, eta| Material::RoughDielectric {
+        distribution: Microfacet::Beckmann,
+        alpha,
+        eta,
+        reflectance: Vec3::ONE,
+        transmittance: Vec3::ONE,
+    };
+    let rp = |alpha| {
+        Material::RoughPlastic(Coating::rough(
+            Vec3::new(0.4, 0.5, 0.6),
+            Vec3::ONE,
+            1.49,
+            false,
+            Microfacet::Beckmann,
+            alpha,
+        ))
+    };
+    let mut cases: Vec<(String, Material, Vec3, bool)> = Vec::new();
+    for (alpha, fine) in [(0.05f32, true), (0.3, false), (0.8, false)] {
+        for (wname, wi) in [("normal", normal), ("mid", mid), ("grazing", grazing)] {
+            cases.push((
+                format!("roughconductor beckmann a{alpha} {wname}"),
+                beckmann_conductor(alpha),
+                wi,
+                fine,
+            ));
+        }
+        for eta in [1.5f32, 1.0 / 1.5] {
+            for (wname, wi) in [("outside", outside), ("inside", inside)] {
+                cases.push((
+                    format!("roughdielectric beckmann a{alpha} eta{eta:.3} {wname}"),
+                    rd(alpha, eta),
+                    wi,
+                    fine,
+                ));
+            }
+        }
+        for (wname, wi) in [("outside", outside), ("grazing", grazing)] {
+            cases.push((
+                format!("roughplastic beckmann a{alpha} {wname}"),
+                rp(alpha),
+                wi,
+                fine,
+            ));
+        }
+    }
+    // Grazing through the dielectric from both sides (the Fresnel edge: fine grid).
+    for (eta, wname, wi) in [
+        (1.5f32, "grazing", grazing),
+        (1.5, "grazing inside", grazing_inside),
+    ] {
+        cases.push((
+            format!("roughdielectric beckmann a0.3 eta1.5 {wname}"),
+            rd(0.3, eta),
+            wi,
+            true,
+        ));
+    }
     cases
 }
 
@@ -447,6 +539,105 @@ fn chi2_catches_wrong_phong_ward_pdf() {
     }
 }
 
+/// The chi² test catches a wrong Beckmann density: Beckmann samples tested against the GGX
+/// pdf of the same alpha, and against the Beckmann pdf with α 10 % too large, for the rough
+/// conductor and the rough dielectric (α 0.3, the grid of the cases above). The correct
+/// pairings pass under the same configuration.
+#[test]
+fn chi2_catches_wrong_beckmann_pdf() {
+    let wi = Vec3::new(0.6, 0.0, 0.8);
+    let conductor = |distribution, alpha| Material::RoughConductor {
+        distribution,
+        alpha,
+        eta: Vec3::new(0.2, 0.92, 1.1),
+        k: Vec3::new(3.9, 2.45, 2.14),
+        specular: Vec3::ONE,
+    };
+    let dielectric = |distribution, alpha| Material::RoughDielectric {
+        distribution,
+        alpha,
+        eta: 1.5,
+        reflectance: Vec3::ONE,
+        transmittance: Vec3::ONE,
+    };
+    let (b, g) = (Microfacet::Beckmann, Microfacet::Ggx);
+    // (name, sampled, claimed, must pass)
+    let runs = [
+        (
+            "conductor right",
+            conductor(b, 0.3),
+            conductor(b, 0.3),
+            true,
+        ),
+        (
+            "conductor ggx pdf",
+            conductor(b, 0.3),
+            conductor(g, 0.3),
+            false,
+        ),
+        (
+            "conductor pdf a0.33",
+            conductor(b, 0.3),
+            conductor(b, 0.33),
+            false,
+        ),
+        (
+            "dielectric right",
+            dielectric(b, 0.3),
+            dielectric(b, 0.3),
+            true,
+        ),
+        (
+            "dielectric ggx pdf",
+            dielectric(b, 0.3),
+            dielectric(g, 0.3),
+            false,
+        ),
+        (
+            "dielectric pdf a0.33",
+            dielectric(b, 0.3),
+            dielectric(b, 0.33),
+            false,
+        ),
+    ];
+    for (i, (name, sampled, claimed, ok)) in runs.into_iter().enumerate() {
+        let cfg = Chi2Config {
+            seed: 800 + i as u64,
+            ..Chi2Config::default()
+        };
+        let warp = Warp::uniform();
+        let norm = integrate(
+            &warp,
+            |d| f64::from(claimed.eval(wi, d.as_vec3()).1),
+            cfg.res_u,
+            cfg.res_v,
+            16,
+        );
+        let case = Case {
+            name: format!("harness-selftest/beckmann {name}"),
+            dist: Box::new(Mismatched {
+                sampled,
+                claimed,
+                wi,
+                norm,
+                quadrant_bug: false,
+            }),
+            warp,
+        };
+        let r = run_chi2(&case, 1, &cfg);
+        eprintln!("{}", r.message);
+        if ok {
+            assert!(r.passed, "correct pairing rejected: {}", r.message);
+        } else {
+            assert!(
+                !r.passed && r.p_value < 1e-6,
+                "defect not caught: {}",
+                r.message
+            );
+        }
+    }
+}
+
 /// `blendbsdf` as the renderer realises it: [`Scene::resolve_material`] picks a component
 /// stochastically (here with a textured weight), then that component samples. The sampled
 /// directions must follow the mixture density `Σ P(k)·pdf_k` ([`Scene::eval_mixture`]),
@@ -459,6 +650,7 @@ fn blendbsdf_sampling_matches_mixture_pdf() {
 
     let mut b = SceneBuilder::default();
     let rough = b.material(Material::RoughConductor {
+        distribution: Microfacet::Ggx,
         alpha: 0.15,
         eta: Vec3::new(0.2, 0.92, 1.1),
         k: Vec3::new(3.9, 2.45, 2.14),

@@ -84,6 +84,7 @@ pub fn check_scene(what: &str, s: &Scene) {
                 eta,
                 k,
                 specular,
+                distribution: _,
             } => {
                 alpha.is_finite()
                     && alpha > 0.0
@@ -109,6 +110,7 @@ pub fn check_scene(what: &str, s: &Scene) {
                 eta,
                 reflectance,
                 transmittance,
+                distribution: _,
             } => {
                 alpha.is_finite()
                     && alpha > 0.0

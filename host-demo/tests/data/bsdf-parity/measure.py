@@ -43,6 +43,14 @@ CASES = {
     "thindielectric-1.5": '<bsdf type="thindielectric"><float name="int_ior" value="1.5"/></bsdf>',
     "roughdielectric-a0.1": '<bsdf type="roughdielectric"><string name="distribution" value="ggx"/><float name="alpha" value="0.1"/><float name="int_ior" value="1.5"/></bsdf>',
     "roughdielectric-a0.3": '<bsdf type="roughdielectric"><string name="distribution" value="ggx"/><float name="alpha" value="0.3"/><float name="int_ior" value="1.5"/></bsdf>',
+    # Beckmann, Mitsuba's default distribution (left implicit in some cases to test the default).
+    "roughconductor-beckmann-Cu-a0.1": '<bsdf type="roughconductor"><float name="alpha" value="0.1"/><string name="material" value="Cu"/></bsdf>',
+    "roughconductor-beckmann-Al-a0.3": '<bsdf type="roughconductor"><string name="distribution" value="beckmann"/><float name="alpha" value="0.3"/><string name="material" value="Al"/></bsdf>',
+    "roughdielectric-beckmann-a0.1": '<bsdf type="roughdielectric"><float name="alpha" value="0.1"/><float name="int_ior" value="1.5"/></bsdf>',
+    "roughdielectric-beckmann-a0.3": '<bsdf type="roughdielectric"><string name="distribution" value="beckmann"/><float name="alpha" value="0.3"/><float name="int_ior" value="1.5"/></bsdf>',
+    "roughplastic-beckmann-a0.1": '<bsdf type="roughplastic"><float name="alpha" value="0.1"/></bsdf>',
+    "roughplastic-beckmann-a0.3": '<bsdf type="roughplastic"><string name="distribution" value="beckmann"/><float name="alpha" value="0.3"/></bsdf>',
+    "roughplastic-beckmann-a0.3-ior1.9": '<bsdf type="roughplastic"><string name="distribution" value="beckmann"/><float name="alpha" value="0.3"/><float name="int_ior" value="1.9"/><rgb name="diffuse_reflectance" value="0.8, 0.5, 0.2"/></bsdf>',
     "twosided-diffuse": '<bsdf type="twosided"><bsdf type="diffuse"><rgb name="reflectance" value="0.3, 0.6, 0.9"/></bsdf></bsdf>',
     "blendbsdf": '<bsdf type="blendbsdf"><float name="weight" value="0.3"/><bsdf type="diffuse"/><bsdf type="roughconductor"><string name="distribution" value="ggx"/><float name="alpha" value="0.2"/></bsdf></bsdf>',
 }
