@@ -513,7 +513,7 @@ pub fn fresnel_diffuse_reflectance(eta: f32) -> f32 {
 /// Directional albedo of the reflection off a rough dielectric interface at `cos θi = mu`,
 /// `∫ F D G / (4 cos θi) dωo`, estimated as `E[F(ωi·m) G1(ωo, m)]` over visible normals `m`
 /// of `distribution` (Mitsuba 3 `eval_reflectance`, same quadrature:
-/// [`visible_normal_quadrature`]).
+/// `visible_normal_quadrature`).
 pub fn rough_dielectric_albedo(mu: f32, distribution: Microfacet, alpha: f32, eta: f32) -> f32 {
     visible_normal_quadrature(mu, distribution, alpha, eta, |wi, m| {
         let wo = 2.0 * wi.dot(m) * m - wi;
@@ -915,7 +915,7 @@ fn beckmann_visible_slope_x(cos_t: f64, sin_t: f64, u: f32) -> f64 {
 /// Samples a visible normal of the Beckmann distribution (Heitz & d'Eon 2014, *Importance
 /// Sampling Microfacet-Based BSDFs using the Distribution of Visible Normals*): stretch `wi`
 /// by `α` to the unit-roughness configuration, sample the visible slopes there (`x` along
-/// the incidence plane by [`beckmann_visible_slope_x`], `y = erfinv(2u2 − 1)`, independent),
+/// the incidence plane by `beckmann_visible_slope_x`, `y = erfinv(2u2 − 1)`, independent),
 /// rotate them to the azimuth of `wi`, unstretch by `α` and turn the slope into the normal
 /// `(−x, −y, 1)/‖·‖`. `wi` must be in the upper hemisphere (`wi.z ≥ 0`).
 pub fn sample_beckmann_vndf(wi: Vec3, alpha: f32, u1: f32, u2: f32) -> Vec3 {

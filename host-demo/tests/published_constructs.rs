@@ -141,7 +141,7 @@ fn mitsuba06_film_and_sensor_properties_are_accepted() {
         sc.warnings
     );
     // Renderer-specific extras on the sensor (as in path-guiding research forks).
-    let extra = r#"<vector name="min_bounds" x="0" y="0" z="0"/><integer name="num_parameters" value="3"/><float name="focusDistance" value="4"/>"#;
+    let extra = r#"<vector name="min_bounds" x="0" y="0" z="0"/><integer name="num_parameters" value="3"/><float name="focusDistance" value="4"/><float name="apertureRadius" value="0.1"/>"#;
     let text = doc("0.6.0", PATH, extra, DIFFUSE);
     let sc = load(&text);
     assert!(

@@ -20,7 +20,7 @@ import numpy as np
 mi.set_variant("scalar_rgb")
 HERE = os.path.dirname(os.path.abspath(__file__))
 SEEDS = 8
-SPP = 256
+SPP = 1024
 SCENES = {
     "cornell-box-v3": (96, 96),
     "veach-bidir-v3": (96, 96),
