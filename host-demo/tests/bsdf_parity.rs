@@ -23,6 +23,8 @@
 //!
 //! Run with `cargo test --release -p host-demo --test bsdf_parity` (a few seconds).
 
+mod common;
+
 use host_demo::integrator::{render, IntegratorKind, RenderOptions};
 use host_demo::scene::Scene;
 use host_demo::xml;
@@ -42,18 +44,12 @@ fn data_dir() -> PathBuf {
 }
 
 fn references() -> Vec<Reference> {
-    let text = std::fs::read_to_string(data_dir().join("mitsuba3.csv")).expect("mitsuba3.csv");
-    text.lines()
-        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
-        .map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            assert_eq!(f.len(), 7, "{l}");
-            let v: Vec<f64> = f[1..].iter().map(|x| x.parse().expect("number")).collect();
-            Reference {
-                case: f[0].to_string(),
-                mean: [v[0], v[1], v[2]],
-                se: [v[3], v[4], v[5]],
-            }
+    common::csv_rows(&data_dir().join("mitsuba3.csv"), 7)
+        .into_iter()
+        .map(|f| Reference {
+            case: f[0].clone(),
+            mean: [1, 2, 3].map(|i| common::number(&f[i])),
+            se: [4, 5, 6].map(|i| common::number(&f[i])),
         })
         .collect()
 }
@@ -80,25 +76,10 @@ fn measure(sc: &Scene) -> ([f64; 3], [f64; 3]) {
     (m.map(|x| x / n), v.map(|x| x.sqrt() / n))
 }
 
-/// Two-sided normal quantile: `z` with `erfc(z/√2) = alpha`.
-fn z_threshold(alpha: f64) -> f64 {
-    let (mut lo, mut hi) = (0.0f64, 40.0f64);
-    for _ in 0..200 {
-        let mid = 0.5 * (lo + hi);
-        if libm::erfc(mid / std::f64::consts::SQRT_2) > alpha {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    hi
-}
-
 /// The cases whose z exceeds the Šidák threshold, as messages (empty: parity).
 fn mismatches(scenes: &[(Reference, Scene)]) -> Vec<String> {
     let tests = scenes.len() * 3;
-    let per_test = -((-ALPHA).ln_1p() / tests as f64).exp_m1();
-    let z_max = z_threshold(per_test);
+    let z_max = common::z_threshold(common::sidak(ALPHA, tests));
     let mut bad = Vec::new();
     for (r, sc) in scenes {
         let (m, se) = measure(sc);

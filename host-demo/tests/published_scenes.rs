@@ -22,6 +22,8 @@
 //!
 //! Run with `cargo test --release -p host-demo --test published_scenes` (about 45 s).
 
+mod common;
+
 use host_demo::bsdf::{Material, Microfacet};
 use host_demo::integrator::{render, IntegratorKind, RenderOptions};
 use host_demo::scene::Scene;
@@ -70,44 +72,25 @@ fn data_dir() -> PathBuf {
 type Reference = (String, u32, u32, [f64; 3], [f64; 3]);
 
 fn references() -> Vec<Reference> {
-    let text = std::fs::read_to_string(data_dir().join("mitsuba3.csv")).expect("mitsuba3.csv");
-    text.lines()
-        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
-        .map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            assert_eq!(f.len(), 9, "{l}");
-            let v: Vec<f64> = f[3..].iter().map(|x| x.parse().expect("number")).collect();
+    common::csv_rows(&data_dir().join("mitsuba3.csv"), 9)
+        .into_iter()
+        .map(|f| {
             (
-                f[0].to_string(),
+                f[0].clone(),
                 f[1].parse().expect("width"),
                 f[2].parse().expect("height"),
-                [v[0], v[1], v[2]],
-                [v[3], v[4], v[5]],
+                [3, 4, 5].map(|i| common::number(&f[i])),
+                [6, 7, 8].map(|i| common::number(&f[i])),
             )
         })
         .collect()
-}
-
-/// Two-sided normal quantile: `z` with `erfc(z/√2) = alpha`.
-fn z_threshold(alpha: f64) -> f64 {
-    let (mut lo, mut hi) = (0.0f64, 40.0f64);
-    for _ in 0..200 {
-        let mid = 0.5 * (lo + hi);
-        if libm::erfc(mid / std::f64::consts::SQRT_2) > alpha {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    hi
 }
 
 /// The comparison lines whose `|z|` exceeds the Šidák threshold (empty: within noise).
 /// `alter` may change a scene after loading (the negative control).
 fn mismatches(scenes: &[(&str, &str, &[&str], u32)], alter: impl Fn(&mut Scene)) -> Vec<String> {
     let refs = references();
-    let per_test = -((-ALPHA).ln_1p() / (scenes.len() * 3) as f64).exp_m1();
-    let z_max = z_threshold(per_test);
+    let z_max = common::z_threshold(common::sidak(ALPHA, scenes.len() * 3));
     let mut bad = Vec::new();
     for &(dir, reference, warnings, spp) in scenes {
         let path = data_dir().join(dir).join("scene.xml");

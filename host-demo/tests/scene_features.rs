@@ -9,6 +9,9 @@
 //! with `M` blocks × 3 channels the two-sided threshold is the normal quantile at the
 //! Šidák-corrected level `1 − (1 − 0.01)^{1/3M}` (family-wise false alarm rate 1 %).
 
+mod common;
+
+use common::{sidak, z_threshold};
 use glam::Vec3;
 use host_demo::bsdf::{Material, Microfacet};
 use host_demo::integrator::{render, Image, IntegratorKind, RenderOptions};
@@ -69,25 +72,6 @@ fn render_scene(sc: &Scene, kind: IntegratorKind, spp: u32, seed: u64) -> Image 
     let img = render(sc, &o);
     assert!(img.all_finite());
     img
-}
-
-/// Two-sided normal quantile: `z` with `erfc(z/√2) = alpha`.
-fn z_threshold(alpha: f64) -> f64 {
-    let (mut lo, mut hi) = (0.0f64, 40.0f64);
-    for _ in 0..200 {
-        let mid = 0.5 * (lo + hi);
-        if libm::erfc(mid / std::f64::consts::SQRT_2) > alpha {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    hi
-}
-
-/// Šidák-corrected per-test level `1 − (1 − alpha)^{1/n}`.
-fn sidak(alpha: f64, n: usize) -> f64 {
-    -((-alpha).ln_1p() / n as f64).exp_m1()
 }
 
 /// Block means and their variances (from the per-pixel variances of the mean).

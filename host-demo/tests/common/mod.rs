@@ -1,0 +1,43 @@
+//! Statistics and data helpers shared by the host-demo integration tests (`mod common;`).
+
+#![allow(dead_code)] // each test binary uses a subset
+
+use std::path::Path;
+
+/// Two-sided normal quantile: `z` with `erfc(z/√2) = alpha` (bisection, exact to f64).
+pub fn z_threshold(alpha: f64) -> f64 {
+    let (mut lo, mut hi) = (0.0f64, 40.0f64);
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if libm::erfc(mid / std::f64::consts::SQRT_2) > alpha {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    hi
+}
+
+/// Šidák-corrected per-test level `1 − (1 − alpha)^{1/n}` for a family-wise level `alpha`.
+pub fn sidak(alpha: f64, n: usize) -> f64 {
+    -((-alpha).ln_1p() / n as f64).exp_m1()
+}
+
+/// The comma-separated fields of every line of `path` that is neither empty nor a `#`
+/// comment, each checked to have `fields` entries.
+pub fn csv_rows(path: &Path, fields: usize) -> Vec<Vec<String>> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    text.lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .map(|l| {
+            let f: Vec<String> = l.split(',').map(|x| x.trim().to_string()).collect();
+            assert_eq!(f.len(), fields, "{}: {l}", path.display());
+            f
+        })
+        .collect()
+}
+
+/// `s` as a number (panics naming it otherwise).
+pub fn number(s: &str) -> f64 {
+    s.parse().unwrap_or_else(|_| panic!("not a number: {s}"))
+}
