@@ -244,13 +244,7 @@ impl Coating {
         distribution: Microfacet,
         alpha: f32,
     ) -> Self {
-        let mut ext_t = [0.0; ROUGH_TRANSMITTANCE_RES];
-        let mut internal = 0.0f64;
-        for (i, t) in ext_t.iter_mut().enumerate() {
-            let mu = (i as f32 / (ROUGH_TRANSMITTANCE_RES - 1) as f32).max(1e-6);
-            *t = rough_dielectric_transmittance(mu, distribution, alpha, eta);
-            internal += f64::from(rough_dielectric_albedo(mu, distribution, alpha, 1.0 / eta) * mu);
-        }
+        let (ext_t, internal) = coating_tables(distribution, alpha, eta);
         Self {
             diffuse,
             specular,
@@ -259,7 +253,7 @@ impl Coating {
             distribution,
             alpha,
             spec_weight: spec_weight(diffuse, specular),
-            internal: (2.0 * internal / ROUGH_TRANSMITTANCE_RES as f64) as f32,
+            internal,
             ext_t,
         }
     }
@@ -293,6 +287,40 @@ impl Coating {
         };
         self.diffuse / denom
     }
+}
+
+/// The rough coating's external transmittance table and internal reflectance for
+/// `(distribution, alpha, eta)`. Each integration costs tens of milliseconds (128² visible
+/// normals per cosine for the internal side), and published scenes repeat the same coating
+/// on many materials, so the results are kept per parameter triple for the process.
+fn coating_tables(
+    distribution: Microfacet,
+    alpha: f32,
+    eta: f32,
+) -> ([f32; ROUGH_TRANSMITTANCE_RES], f32) {
+    type Key = (Microfacet, u32, u32);
+    type Tables = ([f32; ROUGH_TRANSMITTANCE_RES], f32);
+    static CACHE: std::sync::LazyLock<std::sync::Mutex<std::collections::HashMap<Key, Tables>>> =
+        std::sync::LazyLock::new(Default::default);
+    let key = (distribution, alpha.to_bits(), eta.to_bits());
+    if let Some(t) = CACHE.lock().ok().and_then(|c| c.get(&key).copied()) {
+        return t;
+    }
+    let mut ext_t = [0.0; ROUGH_TRANSMITTANCE_RES];
+    let mut internal = 0.0f64;
+    for (i, t) in ext_t.iter_mut().enumerate() {
+        let mu = (i as f32 / (ROUGH_TRANSMITTANCE_RES - 1) as f32).max(1e-6);
+        *t = rough_dielectric_transmittance(mu, distribution, alpha, eta);
+        internal += f64::from(rough_dielectric_albedo(mu, distribution, alpha, 1.0 / eta) * mu);
+    }
+    let tables = (
+        ext_t,
+        (2.0 * internal / ROUGH_TRANSMITTANCE_RES as f64) as f32,
+    );
+    if let Ok(mut c) = CACHE.lock() {
+        c.insert(key, tables);
+    }
+    tables
 }
 
 fn spec_weight(diffuse: Vec3, specular: Vec3) -> f32 {
@@ -710,7 +738,7 @@ pub fn sample_ggx_vndf(wi: Vec3, alpha: f32, u1: f32, u2: f32) -> Vec3 {
 /// Microfacet normal distribution of the rough BSDFs (Mitsuba's `distribution` parameter).
 /// Both are isotropic with one roughness `alpha` (the RMS slope for Beckmann) and sampled by
 /// their visible normals; the Smith masking is separable, `G = G1(ωi) G1(ωo)`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Microfacet {
     /// Trowbridge–Reitz / GGX (Walter et al. 2007), visible normals by Heitz 2018.
     Ggx,

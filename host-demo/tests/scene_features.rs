@@ -658,19 +658,26 @@ fn phong_ward_pt_vs_nee() {
 /// per block.
 #[test]
 fn guided_phong_ward_agrees_with_pt_nee() {
+    let sc = phong_ward_scene("phong-ward-guided");
+    guided_agrees_with_pt_nee("guided phong/ward vs pt-nee", &sc, 42, 4);
+}
+
+/// Trains an NPM product guide (small preset, seed `field_seed`) while rendering `sc` at
+/// 64 spp and block-z-tests the guided image against `pt-nee` (seed `seed`; the guided render
+/// uses `seed + 1`).
+fn guided_agrees_with_pt_nee(name: &str, sc: &Scene, seed: u64, field_seed: u32) {
     use guiding_core::field::FieldConfig;
     use guiding_core::loss::Target;
     use host_demo::guide::{build_guide, GuideKind, ModelSize};
     use host_demo::guided::{render_guided, GuidedOptions};
-    let sc = phong_ward_scene("phong-ward-guided");
-    let reference = render_scene(&sc, IntegratorKind::PtNee, 64, 42);
-    let mut o = opts(IntegratorKind::PtNee, 64, 43);
+    let reference = render_scene(sc, IntegratorKind::PtNee, 64, seed);
+    let mut o = opts(IntegratorKind::PtNee, 64, seed + 1);
     o.max_depth = sc.settings.max_depth;
     let config = FieldConfig::DEFAULT
         .with_batch_size(1024)
         .with_steps_per_update(2)
         .with_learning_rate(1e-2)
-        .with_seed(4);
+        .with_seed(field_seed);
     let mut g = build_guide(
         GuideKind::Npm,
         Target::Product,
@@ -680,13 +687,13 @@ fn guided_phong_ward_agrees_with_pt_nee() {
         config,
     )
     .expect("guide");
-    let (img, st) = render_guided(&sc, &o, &GuidedOptions::default(), &mut g);
+    let (img, st) = render_guided(sc, &o, &GuidedOptions::default(), &mut g);
     assert!(img.all_finite());
     assert!(
         st.guided_vertices > 0 && st.training_steps > 0 && st.nee,
         "{st}"
     );
-    block_ztest("guided phong/ward vs pt-nee", &img, &reference, 4);
+    block_ztest(name, &img, &reference, 4);
 }
 
 /// Floor `ward-duer` (anisotropic), spheres `phong` n = 40 (with the default diffuse part),
@@ -778,10 +785,6 @@ fn point_light_matches_analytic() {
 /// agrees with `pt-nee` per block.
 #[test]
 fn guided_envmap_agrees_with_pt_nee() {
-    use guiding_core::field::FieldConfig;
-    use guiding_core::loss::Target;
-    use host_demo::guide::{build_guide, GuideKind, ModelSize};
-    use host_demo::guided::{render_guided, GuidedOptions};
     let d = dir("guided-env");
     write_envmap(&d.join("env.exr"));
     let body = r#"
@@ -794,30 +797,7 @@ fn guided_envmap_agrees_with_pt_nee() {
   <emitter type="envmap"><string name="filename" value="env.exr"/>
     <transform name="to_world"><rotate x="1" angle="90"/></transform></emitter>"#;
     let sc = load(&scene_xml("0, -4, 1.5", "0, 0, 0", 35.0, 32, 5, body), &d);
-    let reference = render_scene(&sc, IntegratorKind::PtNee, 64, 50);
-    let mut o = opts(IntegratorKind::PtNee, 64, 51);
-    o.max_depth = sc.settings.max_depth;
-    let config = FieldConfig::DEFAULT
-        .with_batch_size(1024)
-        .with_steps_per_update(2)
-        .with_learning_rate(1e-2)
-        .with_seed(3);
-    let mut g = build_guide(
-        GuideKind::Npm,
-        Target::Product,
-        ModelSize::Small,
-        sc.bounds(),
-        0.5,
-        config,
-    )
-    .expect("guide");
-    let (img, st) = render_guided(&sc, &o, &GuidedOptions::default(), &mut g);
-    assert!(img.all_finite());
-    assert!(
-        st.guided_vertices > 0 && st.training_steps > 0 && st.nee,
-        "{st}"
-    );
-    block_ztest("guided envmap vs pt-nee", &img, &reference, 4);
+    guided_agrees_with_pt_nee("guided envmap vs pt-nee", &sc, 50, 3);
 }
 
 /// Russian roulette (`--rr`) keeps the estimator unbiased: pt-nee with and without it agree.

@@ -444,6 +444,53 @@ impl SphereDistribution for Mismatched {
     }
 }
 
+/// One negative-control run: `sampled`'s sampler tested as one chi² test (seed `seed`)
+/// against `claimed`'s pdf; it must pass when `ok`, and be rejected with `p < 1e-6` otherwise.
+fn check_pairing(
+    name: &str,
+    sampled: Material,
+    claimed: Material,
+    quadrant_bug: bool,
+    wi: Vec3,
+    seed: u64,
+    ok: bool,
+) {
+    let cfg = Chi2Config {
+        seed,
+        ..Chi2Config::default()
+    };
+    let warp = Warp::uniform();
+    let norm = integrate(
+        &warp,
+        |d| f64::from(claimed.eval(wi, d.as_vec3()).1),
+        cfg.res_u,
+        cfg.res_v,
+        16,
+    );
+    let case = Case {
+        name: format!("harness-selftest/{name}"),
+        dist: Box::new(Mismatched {
+            sampled,
+            claimed,
+            wi,
+            norm,
+            quadrant_bug,
+        }),
+        warp,
+    };
+    let r = run_chi2(&case, 1, &cfg);
+    eprintln!("{}", r.message);
+    if ok {
+        assert!(r.passed, "correct pairing rejected: {}", r.message);
+    } else {
+        assert!(
+            !r.passed && r.p_value < 1e-6,
+            "defect not caught: {}",
+            r.message
+        );
+    }
+}
+
 /// The chi² test catches defects of the `phong` / `ward` densities (each as one test at
 /// α = 0.01, the grid of the cases above): Phong's pdf with exponent `n + 1` instead of `n`,
 /// Ward's with `αu` 10 % too large, Ward's with the `ward` instead of the `balanced`
@@ -502,40 +549,7 @@ fn chi2_catches_wrong_phong_ward_pdf() {
         ),
     ];
     for (i, (name, sampled, claimed, quadrant_bug, ok)) in runs.into_iter().enumerate() {
-        let cfg = Chi2Config {
-            seed: 700 + i as u64,
-            ..Chi2Config::default()
-        };
-        let warp = Warp::uniform();
-        let norm = integrate(
-            &warp,
-            |d| f64::from(claimed.eval(wi, d.as_vec3()).1),
-            cfg.res_u,
-            cfg.res_v,
-            16,
-        );
-        let case = Case {
-            name: format!("harness-selftest/{name}"),
-            dist: Box::new(Mismatched {
-                sampled,
-                claimed,
-                wi,
-                norm,
-                quadrant_bug,
-            }),
-            warp,
-        };
-        let r = run_chi2(&case, 1, &cfg);
-        eprintln!("{}", r.message);
-        if ok {
-            assert!(r.passed, "correct pairing rejected: {}", r.message);
-        } else {
-            assert!(
-                !r.passed && r.p_value < 1e-6,
-                "defect not caught: {}",
-                r.message
-            );
-        }
+        check_pairing(name, sampled, claimed, quadrant_bug, wi, 700 + i as u64, ok);
     }
 }
 
@@ -601,40 +615,8 @@ fn chi2_catches_wrong_beckmann_pdf() {
         ),
     ];
     for (i, (name, sampled, claimed, ok)) in runs.into_iter().enumerate() {
-        let cfg = Chi2Config {
-            seed: 800 + i as u64,
-            ..Chi2Config::default()
-        };
-        let warp = Warp::uniform();
-        let norm = integrate(
-            &warp,
-            |d| f64::from(claimed.eval(wi, d.as_vec3()).1),
-            cfg.res_u,
-            cfg.res_v,
-            16,
-        );
-        let case = Case {
-            name: format!("harness-selftest/beckmann {name}"),
-            dist: Box::new(Mismatched {
-                sampled,
-                claimed,
-                wi,
-                norm,
-                quadrant_bug: false,
-            }),
-            warp,
-        };
-        let r = run_chi2(&case, 1, &cfg);
-        eprintln!("{}", r.message);
-        if ok {
-            assert!(r.passed, "correct pairing rejected: {}", r.message);
-        } else {
-            assert!(
-                !r.passed && r.p_value < 1e-6,
-                "defect not caught: {}",
-                r.message
-            );
-        }
+        let name = format!("beckmann {name}");
+        check_pairing(&name, sampled, claimed, false, wi, 800 + i as u64, ok);
     }
 }
 
