@@ -1,56 +1,24 @@
-//! `host-demo`: a CPU wavefront path tracer used to exercise the path-guiding library.
+//! `host-demo`: a CPU wavefront path tracer that embeds the path-guiding library the way a
+//! renderer would.
 //!
-//! * [`xml`] loads a subset of Mitsuba 3 / 0.6 scenes (with [`obj`], [`ply`] and [`serialized`]
-//!   meshes and [`texture`]s); [`builtin`] builds
-//!   `builtin:cornell-box`, `builtin:furnace` and `builtin:door` in code.
-//! * [`scene`] holds triangles and analytic spheres in an `obvhs` CWBVH.
-//! * [`integrator`] is the wavefront `pt` / `pt-nee` renderer, [`output`] writes EXR.
-//! * [`guided`] is the `guided` integrator (online-trained path guiding through [`guide`]).
-//! * [`schedule`] decides the passes (spp or time budget) and draws the progress bar;
-//!   [`compare`] computes relMSE / MAPE between two images.
+//! * [`scene`]: camera, triangles and analytic shapes in an `obvhs` CWBVH, BSDFs, emitters,
+//!   textures and the built-in scenes ([`scene::builtin`]); [`scene::load`] reads Mitsuba 3 /
+//!   0.6 XML and its meshes (OBJ, PLY, serialized), which load as meshes the scene turns into
+//!   primitives.
+//! * [`render`]: options, the pass [`render::schedule`], images and their output, and the one
+//!   [`render::wavefront`] driver (intersection, emission, NEE, continuation, the pass loop).
+//!   How a vertex picks its continuation direction is a [`render::strategy`]: BSDF sampling
+//!   (`pt`, `pt-nee`) or path guiding (`guided`, which decodes the guide for a whole bounce with
+//!   one batched call and records its training samples through the library's batch recorder).
+//! * [`bench`]: the equal-time benchmark and its report; the command line lives in the binary.
+//!
+//! Modules depend downwards only: `bench` → `render` → `scene` → `math`/`error`.
 
 pub mod bench;
-pub mod bsdf;
-pub mod builtin;
-pub mod compare;
-pub mod conductors;
-pub mod emitter;
 pub mod error;
-pub mod gpu;
-pub mod guide;
-pub mod guided;
-pub mod integrator;
 pub mod math;
-pub mod obj;
-pub mod output;
-pub mod ply;
+pub mod render;
 pub mod scene;
-pub mod schedule;
-pub mod serialized;
-pub mod spectrum;
-pub mod sunsky;
-pub mod texture;
-pub mod xml;
 
 pub use error::{Error, Result};
-
-/// Loads `builtin:NAME` or a Mitsuba XML file path.
-pub fn load_scene(spec: &str) -> Result<scene::Scene> {
-    load_scene_with(spec, &xml::LoadOptions::default())
-}
-
-/// [`load_scene`] with load options (`$param` values; built-ins have no parameters and
-/// refuse them).
-pub fn load_scene_with(spec: &str, opts: &xml::LoadOptions) -> Result<scene::Scene> {
-    match spec.strip_prefix("builtin:") {
-        Some(name) => {
-            if let Some((k, _)) = opts.params.first() {
-                return Err(Error::Scene(format!(
-                    "-D {k}=...: built-in scenes have no parameters"
-                )));
-            }
-            builtin::load_builtin(name)
-        }
-        None => xml::load_file_with(std::path::Path::new(spec), opts),
-    }
-}
+pub use scene::load::{load_scene, load_scene_with};

@@ -7,10 +7,10 @@
 use clap::{Parser, Subcommand, ValueEnum};
 use guiding_core::field::{FieldConfig, PlateauConfig};
 use guiding_core::loss::Target;
-use host_demo::guide::{build_guide, GuideKind, ModelSize};
-use host_demo::guided::{render_guided, render_guided_gpu, GuidedOptions};
-use host_demo::integrator::{render_with_stats, RenderStats};
-use host_demo::integrator::{IntegratorKind, RenderOptions};
+use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
+use host_demo::render::strategy::guided::{render_guided, render_guided_gpu, GuidedOptions};
+use host_demo::render::wavefront::{render_with_stats, RenderStats};
+use host_demo::render::wavefront::{IntegratorKind, RenderOptions};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -394,10 +394,10 @@ fn bench_cmd(cmd: Cmd) -> host_demo::Result<()> {
 
 fn compare(image: &Path, reference: &Path) -> host_demo::Result<()> {
     let (a, b) = (
-        host_demo::output::read_exr(image)?,
-        host_demo::output::read_exr(reference)?,
+        host_demo::render::output::read_exr(image)?,
+        host_demo::render::output::read_exr(reference)?,
     );
-    let m = host_demo::compare::compare(&a, &b)?;
+    let m = host_demo::render::compare::compare(&a, &b)?;
     let out = json!({
         "image": image.display().to_string(),
         "reference": reference.display().to_string(),
@@ -407,7 +407,7 @@ fn compare(image: &Path, reference: &Path) -> host_demo::Result<()> {
         "relmse_untrimmed": m.relmse_untrimmed,
         "relmse_trimmed_pixels": m.trimmed,
         "mape": m.mape,
-        "epsilon": host_demo::compare::EPSILON,
+        "epsilon": host_demo::render::compare::EPSILON,
     });
     println!("{out:#}");
     Ok(())
@@ -496,7 +496,10 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         }
     }
     let t0 = Instant::now();
-    let sc = host_demo::load_scene_with(&scene, &host_demo::xml::LoadOptions { params, strict })?;
+    let sc = host_demo::load_scene_with(
+        &scene,
+        &host_demo::scene::load::xml::LoadOptions { params, strict },
+    )?;
     let load_s = t0.elapsed().as_secs_f64();
     println!(
         "loaded {} primitives, {} textures ({:.1} MiB of texel data) in {load_s:.3} s",
@@ -593,7 +596,7 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         )?;
         let (img, stats) = if device == DeviceArg::Gpu {
             let selection: guiding_gpu::DeviceSelection = vk_device.parse()?;
-            let mut gpu = host_demo::gpu::GpuGuide::new(&g, selection)?;
+            let mut gpu = host_demo::render::strategy::gpu::GpuGuide::new(&g, selection)?;
             eprintln!("guide network on {}", gpu.device());
             render_guided_gpu(&sc, &opts, &gopts, &mut g, &mut gpu)?
         } else {
@@ -607,9 +610,9 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         img
     };
     let render_s = t1.elapsed().as_secs_f64();
-    host_demo::output::write_exr(&img, &out)?;
+    host_demo::render::output::write_exr(&img, &out)?;
     let png = out.with_extension("png");
-    host_demo::output::write_png(&img, &png)?;
+    host_demo::render::output::write_png(&img, &png)?;
     let m = img.mean();
     let se = img.mean_std_error();
     println!(
@@ -777,14 +780,20 @@ fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
 fn all_materials_diffuse(sc: &host_demo::scene::Scene) -> bool {
     let diffuse = |i: u32| sc.materials.get(i as usize).is_some_and(|m| m.is_diffuse());
     sc.materials.iter().all(|m| match *m {
-        host_demo::bsdf::Material::TwoSided { front, back } => diffuse(front) && diffuse(back),
+        host_demo::scene::bsdf::Material::TwoSided { front, back } => {
+            diffuse(front) && diffuse(back)
+        }
         ref m => m.is_diffuse(),
     })
 }
 
 fn img_spp(
     plain: &Option<RenderStats>,
-    guided: &Option<(host_demo::guided::GuidedStats, Target, GuidedOptions)>,
+    guided: &Option<(
+        host_demo::render::strategy::guided::GuidedStats,
+        Target,
+        GuidedOptions,
+    )>,
 ) -> u32 {
     match (plain, guided) {
         (Some(p), _) => p.passes,

@@ -25,9 +25,9 @@
 
 mod common;
 
-use host_demo::integrator::{render, IntegratorKind, RenderOptions};
+use host_demo::render::wavefront::{render, IntegratorKind, RenderOptions};
+use host_demo::scene::load::xml;
 use host_demo::scene::Scene;
-use host_demo::xml;
 use std::path::{Path, PathBuf};
 
 const SPP: u32 = 256;
@@ -133,7 +133,7 @@ fn every_bsdf_matches_mitsuba3() {
 /// `1 − albedo` (the defect this test was written for) fail.
 #[test]
 fn rough_plastic_with_the_old_coating_is_caught() {
-    use host_demo::bsdf::{rough_dielectric_albedo, Material};
+    use host_demo::scene::bsdf::{rough_dielectric_albedo, Material};
     let mut scenes: Vec<(Reference, Scene)> = load_all()
         .into_iter()
         .filter(|(r, _)| r.case.starts_with("roughplastic"))

@@ -1,9 +1,9 @@
 //! End-to-end tests of the `host-demo` binary (`render`, `compare`) and the image metrics.
 //! Run with `cargo test --release -p host-demo --test cli` (a few seconds).
 
-use host_demo::compare::compare;
-use host_demo::integrator::Image;
-use host_demo::output::{read_exr, write_exr, RgbImage};
+use host_demo::render::compare::compare;
+use host_demo::render::output::{read_exr, write_exr, RgbImage};
+use host_demo::render::wavefront::Image;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

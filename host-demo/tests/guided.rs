@@ -9,10 +9,10 @@
 
 use guiding_core::field::FieldConfig;
 use guiding_core::loss::Target;
-use host_demo::builtin::load_builtin;
-use host_demo::guide::{build_guide, GuideKind, ModelSize};
-use host_demo::guided::{render_guided, GuidedOptions, GuidedStats};
-use host_demo::integrator::{render, Image, IntegratorKind, RenderOptions};
+use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
+use host_demo::render::strategy::guided::{render_guided, GuidedOptions, GuidedStats};
+use host_demo::render::wavefront::{render, Image, IntegratorKind, RenderOptions};
+use host_demo::scene::builtin::load_builtin;
 use host_demo::scene::Scene;
 
 const Z: f64 = 4.5;

@@ -6,9 +6,9 @@
 //! * The obvhs CWBVH closest hit equals a brute-force loop over all primitives on random rays.
 
 use glam::Vec3;
-use host_demo::bsdf::Material;
+use host_demo::scene::bsdf::Material;
+use host_demo::scene::load::xml;
 use host_demo::scene::Scene;
-use host_demo::xml;
 use std::path::{Path, PathBuf};
 
 fn shared_scenes() -> Option<PathBuf> {
@@ -375,8 +375,8 @@ fn mitsuba_06_spellings_equal_their_mitsuba_3_twins() {
         // The loader decodes in f32: equal to the f64 decoding within a few ulps.
         match (a.materials[0], b.materials[0]) {
             (
-                host_demo::bsdf::Material::Diffuse { reflectance: ra },
-                host_demo::bsdf::Material::Diffuse { reflectance: rb },
+                host_demo::scene::bsdf::Material::Diffuse { reflectance: ra },
+                host_demo::scene::bsdf::Material::Diffuse { reflectance: rb },
             ) => assert!(
                 (ra - rb).abs().max_element() <= 4.0 * f32::EPSILON,
                 "{srgb}: {ra} vs {rb}"
@@ -397,7 +397,7 @@ fn mitsuba_06_spellings_equal_their_mitsuba_3_twins() {
     let b = load_ok(&scene_06(cam3, tr3, &diffuse(&rgb([0.3; 3])), light3));
     assert_same_scene(&a, &b, "spectrum");
 
-    // Wavelength:value pairs are reduced to RGB (crate::spectrum); malformed ones are errors.
+    // Wavelength:value pairs are reduced to RGB (crate::scene::spectrum); malformed ones are errors.
     let sc = load_ok(&scene_06(
         cam3,
         tr3,

@@ -7,10 +7,10 @@
 //! Run with `cargo test --release -p host-demo --test published_constructs` (about a second).
 
 use glam::{Mat4, Vec3};
-use host_demo::bsdf::Material;
-use host_demo::integrator::{render, IntegratorKind, RenderOptions};
+use host_demo::render::wavefront::{render, IntegratorKind, RenderOptions};
+use host_demo::scene::bsdf::Material;
+use host_demo::scene::load::xml;
 use host_demo::scene::{Camera, Scene};
-use host_demo::xml;
 use std::path::Path;
 
 /// A Mitsuba document of `version` with `integrator`, a sensor (`sensor_extra` inside it) and

@@ -24,10 +24,10 @@
 
 mod common;
 
-use host_demo::bsdf::{Material, Microfacet};
-use host_demo::integrator::{render, IntegratorKind, RenderOptions};
+use host_demo::render::wavefront::{render, IntegratorKind, RenderOptions};
+use host_demo::scene::bsdf::{Material, Microfacet};
+use host_demo::scene::load::xml;
 use host_demo::scene::Scene;
-use host_demo::xml;
 use std::path::{Path, PathBuf};
 
 const ALPHA: f64 = 0.01;

@@ -7,10 +7,10 @@
 //! standard error from the per-pixel sample variances and a Šidák-corrected threshold.
 
 use glam::{Vec2, Vec3};
-use host_demo::bsdf::{Material, Microfacet};
-use host_demo::integrator::{render, IntegratorKind, RenderOptions};
+use host_demo::render::wavefront::{render, IntegratorKind, RenderOptions};
+use host_demo::scene::bsdf::{Material, Microfacet};
+use host_demo::scene::load::xml::{self, LoadOptions};
 use host_demo::scene::{Prim, Scene};
-use host_demo::xml::{self, LoadOptions};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -748,9 +748,9 @@ fn thindielectric_reflects_its_series_fraction() {
         Vec3::new(0.8, 0.1, -0.3).normalize(),
     ] {
         // The series F + T²F Σ F^{2k} summed numerically.
-        let f = host_demo::bsdf::fresnel_dielectric(wi.z.abs(), 1.5).0 as f64;
+        let f = host_demo::scene::bsdf::fresnel_dielectric(wi.z.abs(), 1.5).0 as f64;
         let series = f + (1.0 - f).powi(2) * f * (0..200).map(|k| f.powi(2 * k)).sum::<f64>();
-        let r = host_demo::bsdf::thin_dielectric_reflectance(wi.z, 1.5) as f64;
+        let r = host_demo::scene::bsdf::thin_dielectric_reflectance(wi.z, 1.5) as f64;
         assert!((r - series).abs() < 1e-6, "{r} vs {series}");
         let n = 100_000;
         let mut refl = 0;
@@ -815,7 +815,7 @@ fn blendbsdf_weight_texture_and_expectation() {
 #[test]
 #[ignore = "writes ~100 MB to /tmp and takes a while; a measurement, run by hand"]
 fn load_time_large_scene() {
-    use host_demo::serialized::{write_serialized, SerializedMesh};
+    use host_demo::scene::load::serialized::{write_serialized, SerializedMesh};
     let d = PathBuf::from(
         std::env::var("HOST_DEMO_LOAD_DIR").unwrap_or_else(|_| "/tmp/host-demo-load".into()),
     );

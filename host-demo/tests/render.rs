@@ -5,9 +5,9 @@
 //! per-pixel sample variances (`Image::mean_std_error`), and the threshold is `Z` standard
 //! errors (plus a tiny absolute slack for f32 rounding / 4-digit references).
 
-use host_demo::builtin::{furnace_expected, load_builtin};
-use host_demo::integrator::{render, Image, IntegratorKind, RenderOptions};
-use host_demo::xml;
+use host_demo::render::wavefront::{render, Image, IntegratorKind, RenderOptions};
+use host_demo::scene::builtin::{furnace_expected, load_builtin};
+use host_demo::scene::load::xml;
 use std::path::PathBuf;
 
 /// z threshold; with ~15 channel comparisons the family-wise false-alarm rate is ~1e-3.
@@ -234,7 +234,7 @@ fn door_renders_and_exr_roundtrip() {
     let m = img.mean();
     assert!(m[0] > 0.0, "the door room receives light through the slit");
     let path = std::env::temp_dir().join(format!("host-demo-test-{}.exr", std::process::id()));
-    host_demo::output::write_exr(&img, &path).expect("writes exr");
+    host_demo::render::output::write_exr(&img, &path).expect("writes exr");
     let len = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
     let _ = std::fs::remove_file(&path);
     assert!(len > 1000, "exr too small: {len}");

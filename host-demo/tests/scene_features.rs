@@ -13,10 +13,10 @@ mod common;
 
 use common::{sidak, z_threshold};
 use glam::Vec3;
-use host_demo::bsdf::{Material, Microfacet};
-use host_demo::integrator::{render, Image, IntegratorKind, RenderOptions};
+use host_demo::render::wavefront::{render, Image, IntegratorKind, RenderOptions};
+use host_demo::scene::bsdf::{Material, Microfacet};
+use host_demo::scene::load::xml;
 use host_demo::scene::{Prim, Scene};
-use host_demo::xml;
 use std::path::{Path, PathBuf};
 
 fn dir(name: &str) -> PathBuf {
@@ -154,7 +154,7 @@ fn write_envmap(path: &Path) {
         pixels,
         var_of_mean: vec![[0.0; 3]; (w * h) as usize],
     };
-    host_demo::output::write_exr(&img, path).expect("write envmap");
+    host_demo::render::output::write_exr(&img, path).expect("write envmap");
 }
 
 // ---------------------------------------------------------------------------------------
@@ -399,7 +399,7 @@ fn bsdfs_and_emitters_load() {
 /// energy-conservation scaling (with its warning) and the errors for invalid parameters.
 #[test]
 fn phong_and_ward_load() {
-    use host_demo::bsdf::WardVariant;
+    use host_demo::scene::bsdf::WardVariant;
     let d = dir("phong-ward");
     let body = r##"
   <bsdf type="phong" id="ph"><float name="exponent" value="40"/><spectrum name="specularReflectance" value="0.3"/></bsdf>
@@ -668,8 +668,8 @@ fn guided_phong_ward_agrees_with_pt_nee() {
 fn guided_agrees_with_pt_nee(name: &str, sc: &Scene, seed: u64, field_seed: u32) {
     use guiding_core::field::FieldConfig;
     use guiding_core::loss::Target;
-    use host_demo::guide::{build_guide, GuideKind, ModelSize};
-    use host_demo::guided::{render_guided, GuidedOptions};
+    use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
+    use host_demo::render::strategy::guided::{render_guided, GuidedOptions};
     let reference = render_scene(sc, IntegratorKind::PtNee, 64, seed);
     let mut o = opts(IntegratorKind::PtNee, 64, seed + 1);
     o.max_depth = sc.settings.max_depth;

@@ -23,11 +23,11 @@
 
 use guiding_core::field::FieldConfig;
 use guiding_core::loss::Target;
-use host_demo::builtin::load_builtin;
-use host_demo::gpu::GpuGuide;
-use host_demo::guide::{build_guide, GuideKind, ModelSize};
-use host_demo::guided::{render_guided, render_guided_gpu, GuidedOptions};
-use host_demo::integrator::{render, Image, IntegratorKind, RenderOptions};
+use host_demo::render::strategy::gpu::GpuGuide;
+use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
+use host_demo::render::strategy::guided::{render_guided, render_guided_gpu, GuidedOptions};
+use host_demo::render::wavefront::{render, Image, IntegratorKind, RenderOptions};
+use host_demo::scene::builtin::load_builtin;
 use host_demo::scene::Scene;
 
 const SEEDS: u64 = 16;

@@ -266,7 +266,7 @@ fn models(quick: bool) -> Result<Vec<MicroResult>, guiding::GuidingError> {
 /// pixels and, from each hit, one ray in a uniformly drawn direction of the
 /// hemisphere (the mix a path tracer's bounces trace), one thread.
 fn door_ray_ns(repeats: usize) -> Option<f64> {
-    let scene = crate::builtin::load_builtin("door").ok()?;
+    let scene = crate::scene::builtin::load_builtin("door").ok()?;
     let mut rng = Rng::new(17);
     let mut rays = Vec::with_capacity(2 * TABLE);
     for _ in 0..TABLE {

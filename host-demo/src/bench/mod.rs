@@ -3,7 +3,7 @@
 //! For every scene × method × budget × seed it runs `host-demo render` **as a child process**
 //! (the same binary, so each run starts cold, with its own memory, exactly as a user would run
 //! it) with `--stats`, compares the image with the scene's reference (relMSE trimmed at 0.1 %
-//! and MAPE, [`crate::compare`]) and writes into the output directory:
+//! and MAPE, [`crate::render::compare`]) and writes into the output directory:
 //!
 //! * `runs.csv`: every run (scene, method, seed, budget, spp, time split, errors);
 //! * `report.md`: per scene and budget the mean ± standard deviation over seeds of relMSE and
@@ -21,9 +21,9 @@ pub mod micro;
 pub mod plot;
 pub mod report;
 
-use crate::compare::{compare, Metrics};
 use crate::error::{Error, Result};
-use crate::output::read_exr;
+use crate::render::compare::{compare, Metrics};
+use crate::render::output::read_exr;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -1,5 +1,5 @@
 //! Mitsuba's daylight emitters `sunsky`, `sun` and `sky`, baked into a lat-long
-//! [`EnvMap`](crate::emitter::EnvMap) (as Mitsuba 0.6's `sunsky` itself does) and so
+//! [`EnvMap`](crate::scene::emitter::EnvMap) (as Mitsuba 0.6's `sunsky` itself does) and so
 //! importance-sampled by NEE and MIS-weighted like any `envmap`.
 //!
 //! # Sun position
@@ -639,7 +639,7 @@ const SKY_CORRECTION: [[[[f32; 3]; 14]; 11]; 2] = [
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::emitter::EnvMap;
+    use crate::scene::emitter::EnvMap;
 
     fn at(
         year: i64,

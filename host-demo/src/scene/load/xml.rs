@@ -9,18 +9,18 @@
 //! `plastic`, `roughplastic` (GGX or Beckmann microfacets, Beckmann by default as in Mitsuba;
 //! IORs as numbers or Mitsuba's names), Mitsuba 0.6's `phong` and
 //! `ward` (the three Ward variants, anisotropic alphas, textured reflectances), `twosided`,
-//! `blendbsdf` and `mask`; textures `bitmap` and `checkerboard` (see [`crate::texture`]) for the
+//! `blendbsdf` and `mask`; textures `bitmap` and `checkerboard` (see [`crate::scene::texture`]) for the
 //! colour, alpha, weight and opacity parameters; shapes `obj`, `ply`, `serialized`, `sphere`,
 //! `rectangle`, `cube`, `disk` (to_world, flip_normals, face_normals for meshes), `shapegroup` +
 //! `instance` (flattened into world-space primitives); emitters `area` (nested in a shape),
 //! `point`, `constant`, `envmap` (EXR, to_world rotation, scale) and `sunsky` / `sun` / `sky`
-//! (approximated, see [`crate::sunsky`]); `ref id` (also to BSDFs and textures nested in others);
+//! (approximated, see [`crate::scene::sunsky`]); `ref id` (also to BSDFs and textures nested in others);
 //! `include` (with cycle detection); `<path>` search folders; `<default>` + `$name`
 //! substitution ([`LoadOptions::params`] override the defaults); and `transform` with
 //! matrix/lookat/translate/rotate/scale. Mitsuba 0.6 spellings: camelCase property names become
 //! snake_case (`toWorld`, `maxDepth`, `intIOR`, ...), `<srgb>` colours (`#rrggbb` or numbers,
 //! sRGB-decoded), `<spectrum>` with one value (grey), three (RGB) or wavelength:value pairs
-//! ([`crate::spectrum`]), `lookAt`.
+//! ([`crate::scene::spectrum`]), `lookAt`.
 //!
 //! Policy: an **error** only where the scene cannot be rendered or the image would be silently
 //! wrong (malformed XML, missing files, unknown ids, non-finite values, invalid parameters);
@@ -31,14 +31,14 @@
 //! grey; shapes and emitters are skipped), approximations are named. [`LoadOptions::strict`]
 //! turns every unknown construct into an error. Nothing is dropped silently.
 
-use crate::bsdf::{Coating, Material, Microfacet};
-use crate::conductors::named_conductor;
-use crate::emitter::{EnvMap, Environment, PointLight};
 use crate::error::{Error, Result};
-use crate::obj::parse_obj_uv;
-use crate::ply::parse_ply_uv;
+use crate::scene::bsdf::{Coating, Material, Microfacet};
+use crate::scene::conductors::named_conductor;
+use crate::scene::emitter::{EnvMap, Environment, PointLight};
+use crate::scene::load::obj::parse_obj_uv;
+use crate::scene::load::ply::parse_ply_uv;
+use crate::scene::texture::{Filter, ImageCache, Param, Texture, UvMap, Wrap};
 use crate::scene::{Camera, MaterialTextures, Prim, Scene, SceneBuilder, Settings};
-use crate::texture::{Filter, ImageCache, Param, Texture, UvMap, Wrap};
 use glam::{Mat4, Vec2, Vec3};
 use roxmltree::{Document, Node};
 use std::borrow::Cow;
@@ -430,7 +430,7 @@ impl Ctx<'_> {
     /// decoded with the sRGB transfer function as Mitsuba 0.6's `Spectrum::fromSRGB` does) and
     /// `<spectrum value="v"/>` with a single value (grey) or three (RGB), and `<spectrum
     /// value="400:0.1, 500:0.5, ..."/>` (wavelength:value pairs, reduced to RGB as Mitsuba 3
-    /// does, see [`crate::spectrum`]) as a reflectance-like (bounded) spectrum.
+    /// does, see [`crate::scene::spectrum`]) as a reflectance-like (bounded) spectrum.
     /// Every use (reflectance, radiance, IOR) needs finite values `>= 0`.
     fn color(&mut self, n: Node) -> Result<Vec3> {
         self.color_with(n, true)
@@ -487,7 +487,7 @@ impl Ctx<'_> {
     }
 
     /// `rrggbb` (hex digits, after the `#`) as sRGB-encoded values in `[0, 1]`.
-    /// `"400:0.1, 500:0.5, ..."` as linear sRGB ([`crate::spectrum::spectrum_to_rgb`]).
+    /// `"400:0.1, 500:0.5, ..."` as linear sRGB ([`crate::scene::spectrum::spectrum_to_rgb`]).
     fn spectral_list(&mut self, n: Node, s: &str, bounded: bool) -> Result<Vec3> {
         let mut pairs = Vec::new();
         for item in s.split(',').map(str::trim).filter(|t| !t.is_empty()) {
@@ -499,7 +499,7 @@ impl Ctx<'_> {
             };
             pairs.push(pair);
         }
-        let rgb = crate::spectrum::spectrum_to_rgb(&pairs, bounded).ok_or_else(|| {
+        let rgb = crate::scene::spectrum::spectrum_to_rgb(&pairs, bounded).ok_or_else(|| {
             self.err(
                 n,
                 "a spectrum needs two or more finite wavelength:value pairs in increasing wavelength",
@@ -1576,7 +1576,8 @@ impl Ctx<'_> {
                 // Mitsuba 0.6 `phong` / `ward`, with their defaults; `ensureEnergyConservation`
                 // (on by default) scales kd and ks by 0.99 / max_c(kd + ks) where that is > 1.
                 let (mut diffuse, mut specular) = (Vec3::splat(0.5), Vec3::splat(0.2));
-                let (mut exponent, mut variant) = (30.0f32, crate::bsdf::WardVariant::Balanced);
+                let (mut exponent, mut variant) =
+                    (30.0f32, crate::scene::bsdf::WardVariant::Balanced);
                 let (mut alpha, mut alpha_u, mut alpha_v) = (0.1f32, None, None);
                 let mut conserve = true;
                 for p in elements(n) {
@@ -1593,7 +1594,7 @@ impl Ctx<'_> {
                         ("float", "exponent") if ty == "phong" => exponent = self.float(p)?,
                         ("string", "variant") if ty == "ward" => {
                             let v = self.attr(p, "value")?;
-                            variant = crate::bsdf::WardVariant::parse(v).ok_or_else(|| self.err(p, format!("ward variant \"{v}\" is not supported (\"ward\", \"ward-duer\" or \"balanced\")")))?;
+                            variant = crate::scene::bsdf::WardVariant::parse(v).ok_or_else(|| self.err(p, format!("ward variant \"{v}\" is not supported (\"ward\", \"ward-duer\" or \"balanced\")")))?;
                         }
                         ("float", "alpha") if ty == "ward" => alpha = self.float(p)?,
                         ("float", "alpha_u") if ty == "ward" => alpha_u = Some(self.float(p)?),
@@ -1618,7 +1619,7 @@ impl Ctx<'_> {
                     tex_max(tex.specular, specular),
                 );
                 let scale = if conserve {
-                    crate::bsdf::energy_scale(kd_max, ks_max)
+                    crate::scene::bsdf::energy_scale(kd_max, ks_max)
                 } else {
                     1.0
                 };
@@ -1740,7 +1741,7 @@ impl Ctx<'_> {
                 let f =
                     filename.ok_or_else(|| self.err(n, "envmap needs a \"filename\" string"))?;
                 let path = self.resolve_rel(&f);
-                let img = crate::output::read_exr(&path)?;
+                let img = crate::render::output::read_exr(&path)?;
                 let map = EnvMap::new(img.width, img.height, &img.pixels, scale)
                     .map_err(|e| self.err(n, format!("envmap {}: {e}", path.display())))?;
                 let m = glam::Mat3::from_mat4(to_world.unwrap_or(Mat4::IDENTITY));
@@ -1773,10 +1774,10 @@ impl Ctx<'_> {
     }
 
     /// Mitsuba's daylight emitters `sunsky`, `sun` (sun only) and `sky` (sky only), baked
-    /// into an importance-sampled envmap by [`crate::sunsky`] (Mitsuba 0.6 names, and Mitsuba
+    /// into an importance-sampled envmap by [`crate::scene::sunsky`] (Mitsuba 0.6 names, and Mitsuba
     /// 3's `sun_aperture`; a scene whose `version` is not `0.x` uses Mitsuba 3's z-up frame).
     fn sunsky_emitter(&mut self, n: Node, ty: &str) -> Result<()> {
-        use crate::sunsky::{Convention, SunSkyParams};
+        use crate::scene::sunsky::{Convention, SunSkyParams};
         let version = n.document().root_element().attribute("version");
         let conv = match version {
             Some(v) if !v.starts_with('0') && ty == "sunsky" => Convention::Mitsuba3,
@@ -1814,7 +1815,9 @@ impl Ctx<'_> {
                 (_, "scale") => scale = Some(f(self)?),
                 (_, "sun_scale") => sun_scale = Some(f(self)?),
                 (_, "sky_scale") => sky_scale = Some(f(self)?),
-                (_, "sun_radius_scale") => radius = Some(f(self)? * crate::sunsky::SUN_RADIUS_DEG),
+                (_, "sun_radius_scale") => {
+                    radius = Some(f(self)? * crate::scene::sunsky::SUN_RADIUS_DEG)
+                }
                 (_, "sun_aperture") => radius = Some(f(self)? / 2.0),
                 (_, "extend") => sp.extend = self.boolean(p)?,
                 (_, "resolution") => {
@@ -1859,7 +1862,7 @@ impl Ctx<'_> {
         for w in sp.warnings() {
             self.warn(n, format!("{ty}: {w}"));
         }
-        let (w, h, rgb) = crate::sunsky::bake(&sp);
+        let (w, h, rgb) = crate::scene::sunsky::bake(&sp);
         if rgb.iter().flatten().all(|v| *v == 0.0) {
             self.warn(
                 n,
@@ -2082,7 +2085,11 @@ impl Ctx<'_> {
                     }
                     "ply" => parse_ply_uv(&bytes, &name)?,
                     _ => {
-                        let m = crate::serialized::parse_serialized(&bytes, shape_index, &name)?;
+                        let m = crate::scene::load::serialized::parse_serialized(
+                            &bytes,
+                            shape_index,
+                            &name,
+                        )?;
                         face_normals |= m.face_normals;
                         serialized_prims(&m)
                     }
@@ -2234,7 +2241,9 @@ impl Ctx<'_> {
 }
 
 /// Triangles (and uvs, if stored) of a `.serialized` shape in object space.
-fn serialized_prims(m: &crate::serialized::SerializedMesh) -> crate::ply::MeshWithUv {
+fn serialized_prims(
+    m: &crate::scene::load::serialized::SerializedMesh,
+) -> crate::scene::load::ply::MeshWithUv {
     let tris = m
         .indices
         .iter()
@@ -2281,7 +2290,7 @@ fn prop_name(s: &str) -> Cow<'_, str> {
     Cow::Owned(out)
 }
 
-use crate::texture::srgb_to_linear;
+use crate::scene::texture::srgb_to_linear;
 
 /// `<tag type=".." name=".." id="..">` with the attributes the element has, for messages.
 fn describe(n: Node) -> String {

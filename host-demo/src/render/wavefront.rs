@@ -1,7 +1,7 @@
 //! Wavefront path tracer.
 //!
 //! Rendering is pass-major (one sample per pixel over the whole image per pass, see
-//! [`crate::schedule`]); within a pass each worker thread takes blocks of pixels and runs the
+//! [`crate::render::schedule`]); within a pass each worker thread takes blocks of pixels and runs the
 //! block's paths through a per-bounce pipeline of structure-of-arrays queues:
 //!
 //! 1. **intersect** the path queue (closest hit),
@@ -24,9 +24,9 @@
 //! `twosided` materials are resolved per hit (a back hit flips the frame), and the
 //! geometric side test lets transmission through dielectrics cross the surface.
 
-use crate::bsdf::Material;
-use crate::emitter::EmitterSample;
 use crate::math::{power_heuristic, Frame, Rng};
+use crate::scene::bsdf::Material;
+use crate::scene::emitter::EmitterSample;
 use crate::scene::Scene;
 use glam::Vec3;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -50,7 +50,7 @@ pub struct RenderOptions {
     /// Samples per pixel (passes) when `time_budget` is `None`.
     pub spp: u32,
     /// Render passes until this much wall time is used instead of a fixed spp
-    /// (see [`crate::schedule`]).
+    /// (see [`crate::render::schedule`]).
     pub time_budget: Option<std::time::Duration>,
     /// Russian roulette from the scene's `rr_depth` on (Mitsuba's rule: survival probability
     /// `min(max(throughput), 0.95)`). Off by default; unbiased either way.
@@ -113,7 +113,7 @@ impl RenderOptions {
     }
 }
 
-/// What an unguided render did (the guided integrator reports [`crate::guided::GuidedStats`]).
+/// What an unguided render did (the guided integrator reports [`crate::render::strategy::guided::GuidedStats`]).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct RenderStats {
     /// Passes (samples per pixel) rendered.
@@ -344,7 +344,7 @@ pub(crate) struct Worker<'s> {
     /// Rays traced by this worker (closest-hit and shadow).
     pub(crate) rays: u64,
     /// Guided-integrator state (`None` for `pt` / `pt-nee`).
-    pub(crate) guided: Option<crate::guided::GuidedWorker<'s>>,
+    pub(crate) guided: Option<crate::render::strategy::guided::GuidedWorker<'s>>,
 }
 
 impl<'s> Worker<'s> {
@@ -352,7 +352,7 @@ impl<'s> Worker<'s> {
     pub(crate) fn new(
         scene: &'s Scene,
         opts: RenderOptions,
-        guided: Option<crate::guided::GuidedWorker<'s>>,
+        guided: Option<crate::render::strategy::guided::GuidedWorker<'s>>,
     ) -> Self {
         Worker {
             scene,
@@ -410,12 +410,12 @@ impl<'s> Worker<'s> {
             if self.guided.is_some() {
                 // Guided: the batched guide query replaces the no-op hook and makes every
                 // sampling decision of the bounce (light samples, guide/BSDF selection).
-                crate::guided::stage_guide_query(self, nee);
+                crate::render::strategy::guided::stage_guide_query(self, nee);
                 if nee {
-                    crate::guided::stage_guided_nee(self);
+                    crate::render::strategy::guided::stage_guided_nee(self);
                     self.stage_shadow();
                 }
-                crate::guided::stage_guided_continue(self);
+                crate::render::strategy::guided::stage_guided_continue(self);
             } else {
                 guiding_query(&self.verts);
                 if nee {
@@ -606,7 +606,7 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Image {
 }
 
 /// Renders `scene` pass by pass (one sample per pixel over the whole image per pass, for the
-/// spp or time budget of `opts`, see [`crate::schedule`]) and reports what ran.
+/// spp or time budget of `opts`, see [`crate::render::schedule`]) and reports what ran.
 ///
 /// Pixel sums are accumulated in pass order, so the image is bit-identical for any thread
 /// count and for any block size.
@@ -618,7 +618,7 @@ pub fn render_with_stats(scene: &Scene, opts: &RenderOptions) -> (Image, RenderS
     let nblocks = npix.div_ceil(block);
     let mut sum = vec![[0.0f64; 3]; npix];
     let mut sum2 = vec![[0.0f64; 3]; npix];
-    let mut sched = crate::schedule::Schedule::new(opts, 0.0);
+    let mut sched = crate::render::schedule::Schedule::new(opts, 0.0);
     let mut stats = RenderStats {
         nee: opts.integrator == IntegratorKind::PtNee && scene.has_samplable_emitter(),
         ..RenderStats::default()

@@ -16,7 +16,7 @@ pub fn parse_obj(text: &str, file: &str) -> Result<Vec<Prim>> {
 
 /// [`parse_obj`] that also returns per-triangle texture coordinates when any face has them
 /// (faces without get their barycentric default, [`crate::scene::DEFAULT_TRI_UV`]).
-pub fn parse_obj_uv(text: &str, file: &str) -> Result<crate::ply::MeshWithUv> {
+pub fn parse_obj_uv(text: &str, file: &str) -> Result<crate::scene::load::ply::MeshWithUv> {
     let err = |line: usize, msg: String| Error::Obj {
         file: file.to_string(),
         line,

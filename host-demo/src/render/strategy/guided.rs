@@ -1,6 +1,6 @@
 //! Guided path tracing: the `guided` integrator.
 //!
-//! Runs the same per-bounce wavefront as [`crate::integrator`], with the guiding hook filled
+//! Runs the same per-bounce wavefront as [`crate::render::wavefront`], with the guiding hook filled
 //! in. Per bounce:
 //!
 //! 1. **intersect + emission** (shared with `pt`/`pt-nee`; emission MIS uses the path's
@@ -46,14 +46,14 @@
 //! instead of the product with the BSDF): still unbiased through the combined density, just
 //! less efficient on glossy surfaces.
 
-use crate::bsdf::Material;
-use crate::emitter::EmitterSample;
-use crate::gpu::GpuGuide;
-use crate::integrator::{
+use crate::math::{power_heuristic, Frame};
+use crate::render::strategy::gpu::GpuGuide;
+use crate::render::wavefront::{
     accumulate, finish_image, offset, shadow_ray, side_ok, Image, IntegratorKind, RenderOptions,
     Worker,
 };
-use crate::math::{power_heuristic, Frame};
+use crate::scene::bsdf::Material;
+use crate::scene::emitter::EmitterSample;
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
 use guiding::{DirectionSample, DistributionBatch, GuidingField};
@@ -664,7 +664,7 @@ pub fn render_guided(
 }
 
 /// [`render_guided`] with the guide's network inference and training on a
-/// Vulkan device (`--device gpu`; see [`crate::gpu`]). `guide` supplies the
+/// Vulkan device (`--device gpu`; see [`crate::render::strategy::gpu`]). `guide` supplies the
 /// configuration and the decoding; its own weights are not trained.
 ///
 /// # Errors
@@ -703,15 +703,19 @@ fn render_guided_on(
     let mut stats = GuidedStats {
         nee: gopts.nee && scene.has_samplable_emitter(),
         model: match &gpu {
-            Some(d) => format!("{} on {}", crate::guide::describe(guide), d.device()),
-            None => crate::guide::describe(guide),
+            Some(d) => format!(
+                "{} on {}",
+                crate::render::strategy::guide::describe(guide),
+                d.device()
+            ),
+            None => crate::render::strategy::guide::describe(guide),
         },
         last_loss: f64::NAN,
         ..Default::default()
     };
     let mut sum = vec![[0.0f64; 3]; npix];
     let mut sum2 = vec![[0.0f64; 3]; npix];
-    let mut sched = crate::schedule::Schedule::new(&opts, gopts.train_fraction);
+    let mut sched = crate::render::schedule::Schedule::new(&opts, gopts.train_fraction);
     let mut stopped = false;
     while let Some(pass) = sched.next_pass() {
         // Training ends early when the loss has converged (plateau): the remaining training

@@ -14,7 +14,7 @@
 //! papers' formula.
 
 use crate::error::{Error, Result};
-use crate::output::RgbImage;
+use crate::render::output::RgbImage;
 
 /// The `ε` of both metrics.
 pub const EPSILON: f64 = 0.01;

@@ -1,11 +1,20 @@
 //! Scene representation: triangles and analytic spheres in one CWBVH, materials, area lights
 //! and a Mitsuba-style perspective camera.
 
-use crate::bsdf::Material;
-use crate::emitter::{EmitterSample, Environment, PointLight};
+pub mod bsdf;
+pub mod builtin;
+pub mod conductors;
+pub mod emitter;
+pub mod load;
+pub mod spectrum;
+pub mod sunsky;
+pub mod texture;
+
 use crate::error::{Error, Result};
 use crate::math::{sample_uniform_sphere, Frame, Rng};
-use crate::texture::{Param, Texture};
+use crate::scene::bsdf::Material;
+use crate::scene::emitter::{EmitterSample, Environment, PointLight};
+use crate::scene::texture::{Param, Texture};
 use glam::{Mat4, Vec2, Vec3, Vec3A};
 use obvhs::aabb::Aabb;
 use obvhs::cwbvh::CwBvh;

@@ -1,7 +1,7 @@
 //! Scenes constructed in code: `builtin:cornell-box`, `builtin:furnace`, `builtin:door`.
 
-use crate::bsdf::Material;
 use crate::error::{Error, Result};
+use crate::scene::bsdf::Material;
 use crate::scene::{Camera, Prim, Scene, SceneBuilder, Settings};
 use glam::{Mat4, Vec3};
 
