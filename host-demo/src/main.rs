@@ -8,9 +8,9 @@ use clap::{Parser, Subcommand, ValueEnum};
 use guiding_core::field::{FieldConfig, PlateauConfig};
 use guiding_core::loss::Target;
 use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
-use host_demo::render::strategy::guided::{render_guided, render_guided_gpu, GuidedOptions};
-use host_demo::render::wavefront::{render_with_stats, RenderStats};
-use host_demo::render::wavefront::{IntegratorKind, RenderOptions};
+use host_demo::render::{render_guided, render_guided_gpu, GuidedOptions};
+use host_demo::render::{render_with_stats, RenderStats};
+use host_demo::render::{IntegratorKind, RenderOptions};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -789,11 +789,7 @@ fn all_materials_diffuse(sc: &host_demo::scene::Scene) -> bool {
 
 fn img_spp(
     plain: &Option<RenderStats>,
-    guided: &Option<(
-        host_demo::render::strategy::guided::GuidedStats,
-        Target,
-        GuidedOptions,
-    )>,
+    guided: &Option<(host_demo::render::GuidedStats, Target, GuidedOptions)>,
 ) -> u32 {
     match (plain, guided) {
         (Some(p), _) => p.passes,

@@ -25,7 +25,7 @@
 
 mod common;
 
-use host_demo::render::wavefront::{render, IntegratorKind, RenderOptions};
+use host_demo::render::{render, IntegratorKind, RenderOptions};
 use host_demo::scene::load::xml;
 use host_demo::scene::Scene;
 use std::path::{Path, PathBuf};

@@ -3,7 +3,7 @@
 
 use host_demo::render::compare::compare;
 use host_demo::render::output::{read_exr, write_exr, RgbImage};
-use host_demo::render::wavefront::Image;
+use host_demo::render::Image;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

@@ -7,7 +7,7 @@
 //! Run with `cargo test --release -p host-demo --test published_constructs` (about a second).
 
 use glam::{Mat4, Vec3};
-use host_demo::render::wavefront::{render, IntegratorKind, RenderOptions};
+use host_demo::render::{render, IntegratorKind, RenderOptions};
 use host_demo::scene::bsdf::Material;
 use host_demo::scene::load::xml;
 use host_demo::scene::{Camera, Scene};

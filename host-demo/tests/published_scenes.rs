@@ -24,7 +24,7 @@
 
 mod common;
 
-use host_demo::render::wavefront::{render, IntegratorKind, RenderOptions};
+use host_demo::render::{render, IntegratorKind, RenderOptions};
 use host_demo::scene::bsdf::{Material, Microfacet};
 use host_demo::scene::load::xml;
 use host_demo::scene::Scene;

@@ -7,7 +7,7 @@
 //! standard error from the per-pixel sample variances and a Šidák-corrected threshold.
 
 use glam::{Vec2, Vec3};
-use host_demo::render::wavefront::{render, IntegratorKind, RenderOptions};
+use host_demo::render::{render, IntegratorKind, RenderOptions};
 use host_demo::scene::bsdf::{Material, Microfacet};
 use host_demo::scene::load::xml::{self, LoadOptions};
 use host_demo::scene::{Prim, Scene};

@@ -5,7 +5,7 @@
 //! per-pixel sample variances (`Image::mean_std_error`), and the threshold is `Z` standard
 //! errors (plus a tiny absolute slack for f32 rounding / 4-digit references).
 
-use host_demo::render::wavefront::{render, Image, IntegratorKind, RenderOptions};
+use host_demo::render::{render, Image, IntegratorKind, RenderOptions};
 use host_demo::scene::builtin::{furnace_expected, load_builtin};
 use host_demo::scene::load::xml;
 use std::path::PathBuf;

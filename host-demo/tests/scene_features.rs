@@ -13,7 +13,7 @@ mod common;
 
 use common::{sidak, z_threshold};
 use glam::Vec3;
-use host_demo::render::wavefront::{render, Image, IntegratorKind, RenderOptions};
+use host_demo::render::{render, Image, IntegratorKind, RenderOptions};
 use host_demo::scene::bsdf::{Material, Microfacet};
 use host_demo::scene::load::xml;
 use host_demo::scene::{Prim, Scene};
@@ -669,7 +669,7 @@ fn guided_agrees_with_pt_nee(name: &str, sc: &Scene, seed: u64, field_seed: u32)
     use guiding_core::field::FieldConfig;
     use guiding_core::loss::Target;
     use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
-    use host_demo::render::strategy::guided::{render_guided, GuidedOptions};
+    use host_demo::render::{render_guided, GuidedOptions};
     let reference = render_scene(sc, IntegratorKind::PtNee, 64, seed);
     let mut o = opts(IntegratorKind::PtNee, 64, seed + 1);
     o.max_depth = sc.settings.max_depth;

@@ -25,8 +25,8 @@ use guiding_core::field::FieldConfig;
 use guiding_core::loss::Target;
 use host_demo::render::strategy::gpu::GpuGuide;
 use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
-use host_demo::render::strategy::guided::{render_guided, render_guided_gpu, GuidedOptions};
-use host_demo::render::wavefront::{render, Image, IntegratorKind, RenderOptions};
+use host_demo::render::{render, Image, IntegratorKind, RenderOptions};
+use host_demo::render::{render_guided, render_guided_gpu, GuidedOptions};
 use host_demo::scene::builtin::load_builtin;
 use host_demo::scene::Scene;
 

@@ -1,7 +1,7 @@
 //! Image files: OpenEXR (RGB, f32) output and input, and the tonemapped PNG preview.
 
 use crate::error::{Error, Result};
-use crate::render::wavefront::Image;
+use crate::render::Image;
 use std::path::Path;
 
 /// Writes `img` as an RGB f32 OpenEXR file.

@@ -1,5 +1,70 @@
-//! How the wavefront chooses continuation directions: BSDF sampling, or path guiding.
+//! The direction-sampling seam of the wavefront: how a vertex picks its continuation and what
+//! density NEE's MIS weight compares against.
+//!
+//! The [driver](crate::render::wavefront) writes intersection, emission, NEE, the shadow rays,
+//! the continuation and the pass loop once. Per bounce it hands the strategy the batch of
+//! surviving [`Vertices`]:
+//!
+//! 1. [`VertexStrategy::prepare`]: anything done once per vertex (the guided strategy decodes
+//!    the guide for the whole batch with one call);
+//! 2. [`VertexStrategy::light_pdfs`]: the strategy's sampling density of each NEE light
+//!    direction (the power heuristic's partner);
+//! 3. [`VertexStrategy::sample`]: one continuation per vertex, with its weight and density.
+//!
+//! [`bsdf::BsdfSampling`] is `pt` and `pt-nee`; [`guided::Guided`] is path guiding (a one-sample
+//! MIS of guide and BSDF) with online training between passes ([`Strategy::end_pass`]).
 
+use crate::math::Rng;
+use crate::render::queues::{Continuations, LightSamples, Vertices};
+use crate::render::schedule::Pass;
+use crate::scene::Scene;
+use guiding_core::sample::TrainingSample;
+
+pub mod bsdf;
 pub mod gpu;
 pub mod guide;
 pub mod guided;
+
+/// One direction-sampling strategy of a render, shared by the render threads.
+pub trait Strategy: Sync {
+    /// Per-thread state.
+    type Worker<'a>: VertexStrategy
+    where
+        Self: 'a;
+    /// What a worker reports when its thread ends a pass (counters, a device error).
+    type Report: Send;
+    /// What ends a render early.
+    type Error;
+
+    /// A worker for one render thread.
+    fn worker(&self) -> Self::Worker<'_>;
+
+    /// A thread's worker at the end of a pass.
+    fn report(&self, worker: Self::Worker<'_>) -> Self::Report;
+
+    /// Called before pass `pass`; returns whether its paths are recorded for training.
+    fn begin_pass(&mut self, pass: &Pass) -> bool;
+
+    /// Called after each pass with the threads' reports and the pass's training samples
+    /// (block order, so deterministic). An error ends the render.
+    fn end_pass(
+        &mut self,
+        pass: &Pass,
+        recorded: bool,
+        reports: Vec<Self::Report>,
+        samples: Vec<TrainingSample>,
+    ) -> Result<(), Self::Error>;
+}
+
+/// The per-thread, per-bounce half of a [`Strategy`].
+pub trait VertexStrategy {
+    /// Called once per bounce before NEE and sampling.
+    fn prepare(&mut self, scene: &Scene, verts: &Vertices);
+
+    /// Fills `lights.sampling_pdf` with this strategy's density of each light direction.
+    fn light_pdfs(&mut self, verts: &Vertices, lights: &mut LightSamples);
+
+    /// Samples one continuation per vertex into `out` (already reset to ended paths), drawing
+    /// from the path's random stream `rng[slot]`.
+    fn sample(&mut self, verts: &Vertices, rng: &mut [Rng], out: &mut Continuations);
+}

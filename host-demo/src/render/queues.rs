@@ -1,0 +1,206 @@
+//! The wavefront's typed structure-of-arrays queues. Each stage reads one queue and fills the
+//! next; a queue is cleared and refilled every bounce, so its storage is reused for the whole
+//! render.
+//!
+//! Directions follow pbrt's convention (the library's, see the `guiding` crate docs): `wo`
+//! points from the vertex towards the previous vertex (the viewer), `wi` is the sampled
+//! continuation direction; both are unit vectors in world space pointing away from the surface.
+
+use crate::scene::bsdf::Material;
+use crate::scene::emitter::EmitterSample;
+use glam::Vec3;
+
+/// Rays in flight: the camera rays of a sample, then each bounce's continuations.
+#[derive(Default)]
+pub struct RayQueue {
+    /// Path slot (pixel within the block).
+    pub slot: Vec<u32>,
+    /// Ray origin (already offset off the surface).
+    pub origin: Vec<Vec3>,
+    /// Unit ray direction.
+    pub dir: Vec<Vec3>,
+    /// Path throughput carried by the ray.
+    pub beta: Vec<Vec3>,
+    /// Solid-angle density with which `dir` was sampled, for MIS at an emitter hit
+    /// (`∞` after a delta scattering).
+    pub pdf: Vec<f32>,
+    /// The ray is a camera ray (emission seen directly: no MIS).
+    pub from_camera: Vec<bool>,
+}
+
+impl RayQueue {
+    pub(crate) fn clear(&mut self) {
+        self.slot.clear();
+        self.origin.clear();
+        self.dir.clear();
+        self.beta.clear();
+        self.pdf.clear();
+        self.from_camera.clear();
+    }
+
+    pub(crate) fn push(&mut self, slot: u32, origin: Vec3, dir: Vec3, beta: Vec3, pdf: f32) {
+        self.slot.push(slot);
+        self.origin.push(origin);
+        self.dir.push(dir);
+        self.beta.push(beta);
+        self.pdf.push(pdf);
+        self.from_camera.push(false);
+    }
+
+    /// Number of rays.
+    pub fn len(&self) -> usize {
+        self.slot.len()
+    }
+
+    /// True if no ray is left.
+    pub fn is_empty(&self) -> bool {
+        self.slot.is_empty()
+    }
+}
+
+/// The surviving path vertices of one bounce: the unit of work of NEE, of a strategy's batch
+/// (one batched guide decode) and of the continuation.
+#[derive(Default, Debug)]
+pub struct Vertices {
+    /// Path slot (pixel within the block).
+    pub slot: Vec<u32>,
+    /// Hit position.
+    pub position: Vec<Vec3>,
+    /// Geometric normal.
+    pub ng: Vec<Vec3>,
+    /// Shading normal (flipped to the side of `wo` for two-sided materials).
+    pub ns: Vec<Vec3>,
+    /// Unit direction towards the previous vertex.
+    pub wo: Vec<Vec3>,
+    /// Path throughput up to this vertex (after Russian roulette).
+    pub beta: Vec<Vec3>,
+    /// The material with its textures evaluated at the hit (what NEE and sampling use).
+    pub bsdf: Vec<Material>,
+}
+
+impl Vertices {
+    pub(crate) fn clear(&mut self) {
+        self.slot.clear();
+        self.position.clear();
+        self.ng.clear();
+        self.ns.clear();
+        self.wo.clear();
+        self.beta.clear();
+        self.bsdf.clear();
+    }
+
+    /// Number of vertices.
+    pub fn len(&self) -> usize {
+        self.slot.len()
+    }
+
+    /// True if empty.
+    pub fn is_empty(&self) -> bool {
+        self.slot.is_empty()
+    }
+}
+
+/// Light samples drawn by NEE, waiting for their MIS weights: the strategy fills
+/// `sampling_pdf`, the density with which *it* would have sampled the light's direction.
+#[derive(Default)]
+pub struct LightSamples {
+    /// Index into the bounce's [`Vertices`].
+    pub vertex: Vec<u32>,
+    /// The emitter sample (direction `es.wo` from the vertex towards the light).
+    pub light: Vec<EmitterSample>,
+    /// `f · |cos|` of the BSDF for the light's direction.
+    pub bsdf_cos: Vec<Vec3>,
+    /// BSDF-sampling density of the light's direction.
+    pub bsdf_pdf: Vec<f32>,
+    /// The strategy's sampling density of the light's direction (its MIS partner).
+    pub sampling_pdf: Vec<f32>,
+}
+
+impl LightSamples {
+    pub(crate) fn clear(&mut self) {
+        self.vertex.clear();
+        self.light.clear();
+        self.bsdf_cos.clear();
+        self.bsdf_pdf.clear();
+        self.sampling_pdf.clear();
+    }
+
+    /// Number of light samples.
+    pub fn len(&self) -> usize {
+        self.vertex.len()
+    }
+
+    /// True if empty.
+    pub fn is_empty(&self) -> bool {
+        self.vertex.is_empty()
+    }
+}
+
+/// Shadow rays of the NEE stage.
+#[derive(Default)]
+pub struct ShadowQueue {
+    /// Index into the bounce's [`Vertices`].
+    pub vertex: Vec<u32>,
+    /// Ray origin.
+    pub origin: Vec<Vec3>,
+    /// Unit direction.
+    pub dir: Vec<Vec3>,
+    /// Distance to the light (just short of it; `∞` for the environment).
+    pub tmax: Vec<f32>,
+    /// The MIS-weighted light contribution `f · L · w / p_light`, without the path throughput.
+    pub local: Vec<Vec3>,
+}
+
+impl ShadowQueue {
+    pub(crate) fn clear(&mut self) {
+        self.vertex.clear();
+        self.origin.clear();
+        self.dir.clear();
+        self.tmax.clear();
+        self.local.clear();
+    }
+}
+
+/// One sampled continuation per vertex (index-aligned with [`Vertices`]), written by a
+/// strategy.
+#[derive(Default)]
+pub struct Continuations {
+    /// Unit continuation direction `wi` (zero: the path ends here).
+    pub wi: Vec<Vec3>,
+    /// Continuation weight `f · |cos| / p`.
+    pub weight: Vec<Vec3>,
+    /// The density `p` with which `wi` was sampled (`∞` for a delta lobe).
+    pub pdf: Vec<f32>,
+    /// BSDF-sampling density of `wi` (training records).
+    pub bsdf_pdf: Vec<f32>,
+    /// `f · |cos|` for `wi` (training records).
+    pub bsdf_cos: Vec<Vec3>,
+    /// The vertex makes a training sample (the strategy guides it).
+    pub trainable: Vec<bool>,
+}
+
+impl Continuations {
+    /// Resets to `n` ended paths.
+    pub(crate) fn reset(&mut self, n: usize) {
+        self.wi.clear();
+        self.wi.resize(n, Vec3::ZERO);
+        self.weight.clear();
+        self.weight.resize(n, Vec3::ZERO);
+        self.pdf.clear();
+        self.pdf.resize(n, 0.0);
+        self.bsdf_pdf.clear();
+        self.bsdf_pdf.resize(n, 0.0);
+        self.bsdf_cos.clear();
+        self.bsdf_cos.resize(n, Vec3::ZERO);
+        self.trainable.clear();
+        self.trainable.resize(n, false);
+    }
+
+    /// Writes the continuation of vertex `i`.
+    #[inline]
+    pub fn set(&mut self, i: usize, wi: Vec3, weight: Vec3, pdf: f32) {
+        self.wi[i] = wi;
+        self.weight[i] = weight;
+        self.pdf[i] = pdf;
+    }
+}
