@@ -13,6 +13,16 @@
  *   (PG_INVALID_ARGUMENT).
  * - No Rust panic crosses the boundary: each entry point catches it and
  *   returns PG_PANIC.
+ * - Directions (pbrt's convention): `wo` points from the shading point towards
+ *   the previous path vertex, the viewer (the camera for the first hit); `wi`
+ *   is the sampled incident / continuation direction, along which the path
+ *   goes on and from which a training sample's radiance arrives. Every
+ *   direction the distributions sample or take the pdf of (`dirs`) is a `wi`.
+ *   Both are unit vectors in world space pointing away from the surface (never
+ *   flipped into a hemisphere); zero is accepted for `wo` and `normal` where
+ *   unknown. `bsdf_cos` is f(wo, wi) |cos theta_i|; densities are in solid
+ *   angle over `wi`. (Mitsuba names these the other way round: pass its `wi`
+ *   as `wo`.)
  *
  * Ownership
  * - Each handle written to an out pointer (PgField, PgDistributions,
@@ -225,6 +235,8 @@ typedef struct PgFieldArgs {
 /**
  * One training sample, identical in layout to `guiding_core`'s
  * `TrainingSample` (96 bytes, every vector padded to four floats).
+ * Directions as in the header's Conventions (world space, unit, pointing
+ * away from the surface).
  */
 typedef struct PgTrainingSample {
     /**
@@ -244,7 +256,8 @@ typedef struct PgTrainingSample {
      */
     float sample_pdf;
     /**
-     * Unit outgoing direction (product targets; zero if unknown).
+     * `wo`: unit direction towards the previous vertex, the viewer (product
+     * targets; zero if unknown).
      */
     float wo[3];
     /**
@@ -252,7 +265,8 @@ typedef struct PgTrainingSample {
      */
     float bsdf_pdf;
     /**
-     * Unit sampled incident direction.
+     * `wi`: unit sampled continuation direction (the incident direction of
+     * `radiance`).
      */
     float wi[3];
     /**
@@ -371,7 +385,7 @@ typedef struct PgFieldStats {
 
 /**
  * A shading point to query, identical in layout to `guiding_core`'s
- * `QueryPoint` (48 bytes).
+ * `QueryPoint` (48 bytes). Directions as in the header's Conventions.
  */
 typedef struct PgQueryPoint {
     /**
@@ -383,7 +397,7 @@ typedef struct PgQueryPoint {
      */
     float roughness;
     /**
-     * Unit shading normal (product targets).
+     * Unit shading normal (product targets; zero if unknown).
      */
     float normal[3];
     /**
@@ -391,7 +405,8 @@ typedef struct PgQueryPoint {
      */
     float pad0;
     /**
-     * Unit outgoing direction (product targets).
+     * `wo`: unit direction towards the previous vertex, the viewer (product
+     * targets; zero if unknown).
      */
     float wo[3];
     /**
@@ -404,7 +419,7 @@ typedef struct PgQueryPoint {
  * One path vertex as the renderer saw it (see `pg_recorder_add_vertex`).
  * Initialise with `pg_path_vertex_set_defaults`: zero is not the default
  * for `roughness`, `emitted_mis_weight` and `continuation_scale` (1).
- * 112 bytes.
+ * Directions as in the header's Conventions. 112 bytes.
  */
 typedef struct PgPathVertex {
     /**
@@ -425,7 +440,8 @@ typedef struct PgPathVertex {
      */
     float sample_pdf;
     /**
-     * Unit direction towards the previous vertex (the camera for vertex 0).
+     * `wo`: unit direction towards the previous vertex (the camera for
+     * vertex 0).
      */
     float wo[3];
     /**
@@ -433,7 +449,7 @@ typedef struct PgPathVertex {
      */
     float bsdf_pdf;
     /**
-     * Unit sampled continuation direction (ignored if `sample_pdf` is 0).
+     * `wi`: unit sampled continuation direction (ignored if `sample_pdf` is 0).
      */
     float wi[3];
     /**
@@ -691,7 +707,7 @@ enum PgStatus pg_field_query(const struct PgField *field,
 
 /**
  * Samples one direction per query: `u` holds `2n` numbers in `[0, 1]`,
- * `dirs` receives `3n` floats (unit vectors), `pdfs` `n` densities (solid
+ * `dirs` receives `3n` floats (unit `wi` vectors), `pdfs` `n` densities (solid
  * angle, `> 0`). Same results as `pg_field_query` then
  * `pg_distributions_sample`, without keeping the distributions. Outputs
  * must not overlap each other or the inputs.
@@ -707,7 +723,7 @@ enum PgStatus pg_field_sample(const struct PgField *field,
                               float *pdfs);
 
 /**
- * Density (solid angle) of `dirs[3i..3i+3]` (finite unit vectors) under
+ * Density (solid angle) of `dirs[3i..3i+3]` (finite unit `wi` vectors) under
  * the guide at query `i`, for `n` queries, into `pdfs`.
  *
  * # Safety
@@ -761,7 +777,7 @@ enum PgStatus pg_distributions_len(const struct PgDistributions *distributions, 
 
 /**
  * Samples the first `n` distributions, one direction each: `u` holds `2n`
- * numbers in `[0, 1]`, `dirs` receives `3n` floats (unit vectors) and
+ * numbers in `[0, 1]`, `dirs` receives `3n` floats (unit `wi` vectors) and
  * `pdfs` `n` densities (solid angle, `> 0`). Returns `PG_SIZE_MISMATCH` if
  * `n` exceeds the number held and `PG_STALE` if the field was updated since
  * the query (outputs untouched).
@@ -777,7 +793,7 @@ enum PgStatus pg_distributions_sample(const struct PgDistributions *distribution
                                       float *pdfs);
 
 /**
- * Density (solid angle) of `dirs[3i..3i+3]` (finite unit vectors) under
+ * Density (solid angle) of `dirs[3i..3i+3]` (finite unit `wi` vectors) under
  * distribution `i`, for the first `n`, into `pdfs`. Errors as
  * `pg_distributions_sample`.
  *

@@ -130,7 +130,7 @@ pub unsafe extern "C" fn pg_distributions_len(
 }
 
 /// Samples the first `n` distributions, one direction each: `u` holds `2n`
-/// numbers in `[0, 1]`, `dirs` receives `3n` floats (unit vectors) and
+/// numbers in `[0, 1]`, `dirs` receives `3n` floats (unit `wi` vectors) and
 /// `pdfs` `n` densities (solid angle, `> 0`). Returns `PG_SIZE_MISMATCH` if
 /// `n` exceeds the number held and `PG_STALE` if the field was updated since
 /// the query (outputs untouched).
@@ -181,7 +181,7 @@ pub unsafe extern "C" fn pg_distributions_sample(
     })
 }
 
-/// Density (solid angle) of `dirs[3i..3i+3]` (finite unit vectors) under
+/// Density (solid angle) of `dirs[3i..3i+3]` (finite unit `wi` vectors) under
 /// distribution `i`, for the first `n`, into `pdfs`. Errors as
 /// `pg_distributions_sample`.
 ///

@@ -453,7 +453,7 @@ pub unsafe extern "C" fn pg_field_query(
 }
 
 /// Samples one direction per query: `u` holds `2n` numbers in `[0, 1]`,
-/// `dirs` receives `3n` floats (unit vectors), `pdfs` `n` densities (solid
+/// `dirs` receives `3n` floats (unit `wi` vectors), `pdfs` `n` densities (solid
 /// angle, `> 0`). Same results as `pg_field_query` then
 /// `pg_distributions_sample`, without keeping the distributions. Outputs
 /// must not overlap each other or the inputs.
@@ -496,7 +496,7 @@ pub unsafe extern "C" fn pg_field_sample(
     })
 }
 
-/// Density (solid angle) of `dirs[3i..3i+3]` (finite unit vectors) under
+/// Density (solid angle) of `dirs[3i..3i+3]` (finite unit `wi` vectors) under
 /// the guide at query `i`, for `n` queries, into `pdfs`.
 ///
 /// # Safety

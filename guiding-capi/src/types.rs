@@ -92,6 +92,8 @@ pub struct PgFieldArgs {
 
 /// One training sample, identical in layout to `guiding_core`'s
 /// `TrainingSample` (96 bytes, every vector padded to four floats).
+/// Directions as in the header's Conventions (world space, unit, pointing
+/// away from the surface).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct PgTrainingSample {
@@ -103,11 +105,13 @@ pub struct PgTrainingSample {
     pub normal: [f32; 3],
     /// Density (solid angle) with which `wi` was sampled, `> 0`.
     pub sample_pdf: f32,
-    /// Unit outgoing direction (product targets; zero if unknown).
+    /// `wo`: unit direction towards the previous vertex, the viewer (product
+    /// targets; zero if unknown).
     pub wo: [f32; 3],
     /// Density of `wi` under BSDF sampling alone (NASG), `0` if unknown.
     pub bsdf_pdf: f32,
-    /// Unit sampled incident direction.
+    /// `wi`: unit sampled continuation direction (the incident direction of
+    /// `radiance`).
     pub wi: [f32; 3],
     /// Padding (0).
     pub pad0: f32,
@@ -140,7 +144,7 @@ same_layout!(
 );
 
 /// A shading point to query, identical in layout to `guiding_core`'s
-/// `QueryPoint` (48 bytes).
+/// `QueryPoint` (48 bytes). Directions as in the header's Conventions.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct PgQueryPoint {
@@ -148,11 +152,12 @@ pub struct PgQueryPoint {
     pub position: [f32; 3],
     /// Surface roughness in `[0, 1]` (product targets).
     pub roughness: f32,
-    /// Unit shading normal (product targets).
+    /// Unit shading normal (product targets; zero if unknown).
     pub normal: [f32; 3],
     /// Padding (0).
     pub pad0: f32,
-    /// Unit outgoing direction (product targets).
+    /// `wo`: unit direction towards the previous vertex, the viewer (product
+    /// targets; zero if unknown).
     pub wo: [f32; 3],
     /// Padding (0).
     pub pad1: f32,
@@ -187,7 +192,7 @@ impl PgQueryPoint {
 /// One path vertex as the renderer saw it (see `pg_recorder_add_vertex`).
 /// Initialise with `pg_path_vertex_set_defaults`: zero is not the default
 /// for `roughness`, `emitted_mis_weight` and `continuation_scale` (1).
-/// 112 bytes.
+/// Directions as in the header's Conventions. 112 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct PgPathVertex {
@@ -200,11 +205,12 @@ pub struct PgPathVertex {
     /// Density with which `wi` was sampled (the one-sample MIS density of
     /// BSDF and guide); 0 if the path ends here.
     pub sample_pdf: f32,
-    /// Unit direction towards the previous vertex (the camera for vertex 0).
+    /// `wo`: unit direction towards the previous vertex (the camera for
+    /// vertex 0).
     pub wo: [f32; 3],
     /// Density of `wi` under BSDF sampling alone (NASG), 0 if unknown.
     pub bsdf_pdf: f32,
-    /// Unit sampled continuation direction (ignored if `sample_pdf` is 0).
+    /// `wi`: unit sampled continuation direction (ignored if `sample_pdf` is 0).
     pub wi: [f32; 3],
     /// MIS weight of `emitted` against next-event estimation at the
     /// previous vertex. Default 1.

@@ -65,14 +65,13 @@ fn queries(seed: u32) -> (Vec<QueryPoint>, Vec<Vec2>, Vec<Vec3>) {
         if wo.dot(n) < 0.0 {
             wo = -wo;
         }
-        qs.push(QueryPoint {
-            position: position(&mut rng),
-            roughness: rng.next_f32(),
-            normal: n.to_array(),
-            pad0: 0.0,
-            wo: wo.to_array(),
-            pad1: 0.0,
-        });
+        let p = position(&mut rng);
+        qs.push(QueryPoint::new(
+            p,
+            n.to_array(),
+            wo.to_array(),
+            rng.next_f32(),
+        ));
         us.push(Vec2::new(rng.next_f32(), rng.next_f32()));
         ds.push(unit(&mut rng));
     }
@@ -93,20 +92,14 @@ fn training_samples(seed: u32, n: usize) -> Vec<TrainingSample> {
             let wi = unit(&mut rng);
             let l = (1.0 + wi.x * p[0] + wi.y).max(0.0);
             let cos = wi.dot(normal).abs();
-            TrainingSample {
-                position: p,
-                roughness: 0.5,
-                normal: normal.to_array(),
-                sample_pdf: INV_FOUR_PI,
-                wo: wo.to_array(),
-                bsdf_pdf: cos * core::f32::consts::FRAC_1_PI,
-                wi: wi.to_array(),
-                pad0: 0.0,
-                radiance: [l; 3],
-                pad1: 0.0,
-                bsdf_cos: [0.3 * cos; 3],
-                pad2: 0.0,
-            }
+            TrainingSample::new(
+                QueryPoint::new(p, normal.to_array(), wo.to_array(), 0.5),
+                wi.to_array(),
+                [l; 3],
+                INV_FOUR_PI,
+                cos * core::f32::consts::FRAC_1_PI,
+                [0.3 * cos; 3],
+            )
         })
         .collect()
 }

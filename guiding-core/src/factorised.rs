@@ -251,7 +251,9 @@ impl<const M: usize, const N: usize> FactorisedTable<M, N> {
         self.marginal.pdf(e1) * self.conditionals[Self::row(e1)].pdf(eps.y)
     }
 
-    /// Density in solid angle, `p(ε₁) p(ε₂ | ε₁) / (4π)`.
+    /// Density in solid angle, `p(ε₁) p(ε₂ | ε₁) / (4π)`. The table is
+    /// normalised, so this is its only value: there is no unnormalised `eval`
+    /// (see the crate docs).
     #[inline]
     #[must_use]
     pub fn pdf(&self, direction: Vec3) -> f32 {
@@ -260,13 +262,6 @@ impl<const M: usize, const N: usize> FactorisedTable<M, N> {
         let p1 = self.marginal.pdf_in_unit_interval(eps.x);
         let p2 = self.conditionals[Self::row(eps.x)].pdf_in_unit_interval(eps.y);
         p1 * p2 * INV_FOUR_PI
-    }
-
-    /// Alias of [`Self::pdf`]: the distribution is normalised.
-    #[inline]
-    #[must_use]
-    pub fn eval(&self, direction: Vec3) -> f32 {
-        self.pdf(direction)
     }
 
     /// Draws a direction from `u ∈ [0, 1)²`: `u.x → ε₁` through the marginal,

@@ -12,6 +12,23 @@
 //!   anisotropic spherical Gaussians (Huang et al. 2024);
 //! - [`pdf1d::Pdf1d`] and [`factorised`] — factorised piecewise PDFs
 //!   (Figueiredo et al. 2025).
+//!
+//! # Conventions
+//!
+//! - **`pdf` vs `eval`.** `pdf` is always a normalised density: in solid
+//!   angle on the sphere (integrating to 1 over it), or per unit length on
+//!   `[0, 1]` for [`pdf1d::Pdf1d`]. `eval` is always an *unnormalised* value,
+//!   and only single lobes have one: [`lobe::vmf::VmfLobe::eval`]
+//!   (`e^{κ(μ·ω − 1)}`) and [`lobe::nasg::NasgLobe::eval`] (`G(ω)`), both in
+//!   `[0, 1]` and 1 at the lobe's mode, with `pdf = eval / normaliser` (and
+//!   `log_eval` / `log_pdf` their logarithms). The normalised distributions —
+//!   mixtures, [`pdf1d::Pdf1d`], [`factorised::FactorisedTable`] — have `pdf`
+//!   only: they are built normalised, and a mixture's `Σ_k w_k eval_k` (the
+//!   weights times the lobes' unnormalised values) would not be proportional
+//!   to its density.
+//! - **Directions** (`wo`, `wi`, and the directions a distribution samples
+//!   and takes the `pdf` of) follow pbrt's convention, stated once for the
+//!   whole library in the `guiding` crate's *Conventions* section.
 #![no_std]
 #![deny(missing_docs)]
 

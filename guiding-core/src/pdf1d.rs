@@ -392,7 +392,9 @@ impl<const N: usize> Pdf1d<N> {
     }
 
     /// Density `p(x)`; `x` outside `[0, 1]` is wrapped or clamped according
-    /// to the boundary, NaN/±∞ read as 0.
+    /// to the boundary, NaN/±∞ read as 0. It integrates to 1 over `[0, 1]`:
+    /// the density is normalised by construction, so there is no separate
+    /// unnormalised `eval` (see the crate docs).
     ///
     /// Nearest: `v_⌊xN⌋`. Linear: `(1 − f) v_i + f v_j` with `s = xN − ½`,
     /// `i = ⌊s⌋`, `f = s − i`, `j = i + 1` (indices mod `N` for wrap; `s`
@@ -410,13 +412,6 @@ impl<const N: usize> Pdf1d<N> {
     pub(crate) fn pdf_in_unit_interval(&self, x: f32) -> f32 {
         let (i, j, f) = stencil::<N>(x, self.interpolation(), self.boundary());
         (1.0 - f) * self.values[i] + f * self.values[j]
-    }
-
-    /// Alias of [`Self::pdf`]: the density is normalised by construction.
-    #[inline]
-    #[must_use]
-    pub fn eval(&self, x: f32) -> f32 {
-        self.pdf(x)
     }
 
     /// Number of pieces the density is made of: `N` (nearest) or `N + 1`

@@ -1,6 +1,7 @@
 //! The training record a renderer hands to the guiding field, and its
 //! validation.
 
+use crate::model::QueryPoint;
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
@@ -11,7 +12,12 @@ pub const UNIT_TOLERANCE: f32 = 1e-3;
 /// One training sample: a path vertex, the direction the renderer sampled
 /// there and the radiance that came back along it.
 ///
-/// `repr(C)`, `Pod`, 96 bytes (every vector padded to four floats).
+/// Directions follow the library's convention (pbrt's; see the `guiding`
+/// crate's *Conventions*): `wo` points towards the previous path vertex, `wi`
+/// is the sampled continuation direction, along which `radiance` arrives.
+///
+/// `repr(C)`, `Pod`, 96 bytes (every vector padded to four floats). Build it
+/// with [`Self::new`], which zeroes the padding.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct TrainingSample {
@@ -19,26 +25,28 @@ pub struct TrainingSample {
     pub position: [f32; 3],
     /// Surface roughness in `[0, 1]` (product models only).
     pub roughness: f32,
-    /// Unit shading normal (product models only; zero if unknown).
+    /// Unit world-space shading normal (product models only; zero if unknown).
     pub normal: [f32; 3],
     /// Density, in solid angle, with which the renderer actually sampled
     /// `wi` (the one-sample MIS density of BSDF and guide sampling). `> 0`.
     pub sample_pdf: f32,
-    /// Unit outgoing direction (towards the previous vertex; product models only).
+    /// `wo`: unit world-space direction towards the previous vertex, the
+    /// viewer (product models only; zero if unknown).
     pub wo: [f32; 3],
     /// Density of `wi` under BSDF sampling alone (NASG's MIS loss); `0` if unknown.
     pub bsdf_pdf: f32,
-    /// Unit sampled incident direction.
+    /// `wi`: unit world-space sampled continuation direction (the incident
+    /// direction of `radiance`).
     pub wi: [f32; 3],
-    /// Padding.
+    /// Padding (0).
     pub pad0: f32,
     /// Estimate of the incident radiance `L_i(x, wi)`, RGB, `≥ 0`.
     pub radiance: [f32; 3],
-    /// Padding.
+    /// Padding (0).
     pub pad1: f32,
     /// `f(wo, wi) |cos θ_i|`, RGB, `≥ 0` (product targets).
     pub bsdf_cos: [f32; 3],
-    /// Padding.
+    /// Padding (0).
     pub pad2: f32,
 }
 
@@ -85,6 +93,49 @@ fn is_unit_or_zero(v: &[f32; 3]) -> bool {
 }
 
 impl TrainingSample {
+    /// A sample at the vertex `query` (position, normal, `wo`, roughness):
+    /// the renderer sampled `wi` with density `sample_pdf`, and `radiance`
+    /// (`L_i(x, wi)`) came back along it; `bsdf_pdf` is the density of `wi`
+    /// under BSDF sampling alone (`0` if unknown) and `bsdf_cos` is
+    /// `f(wo, wi) |cos θ_i|` (product targets; zero otherwise). The padding
+    /// is zero. Nothing is checked here: see [`Self::validate`].
+    ///
+    /// ```
+    /// use guiding_core::model::QueryPoint;
+    /// use guiding_core::sample::TrainingSample;
+    ///
+    /// let vertex = QueryPoint::new([0.1, 0.2, 0.3], [0.0, 0.0, 1.0], [0.0, 0.6, 0.8], 0.5);
+    /// let s = TrainingSample::new(vertex, [0.6, 0.0, 0.8], [1.0, 2.0, 3.0], 0.25, 0.3, [0.5; 3]);
+    /// assert_eq!(s.validate(), Ok(()));
+    /// assert_eq!((s.wi, s.sample_pdf, s.bsdf_pdf), ([0.6, 0.0, 0.8], 0.25, 0.3));
+    /// assert_eq!(QueryPoint::of_sample(&s), vertex);
+    /// ```
+    #[inline]
+    #[must_use]
+    pub const fn new(
+        query: QueryPoint,
+        wi: [f32; 3],
+        radiance: [f32; 3],
+        sample_pdf: f32,
+        bsdf_pdf: f32,
+        bsdf_cos: [f32; 3],
+    ) -> Self {
+        Self {
+            position: query.position,
+            roughness: query.roughness,
+            normal: query.normal,
+            sample_pdf,
+            wo: query.wo,
+            bsdf_pdf,
+            wi,
+            pad0: 0.0,
+            radiance,
+            pad1: 0.0,
+            bsdf_cos,
+            pad2: 0.0,
+        }
+    }
+
     /// Checks that the sample can be trained on. Samples with non-finite or
     /// negative values, a non-positive pdf or non-unit directions are never
     /// trained on; callers count the rejections.
@@ -124,5 +175,95 @@ impl TrainingSample {
     #[must_use]
     pub fn position(&self) -> Vec3 {
         Vec3::from_array(self.position)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::TrainingSample;
+    use crate::model::QueryPoint;
+    use core::mem::{align_of, offset_of, size_of};
+
+    /// The constructors write exactly the struct literal with zero padding.
+    #[test]
+    fn constructors_match_literals_with_zero_padding() {
+        let q = QueryPoint::new([1.0, 2.0, 3.0], [0.0, 0.0, 1.0], [0.6, 0.0, 0.8], 0.25);
+        let literal = QueryPoint {
+            position: [1.0, 2.0, 3.0],
+            roughness: 0.25,
+            normal: [0.0, 0.0, 1.0],
+            pad0: 0.0,
+            wo: [0.6, 0.0, 0.8],
+            pad1: 0.0,
+        };
+        assert_eq!(q, literal);
+        assert_eq!(bytemuck::bytes_of(&q), bytemuck::bytes_of(&literal));
+        let from_vec3 = QueryPoint::from_vec3(
+            glam::Vec3::new(1.0, 2.0, 3.0),
+            glam::Vec3::Z,
+            glam::Vec3::new(0.6, 0.0, 0.8),
+            0.25,
+        );
+        assert_eq!(bytemuck::bytes_of(&from_vec3), bytemuck::bytes_of(&literal));
+
+        let s = TrainingSample::new(
+            q,
+            [0.0, 0.6, 0.8],
+            [4.0, 5.0, 6.0],
+            0.5,
+            0.125,
+            [0.7, 0.8, 0.9],
+        );
+        let literal = TrainingSample {
+            position: [1.0, 2.0, 3.0],
+            roughness: 0.25,
+            normal: [0.0, 0.0, 1.0],
+            sample_pdf: 0.5,
+            wo: [0.6, 0.0, 0.8],
+            bsdf_pdf: 0.125,
+            wi: [0.0, 0.6, 0.8],
+            pad0: 0.0,
+            radiance: [4.0, 5.0, 6.0],
+            pad1: 0.0,
+            bsdf_cos: [0.7, 0.8, 0.9],
+            pad2: 0.0,
+        };
+        assert_eq!(s, literal);
+        assert_eq!(bytemuck::bytes_of(&s), bytemuck::bytes_of(&literal));
+        assert_eq!(QueryPoint::of_sample(&s), q);
+    }
+
+    /// The GPU / C layout: sizes, alignment and every field's offset.
+    #[test]
+    fn layouts_are_unchanged() {
+        assert_eq!((size_of::<QueryPoint>(), align_of::<QueryPoint>()), (48, 4));
+        let q = [
+            offset_of!(QueryPoint, position),
+            offset_of!(QueryPoint, roughness),
+            offset_of!(QueryPoint, normal),
+            offset_of!(QueryPoint, pad0),
+            offset_of!(QueryPoint, wo),
+            offset_of!(QueryPoint, pad1),
+        ];
+        assert_eq!(q, [0, 12, 16, 28, 32, 44]);
+        assert_eq!(
+            (size_of::<TrainingSample>(), align_of::<TrainingSample>()),
+            (96, 4)
+        );
+        let s = [
+            offset_of!(TrainingSample, position),
+            offset_of!(TrainingSample, roughness),
+            offset_of!(TrainingSample, normal),
+            offset_of!(TrainingSample, sample_pdf),
+            offset_of!(TrainingSample, wo),
+            offset_of!(TrainingSample, bsdf_pdf),
+            offset_of!(TrainingSample, wi),
+            offset_of!(TrainingSample, pad0),
+            offset_of!(TrainingSample, radiance),
+            offset_of!(TrainingSample, pad1),
+            offset_of!(TrainingSample, bsdf_cos),
+            offset_of!(TrainingSample, pad2),
+        ];
+        assert_eq!(s, [0, 12, 16, 28, 32, 44, 48, 60, 64, 76, 80, 92]);
     }
 }

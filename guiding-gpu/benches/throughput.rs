@@ -46,17 +46,15 @@ fn unit(rng: &mut Rng) -> [f32; 3] {
 fn queries(n: usize) -> Vec<QueryPoint> {
     let mut rng = Rng::new(1);
     (0..n)
-        .map(|_| QueryPoint {
-            position: [
+        .map(|_| {
+            let position = [
                 rng.next_symmetric_f32(),
                 rng.next_symmetric_f32(),
                 rng.next_symmetric_f32(),
-            ],
-            roughness: rng.next_f32(),
-            normal: unit(&mut rng),
-            pad0: 0.0,
-            wo: unit(&mut rng),
-            pad1: 0.0,
+            ];
+            let roughness = rng.next_f32();
+            let normal = unit(&mut rng);
+            QueryPoint::new(position, normal, unit(&mut rng), roughness)
         })
         .collect()
 }
@@ -64,23 +62,16 @@ fn queries(n: usize) -> Vec<QueryPoint> {
 fn samples(n: usize) -> Vec<TrainingSample> {
     let mut rng = Rng::new(2);
     (0..n)
-        .map(|_| TrainingSample {
-            position: [
+        .map(|_| {
+            let position = [
                 rng.next_symmetric_f32(),
                 rng.next_symmetric_f32(),
                 rng.next_symmetric_f32(),
-            ],
-            roughness: 0.5,
-            normal: unit(&mut rng),
-            sample_pdf: 0.3,
-            wo: unit(&mut rng),
-            bsdf_pdf: 0.3,
-            wi: unit(&mut rng),
-            pad0: 0.0,
-            radiance: [1.0, 0.8, 0.5],
-            pad1: 0.0,
-            bsdf_cos: [0.3; 3],
-            pad2: 0.0,
+            ];
+            let normal = unit(&mut rng);
+            let wo = unit(&mut rng);
+            let vertex = QueryPoint::new(position, normal, wo, 0.5);
+            TrainingSample::new(vertex, unit(&mut rng), [1.0, 0.8, 0.5], 0.3, 0.3, [0.3; 3])
         })
         .collect()
 }

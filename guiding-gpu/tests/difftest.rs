@@ -79,13 +79,11 @@ fn position(rng: &mut Rng) -> [f32; 3] {
 fn queries(n: usize, seed: u32) -> Vec<QueryPoint> {
     let mut rng = Rng::new(seed);
     (0..n)
-        .map(|_| QueryPoint {
-            position: position(&mut rng),
-            roughness: rng.next_f32(),
-            normal: unit(&mut rng),
-            pad0: 0.0,
-            wo: unit(&mut rng),
-            pad1: 0.0,
+        .map(|_| {
+            let p = position(&mut rng);
+            let roughness = rng.next_f32();
+            let normal = unit(&mut rng);
+            QueryPoint::new(p, normal, unit(&mut rng), roughness)
         })
         .collect()
 }
@@ -112,20 +110,21 @@ fn training_samples(n: usize, seed: u32) -> Vec<TrainingSample> {
     (0..n)
         .map(|_| {
             let r = 0.1 + 4.0 * rng.next_f32();
-            TrainingSample {
-                position: position(&mut rng),
-                roughness: rng.next_f32(),
-                normal: unit(&mut rng),
-                sample_pdf: 0.05 + rng.next_f32(),
-                wo: unit(&mut rng),
-                bsdf_pdf: 0.05 + rng.next_f32(),
-                wi: unit(&mut rng),
-                pad0: 0.0,
-                radiance: [r, 0.5 * r, 0.25 * r],
-                pad1: 0.0,
-                bsdf_cos: [0.3, 0.3, 0.3],
-                pad2: 0.0,
-            }
+            // Drawn in the order of the struct's fields.
+            let p = position(&mut rng);
+            let roughness = rng.next_f32();
+            let normal = unit(&mut rng);
+            let sample_pdf = 0.05 + rng.next_f32();
+            let wo = unit(&mut rng);
+            let bsdf_pdf = 0.05 + rng.next_f32();
+            TrainingSample::new(
+                QueryPoint::new(p, normal, wo, roughness),
+                unit(&mut rng),
+                [r, 0.5 * r, 0.25 * r],
+                sample_pdf,
+                bsdf_pdf,
+                [0.3, 0.3, 0.3],
+            )
         })
         .collect()
 }

@@ -32,6 +32,9 @@ use guiding_core::model::{GuidingModel, QueryPoint};
 
 /// Decoded distributions of a batch of shading points (see the [module
 /// docs](self)). Reusable: decoding into it again keeps its allocations.
+/// The directions its lanes sample and take densities of are `wi`s of the
+/// [crate conventions](crate#conventions) (unit, world space, pointing away
+/// from the surface).
 #[derive(Clone, Debug, Default)]
 pub struct DistributionBatch {
     field_id: u64,
@@ -186,8 +189,8 @@ impl GuidingField {
         Ok(())
     }
 
-    /// Samples lane `lanes[k]` of `batch` with `u[k]` into `out[k]`, for
-    /// every `k`. NPM / NASG sample their mixtures; DF runs its conditional
+    /// Samples a direction `wi` from lane `lanes[k]` of `batch` with `u[k]`
+    /// into `out[k]`, for every `k`. NPM / NASG sample their mixtures; DF runs its conditional
     /// network once per sample, batched over the call (and a second time
     /// for the rare direction whose `ε₁` rounds into another bin, as
     /// [`crate::Distribution::sample`]).
@@ -231,7 +234,7 @@ impl GuidingField {
         Ok(())
     }
 
-    /// The density of `directions[k]` (unit vectors) under lane `lanes[k]`
+    /// The density of `directions[k]` (unit `wi`s) under lane `lanes[k]`
     /// of `batch`, into `out[k]`. DF runs its conditional network once per
     /// direction, batched over the call.
     ///

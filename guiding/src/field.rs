@@ -253,8 +253,8 @@ impl GuidingField {
         out
     }
 
-    /// Samples one direction per query (`u[i] ∈ [0, 1)²`), spread over the
-    /// field's threads.
+    /// Samples one direction `wi` per query (`u[i] ∈ [0, 1)²`), spread over
+    /// the field's threads.
     ///
     /// # Errors
     /// [`GuidingError::LengthMismatch`] if the three lengths differ.
@@ -286,7 +286,8 @@ impl GuidingField {
         Ok(())
     }
 
-    /// Density of `directions[i]` at `queries[i]`, spread over the threads.
+    /// Density of `directions[i]` (unit `wi`s) at `queries[i]`, spread over
+    /// the threads.
     ///
     /// # Errors
     /// [`GuidingError::LengthMismatch`] if the three lengths differ.
@@ -457,7 +458,8 @@ pub struct ModelExport {
 ///
 /// `sample` returns a unit direction and its density (finite, `> 0`);
 /// `pdf` is the density of any direction (finite, `≥ 0`); both in solid
-/// angle. Combine with BSDF sampling by one-sample MIS with
+/// angle. The directions are `wi`s of the [crate conventions](crate#conventions):
+/// world space, pointing away from the surface. Combine with BSDF sampling by one-sample MIS with
 /// [`Self::selection_probability`] `c`: sample the guide with probability
 /// `c`, and use `c · p_guide + (1 − c) · p_bsdf` as the path pdf.
 #[derive(Clone, Copy, Debug)]
@@ -467,7 +469,7 @@ pub struct Distribution<'f> {
 }
 
 impl<'f> Distribution<'f> {
-    /// Draws a direction from `u ∈ [0, 1)²`.
+    /// Draws a direction `wi` (unit, world space) from `u ∈ [0, 1)²`.
     pub fn sample(&self, u: Vec2) -> DirectionSample {
         match &self.decoded {
             Decoded::Vmf { mixture, .. } => mixture.sample(u),
@@ -476,7 +478,7 @@ impl<'f> Distribution<'f> {
         }
     }
 
-    /// Density of `direction` (unit) in solid angle.
+    /// Density of `direction` (a unit `wi`, world space) in solid angle.
     pub fn pdf(&self, direction: Vec3) -> f32 {
         match &self.decoded {
             Decoded::Vmf { mixture, .. } => mixture.pdf(direction),
@@ -511,7 +513,9 @@ impl<'f> Distribution<'f> {
 }
 
 /// A [`Distribution`] detached from its field ([`Distribution::detach`]):
-/// `'static`, `Copy`, valid for the field generation that decoded it.
+/// `'static`, `Copy`, valid for the field generation that decoded it. Its
+/// directions are `wi`s as the [`Distribution`]'s ([crate
+/// conventions](crate#conventions)).
 #[derive(Clone, Copy, Debug)]
 pub struct DecodedDistribution {
     field_id: u64,

@@ -38,13 +38,44 @@
 //! recorder.flush_into(&mut field);
 //! field.update();
 //!
-//! let query = QueryPoint { position: [0.1, 0.2, 0.3], ..QueryPoint::default() };
+//! // position, normal, wo, roughness (a radiance model reads only the position).
+//! let query = QueryPoint::new([0.1, 0.2, 0.3], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0], 1.0);
 //! let dist = field.distribution(&query);
 //! let s = dist.sample(Vec2::new(0.3, 0.7));
 //! assert!((s.direction.length() - 1.0).abs() < 1e-5 && s.pdf > 0.0);
 //! assert!((dist.pdf(s.direction) / s.pdf - 1.0).abs() < 1e-3);
 //! # Ok::<(), guiding::GuidingError>(())
 //! ```
+//!
+//! # Conventions
+//!
+//! This is the one statement of the library's direction convention; the
+//! field docs of [`QueryPoint`], [`TrainingSample`], [`PathVertex`], the
+//! distributions and the C header refer to it. It is pbrt's:
+//!
+//! - **`wo`** is the direction from the shading point towards the previous
+//!   path vertex: the viewer (the camera for the first hit). Light leaves
+//!   the point along it.
+//! - **`wi`** is the sampled incident / continuation direction: the path
+//!   goes on along it, and the radiance `L_i(x, wi)` that a training sample
+//!   carries arrives from it. Every direction a distribution samples
+//!   ([`Distribution::sample`], [`DistributionBatch`],
+//!   [`GuidingField::sample_decoded`]) or takes the density of
+//!   ([`Distribution::pdf`], [`GuidingField::pdf_decoded`]) is such a `wi`.
+//! - Both are **unit vectors in world space pointing away from the
+//!   surface**; the library never flips them (nor the normal) into a
+//!   hemisphere. Zero is accepted for `wo` (and the `normal`) where it is
+//!   unknown.
+//! - `bsdf_cos` is `f(wo, wi) |cos θ_i|` with `θ_i` the angle between `wi`
+//!   and the shading normal. Densities are in solid angle, over `wi`.
+//!
+//! A renderer with Mitsuba's naming, where `wi` points towards the viewer
+//! and `wo` is the sampled direction, passes its `wi` as our `wo` and its
+//! `wo` as our `wi`.
+//!
+//! Values: `pdf` is always a normalised density; the normalised
+//! distributions have no `eval` (in `guiding-core`, `eval` is the
+//! unnormalised value of a single lobe).
 
 pub mod batch;
 pub mod config;

@@ -31,17 +31,20 @@
 //! there) or vertices whose path ended (`sample_pdf = 0`).
 
 use crate::field::GuidingField;
+use guiding_core::model::QueryPoint;
 use guiding_core::sample::TrainingSample;
 
-/// One path vertex as the renderer saw it. All vectors in world space; RGB
-/// values linear.
+/// One path vertex as the renderer saw it. All vectors in world space, the
+/// directions as in the [crate conventions](crate#conventions); RGB values
+/// linear.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PathVertex {
     /// Surface position.
     pub position: [f32; 3],
     /// Unit shading normal (zero if unknown; product models need it).
     pub normal: [f32; 3],
-    /// Unit direction towards the previous vertex (the camera for vertex 0).
+    /// `wo`: unit direction towards the previous vertex (the camera for
+    /// vertex 0).
     pub wo: [f32; 3],
     /// Surface roughness in `[0, 1]` (product models).
     pub roughness: f32,
@@ -54,7 +57,7 @@ pub struct PathVertex {
     /// Next-event estimation at this vertex, scattered towards `wo`, already
     /// weighted: `f · L_light · |cos| · w_mis / p_light`.
     pub direct: [f32; 3],
-    /// Unit sampled continuation direction (ignored if `sample_pdf = 0`).
+    /// `wi`: unit sampled continuation direction (ignored if `sample_pdf = 0`).
     pub wi: [f32; 3],
     /// Density with which `wi` was sampled (the one-sample MIS density of
     /// BSDF and guide); `0` if the path ends here.
@@ -157,20 +160,14 @@ impl PathRecorder {
         for v in self.vertices.iter().rev() {
             let continues = v.sample_pdf > 0.0;
             if continues && !v.is_delta {
-                self.samples.push(TrainingSample {
-                    position: v.position,
-                    roughness: v.roughness,
-                    normal: v.normal,
-                    sample_pdf: v.sample_pdf,
-                    wo: v.wo,
-                    bsdf_pdf: v.bsdf_pdf,
-                    wi: v.wi,
-                    pad0: 0.0,
-                    radiance: incident,
-                    pad1: 0.0,
-                    bsdf_cos: v.bsdf_cos,
-                    pad2: 0.0,
-                });
+                self.samples.push(TrainingSample::new(
+                    QueryPoint::new(v.position, v.normal, v.wo, v.roughness),
+                    v.wi,
+                    incident,
+                    v.sample_pdf,
+                    v.bsdf_pdf,
+                    v.bsdf_cos,
+                ));
             }
             let scattered = if continues {
                 mul(

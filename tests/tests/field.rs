@@ -134,20 +134,14 @@ fn valid_sample(rng: &mut Pcg32) -> TrainingSample {
     let position = [rng.next_f32(), rng.next_f32(), rng.next_f32()];
     let wi = square_to_uniform_sphere(rng.next_vec2());
     let l = target_lobe(position).pdf(wi);
-    TrainingSample {
-        position,
-        roughness: 0.5,
-        normal: [0.0; 3],
-        sample_pdf: INV_FOUR_PI,
-        wo: [0.0; 3],
-        bsdf_pdf: 0.0,
-        wi: wi.to_array(),
-        pad0: 0.0,
-        radiance: [l; 3],
-        pad1: 0.0,
-        bsdf_cos: [0.0; 3],
-        pad2: 0.0,
-    }
+    TrainingSample::new(
+        query(position),
+        wi.to_array(),
+        [l; 3],
+        INV_FOUR_PI,
+        0.0,
+        [0.0; 3],
+    )
 }
 
 fn stream(seed: u64, n: usize) -> Vec<TrainingSample> {
@@ -156,14 +150,7 @@ fn stream(seed: u64, n: usize) -> Vec<TrainingSample> {
 }
 
 fn query(p: [f32; 3]) -> QueryPoint {
-    QueryPoint {
-        position: p,
-        roughness: 0.5,
-        normal: [0.0; 3],
-        pad0: 0.0,
-        wo: [0.0; 3],
-        pad1: 0.0,
-    }
+    QueryPoint::new(p, [0.0; 3], [0.0; 3], 0.5)
 }
 
 fn bits(v: &[f32]) -> Vec<u32> {

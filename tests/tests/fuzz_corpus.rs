@@ -444,20 +444,14 @@ fn valid_sample(rng: &mut Pcg32, product: bool) -> TrainingSample {
     } else {
         ([0.0; 3], [0.0; 3], [0.0; 3])
     };
-    TrainingSample {
-        position: p.to_array(),
-        roughness: 0.5,
-        normal,
-        sample_pdf: INV_FOUR_PI,
-        wo,
-        bsdf_pdf: if product { INV_FOUR_PI } else { 0.0 },
-        wi: wi.to_array(),
-        pad0: 0.0,
-        radiance: [l; 3],
-        pad1: 0.0,
+    TrainingSample::new(
+        QueryPoint::new(p.to_array(), normal, wo, 0.5),
+        wi.to_array(),
+        [l; 3],
+        INV_FOUR_PI,
+        if product { INV_FOUR_PI } else { 0.0 },
         bsdf_cos,
-        pad2: 0.0,
-    }
+    )
 }
 
 /// One sample per rejection kind, and valid extremes (−0 radiance, 10⁶
@@ -490,14 +484,12 @@ fn edge_samples(rng: &mut Pcg32, product: bool) -> Vec<TrainingSample> {
 }
 
 fn default_query(rng: &mut Pcg32) -> QueryPoint {
-    QueryPoint {
-        position: [rng.next_f32(), rng.next_f32(), rng.next_f32()],
-        roughness: 0.5,
-        normal: [0.0, 0.0, 1.0],
-        pad0: 0.0,
-        wo: [0.6, 0.0, 0.8],
-        pad1: 0.0,
-    }
+    QueryPoint::new(
+        [rng.next_f32(), rng.next_f32(), rng.next_f32()],
+        [0.0, 0.0, 1.0],
+        [0.6, 0.0, 0.8],
+        0.5,
+    )
 }
 
 fn training_seeds() -> Vec<(String, Vec<u8>)> {

@@ -89,20 +89,7 @@ fn uniform_position(rng: &mut Pcg32) -> Vec3 {
 
 fn sample_at(scene: Scene, p: Vec3, wi: Vec3) -> TrainingSample {
     let l = scene.density(p, wi);
-    TrainingSample {
-        position: p.to_array(),
-        roughness: 0.5,
-        normal: [0.0; 3],
-        sample_pdf: INV_FOUR_PI,
-        wo: [0.0; 3],
-        bsdf_pdf: 0.0,
-        wi: wi.to_array(),
-        pad0: 0.0,
-        radiance: [l; 3],
-        pad1: 0.0,
-        bsdf_cos: [0.0; 3],
-        pad2: 0.0,
-    }
+    TrainingSample::new(query(p), wi.to_array(), [l; 3], INV_FOUR_PI, 0.0, [0.0; 3])
 }
 
 fn training_samples(scene: Scene, rng: &mut Pcg32, n: usize) -> Vec<TrainingSample> {
@@ -116,14 +103,7 @@ fn training_samples(scene: Scene, rng: &mut Pcg32, n: usize) -> Vec<TrainingSamp
 }
 
 fn query(p: Vec3) -> QueryPoint {
-    QueryPoint {
-        position: p.to_array(),
-        roughness: 0.5,
-        normal: [0.0; 3],
-        pad0: 0.0,
-        wo: [0.0; 3],
-        pad1: 0.0,
-    }
+    QueryPoint::from_vec3(p, Vec3::ZERO, Vec3::ZERO, 0.5)
 }
 
 /// Quadrature grid: `N_PHI × N_Z` equal-area cells (midpoints in φ and

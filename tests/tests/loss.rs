@@ -1,24 +1,19 @@
 //! Training records and per-sample losses.
 
 use guiding_core::loss::{kl_weight, nasg_mis_loss, relative_l2, target_value, Target};
+use guiding_core::model::QueryPoint;
 use guiding_core::sample::{Rejection, TrainingSample};
 use guiding_tests::rng::Pcg32;
 
 fn valid_sample() -> TrainingSample {
-    TrainingSample {
-        position: [0.1, 0.2, 0.3],
-        roughness: 0.5,
-        normal: [0.0, 0.0, 1.0],
-        sample_pdf: 0.25,
-        wo: [0.0, 0.6, 0.8],
-        bsdf_pdf: 0.3,
-        wi: [0.6, 0.0, 0.8],
-        pad0: 0.0,
-        radiance: [1.0, 2.0, 3.0],
-        pad1: 0.0,
-        bsdf_cos: [0.5, 0.5, 0.5],
-        pad2: 0.0,
-    }
+    TrainingSample::new(
+        QueryPoint::new([0.1, 0.2, 0.3], [0.0, 0.0, 1.0], [0.0, 0.6, 0.8], 0.5),
+        [0.6, 0.0, 0.8],
+        [1.0, 2.0, 3.0],
+        0.25,
+        0.3,
+        [0.5, 0.5, 0.5],
+    )
 }
 
 #[test]

@@ -180,28 +180,24 @@ fn random_sample(rng: &mut Pcg32) -> TrainingSample {
     } else {
         rng.uniform(0.01, 2.0)
     };
-    let s = TrainingSample {
-        position: random_position(rng),
-        roughness: rng.next_f32(),
-        normal: normal.to_array(),
-        sample_pdf: rng.uniform(0.05, 2.0),
-        wo: random_unit(rng).to_array(),
-        bsdf_pdf,
-        wi: random_unit(rng).to_array(),
-        pad0: 0.0,
-        radiance: [
-            rng.uniform(0.05, 3.0),
-            rng.uniform(0.05, 3.0),
-            rng.uniform(0.05, 3.0),
-        ],
-        pad1: 0.0,
-        bsdf_cos: [
-            rng.uniform(0.05, 1.0),
-            rng.uniform(0.05, 1.0),
-            rng.uniform(0.05, 1.0),
-        ],
-        pad2: 0.0,
-    };
+    // Drawn in the order of the struct's fields.
+    let position = random_position(rng);
+    let roughness = rng.next_f32();
+    let sample_pdf = rng.uniform(0.05, 2.0);
+    let wo = random_unit(rng).to_array();
+    let wi = random_unit(rng).to_array();
+    let radiance = [
+        rng.uniform(0.05, 3.0),
+        rng.uniform(0.05, 3.0),
+        rng.uniform(0.05, 3.0),
+    ];
+    let bsdf_cos = [
+        rng.uniform(0.05, 1.0),
+        rng.uniform(0.05, 1.0),
+        rng.uniform(0.05, 1.0),
+    ];
+    let vertex = QueryPoint::new(position, normal.to_array(), wo, roughness);
+    let s = TrainingSample::new(vertex, wi, radiance, sample_pdf, bsdf_pdf, bsdf_cos);
     assert!(s.validate().is_ok());
     s
 }
@@ -930,14 +926,12 @@ fn check_totality<M: GuidingModel>(name: &str, model: &M, layout: &Layout) {
     let mut rng = Pcg32::new(9, 61);
     let n = model.param_count();
     let params = random_params(layout, n, &mut rng);
-    let nan_query = QueryPoint {
-        position: [f32::NAN, f32::INFINITY, 0.0],
-        roughness: f32::NAN,
-        normal: [f32::NAN; 3],
-        pad0: 0.0,
-        wo: [0.0; 3],
-        pad1: 0.0,
-    };
+    let nan_query = QueryPoint::new(
+        [f32::NAN, f32::INFINITY, 0.0],
+        [f32::NAN; 3],
+        [0.0; 3],
+        f32::NAN,
+    );
     let huge = vec![1e30f32; n];
     let short = &params[..n / 2];
     let q = random_query(&mut rng);

@@ -392,14 +392,7 @@ const HI: [f32; 3] = [1.0; 3];
 /// Queries: inside the box, on its corner, far outside, and degenerate
 /// (NaN/∞ position, zero and NaN normal, subnormal roughness).
 fn queries() -> Vec<QueryPoint> {
-    let q = |position: [f32; 3], normal: [f32; 3], wo: [f32; 3], roughness: f32| QueryPoint {
-        position,
-        roughness,
-        normal,
-        pad0: 0.0,
-        wo,
-        pad1: 0.0,
-    };
+    let q = QueryPoint::new;
     vec![
         q([0.1, -0.3, 0.5], [0.0, 0.0, 1.0], [0.6, 0.0, 0.8], 0.5),
         q([1.0, 1.0, 1.0], [0.0; 3], [0.0; 3], 0.0),

@@ -214,20 +214,7 @@ fn training_samples(n: usize, seed: u64) -> Vec<TrainingSample> {
             let q = query(&mut rng);
             let wi = square_to_uniform_sphere(rng.next_vec2());
             let l = if wi.z > 0.8 { 5.0 } else { 0.2 };
-            let mut s = TrainingSample {
-                position: q.position,
-                roughness: q.roughness,
-                normal: q.normal,
-                sample_pdf: INV_FOUR_PI,
-                wo: q.wo,
-                bsdf_pdf: 0.1,
-                wi: wi.to_array(),
-                pad0: 0.0,
-                radiance: [l; 3],
-                pad1: 0.0,
-                bsdf_cos: [0.3; 3],
-                pad2: 0.0,
-            };
+            let mut s = TrainingSample::new(q, wi.to_array(), [l; 3], INV_FOUR_PI, 0.1, [0.3; 3]);
             // Invalid and zero-weight samples mixed in: both paths skip them.
             match i % 13 {
                 3 => s.radiance = [f32::NAN; 3],

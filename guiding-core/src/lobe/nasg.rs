@@ -418,7 +418,9 @@ impl NasgLobe {
         )
     }
 
-    /// Unnormalised value `G(direction) ∈ [0, 1]` (1 on the axis).
+    /// Unnormalised value `G(direction) ∈ [0, 1]` (1 on the axis): the lobe's
+    /// shape without its normaliser `K`, so [`Self::pdf`] is `eval / K`.
+    /// (`eval` always means this unnormalised value; see the crate docs.)
     #[inline]
     #[must_use]
     pub fn eval(&self, direction: Vec3) -> f32 {
@@ -432,7 +434,8 @@ impl NasgLobe {
         self.log_eval(direction) + self.log_norm
     }
 
-    /// Density `G / K` in solid angle; finite and `≥ 0` for every input.
+    /// Density `G / K` in solid angle (integrates to 1 over the sphere);
+    /// finite and `≥ 0` for every input.
     #[inline]
     #[must_use]
     pub fn pdf(&self, direction: Vec3) -> f32 {

@@ -94,14 +94,18 @@ impl VmfLobe {
         Vec3::from_array(self.mean)
     }
 
-    /// Unnormalised value `e^{κ (μ·ω − 1)} ∈ [0, 1]`.
+    /// Unnormalised value `e^{κ (μ·ω − 1)} ∈ [0, 1]` (1 at the mean): the
+    /// lobe's shape without its normaliser, so [`Self::pdf`] is
+    /// `norm · eval`. (`eval` always means this unnormalised value; see the
+    /// crate docs.)
     #[inline]
     #[must_use]
     pub fn eval(&self, direction: Vec3) -> f32 {
         exp(-self.kappa * one_minus_cos_angle(self.mean(), direction))
     }
 
-    /// Density in solid angle.
+    /// Density `v(ω | μ, κ) = norm · eval(ω)` in solid angle (integrates to 1
+    /// over the sphere).
     #[inline]
     #[must_use]
     pub fn pdf(&self, direction: Vec3) -> f32 {

@@ -316,7 +316,11 @@ impl<const K: usize> NasgMixture<K> {
     }
 
     /// Density `Σ_k w_k G_k(ω) / K_k` in solid angle; finite and `≥ 0` for
-    /// every input (degenerate directions as in [`NasgLobe::pdf`]).
+    /// every input (degenerate directions as in [`NasgLobe::pdf`]). The
+    /// mixture is normalised and has no unnormalised `eval`: `Σ_k w_k G_k(ω)`
+    /// would drop the lobes' normalisers `K_k`, which is no quantity of the
+    /// mixture (see the crate docs). Per-lobe values: [`Self::lobe`], then
+    /// [`NasgLobe::eval`].
     #[inline]
     #[must_use]
     pub fn pdf(&self, direction: Vec3) -> f32 {
@@ -343,13 +347,6 @@ impl<const K: usize> NasgMixture<K> {
             k += 1;
         }
         pairwise_sum(&mut terms)
-    }
-
-    /// Alias of [`Self::pdf`]: a normalised mixture's value is its density.
-    #[inline]
-    #[must_use]
-    pub fn eval(&self, direction: Vec3) -> f32 {
-        self.pdf(direction)
     }
 
     /// `ln p(ω)` by log-sum-exp: finite also where every lobe's density

@@ -30,8 +30,9 @@ pub const CLAMPED_COSINE_KAPPA: f32 = 2.18853;
 /// density loop vectorises.
 ///
 /// `repr(C)`, `Pod`, `7 K` floats (224 bytes for K = 8): a decoded
-/// distribution that a renderer can keep per path vertex and evaluate at
-/// several directions (MIS, NEE) without touching the network again.
+/// distribution that a renderer can keep per path vertex and sample, or ask
+/// the [`pdf`](Self::pdf) of several directions (MIS, NEE), without touching
+/// the network again.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct VmfMixture<const K: usize> {
@@ -226,7 +227,12 @@ impl<const K: usize> VmfMixture<K> {
         }
     }
 
-    /// Density `Σ_k w_k v(ω | μ_k, κ_k)` in solid angle.
+    /// Density `Σ_k w_k v(ω | μ_k, κ_k)` in solid angle. The mixture is
+    /// normalised (weights summing to one over normalised lobes) and has no
+    /// unnormalised `eval`: `Σ_k w_k eval_k(ω)` would weigh the lobes' shapes
+    /// without their normalisers, which is no quantity of the mixture (see
+    /// the crate docs). Per-lobe values: [`Self::lobe`], then
+    /// [`VmfLobe::eval`].
     #[inline]
     #[must_use]
     pub fn pdf(&self, direction: Vec3) -> f32 {
@@ -267,13 +273,6 @@ impl<const K: usize> VmfMixture<K> {
             k += 1;
         }
         pairwise_sum(&mut terms)
-    }
-
-    /// Alias of [`Self::pdf`]: a normalised mixture's value is its density.
-    #[inline]
-    #[must_use]
-    pub fn eval(&self, direction: Vec3) -> f32 {
-        self.pdf(direction)
     }
 
     /// Draws a direction: `u.x` selects the lobe by the weights and is then

@@ -20,36 +20,80 @@ use glam::{Vec2, Vec3};
 
 /// Where and how the renderer asks for a guiding distribution.
 ///
-/// `repr(C)`, `Pod`, 48 bytes.
+/// Directions follow the library's convention (pbrt's; see the `guiding`
+/// crate's *Conventions*): `wo` points from the shading point towards the
+/// previous path vertex, and the distribution returned for the query is one
+/// over the sampled directions `wi`.
+///
+/// `repr(C)`, `Pod`, 48 bytes. Build it with [`Self::new`] (or
+/// [`Self::from_vec3`]), which zeroes the padding.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct QueryPoint {
-    /// World-space position.
+    /// World-space position of the shading point.
     pub position: [f32; 3],
     /// Surface roughness in `[0, 1]` (product models only).
     pub roughness: f32,
-    /// Unit shading normal (product models only).
+    /// Unit world-space shading normal (product models only; zero if unknown).
     pub normal: [f32; 3],
-    /// Padding.
+    /// Padding (0).
     pub pad0: f32,
-    /// Unit outgoing direction (product models only).
+    /// `wo`: unit world-space direction towards the previous vertex, the
+    /// viewer (product models only; zero if unknown).
     pub wo: [f32; 3],
-    /// Padding.
+    /// Padding (0).
     pub pad1: f32,
 }
 
 impl QueryPoint {
-    /// The query of a training sample (same position, normal, ωo, roughness).
+    /// A query at `position` with shading `normal`, outgoing direction `wo`
+    /// (towards the previous vertex) and `roughness`; the padding is zero.
+    /// Radiance models read only `position`.
+    ///
+    /// ```
+    /// use guiding_core::model::QueryPoint;
+    ///
+    /// const Q: QueryPoint = QueryPoint::new([0.1, 0.2, 0.3], [0.0, 0.0, 1.0], [0.0, 0.6, 0.8], 0.5);
+    /// assert_eq!(Q.wo, [0.0, 0.6, 0.8]);
+    /// assert_eq!((Q.pad0, Q.pad1), (0.0, 0.0));
+    /// ```
+    #[inline]
     #[must_use]
-    pub fn of_sample(s: &TrainingSample) -> Self {
+    pub const fn new(position: [f32; 3], normal: [f32; 3], wo: [f32; 3], roughness: f32) -> Self {
         Self {
-            position: s.position,
-            roughness: s.roughness,
-            normal: s.normal,
+            position,
+            roughness,
+            normal,
             pad0: 0.0,
-            wo: s.wo,
+            wo,
             pad1: 0.0,
         }
+    }
+
+    /// [`Self::new`] from vectors.
+    ///
+    /// ```
+    /// use guiding_core::glam::Vec3;
+    /// use guiding_core::model::QueryPoint;
+    ///
+    /// let q = QueryPoint::from_vec3(Vec3::new(0.1, 0.2, 0.3), Vec3::Z, Vec3::new(0.0, 0.6, 0.8), 0.5);
+    /// assert_eq!(q, QueryPoint::new([0.1, 0.2, 0.3], [0.0, 0.0, 1.0], [0.0, 0.6, 0.8], 0.5));
+    /// ```
+    #[inline]
+    #[must_use]
+    pub const fn from_vec3(position: Vec3, normal: Vec3, wo: Vec3, roughness: f32) -> Self {
+        Self::new(
+            position.to_array(),
+            normal.to_array(),
+            wo.to_array(),
+            roughness,
+        )
+    }
+
+    /// The query of a training sample (same position, normal, `wo`, roughness).
+    #[must_use]
+    pub const fn of_sample(s: &TrainingSample) -> Self {
+        Self::new(s.position, s.normal, s.wo, s.roughness)
     }
 
     /// Position as a vector.

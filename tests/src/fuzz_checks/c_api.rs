@@ -94,13 +94,13 @@ impl ByteReader<'_> {
     }
 
     fn c_query(&mut self) -> PgQueryPoint {
+        // As a C caller would: designated fields, the padding left zero.
         PgQueryPoint {
             position: self.c_position(),
             roughness: self.c_value(),
             normal: self.c_dir3(),
-            pad0: 0.0,
             wo: self.c_dir3(),
-            pad1: 0.0,
+            ..PgQueryPoint::default()
         }
     }
 
@@ -113,11 +113,9 @@ impl ByteReader<'_> {
             wo: self.c_dir3(),
             bsdf_pdf: self.c_value(),
             wi: self.c_dir3(),
-            pad0: 0.0,
             radiance: [self.c_value(), self.c_value(), self.c_value()],
-            pad1: 0.0,
             bsdf_cos: [self.c_value(), self.c_value(), self.c_value()],
-            pad2: 0.0,
+            ..PgTrainingSample::default()
         }
     }
 

@@ -69,35 +69,29 @@ impl ByteReader<'_> {
     }
 
     fn training_sample(&mut self) -> TrainingSample {
-        TrainingSample {
-            position: self.position().to_array(),
-            roughness: self.mixed(),
-            normal: self.direction(true).to_array(),
-            sample_pdf: self.mixed(),
-            wo: self.direction(true).to_array(),
-            bsdf_pdf: if self.byte() % 2 == 0 {
-                0.0
-            } else {
-                self.mixed()
-            },
-            wi: self.direction(false).to_array(),
-            pad0: 0.0,
-            radiance: [self.mixed(), self.mixed(), self.mixed()],
-            pad1: 0.0,
-            bsdf_cos: [self.mixed(), self.mixed(), self.mixed()],
-            pad2: 0.0,
-        }
+        // Read in the order of the struct's fields.
+        let position = self.position().to_array();
+        let roughness = self.mixed();
+        let normal = self.direction(true).to_array();
+        let sample_pdf = self.mixed();
+        let wo = self.direction(true).to_array();
+        let bsdf_pdf = if self.byte() % 2 == 0 {
+            0.0
+        } else {
+            self.mixed()
+        };
+        let wi = self.direction(false).to_array();
+        let radiance = [self.mixed(), self.mixed(), self.mixed()];
+        let bsdf_cos = [self.mixed(), self.mixed(), self.mixed()];
+        let vertex = QueryPoint::new(position, normal, wo, roughness);
+        TrainingSample::new(vertex, wi, radiance, sample_pdf, bsdf_pdf, bsdf_cos)
     }
 
     fn query(&mut self) -> QueryPoint {
-        QueryPoint {
-            position: self.position().to_array(),
-            roughness: self.mixed(),
-            normal: self.direction(true).to_array(),
-            pad0: 0.0,
-            wo: self.direction(true).to_array(),
-            pad1: 0.0,
-        }
+        let position = self.position().to_array();
+        let roughness = self.mixed();
+        let normal = self.direction(true).to_array();
+        QueryPoint::new(position, normal, self.direction(true).to_array(), roughness)
     }
 }
 
