@@ -180,20 +180,7 @@ fn training_samples(n: usize, seed: u32) -> Vec<TrainingSample> {
             let q = query(&mut rng);
             let wi = square_to_uniform_sphere(Vec2::new(rng.next_f32(), rng.next_f32()));
             let l = if wi.z > 0.9 { 10.0 } else { 0.1 };
-            TrainingSample {
-                position: q.position,
-                roughness: q.roughness,
-                normal: q.normal,
-                sample_pdf: INV_FOUR_PI,
-                wo: q.wo,
-                bsdf_pdf: INV_FOUR_PI,
-                wi: wi.to_array(),
-                pad0: 0.0,
-                radiance: [l; 3],
-                pad1: 0.0,
-                bsdf_cos: [0.3; 3],
-                pad2: 0.0,
-            }
+            TrainingSample::new(q, wi.to_array(), [l; 3], INV_FOUR_PI, INV_FOUR_PI, [0.3; 3])
         })
         .collect()
 }

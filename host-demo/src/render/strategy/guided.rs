@@ -303,14 +303,12 @@ impl VertexStrategy for GuidedWorker<'_> {
             let mat = &verts.bsdf[i];
             if mat.guidable(self.gopts.min_alpha) {
                 self.guided_index.push(self.queries.len() as u32);
-                self.queries.push(QueryPoint {
-                    position: verts.position[i].to_array(),
-                    roughness: mat.roughness(),
-                    normal: verts.ns[i].to_array(),
-                    pad0: 0.0,
-                    wo: verts.wo[i].to_array(),
-                    pad1: 0.0,
-                });
+                self.queries.push(QueryPoint::from_vec3(
+                    verts.position[i],
+                    verts.ns[i],
+                    verts.wo[i],
+                    mat.roughness(),
+                ));
             } else {
                 self.guided_index.push(NONE);
             }
