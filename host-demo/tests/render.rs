@@ -232,7 +232,10 @@ fn door_renders_and_exr_roundtrip() {
     let img = render(&sc, &opts(IntegratorKind::PtNee, 2, 64, 48, 1));
     assert!(img.all_finite());
     let m = img.mean();
-    assert!(m[0] > 0.0, "the door room receives light through the slit");
+    assert!(
+        m[0] > 0.0,
+        "the door room receives light through the gap of the door"
+    );
     let path = std::env::temp_dir().join(format!("host-demo-test-{}.exr", std::process::id()));
     host_demo::render::output::write_exr(&img, &path).expect("writes exr");
     let len = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);

@@ -1,8 +1,9 @@
 //! Scenes constructed in code: `builtin:cornell-box`, `builtin:furnace`, `builtin:door`.
 
 use crate::error::{Error, Result};
-use crate::scene::bsdf::Material;
-use crate::scene::{Camera, Prim, Scene, SceneBuilder, Settings};
+use crate::scene::bsdf::{Coating, Material, Microfacet};
+use crate::scene::texture::{Texture, UvMap};
+use crate::scene::{Camera, MaterialTextures, Prim, Scene, SceneBuilder, Settings};
 use glam::{Mat4, Vec3};
 
 /// Names accepted after `builtin:`.
@@ -206,57 +207,183 @@ pub fn furnace() -> Result<Scene> {
     )
 }
 
-/// Two rooms joined by a door that stands open only by a 5 cm slit; the only light is on the
-/// ceiling of the far room, so everything the camera sees is lit through the slit (the classic
-/// hard case for unguided path tracing).
+/// Axis-aligned box `[x0, x1] x [y0, y1] x [z0, z1]`; faces point outwards.
+fn slab(b: &mut SceneBuilder, x: (f32, f32), y: (f32, f32), z: (f32, f32), mat: u32) {
+    aa_quad(b, 0, x.0, y, z, -1.0, mat, None);
+    aa_quad(b, 0, x.1, y, z, 1.0, mat, None);
+    aa_quad(b, 1, y.0, z, x, -1.0, mat, None);
+    aa_quad(b, 1, y.1, z, x, 1.0, mat, None);
+    aa_quad(b, 2, z.0, x, y, -1.0, mat, None);
+    aa_quad(b, 2, z.1, x, y, 1.0, mat, None);
+}
+
+/// Veach's door scene (the "light through a door ajar" test of Veach & Guibas's Metropolis
+/// light transport, 1997; Bitterli's "Veach, Ajar" is a later rendition): two rooms joined by
+/// a doorway. The camera looks into room A (x < 0), whose only opening is the doorway in the
+/// dividing wall x = 0; its door is hinged at the doorway's -z jamb and stands ajar by
+/// [`DOOR_OPEN_DEG`] into room A. The only light is a ceiling panel in room B (x > 0) on the
+/// hinge side, behind the door, so direct light enters room A only through the narrow wedge
+/// between the door's free edge and the far jamb and falls as a bright patch on the floor in
+/// front of the door; everything else the camera sees (the walls and ceiling, the face of the
+/// door, a table with a glossy top and a rough copper block on it, a box) is lit indirectly —
+/// the classic hard case for unguided path tracing. Glossy surfaces: the checkered floor and
+/// the table top (rough plastic, GGX alpha 0.15) and the block (rough copper, alpha 0.25).
+/// About 60 quads; 320x240, 64 spp, max_depth 8 by default.
 pub fn door() -> Result<Scene> {
     let mut b = SceneBuilder::default();
     let white = b.material(Material::Diffuse {
         reflectance: Vec3::splat(0.7),
     });
-    let wood = b.material(Material::Diffuse {
-        reflectance: Vec3::new(0.6, 0.45, 0.3),
-    });
     let black = b.material(Material::Diffuse {
         reflectance: Vec3::ZERO,
     });
-    let (h, za, zb) = (2.5f32, -2.0f32, 2.0f32);
-    // Room A: x in [-4, 0] (camera); room B: x in [0, 3] (light). Floors, ceilings, side walls.
-    for (x0, x1, mat) in [(-4.0f32, 0.0f32, wood), (0.0, 3.0, white)] {
-        aa_quad(&mut b, 1, 0.0, (za, zb), (x0, x1), 1.0, mat, None);
+    let door_mat = b.material(Material::Diffuse {
+        reflectance: Vec3::new(0.55, 0.4, 0.28),
+    });
+    let crate_mat = b.material(Material::Diffuse {
+        reflectance: Vec3::new(0.5, 0.5, 0.55),
+    });
+    // Glossy coatings share one (distribution, alpha, eta), so the coating tables are
+    // computed once.
+    let (dist, alpha, eta) = (Microfacet::Ggx, 0.15f32, 1.5f32);
+    let checker = b.texture(Texture::Checkerboard {
+        color0: Vec3::new(0.7, 0.68, 0.64),
+        color1: Vec3::new(0.15, 0.13, 0.12),
+        uv: UvMap {
+            // One checker period is two tiles.
+            m: glam::Mat2::from_diagonal(glam::Vec2::splat(0.5 / TILE)),
+            t: glam::Vec2::ZERO,
+        },
+    });
+    let floor = b.textured_material(
+        Material::RoughPlastic(Coating::rough(
+            Vec3::splat(0.5),
+            Vec3::ONE,
+            eta,
+            false,
+            dist,
+            alpha,
+        )),
+        MaterialTextures {
+            diffuse: Some(checker),
+            ..Default::default()
+        },
+    );
+    let table_top = b.material(Material::RoughPlastic(Coating::rough(
+        Vec3::new(0.25, 0.12, 0.06),
+        Vec3::ONE,
+        eta,
+        false,
+        dist,
+        alpha,
+    )));
+    let copper = b.material(Material::RoughConductor {
+        distribution: Microfacet::Ggx,
+        alpha: 0.25,
+        eta: Vec3::new(0.2004, 0.9240, 1.1022),
+        k: Vec3::new(3.9129, 2.4528, 2.1421),
+        specular: Vec3::ONE,
+    });
+    let (h, za, zb) = (2.6f32, -2.5f32, 2.5f32);
+    let (xa, xb) = (-5.0f32, 3.0f32);
+    // Room A (viewed): x in [xa, 0], checkered glossy floor; room B (lit): x in [0, xb].
+    let (ua, ub) = (glam::Vec2::new(xa, za), glam::Vec2::new(0.0, zb));
+    let fl = |x: f32, z: f32| Vec3::new(x, 0.0, z);
+    b.shape_with(
+        vec![
+            Prim::Tri {
+                p: [fl(xa, za), fl(xa, zb), fl(0.0, zb)],
+                n: None,
+            },
+            Prim::Tri {
+                p: [fl(xa, za), fl(0.0, zb), fl(0.0, za)],
+                n: None,
+            },
+        ],
+        Some(vec![
+            [ua, glam::Vec2::new(xa, zb), ub],
+            [ua, ub, glam::Vec2::new(0.0, za)],
+        ]),
+        floor,
+        None,
+        None,
+    );
+    aa_quad(&mut b, 1, 0.0, (za, zb), (0.0, xb), 1.0, white, None);
+    for (x0, x1) in [(xa, 0.0f32), (0.0, xb)] {
         aa_quad(&mut b, 1, h, (za, zb), (x0, x1), -1.0, white, None);
         aa_quad(&mut b, 2, za, (x0, x1), (0.0, h), 1.0, white, None);
         aa_quad(&mut b, 2, zb, (x0, x1), (0.0, h), -1.0, white, None);
     }
-    aa_quad(&mut b, 0, -4.0, (0.0, h), (za, zb), 1.0, white, None);
-    aa_quad(&mut b, 0, 3.0, (0.0, h), (za, zb), -1.0, white, None);
-    // Dividing wall at x = 0 with a slit z in [-0.5, -0.45], y in [0, 2]: one zero-thickness
-    // sheet, white on both sides. (Two coincident one-sided quads facing away from each other
-    // tie at every hit, and the BVH then returns the back face about a third of the time,
-    // which a one-sided diffuse BSDF absorbs.)
+    aa_quad(&mut b, 0, xa, (0.0, h), (za, zb), 1.0, white, None);
+    aa_quad(&mut b, 0, xb, (0.0, h), (za, zb), -1.0, white, None);
+    // Dividing wall at x = 0 with the doorway z in [d0, d1], y in [0, top]: one
+    // zero-thickness sheet, white on both sides. (Two coincident one-sided quads facing away
+    // from each other tie at every hit, and the BVH then returns the back face about a third
+    // of the time, which a one-sided diffuse BSDF absorbs.)
     let wall = b.material(Material::TwoSided {
         front: white,
         back: white,
     });
-    let (s0, s1, top) = (-0.5f32, -0.45f32, 2.0f32);
-    aa_quad(&mut b, 0, 0.0, (0.0, h), (za, s0), 1.0, wall, None);
-    aa_quad(&mut b, 0, 0.0, (0.0, h), (s1, zb), 1.0, wall, None);
-    aa_quad(&mut b, 0, 0.0, (top, h), (s0, s1), 1.0, wall, None);
-    // Ceiling light in room B, facing down.
+    let (d0, d1, top) = (-1.6f32, -0.7f32, 2.1f32);
+    aa_quad(&mut b, 0, 0.0, (0.0, h), (za, d0), 1.0, wall, None);
+    aa_quad(&mut b, 0, 0.0, (0.0, h), (d1, zb), 1.0, wall, None);
+    aa_quad(&mut b, 0, 0.0, (top, h), (d0, d1), 1.0, wall, None);
+    // The door: hinged at (0, d0), swung into room A by DOOR_OPEN_DEG, 4 cm thick.
+    let th = DOOR_OPEN_DEG.to_radians();
+    let (u, n) = (
+        glam::Vec2::new(-th.sin(), th.cos()) * (d1 - d0),
+        glam::Vec2::new(-th.cos(), -th.sin()) * 0.04,
+    );
+    let hinge = glam::Vec2::new(0.0, d0);
+    let foot = [hinge, hinge + u, hinge + u + n, hinge + n].map(|p| (p.x, p.y));
+    boxx(&mut b, foot, top, door_mat);
+    // Table with a glossy top and a rough copper block on it; a box against the back wall.
+    let (tx, tz, tw, td, ty) = (-2.2f32, -1.75f32, 0.75f32, 0.45f32, 0.75f32);
+    slab(
+        &mut b,
+        (tx - tw, tx + tw),
+        (ty - 0.05, ty),
+        (tz - td, tz + td),
+        table_top,
+    );
+    for (lx, lz) in [(-1.0f32, -1.0f32), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
+        let (cx, cz) = (tx + lx * (tw - 0.08), tz + lz * (td - 0.08));
+        slab(
+            &mut b,
+            (cx - 0.03, cx + 0.03),
+            (0.0, ty - 0.05),
+            (cz - 0.03, cz + 0.03),
+            door_mat,
+        );
+    }
+    slab(
+        &mut b,
+        (tx - 0.35, tx - 0.05),
+        (ty, ty + 0.3),
+        (tz - 0.1, tz + 0.2),
+        copper,
+    );
+    boxx(
+        &mut b,
+        [(-2.0, 0.9), (-1.45, 0.75), (-1.3, 1.3), (-1.85, 1.45)],
+        0.6,
+        crate_mat,
+    );
+    // Ceiling light in room B, behind the door (hinge side), facing down.
     aa_quad(
         &mut b,
         1,
         h - 0.01,
-        (-0.5, 0.5),
-        (1.5, 2.5),
+        (-2.3, -1.5),
+        (0.8, 1.8),
         -1.0,
         black,
-        Some(Vec3::splat(40.0)),
+        Some(Vec3::splat(LIGHT)),
     );
     let camera = Camera::new(
         look_at(
-            Vec3::new(-3.7, 1.3, 1.7),
-            Vec3::new(0.0, 0.7, -0.6),
+            Vec3::new(-4.8, 1.7, 2.3),
+            Vec3::new(-0.8, 0.6, -0.9),
             Vec3::Y,
         ),
         60.0,
@@ -275,3 +402,10 @@ pub fn door() -> Result<Scene> {
         },
     )
 }
+
+/// Angle by which the door of `builtin:door` stands open.
+pub const DOOR_OPEN_DEG: f32 = 20.0;
+/// Side of the floor tiles of `builtin:door` (m).
+const TILE: f32 = 0.5;
+/// Radiance of the light of `builtin:door`.
+const LIGHT: f32 = 800.0;
