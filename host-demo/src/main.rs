@@ -394,8 +394,8 @@ fn bench_cmd(cmd: Cmd) -> host_demo::Result<()> {
 
 fn compare(image: &Path, reference: &Path) -> host_demo::Result<()> {
     let (a, b) = (
-        host_demo::render::output::read_exr(image)?,
-        host_demo::render::output::read_exr(reference)?,
+        host_demo::scene::load::exr::read_exr(image)?,
+        host_demo::scene::load::exr::read_exr(reference)?,
     );
     let m = host_demo::render::compare::compare(&a, &b)?;
     let out = json!({

@@ -2,8 +2,9 @@
 //! Run with `cargo test --release -p host-demo --test cli` (a few seconds).
 
 use host_demo::render::compare::compare;
-use host_demo::render::output::{read_exr, write_exr, RgbImage};
+use host_demo::render::output::write_exr;
 use host_demo::render::Image;
+use host_demo::scene::load::exr::{read_exr, RgbImage};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

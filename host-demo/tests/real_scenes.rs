@@ -822,12 +822,13 @@ fn load_time_large_scene() {
     std::fs::create_dir_all(&d).expect("dir");
     let (nx, ny) = (1000usize, 500usize);
     if !d.join("grid.serialized").exists() {
-        let mut m = SerializedMesh {
+        let mut sm = SerializedMesh {
             name: "grid".into(),
-            normals: Some(Vec::new()),
-            uvs: Some(Vec::new()),
             ..SerializedMesh::default()
         };
+        let m = &mut sm.mesh;
+        m.normals = Some(Vec::new());
+        m.uvs = Some(Vec::new());
         for j in 0..=ny {
             for i in 0..=nx {
                 let (u, v) = (i as f32 / nx as f32, j as f32 / ny as f32);
@@ -836,8 +837,8 @@ fn load_time_large_scene() {
                     2.0 * v - 1.0,
                     0.05 * (20.0 * u).sin(),
                 ));
-                m.normals.as_mut().expect("n").push(Vec3::Z);
-                m.uvs.as_mut().expect("uv").push(Vec2::new(u, v));
+                m.normals.as_mut().expect("n").push(Some(Vec3::Z));
+                m.uvs.as_mut().expect("uv").push(Some(Vec2::new(u, v)));
             }
         }
         for j in 0..ny {
@@ -848,7 +849,7 @@ fn load_time_large_scene() {
                 m.indices.push([k, k + w + 1, k + w]);
             }
         }
-        std::fs::write(d.join("grid.serialized"), write_serialized(&[m])).expect("write mesh");
+        std::fs::write(d.join("grid.serialized"), write_serialized(&[sm])).expect("write mesh");
     }
     let n = 4096u32;
     for t in 0..6 {

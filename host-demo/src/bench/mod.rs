@@ -23,7 +23,7 @@ pub mod report;
 
 use crate::error::{Error, Result};
 use crate::render::compare::{compare, Metrics};
-use crate::render::output::read_exr;
+use crate::scene::load::exr::read_exr;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -14,7 +14,7 @@
 //! papers' formula.
 
 use crate::error::{Error, Result};
-use crate::render::output::RgbImage;
+use crate::scene::load::exr::RgbImage;
 
 /// The `ε` of both metrics.
 pub const EPSILON: f64 = 0.01;

@@ -6,6 +6,7 @@ pub mod builtin;
 pub mod conductors;
 pub mod emitter;
 pub mod load;
+pub mod mesh;
 pub mod spectrum;
 pub mod sunsky;
 pub mod texture;

@@ -1,6 +1,8 @@
 //! Scene files: Mitsuba 3 / 0.6 XML ([`xml`]) and the mesh formats it references
-//! ([`obj`], [`ply`], Mitsuba's [`serialized`]).
+//! ([`obj`], [`ply`], Mitsuba's [`serialized`], all read into a
+//! [`crate::scene::mesh::TriangleMesh`]) and images ([`exr`]).
 
+pub mod exr;
 pub mod obj;
 pub mod ply;
 pub mod serialized;

@@ -6,17 +6,16 @@
 //! do not affect geometry; anything else is an error naming the line.
 
 use crate::error::{Error, Result};
-use crate::scene::Prim;
-use glam::Vec3;
+use crate::scene::mesh::TriangleMesh;
+use glam::{Vec2, Vec3};
+use std::collections::HashMap;
 
-/// Parses OBJ text into triangles. `file` is only used in error messages.
-pub fn parse_obj(text: &str, file: &str) -> Result<Vec<Prim>> {
-    parse_obj_uv(text, file).map(|m| m.0)
-}
-
-/// [`parse_obj`] that also returns per-triangle texture coordinates when any face has them
-/// (faces without get their barycentric default, [`crate::scene::DEFAULT_TRI_UV`]).
-pub fn parse_obj_uv(text: &str, file: &str) -> Result<crate::scene::load::ply::MeshWithUv> {
+/// Parses OBJ text into a triangle mesh. `file` is only used in error messages.
+///
+/// Vertices are split by their `(v, vt, vn)` triple. A face takes normals (texture
+/// coordinates) only when every one of its corners names one; otherwise its vertices have
+/// none (it is flat-shaded, gets the default texture coordinates).
+pub fn parse_obj(text: &str, file: &str) -> Result<TriangleMesh> {
     let err = |line: usize, msg: String| Error::Obj {
         file: file.to_string(),
         line,
@@ -24,10 +23,12 @@ pub fn parse_obj_uv(text: &str, file: &str) -> Result<crate::scene::load::ply::M
     };
     let mut pos: Vec<Vec3> = Vec::new();
     let mut nrm: Vec<Vec3> = Vec::new();
-    let mut tex: Vec<glam::Vec2> = Vec::new();
-    let mut tris = Vec::new();
-    let mut tri_uv: Vec<[glam::Vec2; 3]> = Vec::new();
-    let mut any_uv = false;
+    let mut tex: Vec<Vec2> = Vec::new();
+    let mut mesh = TriangleMesh::default();
+    let mut normals: Vec<Option<Vec3>> = Vec::new();
+    let mut uvs: Vec<Option<Vec2>> = Vec::new();
+    let (mut any_n, mut any_uv) = (false, false);
+    let mut vertex_of: HashMap<(usize, Option<usize>, Option<usize>), u32> = HashMap::new();
     for (ln, raw) in text.lines().enumerate() {
         let ln = ln + 1;
         let line = raw.split('#').next().unwrap_or("").trim();
@@ -52,10 +53,7 @@ pub fn parse_obj_uv(text: &str, file: &str) -> Result<crate::scene::load::ply::M
             }
             "vt" => {
                 let v = floats(it, 1)?;
-                tex.push(glam::Vec2::new(
-                    v[0],
-                    1.0 - v.get(1).copied().unwrap_or(0.0),
-                ));
+                tex.push(Vec2::new(v[0], 1.0 - v.get(1).copied().unwrap_or(0.0)));
             }
             "f" => {
                 let mut verts = Vec::new();
@@ -92,32 +90,37 @@ pub fn parse_obj_uv(text: &str, file: &str) -> Result<crate::scene::load::ply::M
                 }
                 let all_n = verts.iter().all(|v| v.1.is_some());
                 let all_t = verts.iter().all(|v| v.2.is_some());
-                if all_t && !any_uv {
-                    any_uv = true;
-                    tri_uv.resize(tris.len(), crate::scene::DEFAULT_TRI_UV);
+                any_n |= all_n;
+                any_uv |= all_t;
+                let mut ids = Vec::with_capacity(verts.len());
+                for &(vi, ni, ti) in &verts {
+                    let key = (
+                        vi,
+                        all_t.then_some(ti).flatten(),
+                        all_n.then_some(ni).flatten(),
+                    );
+                    let id = *vertex_of.entry(key).or_insert_with(|| {
+                        mesh.positions.push(pos[vi]);
+                        uvs.push(key.1.map(|t| tex[t]));
+                        normals.push(key.2.map(|n| nrm[n]));
+                        (mesh.positions.len() - 1) as u32
+                    });
+                    ids.push(id);
                 }
-                for k in 1..verts.len() - 1 {
-                    let tri = [verts[0], verts[k], verts[k + 1]];
-                    let p = tri.map(|v| pos[v.0]);
-                    let n = all_n.then(|| tri.map(|v| nrm[v.1.unwrap_or(0)]));
-                    tris.push(Prim::Tri { p, n });
-                    if any_uv {
-                        tri_uv.push(if all_t {
-                            tri.map(|v| tex[v.2.unwrap_or(0)])
-                        } else {
-                            crate::scene::DEFAULT_TRI_UV
-                        });
-                    }
+                for k in 1..ids.len() - 1 {
+                    mesh.indices.push([ids[0], ids[k], ids[k + 1]]);
                 }
             }
             "o" | "g" | "s" | "usemtl" | "mtllib" => {}
             other => return Err(err(ln, format!("unsupported statement \"{other}\""))),
         }
     }
-    if tris.is_empty() {
+    if mesh.indices.is_empty() {
         return Err(err(0, "no faces".into()));
     }
-    Ok((tris, any_uv.then_some(tri_uv)))
+    mesh.normals = any_n.then_some(normals);
+    mesh.uvs = any_uv.then_some(uvs);
+    Ok(mesh)
 }
 
 #[cfg(test)]
@@ -127,10 +130,10 @@ mod tests {
     #[test]
     fn quad_and_forms() {
         let t = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0 0 1\nvt 0 0\nf 1//1 2//1 3//1 4//1\nf -4/1 -3/1 -2/1\n";
-        let tris = parse_obj(t, "x.obj").expect("parses");
-        assert_eq!(tris.len(), 3);
-        assert!(matches!(tris[0], Prim::Tri { n: Some(_), .. }));
-        assert!(matches!(tris[2], Prim::Tri { n: None, .. }));
+        let m = parse_obj(t, "x.obj").expect("parses");
+        assert_eq!(m.indices.len(), 3);
+        assert!(m.triangle_normals(0).is_some());
+        assert!(m.triangle_normals(2).is_none());
     }
 
     #[test]

@@ -6,7 +6,7 @@
 //! the element.
 
 use crate::error::{Error, Result};
-use crate::scene::Prim;
+use crate::scene::mesh::TriangleMesh;
 use glam::Vec3;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -100,15 +100,10 @@ impl Reader<'_> {
     }
 }
 
-/// Parses PLY bytes into triangles (with per-vertex normals when the file has `nx ny nz`).
-/// `file` is only used in error messages.
-pub fn parse_ply(bytes: &[u8], file: &str) -> Result<Vec<Prim>> {
-    parse_ply_uv(bytes, file).map(|m| m.0)
-}
-
-/// [`parse_ply`] that also returns per-triangle texture coordinates when the vertices have
-/// `u v` (or `s t`, `texture_u texture_v`) properties, stored as in the file.
-pub fn parse_ply_uv(bytes: &[u8], file: &str) -> Result<MeshWithUv> {
+/// Parses PLY bytes into a triangle mesh, with per-vertex normals when the file has
+/// `nx ny nz` and texture coordinates when it has `u v` (or `s t`, `texture_u texture_v`),
+/// stored as in the file. `file` is only used in error messages.
+pub fn parse_ply(bytes: &[u8], file: &str) -> Result<TriangleMesh> {
     let err = |msg: String| Error::Ply {
         file: file.to_string(),
         msg,
@@ -286,9 +281,8 @@ pub fn parse_ply_uv(bytes: &[u8], file: &str) -> Result<MeshWithUv> {
             }
         }
     }
-    let mut tris = Vec::new();
     let has_uv = !uvs.is_empty() && uvs.len() == pos3.len();
-    let mut tri_uv = Vec::new();
+    let mut indices = Vec::new();
     for (k, f) in faces.iter().enumerate() {
         if let Some(&bad) = f.iter().find(|&&v| v as usize >= pos3.len()) {
             return Err(err(format!(
@@ -297,24 +291,19 @@ pub fn parse_ply_uv(bytes: &[u8], file: &str) -> Result<MeshWithUv> {
             )));
         }
         for j in 1..f.len() - 1 {
-            let t = [f[0] as usize, f[j] as usize, f[j + 1] as usize];
-            tris.push(Prim::Tri {
-                p: t.map(|i| pos3[i]),
-                n: (!nrm.is_empty()).then(|| t.map(|i| nrm[i])),
-            });
-            if has_uv {
-                tri_uv.push(t.map(|i| uvs[i]));
-            }
+            indices.push([f[0], f[j], f[j + 1]]);
         }
     }
-    if tris.is_empty() {
+    if indices.is_empty() {
         return Err(err("no faces".into()));
     }
-    Ok((tris, has_uv.then_some(tri_uv)))
+    Ok(TriangleMesh {
+        positions: pos3,
+        normals: (!nrm.is_empty()).then(|| nrm.into_iter().map(Some).collect()),
+        uvs: has_uv.then(|| uvs.into_iter().map(Some).collect()),
+        indices,
+    })
 }
-
-/// Triangles and, when the file has them, per-triangle vertex texture coordinates.
-pub type MeshWithUv = (Vec<Prim>, Option<Vec<[glam::Vec2; 3]>>);
 
 #[cfg(test)]
 mod tests {
@@ -325,19 +314,16 @@ mod tests {
     #[test]
     fn ascii_quad_with_normals() {
         let t = parse_ply(ASCII.as_bytes(), "q.ply").expect("parses");
-        assert_eq!(t.len(), 2);
-        let Prim::Tri { p, n } = t[1] else {
-            panic!("triangle")
-        };
+        assert_eq!(t.indices.len(), 2);
         assert_eq!(
-            p,
+            t.triangle(1),
             [
                 Vec3::ZERO,
                 Vec3::new(1.0, 1.0, 0.0),
                 Vec3::new(0.0, 1.0, 0.0)
             ]
         );
-        assert_eq!(n, Some([Vec3::Z; 3]));
+        assert_eq!(t.triangle_normals(1), Some([Vec3::Z; 3]));
     }
 
     /// The same quad as binary little endian with double positions, a ushort extra property,
@@ -363,13 +349,10 @@ mod tests {
         b.extend_from_slice(&[1, 2]);
         let t = parse_ply(&b, "q.ply").expect("parses");
         let a = parse_ply(ASCII.as_bytes(), "q.ply").expect("parses");
-        assert_eq!(t.len(), 2);
-        for (x, y) in t.iter().zip(&a) {
-            let (Prim::Tri { p: px, n: nx }, Prim::Tri { p: py, .. }) = (x, y) else {
-                panic!("triangles")
-            };
-            assert_eq!(px, py);
-            assert!(nx.is_none());
+        assert_eq!(t.indices.len(), 2);
+        for k in 0..2 {
+            assert_eq!(t.triangle(k), a.triangle(k));
+            assert!(t.triangle_normals(k).is_none());
         }
         // Truncated body: an error naming the element, no panic.
         let e = parse_ply(&b[..b.len() - 20], "q.ply")

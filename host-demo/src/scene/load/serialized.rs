@@ -10,9 +10,11 @@
 //! The file ends with a dictionary of shape offsets (`u64` each for version 4, `u32` for
 //! version 3) and a `u32` shape count; `shape_index` picks the shape.
 //!
-//! Vertex colours are skipped. Texture coordinates are kept as stored (no `v` flip).
+//! Vertex colours are skipped. Texture coordinates are kept as stored (no `v` flip); normals
+//! are normalised.
 
 use crate::error::{Error, Result};
+use crate::scene::mesh::TriangleMesh;
 use glam::{Vec2, Vec3};
 use std::io::Read;
 
@@ -21,14 +23,8 @@ use std::io::Read;
 pub struct SerializedMesh {
     /// Shape name (version 4 files; empty for version 3).
     pub name: String,
-    /// Vertex positions.
-    pub positions: Vec<Vec3>,
-    /// Vertex normals, if stored.
-    pub normals: Option<Vec<Vec3>>,
-    /// Vertex texture coordinates, if stored.
-    pub uvs: Option<Vec<Vec2>>,
-    /// Triangles (vertex indices).
-    pub indices: Vec<[u32; 3]>,
+    /// The triangles, with the vertex normals (normalised) and uvs if stored.
+    pub mesh: TriangleMesh,
     /// The file asks for face normals (flag `0x0010`).
     pub face_normals: bool,
 }
@@ -140,13 +136,18 @@ pub fn parse_serialized(bytes: &[u8], shape_index: u32, file: &str) -> Result<Se
     }
     let positions = rd.vecs(nv, double)?;
     let normals = if flags & HAS_NORMALS != 0 {
-        Some(rd.vecs(nv, double)?)
+        let n = rd.vecs(nv, double)?;
+        Some(n.into_iter().map(|n| Some(n.normalize_or_zero())).collect())
     } else {
         None
     };
     let uvs = if flags & HAS_UVS != 0 {
         let v = rd.floats(nv * 2, double)?;
-        Some(v.chunks_exact(2).map(|c| Vec2::new(c[0], c[1])).collect())
+        Some(
+            v.chunks_exact(2)
+                .map(|c| Some(Vec2::new(c[0], c[1])))
+                .collect(),
+        )
     } else {
         None
     };
@@ -177,10 +178,12 @@ pub fn parse_serialized(bytes: &[u8], shape_index: u32, file: &str) -> Result<Se
     }
     Ok(SerializedMesh {
         name,
-        positions,
-        normals,
-        uvs,
-        indices,
+        mesh: TriangleMesh {
+            positions,
+            normals,
+            uvs,
+            indices,
+        },
         face_normals: flags & FACE_NORMALS != 0,
     })
 }
@@ -237,12 +240,14 @@ impl<R: Read> Reader<'_, R> {
 }
 
 /// Writes meshes as a version-4 `.serialized` file (single precision), the inverse of
-/// [`parse_serialized`]; for tests and the load-time benchmark.
+/// [`parse_serialized`] (up to the normalisation of normals); for tests and the load-time
+/// benchmark. A vertex without a normal (uv) in a mesh with them is written as zero.
 pub fn write_serialized(meshes: &[SerializedMesh]) -> Vec<u8> {
     use std::io::Write;
     let mut out = Vec::new();
     let mut offsets = Vec::new();
-    for m in meshes {
+    for sm in meshes {
+        let m = &sm.mesh;
         offsets.push(out.len() as u64);
         out.extend_from_slice(&MAGIC.to_le_bytes());
         out.extend_from_slice(&4u16.to_le_bytes());
@@ -253,12 +258,12 @@ pub fn write_serialized(meshes: &[SerializedMesh]) -> Vec<u8> {
         if m.uvs.is_some() {
             flags |= HAS_UVS;
         }
-        if m.face_normals {
+        if sm.face_normals {
             flags |= FACE_NORMALS;
         }
         let mut raw = Vec::new();
         raw.extend_from_slice(&flags.to_le_bytes());
-        raw.extend_from_slice(m.name.as_bytes());
+        raw.extend_from_slice(sm.name.as_bytes());
         raw.push(0);
         raw.extend_from_slice(&(m.positions.len() as u64).to_le_bytes());
         raw.extend_from_slice(&(m.indices.len() as u64).to_le_bytes());
@@ -268,12 +273,12 @@ pub fn write_serialized(meshes: &[SerializedMesh]) -> Vec<u8> {
             }
         }
         for n in m.normals.iter().flatten() {
-            for c in n.to_array() {
+            for c in n.unwrap_or(Vec3::ZERO).to_array() {
                 raw.extend_from_slice(&c.to_le_bytes());
             }
         }
         for uv in m.uvs.iter().flatten() {
-            for c in uv.to_array() {
+            for c in uv.unwrap_or(Vec2::ZERO).to_array() {
                 raw.extend_from_slice(&c.to_le_bytes());
             }
         }
@@ -302,18 +307,22 @@ mod tests {
     fn round_trip_two_shapes() {
         let a = SerializedMesh {
             name: "a".into(),
-            positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y],
-            normals: Some(vec![Vec3::Z; 3]),
-            uvs: Some(vec![Vec2::ZERO, Vec2::X, Vec2::Y]),
-            indices: vec![[0, 1, 2]],
+            mesh: TriangleMesh {
+                positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y],
+                normals: Some(vec![Some(Vec3::Z); 3]),
+                uvs: Some(vec![Some(Vec2::ZERO), Some(Vec2::X), Some(Vec2::Y)]),
+                indices: vec![[0, 1, 2]],
+            },
             face_normals: false,
         };
         let b = SerializedMesh {
             name: "b".into(),
-            positions: vec![Vec3::ZERO, Vec3::X, Vec3::Z, Vec3::ONE],
-            normals: None,
-            uvs: None,
-            indices: vec![[0, 1, 2], [1, 3, 2]],
+            mesh: TriangleMesh {
+                positions: vec![Vec3::ZERO, Vec3::X, Vec3::Z, Vec3::ONE],
+                normals: None,
+                uvs: None,
+                indices: vec![[0, 1, 2], [1, 3, 2]],
+            },
             face_normals: true,
         };
         let bytes = write_serialized(&[a.clone(), b.clone()]);

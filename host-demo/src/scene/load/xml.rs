@@ -35,8 +35,10 @@ use crate::error::{Error, Result};
 use crate::scene::bsdf::{Coating, Material, Microfacet};
 use crate::scene::conductors::named_conductor;
 use crate::scene::emitter::{EnvMap, Environment, PointLight};
-use crate::scene::load::obj::parse_obj_uv;
-use crate::scene::load::ply::parse_ply_uv;
+use crate::scene::load::exr::read_exr;
+use crate::scene::load::obj::parse_obj;
+use crate::scene::load::ply::parse_ply;
+use crate::scene::load::serialized::parse_serialized;
 use crate::scene::texture::{Filter, ImageCache, Param, Texture, UvMap, Wrap};
 use crate::scene::{Camera, MaterialTextures, Prim, Scene, SceneBuilder, Settings};
 use glam::{Mat4, Vec2, Vec3};
@@ -1741,7 +1743,7 @@ impl Ctx<'_> {
                 let f =
                     filename.ok_or_else(|| self.err(n, "envmap needs a \"filename\" string"))?;
                 let path = self.resolve_rel(&f);
-                let img = crate::render::output::read_exr(&path)?;
+                let img = read_exr(&path)?;
                 let map = EnvMap::new(img.width, img.height, &img.pixels, scale)
                     .map_err(|e| self.err(n, format!("envmap {}: {e}", path.display())))?;
                 let m = glam::Mat3::from_mat4(to_world.unwrap_or(Mat4::IDENTITY));
@@ -2077,35 +2079,22 @@ impl Ctx<'_> {
                     .read_rel(&f)
                     .map_err(|e| self.err(n, format!("{ty} shape: {e}")))?;
                 let name = path.display().to_string();
-                let (mut tris, uv) = match ty {
+                let mut mesh = match ty {
                     "obj" => {
                         let text = String::from_utf8(bytes)
                             .map_err(|_| self.err(n, format!("{name} is not UTF-8 text")))?;
-                        parse_obj_uv(&text, &name)?
+                        parse_obj(&text, &name)?
                     }
-                    "ply" => parse_ply_uv(&bytes, &name)?,
+                    "ply" => parse_ply(&bytes, &name)?,
                     _ => {
-                        let m = crate::scene::load::serialized::parse_serialized(
-                            &bytes,
-                            shape_index,
-                            &name,
-                        )?;
+                        let m = parse_serialized(&bytes, shape_index, &name)?;
                         face_normals |= m.face_normals;
-                        serialized_prims(&m)
+                        m.mesh
                     }
                 };
-                uvs = uv;
-                for t in &mut tris {
-                    if let Prim::Tri { p, n } = t {
-                        *p = p.map(|v| to_world.transform_point3(v));
-                        *n = if face_normals {
-                            None
-                        } else {
-                            n.map(|n| n.map(xf_n))
-                        };
-                    }
-                }
-                tris
+                mesh.transform(to_world);
+                uvs = mesh.triangle_uvs();
+                mesh.primitives(face_normals)
             }
             "sphere" => {
                 let m = to_world
@@ -2238,32 +2227,6 @@ impl Ctx<'_> {
             opacity,
         })
     }
-}
-
-/// Triangles (and uvs, if stored) of a `.serialized` shape in object space.
-fn serialized_prims(
-    m: &crate::scene::load::serialized::SerializedMesh,
-) -> crate::scene::load::ply::MeshWithUv {
-    let tris = m
-        .indices
-        .iter()
-        .map(|t| {
-            let t = t.map(|i| i as usize);
-            Prim::Tri {
-                p: t.map(|i| m.positions[i]),
-                n: m.normals
-                    .as_ref()
-                    .map(|n| t.map(|i| n[i].normalize_or_zero())),
-            }
-        })
-        .collect();
-    let uvs = m.uvs.as_ref().map(|uv| {
-        m.indices
-            .iter()
-            .map(|t| t.map(|i| uv[i as usize]))
-            .collect()
-    });
-    (tris, uvs)
 }
 
 /// Mitsuba 0.6 property names in Mitsuba 3's spelling: camelCase becomes snake_case as
