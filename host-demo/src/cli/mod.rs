@@ -1,0 +1,275 @@
+//! The command line: `render`, `bench` and `compare` (clap derive); each command's body lives in
+//! its own module.
+
+mod bench;
+mod render;
+
+use clap::{Parser, Subcommand, ValueEnum};
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(
+    name = "host-demo",
+    about = "Wavefront path tracer demo for the guiding library"
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum Integrator {
+    /// BSDF sampling only.
+    Pt,
+    /// Next-event estimation + MIS (power heuristic).
+    PtNee,
+    /// Path guiding (trained online), one-sample MIS with the BSDF; NEE per `--nee`.
+    Guided,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum GuideArg {
+    /// Neural Parametric Mixtures (vMF).
+    Npm,
+    /// NASG mixture with a learned selection probability.
+    Nasg,
+    /// Distribution factorisation, nearest reconstruction.
+    DfN,
+    /// Distribution factorisation, linear reconstruction.
+    DfL,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum TargetArg {
+    /// Learn the incident radiance.
+    Radiance,
+    /// Learn the product of BSDF, cosine and radiance.
+    Product,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum SizeArg {
+    /// 4-level grid (4..32 cells), MLP 2 x 32.
+    Demo,
+    /// The library's tiny test presets.
+    Small,
+    /// The papers' sizes (4.1 M parameters; slow on a CPU).
+    Paper,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum DeviceArg {
+    /// The CPU field (no Vulkan).
+    Cpu,
+    /// A Vulkan device (see --vk-device).
+    Gpu,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum OnOff {
+    /// Enabled.
+    On,
+    /// Disabled.
+    Off,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Render a scene to an EXR file (plus a PNG preview next to it) and print the image mean.
+    Render {
+        /// `builtin:cornell-box`, `builtin:furnace`, `builtin:door`, or a Mitsuba 3 XML path.
+        #[arg(value_name = "SCENE", required_unless_present = "scene_flag")]
+        scene: Option<String>,
+        /// The scene, as an option (alias of the positional SCENE).
+        #[arg(long = "scene", value_name = "SCENE", conflicts_with = "scene")]
+        scene_flag: Option<String>,
+        /// Estimator.
+        #[arg(long, value_enum, default_value = "pt-nee")]
+        integrator: Integrator,
+        /// Samples per pixel (default: the scene's).
+        #[arg(long, conflicts_with = "time")]
+        spp: Option<u32>,
+        /// Time budget in seconds instead of a fixed spp: passes run until it is used up
+        /// (a pass starts only if it is expected to end within the budget; at least one runs).
+        /// `--train-fraction` applies to this budget.
+        #[arg(long, value_name = "SECONDS")]
+        time: Option<f64>,
+        /// Russian roulette from the scene's rr_depth on (default off, like the papers).
+        #[arg(long)]
+        rr: bool,
+        /// Write run statistics (spp, time split, rays/s, training samples, stages) as JSON.
+        #[arg(long, value_name = "FILE.json")]
+        stats: Option<PathBuf>,
+        /// Worker threads (0 = all cores).
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
+        /// Scene parameter `$NAME` (Mitsuba's `-D`): overrides the scene's
+        /// `<default name="NAME" value=.../>` (repeatable).
+        #[arg(short = 'D', value_name = "NAME=VALUE")]
+        define: Vec<String>,
+        /// Refuse what the scene loader does not know (an unknown plugin type, property or
+        /// element is an error, as before warnings existed); by default it is ignored or
+        /// replaced with a warning naming file and line.
+        #[arg(long)]
+        strict: bool,
+        /// Random seed.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Mitsuba max_depth (default: the scene's).
+        #[arg(long)]
+        max_depth: Option<u32>,
+        /// Override width (height scales to keep the aspect ratio unless --height is given).
+        #[arg(long)]
+        width: Option<u32>,
+        /// Override height.
+        #[arg(long)]
+        height: Option<u32>,
+        /// Output EXR path (the PNG preview goes next to it, same name with `.png`).
+        #[arg(long, default_value = "image.exr")]
+        out: PathBuf,
+        /// Guiding model (`--integrator guided`).
+        #[arg(long, value_enum, default_value = "npm")]
+        guide: GuideArg,
+        /// Guiding target (`--integrator guided`). Default: `product`, or `radiance` when
+        /// every material of the scene is diffuse (the product then adds nothing: the BSDF
+        /// is the cosine). Pass `--target product` to force the product anyway.
+        #[arg(long, value_enum)]
+        target: Option<TargetArg>,
+        /// Model size preset (`--integrator guided`).
+        #[arg(long, value_enum, default_value = "demo")]
+        model_size: SizeArg,
+        /// Fraction of the budget (spp passes or time) used for training, in [0, 1].
+        #[arg(long, default_value_t = 0.3)]
+        train_fraction: f32,
+        /// Guide-selection probability c in [0, 1] (NASG uses its learned value).
+        #[arg(long, default_value_t = 0.5)]
+        selection_probability: f32,
+        /// Adam steps per training pass (32: on builtin:door 160x120 32 spp, 4 steps at lr 5e-3
+        /// gave 2.05x pt-nee's per-pixel variance, 32 steps at lr 3e-2 1.22x; Cornell unchanged).
+        #[arg(long, default_value_t = 32)]
+        steps_per_pass: u32,
+        /// Training minibatch size.
+        #[arg(long, default_value_t = 8192)]
+        batch_size: usize,
+        /// Learning rate of the guide's Adam optimiser.
+        #[arg(long, default_value_t = 3e-2)]
+        learning_rate: f32,
+        /// Stop training when the mean loss has not improved by --plateau-margin (relative)
+        /// over the best so far for this many consecutive passes (0: train for the whole
+        /// training fraction).
+        #[arg(long, default_value_t = 4)]
+        plateau_window: u32,
+        /// Relative improvement of the mean loss that counts as progress (see
+        /// --plateau-window).
+        #[arg(long, default_value_t = 0.01)]
+        plateau_margin: f32,
+        /// NEE in the guided integrator (default: on when the scene has an emitter NEE can sample).
+        #[arg(long, value_enum)]
+        nee: Option<OnOff>,
+        /// Where the guide's network runs (`--integrator guided`, NPM / NASG): `cpu`, or `gpu`
+        /// (Vulkan: inference and training through the SPIR-V kernels of guiding-gpu; tracing
+        /// stays on the CPU). Needs a build with `--features guiding-gpu/shaders`.
+        #[arg(long, value_enum, default_value = "cpu")]
+        device: DeviceArg,
+        /// The Vulkan device of `--device gpu`: `auto` (discrete GPU first, then integrated,
+        /// then lavapipe), `gpu` (never a CPU implementation), `cpu` (lavapipe), an index, or
+        /// `name:TEXT`. The environment variable GUIDING_VK_DEVICE overrides `auto`.
+        #[arg(long, default_value = "auto")]
+        vk_device: String,
+    },
+    /// Run time against error: scenes × methods × budgets × seeds against references, written as
+    /// runs.csv, report.md (equal-budget table, speed-up vs pt, micro-benchmarks) and one
+    /// relMSE-vs-time plot per scene (SVG + PNG).
+    Bench {
+        /// Extra scenes (`builtin:NAME` or Mitsuba XML paths), added to the default set.
+        scenes: Vec<String>,
+        /// Small matrix (2 built-in scenes, 5 methods, 1 and 2 s, 2 seeds, 64 px wide, quick
+        /// micro-benchmarks): a couple of minutes.
+        #[arg(long)]
+        quick: bool,
+        /// Only the scenes given on the command line, not the default set.
+        #[arg(long)]
+        only: bool,
+        /// Methods, comma-separated: pt, pt-nee, GUIDE-TARGET (npm|nasg|df-n|df-l ×
+        /// radiance|product). Default: all ten.
+        #[arg(long, value_delimiter = ',')]
+        methods: Option<Vec<String>>,
+        /// Budgets, comma-separated: seconds (`10`) or spp (`32spp`). Default 5,10,20,40,32spp.
+        #[arg(long, value_delimiter = ',')]
+        budgets: Option<Vec<String>>,
+        /// Seeds per configuration (default 3).
+        #[arg(long)]
+        seeds: Option<u32>,
+        /// Image width in pixels (default 320; height keeps the scene's aspect ratio).
+        #[arg(long)]
+        width: Option<u32>,
+        /// Render threads per run (0 = all cores).
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
+        /// spp of the cached pt-nee references (default 2048).
+        #[arg(long)]
+        reference_spp: Option<u32>,
+        /// A given reference image for a scene, `SCENE=FILE.exr` (repeatable).
+        #[arg(long = "reference", value_name = "SCENE=FILE.exr")]
+        references: Vec<String>,
+        /// Output directory.
+        #[arg(long, default_value = "bench-out")]
+        out: PathBuf,
+        /// Reference cache directory.
+        #[arg(long, default_value = "bench-cache")]
+        cache: PathBuf,
+        /// Skip the micro-benchmarks.
+        #[arg(long)]
+        no_micro: bool,
+    },
+    /// Compare an image with a reference: prints relMSE (trimmed 0.1 %) and MAPE as JSON.
+    Compare {
+        /// The image to evaluate (EXR).
+        image: PathBuf,
+        /// The reference (EXR).
+        reference: PathBuf,
+    },
+}
+
+/// Parses the command line and runs it.
+pub fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("host-demo: error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> host_demo::Result<()> {
+    match cli.cmd {
+        Cmd::Compare { image, reference } => compare(&image, &reference),
+        Cmd::Bench { .. } => bench::bench_cmd(cli.cmd),
+        Cmd::Render { .. } => render::render_cmd(cli.cmd),
+    }
+}
+
+fn compare(image: &Path, reference: &Path) -> host_demo::Result<()> {
+    let (a, b) = (
+        host_demo::scene::load::exr::read_exr(image)?,
+        host_demo::scene::load::exr::read_exr(reference)?,
+    );
+    let m = host_demo::render::compare::compare(&a, &b)?;
+    let out = json!({
+        "image": image.display().to_string(),
+        "reference": reference.display().to_string(),
+        "width": a.width,
+        "height": a.height,
+        "relmse": m.relmse,
+        "relmse_untrimmed": m.relmse_untrimmed,
+        "relmse_trimmed_pixels": m.trimmed,
+        "mape": m.mape,
+        "epsilon": host_demo::render::compare::EPSILON,
+    });
+    println!("{out:#}");
+    Ok(())
+}
