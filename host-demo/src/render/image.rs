@@ -1,6 +1,23 @@
-//! Rendered images: per-pixel means with the variance of each mean, accumulated pass by pass.
+//! Rendered images (per-pixel means with the variance of each mean, accumulated pass by pass)
+//! and what the render that made them measured.
 
 use glam::Vec3;
+use std::time::Duration;
+
+/// What the driver measured over a render.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RenderStats {
+    /// Passes (samples per pixel) rendered.
+    pub passes: u32,
+    /// Wall time of the whole render (passes and what the strategy does between them).
+    pub wall: Duration,
+    /// Wall time of the passes' tracing alone.
+    pub trace: Duration,
+    /// Rays traced: camera and continuation rays plus shadow rays.
+    pub rays: u64,
+    /// The NEE stage ran (NEE on, and the scene has an emitter NEE can sample).
+    pub nee: bool,
+}
 
 /// A rendered image plus per-pixel variance information for statistical tests.
 #[derive(Clone, Debug)]

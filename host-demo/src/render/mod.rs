@@ -1,6 +1,9 @@
 //! Rendering: the [`options`], the pass [`schedule`], the one [`wavefront`] driver with its
 //! typed [`queues`] and direction-sampling [`strategy`], the [`image`]s it makes, their
-//! [`output`] and [`compare`]ison.
+//! [`output`] and [`compare`]ison, and the entry points [`render`] and [`render_guided`].
+//!
+//! Modules depend downwards: the entry points here → [`wavefront`] → [`strategy`] →
+//! [`queues`], [`schedule`], [`options`] → [`crate::scene`].
 
 pub mod compare;
 pub mod image;
@@ -12,13 +15,16 @@ pub mod schedule;
 pub mod strategy;
 pub mod wavefront;
 
-pub use image::Image;
+pub use image::{Image, RenderStats};
 pub use options::{IntegratorKind, RenderOptions};
-pub use strategy::guided::{render_guided, render_guided_gpu, GuidedOptions, GuidedStats};
-pub use wavefront::RenderStats;
+pub use strategy::guided::{GuidedOptions, GuidedStats};
 
 use crate::scene::Scene;
+use guiding::GuidingField;
+use guiding_gpu::GpuError;
 use strategy::bsdf::BsdfSampling;
+use strategy::gpu::GpuGuide;
+use strategy::guided::Guided;
 
 /// Renders `scene` with `pt` or `pt-nee` (`opts.integrator`).
 pub fn render(scene: &Scene, opts: &RenderOptions) -> Image {
@@ -34,4 +40,48 @@ pub fn render_with_stats(scene: &Scene, opts: &RenderOptions) -> (Image, RenderS
         Ok(r) => r,
         Err(never) => match never {},
     }
+}
+
+/// Renders `scene` with guided path tracing, training `guide` online during the first
+/// `gopts.train_fraction` of the passes. `opts.integrator` is ignored (NEE follows
+/// `gopts.nee`).
+pub fn render_guided(
+    scene: &Scene,
+    opts: &RenderOptions,
+    gopts: &GuidedOptions,
+    guide: &mut GuidingField,
+) -> (Image, GuidedStats) {
+    match render_guided_on(scene, opts, gopts, guide, None) {
+        Ok(r) => r,
+        Err(e) => unreachable!("a CPU guide reports no device error: {e}"),
+    }
+}
+
+/// [`render_guided`] with the guide's network inference and training on a
+/// Vulkan device (`--device gpu`; see [`strategy::gpu`]). `guide` supplies the
+/// configuration and the decoding; its own weights are not trained.
+///
+/// # Errors
+/// The first GPU failure; the render stops after the pass it happened in.
+pub fn render_guided_gpu(
+    scene: &Scene,
+    opts: &RenderOptions,
+    gopts: &GuidedOptions,
+    guide: &mut GuidingField,
+    gpu: &mut GpuGuide,
+) -> Result<(Image, GuidedStats), GpuError> {
+    render_guided_on(scene, opts, gopts, guide, Some(gpu))
+}
+
+fn render_guided_on(
+    scene: &Scene,
+    opts: &RenderOptions,
+    gopts: &GuidedOptions,
+    guide: &mut GuidingField,
+    gpu: Option<&mut GpuGuide>,
+) -> Result<(Image, GuidedStats), GpuError> {
+    let mut strategy = Guided::new(guide, gpu, gopts);
+    let (img, rs) =
+        wavefront::render_passes(scene, opts, gopts.nee, gopts.train_fraction, &mut strategy)?;
+    Ok((img, strategy.finish(&rs)))
 }

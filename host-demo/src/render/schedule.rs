@@ -12,7 +12,7 @@
 //! The progress bar (indicatif, on stderr) counts passes (spp budget) or elapsed milliseconds
 //! (time budget); it is hidden when `RenderOptions::progress` is off or stderr is not a terminal.
 
-use crate::render::RenderOptions;
+use crate::render::options::RenderOptions;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::io::IsTerminal;
 use std::time::{Duration, Instant};

@@ -33,7 +33,7 @@
 //! geometric side test lets transmission through dielectrics cross the surface.
 
 use crate::math::{power_heuristic, Frame, Rng};
-use crate::render::image::{accumulate, finish_image, Image};
+use crate::render::image::{accumulate, finish_image, Image, RenderStats};
 use crate::render::options::RenderOptions;
 use crate::render::queues::{Continuations, LightSamples, RayQueue, ShadowQueue, Vertices};
 use crate::render::record::{BlockRecorder, Scatter};
@@ -45,22 +45,7 @@ use glam::Vec3;
 use guiding_core::sample::TrainingSample;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
-use std::time::{Duration, Instant};
-
-/// What the driver measured over a render.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct RenderStats {
-    /// Passes (samples per pixel) rendered.
-    pub passes: u32,
-    /// Wall time of the whole render (passes and what the strategy does between them).
-    pub wall: Duration,
-    /// Wall time of the passes' tracing alone.
-    pub trace: Duration,
-    /// Rays traced: camera and continuation rays plus shadow rays.
-    pub rays: u64,
-    /// The NEE stage ran (NEE on, and the scene has an emitter NEE can sample).
-    pub nee: bool,
-}
+use std::time::Instant;
 
 /// Offsets `p` along the geometric normal to the side of `dir`, against self-intersection.
 #[inline]

@@ -37,14 +37,13 @@
 //! BSDF: still unbiased through the combined density, just less efficient on glossy surfaces.
 
 use crate::math::{Frame, Rng};
-use crate::render::image::Image;
-use crate::render::options::RenderOptions;
+use crate::render::image::RenderStats;
 use crate::render::queues::{Continuations, LightSamples, Vertices};
 use crate::render::schedule::Pass;
 use crate::render::strategy::bsdf::sample_bsdf;
 use crate::render::strategy::gpu::GpuGuide;
+use crate::render::strategy::guide::describe;
 use crate::render::strategy::{Strategy, VertexStrategy};
-use crate::render::wavefront::render_passes;
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
 use guiding::{DirectionSample, DistributionBatch, GuidingField};
@@ -179,7 +178,7 @@ impl std::fmt::Display for GuidedStats {
 
 /// The guided strategy of one render: the guide (trained between passes on the CPU, or on
 /// the device with `--device gpu`) and the statistics.
-struct Guided<'g> {
+pub struct Guided<'g> {
     guide: &'g mut GuidingField,
     gpu: Option<&'g mut GpuGuide>,
     gopts: GuidedOptions,
@@ -187,8 +186,54 @@ struct Guided<'g> {
     stopped: bool,
 }
 
+impl<'g> Guided<'g> {
+    /// The strategy for `guide` (and its device copy with `--device gpu`).
+    pub fn new(
+        guide: &'g mut GuidingField,
+        gpu: Option<&'g mut GpuGuide>,
+        gopts: &GuidedOptions,
+    ) -> Self {
+        let model = match &gpu {
+            Some(d) => format!("{} on {}", describe(guide), d.device()),
+            None => describe(guide),
+        };
+        Guided {
+            guide,
+            gpu,
+            gopts: *gopts,
+            stats: GuidedStats {
+                model,
+                last_loss: f64::NAN,
+                ..GuidedStats::default()
+            },
+            stopped: false,
+        }
+    }
+
+    /// Ends training (if the schedule has not) and returns the statistics, with the driver's
+    /// totals `rs`.
+    pub fn finish(self, rs: &RenderStats) -> GuidedStats {
+        if !self.stopped {
+            self.guide.stop_training();
+        }
+        let mut stats = self.stats;
+        stats.nee = rs.nee;
+        stats.passes = rs.passes;
+        stats.trace = rs.trace;
+        stats.rays = rs.rays;
+        let fs = self.guide.stats();
+        stats.training_steps = match &self.gpu {
+            Some(d) => d.steps(),
+            None => fs.steps,
+        };
+        stats.rejected_samples = fs.rejected_samples.iter().sum();
+        stats.overflowed_samples = fs.overflowed_samples;
+        stats
+    }
+}
+
 /// What one render thread's worker did in a pass.
-struct WorkerReport {
+pub struct WorkerReport {
     queries: u64,
     guided_vertices: u64,
     query_time: Duration,
@@ -200,7 +245,7 @@ const NONE: u32 = u32::MAX;
 
 /// Per-render-thread state of the guided strategy: the bounce's decoded guide and the scratch
 /// of its batched calls.
-struct GuidedWorker<'g> {
+pub struct GuidedWorker<'g> {
     guide: &'g GuidingField,
     /// `--device gpu`: the network runs there (raw outputs decoded here).
     gpu: Option<&'g GpuGuide>,
@@ -542,80 +587,4 @@ impl<'g> Strategy for Guided<'g> {
         st.training += t_train.elapsed();
         Ok(())
     }
-}
-
-/// Renders `scene` with guided path tracing, training `guide` online during the first
-/// `gopts.train_fraction` of the passes. `opts.integrator` is ignored (NEE follows
-/// `gopts.nee`).
-pub fn render_guided(
-    scene: &Scene,
-    opts: &RenderOptions,
-    gopts: &GuidedOptions,
-    guide: &mut GuidingField,
-) -> (Image, GuidedStats) {
-    match render_guided_on(scene, opts, gopts, guide, None) {
-        Ok(r) => r,
-        Err(e) => unreachable!("a CPU guide reports no device error: {e}"),
-    }
-}
-
-/// [`render_guided`] with the guide's network inference and training on a
-/// Vulkan device (`--device gpu`; see [`crate::render::strategy::gpu`]). `guide` supplies the
-/// configuration and the decoding; its own weights are not trained.
-///
-/// # Errors
-/// The first GPU failure; the render stops after the pass it happened in.
-pub fn render_guided_gpu(
-    scene: &Scene,
-    opts: &RenderOptions,
-    gopts: &GuidedOptions,
-    guide: &mut GuidingField,
-    gpu: &mut GpuGuide,
-) -> Result<(Image, GuidedStats), GpuError> {
-    render_guided_on(scene, opts, gopts, guide, Some(gpu))
-}
-
-fn render_guided_on(
-    scene: &Scene,
-    opts: &RenderOptions,
-    gopts: &GuidedOptions,
-    guide: &mut GuidingField,
-    gpu: Option<&mut GpuGuide>,
-) -> Result<(Image, GuidedStats), GpuError> {
-    let model = match &gpu {
-        Some(d) => format!(
-            "{} on {}",
-            crate::render::strategy::guide::describe(guide),
-            d.device()
-        ),
-        None => crate::render::strategy::guide::describe(guide),
-    };
-    let mut strategy = Guided {
-        guide,
-        gpu,
-        gopts: *gopts,
-        stats: GuidedStats {
-            model,
-            last_loss: f64::NAN,
-            ..GuidedStats::default()
-        },
-        stopped: false,
-    };
-    let (img, rs) = render_passes(scene, opts, gopts.nee, gopts.train_fraction, &mut strategy)?;
-    if !strategy.stopped {
-        strategy.guide.stop_training();
-    }
-    let mut stats = strategy.stats;
-    stats.nee = rs.nee;
-    stats.passes = rs.passes;
-    stats.trace = rs.trace;
-    stats.rays = rs.rays;
-    let fs = strategy.guide.stats();
-    stats.training_steps = match &strategy.gpu {
-        Some(d) => d.steps(),
-        None => fs.steps,
-    };
-    stats.rejected_samples = fs.rejected_samples.iter().sum();
-    stats.overflowed_samples = fs.overflowed_samples;
-    Ok((img, stats))
 }
