@@ -9,7 +9,8 @@
 //!    batched [`GuidingField::query`]) and samples / evaluates it with
 //!    one-sample MIS against its BSDF;
 //! 2. records each path with a [`PathRecorder`], which turns it into
-//!    training samples;
+//!    training samples (a wavefront renderer records a whole block of
+//!    paths, bounce by bounce, with a [`BatchRecorder`]: same samples);
 //! 3. between passes, hands the samples over ([`PathRecorder::flush_into`])
 //!    and calls [`GuidingField::update`] until [`GuidingField::is_converged`]
 //!    (or its own budget) says stop;
@@ -94,7 +95,7 @@ pub use guiding_core::lobe::DirectionSample;
 pub use guiding_core::model::QueryPoint;
 pub use guiding_core::optim::AdamConfig;
 pub use guiding_core::sample::{Rejection, TrainingSample};
-pub use recorder::{PathRecorder, PathVertex};
+pub use recorder::{BatchRecorder, Continuation, PathRecorder, PathVertex};
 
 /// The README's code examples (`guiding-core` kernels and the embedding API),
 /// compiled and run as doctests.

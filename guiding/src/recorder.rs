@@ -1,7 +1,9 @@
 //! The path recorder: the renderer records every vertex of a path as it
 //! traces it, and at the end of the path the recorder propagates the
 //! radiance back along it into one [`TrainingSample`] per guidable vertex
-//! (the role of Open PGL's `PathSegmentStorage`).
+//! (the role of Open PGL's `PathSegmentStorage`). A wavefront renderer,
+//! which traces a block of paths bounce by bounce, records the whole block
+//! with a [`BatchRecorder`] instead: same rule, same samples.
 //!
 //! # Propagation
 //!
@@ -30,9 +32,12 @@
 //! `useNEEMiWeights`. No sample is made for delta vertices (no guiding
 //! there) or vertices whose path ended (`sample_pdf = 0`).
 
+pub mod wavefront;
+
 use crate::field::GuidingField;
 use guiding_core::model::QueryPoint;
 use guiding_core::sample::TrainingSample;
+pub use wavefront::{BatchRecorder, Continuation};
 
 /// One path vertex as the renderer saw it. All vectors in world space, the
 /// directions as in the [crate conventions](crate#conventions); RGB values
@@ -94,6 +99,23 @@ impl Default for PathVertex {
     }
 }
 
+impl PathVertex {
+    /// The training sample of this vertex's continuation, with `radiance`
+    /// the incident radiance estimate along `wi` (what the recorders make
+    /// for a guidable vertex; see the [module docs](self)).
+    #[must_use]
+    pub fn training_sample(&self, radiance: [f32; 3]) -> TrainingSample {
+        TrainingSample::new(
+            QueryPoint::new(self.position, self.normal, self.wo, self.roughness),
+            self.wi,
+            radiance,
+            self.sample_pdf,
+            self.bsdf_pdf,
+            self.bsdf_cos,
+        )
+    }
+}
+
 fn add(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
     [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
 }
@@ -106,15 +128,72 @@ fn mul(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
     [a[0] * b[0], a[1] * b[1], a[2] * b[2]]
 }
 
+/// Radiance that escaped along a path's last `wi`: in full (the last
+/// vertex's training target) and MIS-weighted (the path estimate).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Escaped {
+    full: [f32; 3],
+    mis: [f32; 3],
+}
+
+impl Escaped {
+    fn add(&mut self, radiance: [f32; 3], mis_weight: f32) {
+        self.full = add(self.full, radiance);
+        self.mis = add(self.mis, scale(radiance, mis_weight));
+    }
+}
+
+/// The propagation rule of the [module docs](self), the one implementation
+/// both recorders ([`PathRecorder`], [`BatchRecorder`]) run: walks one
+/// path's vertices from its **last** vertex back to vertex 0 (`reversed`),
+/// appends its training samples to `samples` in path order and returns
+/// `L̃_o(0)` (the escaped radiance's MIS share for a path without vertices).
+fn propagate<'a>(
+    reversed: impl Iterator<Item = &'a PathVertex>,
+    escaped: Escaped,
+    samples: &mut Vec<TrainingSample>,
+) -> [f32; 3] {
+    // Incident radiance along the current vertex's `wi`: the training
+    // target (emission in full) and the path estimate (MIS-weighted).
+    let (mut incident, mut incident_mis) = (escaped.full, escaped.mis);
+    let first_new = samples.len();
+    for v in reversed {
+        let continues = v.sample_pdf > 0.0;
+        if continues && !v.is_delta {
+            samples.push(v.training_sample(incident));
+        }
+        let scattered = if continues {
+            mul(
+                scale(v.bsdf_cos, v.continuation_scale / v.sample_pdf),
+                incident_mis,
+            )
+        } else {
+            [0.0; 3]
+        };
+        let rest = add(v.direct, scattered);
+        incident = add(v.emitted, rest);
+        incident_mis = add(scale(v.emitted, v.emitted_mis_weight), rest);
+    }
+    // Samples were pushed from the last vertex back; keep path order.
+    samples[first_new..].reverse();
+    incident_mis
+}
+
+/// Hands `samples` to `field` and clears them; returns how many.
+fn hand_over(samples: &mut Vec<TrainingSample>, field: &mut GuidingField) -> usize {
+    let n = samples.len();
+    field.add_samples(samples);
+    samples.clear();
+    n
+}
+
 /// Records paths and turns them into training samples. Use one per render
 /// thread; hand the samples to the field between passes with
 /// [`Self::flush_into`].
 #[derive(Clone, Debug, Default)]
 pub struct PathRecorder {
     vertices: Vec<PathVertex>,
-    /// Escaped radiance: full, and MIS-weighted.
-    escaped: [f32; 3],
-    escaped_mis: [f32; 3],
+    escaped: Escaped,
     samples: Vec<TrainingSample>,
 }
 
@@ -128,8 +207,7 @@ impl PathRecorder {
     /// Starts a new path (an unfinished previous path is discarded).
     pub fn start_path(&mut self) {
         self.vertices.clear();
-        self.escaped = [0.0; 3];
-        self.escaped_mis = [0.0; 3];
+        self.escaped = Escaped::default();
     }
 
     /// Records the next vertex of the current path.
@@ -141,8 +219,7 @@ impl PathRecorder {
     /// (an environment), with its MIS weight against next-event estimation
     /// of the environment at that vertex; adds up over calls.
     pub fn add_escaped_radiance(&mut self, radiance: [f32; 3], mis_weight: f32) {
-        self.escaped = add(self.escaped, radiance);
-        self.escaped_mis = add(self.escaped_mis, scale(radiance, mis_weight));
+        self.escaped.add(radiance, mis_weight);
     }
 
     /// Vertices recorded on the current path.
@@ -153,40 +230,9 @@ impl PathRecorder {
     /// Ends the path: propagates radiance back along it (see the [module
     /// docs](self)), appends its training samples and returns `L_o(0)`.
     pub fn end_path(&mut self) -> [f32; 3] {
-        // Incident radiance along the current vertex's `wi`: the training
-        // target (emission in full) and the path estimate (MIS-weighted).
-        let (mut incident, mut incident_mis) = (self.escaped, self.escaped_mis);
-        let first_new = self.samples.len();
-        for v in self.vertices.iter().rev() {
-            let continues = v.sample_pdf > 0.0;
-            if continues && !v.is_delta {
-                self.samples.push(TrainingSample::new(
-                    QueryPoint::new(v.position, v.normal, v.wo, v.roughness),
-                    v.wi,
-                    incident,
-                    v.sample_pdf,
-                    v.bsdf_pdf,
-                    v.bsdf_cos,
-                ));
-            }
-            let scattered = if continues {
-                mul(
-                    scale(v.bsdf_cos, v.continuation_scale / v.sample_pdf),
-                    incident_mis,
-                )
-            } else {
-                [0.0; 3]
-            };
-            let rest = add(v.direct, scattered);
-            incident = add(v.emitted, rest);
-            incident_mis = add(scale(v.emitted, v.emitted_mis_weight), rest);
-        }
-        // Samples were pushed from the last vertex back; keep path order.
-        self.samples[first_new..].reverse();
-        self.vertices.clear();
-        self.escaped = [0.0; 3];
-        self.escaped_mis = [0.0; 3];
-        incident_mis
+        let l0 = propagate(self.vertices.iter().rev(), self.escaped, &mut self.samples);
+        self.start_path();
+        l0
     }
 
     /// Training samples of the finished paths so far.
@@ -197,10 +243,7 @@ impl PathRecorder {
     /// Hands every finished path's samples to `field` and clears them;
     /// returns how many were handed over.
     pub fn flush_into(&mut self, field: &mut GuidingField) -> usize {
-        let n = self.samples.len();
-        field.add_samples(&self.samples);
-        self.samples.clear();
-        n
+        hand_over(&mut self.samples, field)
     }
 
     /// Drops the finished paths' samples.

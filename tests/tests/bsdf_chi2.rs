@@ -28,7 +28,7 @@ use guiding_tests::chi2::{run_chi2, Chi2Config, Warp};
 use guiding_tests::quadrature::integrate;
 use guiding_tests::rng::Pcg32;
 use guiding_tests::SphereDistribution;
-use host_demo::bsdf::{Coating, Material, Microfacet, WardVariant};
+use host_demo::scene::bsdf::{Coating, Material, Microfacet, WardVariant};
 
 struct Conditioned {
     m: Material,
@@ -628,7 +628,7 @@ fn chi2_catches_wrong_beckmann_pdf() {
 fn blendbsdf_sampling_matches_mixture_pdf() {
     use glam::{Mat4, Vec2};
     use host_demo::scene::{Camera, MaterialTextures, SceneBuilder, Settings};
-    use host_demo::texture::{Texture, UvMap};
+    use host_demo::scene::texture::{Texture, UvMap};
 
     let mut b = SceneBuilder::default();
     let rough = b.material(Material::RoughConductor {

@@ -668,7 +668,7 @@ fn seeds_are_meaningful() {
     for (name, input) in scene_seeds() {
         let text = String::from_utf8(input).unwrap();
         let (xml, meshes) = fuzz_checks::split_scene_input(&text);
-        let result = host_demo::xml::load_str_with(xml, &name, std::path::Path::new(""), &|p| {
+        let result = host_demo::scene::load::xml::load_str_with(xml, &name, std::path::Path::new(""), &|p| {
             read(&meshes, p)
         });
         if let Ok(scene) = &result {

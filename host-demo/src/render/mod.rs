@@ -10,7 +10,6 @@ pub mod image;
 pub mod options;
 pub mod output;
 pub mod queues;
-mod record;
 pub mod schedule;
 pub mod strategy;
 pub mod wavefront;

@@ -36,12 +36,12 @@ use crate::math::{power_heuristic, Frame, Rng};
 use crate::render::image::{accumulate, finish_image, Image, RenderStats};
 use crate::render::options::RenderOptions;
 use crate::render::queues::{Continuations, LightSamples, RayQueue, ShadowQueue, Vertices};
-use crate::render::record::{BlockRecorder, Scatter};
 use crate::render::schedule::Schedule;
 use crate::render::strategy::{Strategy, VertexStrategy};
 use crate::scene::emitter::EmitterSample;
 use crate::scene::Scene;
 use glam::Vec3;
+use guiding::{BatchRecorder, Continuation, PathVertex};
 use guiding_core::sample::TrainingSample;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
@@ -106,7 +106,8 @@ struct Worker<'s, V> {
     /// Rays traced by this worker (closest-hit and shadow).
     rays: u64,
     strategy: V,
-    recorder: Option<BlockRecorder>,
+    /// The library's wavefront recorder, on passes the strategy trains on.
+    recorder: Option<BatchRecorder>,
     /// Training samples of this pass's current block.
     samples: Vec<TrainingSample>,
 }
@@ -127,7 +128,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
             radiance: Vec::new(),
             rays: 0,
             strategy,
-            recorder: record.then(BlockRecorder::default),
+            recorder: record.then(BatchRecorder::new),
             samples: Vec::new(),
         }
     }
@@ -172,7 +173,8 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
             bounce += 1;
         }
         if let Some(r) = &mut self.recorder {
-            r.end(&mut self.samples);
+            r.end();
+            self.samples.extend(r.drain_samples());
         }
     }
 
@@ -202,7 +204,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                     let w = mis(scene.env_pdf(d));
                     self.radiance[slot as usize] += q.beta[i] * le * w;
                     if let Some(r) = &mut self.recorder {
-                        r.escaped(slot, le, w);
+                        r.add_escaped_radiance(slot, le.to_array(), w);
                     }
                 }
                 continue;
@@ -218,10 +220,15 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                     self.radiance[slot as usize] += beta * le * w;
                 }
             }
-            if let Some(r) = &mut self.recorder {
-                r.hit(slot, le, w);
-            }
+            let mut vertex = PathVertex {
+                emitted: le.to_array(),
+                emitted_mis_weight: w,
+                ..PathVertex::default()
+            };
             if !continue_path {
+                if let Some(r) = &mut self.recorder {
+                    r.add_vertex(slot, vertex);
+                }
                 continue;
             }
             let (_, mat, ng, ns) = scene.resolve_material(
@@ -232,6 +239,16 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                 hit.uv,
                 &mut self.rng[slot as usize],
             );
+            if let Some(r) = &mut self.recorder {
+                vertex.position = hit.p.to_array();
+                vertex.normal = ns.to_array();
+                vertex.wo = (-d).to_array();
+                vertex.roughness = mat.roughness();
+                // Radiance propagates through every vertex; only those the strategy guides
+                // make training samples.
+                vertex.is_delta = !self.strategy.trains(&mat);
+                r.add_vertex(slot, vertex);
+            }
             if mat.is_black() || (mat.one_sided() && ns.dot(-d) <= 0.0) {
                 continue; // absorbed, or the back of a one-sided BSDF
             }
@@ -244,7 +261,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                 }
                 beta /= q;
                 if let Some(r) = &mut self.recorder {
-                    r.roulette(slot, 1.0 / q);
+                    r.scale_continuation(slot, 1.0 / q);
                 }
             }
             let v = &mut self.verts;
@@ -320,7 +337,10 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
             let slot = v.slot[i];
             self.radiance[slot as usize] += v.beta[i] * sh.local[k];
             if let Some(r) = &mut self.recorder {
-                r.direct(slot, sh.local[k]);
+                // The roulette factor of this vertex scales its NEE too (the recorder's
+                // continuation scale covers only the scattered radiance).
+                let rr = r.last_vertex(slot).map_or(1.0, |v| v.continuation_scale);
+                r.add_direct(slot, (sh.local[k] * rr).to_array());
             }
         }
     }
@@ -344,19 +364,20 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                 continue;
             }
             if let Some(r) = &mut self.recorder {
-                r.scatter(
+                // A vertex that makes no sample only propagates: its weight as `f·cos / p`
+                // with `p = 1`.
+                let (sample_pdf, bsdf_cos) = if c.trainable[i] {
+                    (c.pdf[i], c.bsdf_cos[i])
+                } else {
+                    (1.0, c.weight[i])
+                };
+                r.set_continuation(
                     slot,
-                    &Scatter {
-                        position: v.position[i],
-                        normal: ns,
-                        wo,
-                        roughness: v.bsdf[i].roughness(),
-                        wi,
-                        sample_pdf: c.pdf[i],
+                    Continuation {
+                        wi: wi.to_array(),
+                        sample_pdf,
                         bsdf_pdf: c.bsdf_pdf[i],
-                        bsdf_cos: c.bsdf_cos[i],
-                        weight: c.weight[i],
-                        trainable: c.trainable[i],
+                        bsdf_cos: bsdf_cos.to_array(),
                     },
                 );
             }

@@ -1,11 +1,11 @@
 //! Fuzz target `scene_parser`: arbitrary bytes through the Mitsuba XML and
 //! OBJ loaders of `host-demo`.
 
-use host_demo::bsdf::Material;
-use host_demo::obj::parse_obj;
-use host_demo::ply::parse_ply;
+use host_demo::scene::bsdf::Material;
+use host_demo::scene::load::obj::parse_obj;
+use host_demo::scene::load::ply::parse_ply;
 use host_demo::scene::{Prim, Scene};
-use host_demo::xml::load_str_with;
+use host_demo::scene::load::xml::load_str_with;
 use std::path::Path;
 
 /// Inputs longer than this are not examined (the loaders are linear in the
@@ -237,13 +237,13 @@ pub fn scene_parser(data: &[u8]) {
     };
     for obj in objs {
         match parse_obj(obj, "fuzz.obj") {
-            Ok(tris) => assert!(!tris.is_empty()),
+            Ok(mesh) => assert!(!mesh.indices.is_empty()),
             Err(e) => assert!(!e.to_string().is_empty()),
         }
     }
     // The same bytes as a PLY file (ASCII or binary): an error or triangles.
     match parse_ply(data, "fuzz.ply") {
-        Ok(tris) => assert!(!tris.is_empty()),
+        Ok(mesh) => assert!(!mesh.indices.is_empty()),
         Err(e) => assert!(!e.to_string().is_empty()),
     }
     let read = |path: &Path| -> std::io::Result<Vec<u8>> {

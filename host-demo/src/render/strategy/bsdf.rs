@@ -4,6 +4,7 @@ use super::{Strategy, VertexStrategy};
 use crate::math::{Frame, Rng};
 use crate::render::queues::{Continuations, LightSamples, Vertices};
 use crate::render::schedule::Pass;
+use crate::scene::bsdf::Material;
 use crate::scene::Scene;
 use guiding_core::sample::TrainingSample;
 
@@ -43,6 +44,10 @@ impl VertexStrategy for BsdfSampling {
     fn light_pdfs(&mut self, _: &Vertices, lights: &mut LightSamples) {
         lights.sampling_pdf.clear();
         lights.sampling_pdf.extend_from_slice(&lights.bsdf_pdf);
+    }
+
+    fn trains(&self, _: &Material) -> bool {
+        false
     }
 
     fn sample(&mut self, verts: &Vertices, rng: &mut [Rng], out: &mut Continuations) {

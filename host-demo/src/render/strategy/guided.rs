@@ -44,6 +44,7 @@ use crate::render::strategy::bsdf::sample_bsdf;
 use crate::render::strategy::gpu::GpuGuide;
 use crate::render::strategy::guide::describe;
 use crate::render::strategy::{Strategy, VertexStrategy};
+use crate::scene::bsdf::Material;
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
 use guiding::{DirectionSample, DistributionBatch, GuidingField};
@@ -411,6 +412,10 @@ impl VertexStrategy for GuidedWorker<'_> {
             let c = self.selection[self.pdf_query[e] as usize];
             lights.sampling_pdf[k] = c * self.pdf_out[e] + (1.0 - c) * lights.bsdf_pdf[k];
         }
+    }
+
+    fn trains(&self, mat: &Material) -> bool {
+        mat.guidable(self.gopts.min_alpha)
     }
 
     fn sample(&mut self, verts: &Vertices, rng: &mut [Rng], out: &mut Continuations) {

@@ -17,6 +17,7 @@
 use crate::math::Rng;
 use crate::render::queues::{Continuations, LightSamples, Vertices};
 use crate::render::schedule::Pass;
+use crate::scene::bsdf::Material;
 use crate::scene::Scene;
 use guiding_core::sample::TrainingSample;
 
@@ -63,6 +64,9 @@ pub trait VertexStrategy {
 
     /// Fills `lights.sampling_pdf` with this strategy's density of each light direction.
     fn light_pdfs(&mut self, verts: &Vertices, lights: &mut LightSamples);
+
+    /// Whether vertices of material `mat` make training samples (the strategy guides them).
+    fn trains(&self, mat: &Material) -> bool;
 
     /// Samples one continuation per vertex into `out` (already reset to ended paths), drawing
     /// from the path's random stream `rng[slot]`.
