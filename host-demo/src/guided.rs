@@ -81,6 +81,11 @@ pub struct GuidedOptions {
     /// Radiance-target vMF guides (NPM) are multiplied by the clamped cosine of the shading
     /// normal before sampling (Open PGL's `ApplyCosineProduct`).
     pub cosine_product: bool,
+    /// Test hook, 1 in every real render: factor on the guide pdf inside the continuation's
+    /// combined density (≠ 1 is a deliberate sample/pdf mismatch, a biased estimator; the
+    /// power check of `tests/unbiased.rs` uses it).
+    #[doc(hidden)]
+    pub guide_pdf_scale: f32,
 }
 
 impl Default for GuidedOptions {
@@ -92,6 +97,7 @@ impl Default for GuidedOptions {
             min_alpha: 0.05,
             cosine_product: true,
             train_epochs: 4.0,
+            guide_pdf_scale: 1.0,
         }
     }
 }
@@ -615,7 +621,7 @@ pub(crate) fn stage_guided_continue(w: &mut Worker<'_>) {
             let mat = &w.verts.bsdf[i];
             let (f, pdf_bsdf) = mat.eval(frame.to_local(wi), frame.to_local(dir));
             let c = g.g_c[qi as usize];
-            let pdf = c * g.v_qpdf[i] + (1.0 - c) * pdf_bsdf;
+            let pdf = c * g.v_qpdf[i] * g.gopts.guide_pdf_scale + (1.0 - c) * pdf_bsdf;
             if !(pdf > 0.0 && pdf.is_finite()) || f.max_element() <= 0.0 {
                 g.record_continue(slot, Vec3::ZERO, None);
                 continue;
