@@ -1,5 +1,6 @@
 //! Tests of the guided integrator. Run with `cargo test --release -p host-demo --test guided`
-//! (about 10-20 s on 2 cores; debug builds use smaller images).
+//! (about 20-30 s on 2 cores, half of it the door; debug builds use smaller images, except for
+//! the Cornell variance case, and ignore the door).
 //!
 //! Unbiasedness is a z-test on the image mean: the two images are rendered with different
 //! seeds (independent), so `Var(mean_a − mean_b) = se_a² + se_b²` with each standard error
@@ -162,43 +163,189 @@ fn guided_unbiased_cornell_no_nee() {
 /// percent, so 0.8 only fails if guiding helps by less than ~20 %). The training passes
 /// (30 %, the first with an untrained guide) are part of the guided image.
 ///
-/// The door scene's numbers are printed too but not asserted: with this short training
-/// budget the guide barely learns the light path through the door gap (see the report).
+/// Full size in debug builds too (unlike the other tests here: at 16 × 16 pixels the guide
+/// has too few training samples to help, ratio 0.96), so it asserts there as well, with the
+/// same numbers: ~1.5 s in release, ~25 s in debug. The door has its own test,
+/// [`guided_reduces_variance_on_the_door`].
 #[test]
 fn guided_reduces_variance() {
     let spp = 32;
-    for (name, w, h, assert_it) in [
-        ("cornell-box", res(64), res(64), true),
-        ("door", res(80), res(60), false),
-    ] {
-        let scene = load_builtin(name).unwrap();
-        let pt = render(&scene, &opts(IntegratorKind::Pt, spp, w, h, 5, 0));
-        let o = opts(IntegratorKind::Pt, spp, w, h, 6, 0);
-        let (g, st) = guided(
-            &scene,
-            GuideKind::Npm,
-            Target::Product,
-            ModelSize::Demo,
-            &o,
-            false,
-            16,
-            8192,
-        );
-        let (vp, vg) = (mean_pixel_variance(&pt), mean_pixel_variance(&g));
-        eprintln!("{st}");
-        eprintln!(
-            "{name} {w}x{h} {spp} spp: pt mean {:?} var {vp:.3e}; guided (no NEE) mean {:?} var {vg:.3e}; ratio {:.3}",
-            pt.mean(),
-            g.mean(),
-            vg / vp
-        );
-        if assert_it && !cfg!(debug_assertions) {
-            assert!(
-                vg < 0.8 * vp,
-                "{name}: guided variance {vg} not below 0.8 x pt {vp}"
-            );
-        }
-    }
+    let (w, h) = (64, 64);
+    let scene = load_builtin("cornell-box").unwrap();
+    let pt = render(&scene, &opts(IntegratorKind::Pt, spp, w, h, 5, 0));
+    let o = opts(IntegratorKind::Pt, spp, w, h, 6, 0);
+    let (g, st) = guided(
+        &scene,
+        GuideKind::Npm,
+        Target::Product,
+        ModelSize::Demo,
+        &o,
+        false,
+        16,
+        8192,
+    );
+    let (vp, vg) = (mean_pixel_variance(&pt), mean_pixel_variance(&g));
+    eprintln!("{st}");
+    eprintln!(
+        "cornell-box {w}x{h} {spp} spp: pt mean {:?} var {vp:.3e}; guided (no NEE) mean {:?} var {vg:.3e}; ratio {:.3}",
+        pt.mean(),
+        g.mean(),
+        vg / vp
+    );
+    assert!(
+        vg < 0.8 * vp,
+        "cornell-box: guided variance {vg} not below 0.8 x pt {vp}"
+    );
+}
+
+/// Relative variance of `img`: the mean over pixels and channels of
+/// `Var(pixel) / (R² + ε)`, `R` the pixel of an independent `reference` render and `ε` the
+/// 0.01 of relMSE ([`host_demo::render::compare::EPSILON`]). This is the relMSE of `host-demo
+/// compare` with the image's own per-pixel variance estimate in place of the squared error
+/// (the estimators are unbiased, so their MSE is their variance, and the reference's noise
+/// stays out); the fixed weights `1 / (R² + ε)` keep bright pixels from dominating. Returns
+/// (value, relative standard error), the error from the spread of the per-pixel terms over
+/// the `P` independent pixels, `sd / (√P · mean)` (an overestimate: the spread also holds the
+/// true variation between pixels).
+fn relative_variance(img: &Image, reference: &Image) -> (f64, f64) {
+    let eps = host_demo::render::compare::EPSILON;
+    let terms: Vec<f64> = img
+        .var_of_mean
+        .iter()
+        .zip(&reference.pixels)
+        .map(|(v, r)| {
+            (0..3)
+                .map(|c| f64::from(v[c]) / (f64::from(r[c]).powi(2) + eps))
+                .sum::<f64>()
+                / 3.0
+        })
+        .collect();
+    let n = terms.len() as f64;
+    let mean = terms.iter().sum::<f64>() / n;
+    let var = terms.iter().map(|t| (t - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    (mean, var.sqrt() / (n.sqrt() * mean))
+}
+
+/// Passes of the door's training render.
+const DOOR_TRAIN_SPP: u32 = 32;
+/// Samples per pixel of the door's compared renders.
+const DOOR_SPP: u32 = 128;
+/// The door's guided relative variance must be below this fraction of `pt-nee`'s.
+const DOOR_MAX_RATIO: f64 = 0.6;
+
+/// (b') A trained guide lowers the variance against unguided path tracing at equal spp on
+/// `builtin:door`, whose camera room is lit only through the opening of a door: the relative
+/// variance ([`relative_variance`]) of a guided render with a trained, frozen guide is below
+/// [`DOOR_MAX_RATIO`] × `pt-nee`'s, 80 × 60 pixels, [`DOOR_SPP`] spp each, NEE in both.
+///
+/// Settings: the guide (NPM demo size, radiance target with the cosine product, selection
+/// probability 0.3) trains on its own render first ([`DOOR_TRAIN_SPP`] passes at 80 × 60,
+/// every pass training, 4 epochs per pass capped at 16 Adam steps of 8192 samples: ~500
+/// steps) and is then frozen (`train_fraction = 0`), so the ratio is about what a trained
+/// guide does per sample, not about its training passes. Relative variance rather than the
+/// mean pixel variance of the Cornell case: on the slit door ~70 % of the mean pixel variance
+/// sits in the one pixel column that sees the bright far room through the slit, and it comes
+/// from the pixel footprint (part wall, part far room), which no guide can change (that ratio
+/// is printed too: ~1.0).
+///
+/// Measured on Veach's door (door ajar by 20°, [`door_ratio_over_seeds`], 8 seed sets:
+/// training, guided, `pt-nee` and reference seeds all changed): ratio 0.413, sd 0.036
+/// (0.38–0.47); this test's seeds give 0.395 ± 0.031 (each relative variance has a relative
+/// standard error of 4–8 %, which matches the spread over seeds). `DOOR_MAX_RATIO = 0.6` is
+/// 5 standard deviations above the mean over seeds, and fails a guide that gains less than
+/// 40 % per sample. Checked: with the training render removed (an untrained guide) the ratio
+/// is 1.46 ± 0.19 and the test fails.
+///
+/// Tried on the earlier slit door and dropped (ratio ≥ 0.9, or noisier): the product target, selection
+/// probability 0.5 / 0.2, NASG, DF-N / DF-L, the small and paper sizes, 1 or 16 Adam steps per
+/// pass, learning rate 3·10⁻³ / 5·10⁻³, NEE off against `pt` (mean 0.78 but standard error
+/// 0.12), online training with `train_fraction` 0.3–0.5 (1.1–1.4: the untrained passes cost
+/// more than the guide saves), max depth 3–4.
+///
+/// Release builds only (ignored in debug builds, where the unoptimised host crate takes
+/// ~130 s for it against 7–12 s in release); CI runs the tests in release.
+#[test]
+#[cfg_attr(
+    debug_assertions,
+    ignore = "release only: ~130 s unoptimised, 7-12 s in release (CI runs release)"
+)]
+fn guided_reduces_variance_on_the_door() {
+    let (ratio, se) = door_ratio(0);
+    assert!(
+        ratio < DOOR_MAX_RATIO,
+        "door: guided relative variance {ratio:.3} (+- {se:.3}) x pt-nee's, not below {DOOR_MAX_RATIO}"
+    );
+}
+
+/// The door case of [`guided_reduces_variance_on_the_door`] with seeds offset by `seed`:
+/// (relative variance of the guided render / `pt-nee`'s, its standard error).
+fn door_ratio(seed: u64) -> (f64, f64) {
+    let scene = load_builtin("door").unwrap();
+    let (w, h) = (80, 60);
+    let config = FieldConfig::DEFAULT
+        .with_batch_size(8192)
+        .with_steps_per_update(16)
+        .with_learning_rate(1e-2)
+        .with_threads(0)
+        .with_seed(6 + seed as u32);
+    let mut g = build_guide(
+        GuideKind::Npm,
+        Target::Radiance,
+        ModelSize::Demo,
+        scene.bounds(),
+        0.3,
+        config,
+    )
+    .expect("guide");
+    let train = GuidedOptions {
+        nee: true,
+        train_fraction: 1.0,
+        ..GuidedOptions::default()
+    };
+    let o = opts(IntegratorKind::PtNee, DOOR_TRAIN_SPP, w, h, 1000 + seed, 0);
+    let (_, st) = render_guided(&scene, &o, &train, &mut g);
+    eprintln!("training render:\n{st}");
+    assert_eq!(st.training_passes, DOOR_TRAIN_SPP);
+    let frozen = GuidedOptions {
+        train_fraction: 0.0,
+        ..train
+    };
+    let o = opts(IntegratorKind::PtNee, DOOR_SPP, w, h, 6 + 10 * seed, 0);
+    let (guided, st) = render_guided(&scene, &o, &frozen, &mut g);
+    assert_eq!(st.samples_recorded, 0);
+    let pt_nee = render(
+        &scene,
+        &opts(IntegratorKind::PtNee, DOOR_SPP, w, h, 5 + 10 * seed, 0),
+    );
+    let reference = render(
+        &scene,
+        &opts(IntegratorKind::PtNee, 16, w, h, 7 + 10 * seed, 0),
+    );
+    let ((vg, eg), (vp, ep)) = (
+        relative_variance(&guided, &reference),
+        relative_variance(&pt_nee, &reference),
+    );
+    let ratio = vg / vp;
+    let se = ratio * (eg * eg + ep * ep).sqrt();
+    eprintln!(
+        "door {w}x{h} {DOOR_SPP} spp: relative variance pt-nee {vp:.3e} (rse {ep:.3}), \
+         guided {vg:.3e} (rse {eg:.3}); ratio {ratio:.3} +- {se:.3}; mean pixel variance \
+         ratio {:.3}",
+        mean_pixel_variance(&guided) / mean_pixel_variance(&pt_nee)
+    );
+    (ratio, se)
+}
+
+/// [`door_ratio`] over 8 seed sets: the measurement behind [`DOOR_MAX_RATIO`] (re-run it when
+/// the door or the guide changes).
+#[test]
+#[ignore = "a measurement, run by hand: ~100 s"]
+fn door_ratio_over_seeds() {
+    let r: Vec<f64> = (0..8).map(|s| door_ratio(s).0).collect();
+    let n = r.len() as f64;
+    let m = r.iter().sum::<f64>() / n;
+    let sd = (r.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+    eprintln!("door ratio over {n} seed sets: {r:.3?}; mean {m:.3}, sd {sd:.3}");
 }
 
 /// (c) Training really stops after the training fraction: no samples recorded, no steps

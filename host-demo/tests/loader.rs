@@ -11,26 +11,18 @@ use host_demo::scene::load::xml;
 use host_demo::scene::Scene;
 use std::path::{Path, PathBuf};
 
-fn shared_scenes() -> Option<PathBuf> {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes");
-    if p.join("cornell-box/scene.xml").exists() {
-        Some(p)
-    } else {
-        eprintln!("SKIP: shared scenes not found at {}", p.display());
-        None
-    }
-}
+mod common;
 
-/// Every scene the tests know: the three built-ins and (when present) the two shared scenes.
+/// Every scene the tests know: the three built-ins and the two shared scenes (their folder
+/// missing is a failure, [`common::shared_scenes`]).
 fn all_scenes() -> Vec<(String, Scene)> {
     let mut specs: Vec<String> = ["cornell-box", "door", "furnace"]
         .iter()
         .map(|n| format!("builtin:{n}"))
         .collect();
-    if let Some(dir) = shared_scenes() {
-        for n in ["cornell-box", "veach-mis"] {
-            specs.push(dir.join(n).join("scene.xml").display().to_string());
-        }
+    let dir = common::shared_scenes();
+    for n in ["cornell-box", "veach-mis"] {
+        specs.push(dir.join(n).join("scene.xml").display().to_string());
     }
     specs
         .into_iter()
@@ -66,9 +58,7 @@ fn every_builtin_and_shared_scene_loads() {
         assert!(sc.settings.width > 0 && sc.settings.height > 0);
     }
     // Emitter counts and images of the shared scenes are checked in render.rs.
-    if shared_scenes().is_some() {
-        assert_eq!(scenes.len(), 5);
-    }
+    assert_eq!(scenes.len(), 5);
 }
 
 #[test]

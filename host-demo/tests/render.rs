@@ -8,7 +8,8 @@
 use host_demo::render::{render, Image, IntegratorKind, RenderOptions};
 use host_demo::scene::builtin::{furnace_expected, load_builtin};
 use host_demo::scene::load::xml;
-use std::path::PathBuf;
+
+mod common;
 
 /// z threshold; with ~15 channel comparisons the family-wise false-alarm rate is ~1e-3.
 const Z: f64 = 4.5;
@@ -33,16 +34,6 @@ fn opts(kind: IntegratorKind, spp: u32, w: u32, h: u32, seed: u64) -> RenderOpti
         width: w,
         height: h,
         ..RenderOptions::default()
-    }
-}
-
-fn shared_scenes() -> Option<PathBuf> {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes");
-    if p.join("cornell-box/scene.xml").exists() {
-        Some(p)
-    } else {
-        eprintln!("SKIP: shared scenes not found at {}", p.display());
-        None
     }
 }
 
@@ -173,7 +164,7 @@ fn pt_and_pt_nee_agree_on_cornell_box() {
 
 #[test]
 fn shared_cornell_box_matches_mitsuba_reference() {
-    let Some(dir) = shared_scenes() else { return };
+    let dir = common::shared_scenes();
     let sc = xml::load_file(&dir.join("cornell-box/scene.xml")).expect("loads");
     assert_eq!((sc.settings.width, sc.settings.height), (256, 256));
     let img = render(&sc, &opts(IntegratorKind::PtNee, 16, res(256), res(256), 5));
@@ -209,7 +200,7 @@ fn builtin_cornell_box_matches_shared_reference() {
 
 #[test]
 fn veach_mis_renders_and_matches_reference() {
-    let Some(dir) = shared_scenes() else { return };
+    let dir = common::shared_scenes();
     let sc = xml::load_file(&dir.join("veach-mis/scene.xml")).expect("loads");
     assert_eq!(sc.lights.len(), 3);
     let img = render(&sc, &opts(IntegratorKind::PtNee, 16, 320, 180, 7));

@@ -627,8 +627,8 @@ fn chi2_catches_wrong_beckmann_pdf() {
 #[test]
 fn blendbsdf_sampling_matches_mixture_pdf() {
     use glam::{Mat4, Vec2};
-    use host_demo::scene::{Camera, MaterialTextures, SceneBuilder, Settings};
     use host_demo::scene::texture::{Texture, UvMap};
+    use host_demo::scene::{Camera, MaterialTextures, SceneBuilder, Settings};
 
     let mut b = SceneBuilder::default();
     let rough = b.material(Material::RoughConductor {

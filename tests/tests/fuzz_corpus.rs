@@ -544,11 +544,21 @@ fn training_seeds() -> Vec<(String, Vec<u8>)> {
     out
 }
 
-fn shared_scene(name: &str) -> Option<Vec<u8>> {
+/// The scene input of shared scene `name` (`shared/scenes/` beside the repository, i.e.
+/// `../shared/scenes` from its root; CI always has it). A missing scene fails the test with
+/// the path it expected instead of silently dropping the seed.
+fn shared_scene(name: &str) -> Vec<u8> {
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../../shared/scenes")
         .join(name);
-    let xml = std::fs::read_to_string(dir.join("scene.xml")).ok()?;
+    let path = dir.join("scene.xml");
+    let xml = std::fs::read_to_string(&path).unwrap_or_else(|e| {
+        panic!(
+            "shared scene not found: expected {} (the `shared/scenes` folder beside the \
+             repository, i.e. ../shared/scenes from its root): {e}",
+            path.display()
+        )
+    });
     let mut meshes = Vec::new();
     for i in 0..16 {
         let name = format!("meshes/mesh{i:02}.obj");
@@ -560,7 +570,7 @@ fn shared_scene(name: &str) -> Option<Vec<u8>> {
         .iter()
         .map(|(n, t)| (n.as_str(), t.as_str()))
         .collect();
-    Some(scene_input(&xml, &refs))
+    scene_input(&xml, &refs)
 }
 
 const SENSOR: &str = r#"<sensor type="perspective"><float name="fov" value="40"/>
@@ -576,9 +586,7 @@ type Meshes<'a> = &'a [(&'a str, &'a str)];
 fn scene_seeds() -> Vec<(String, Vec<u8>)> {
     let mut out = Vec::new();
     for name in ["cornell-box", "veach-mis"] {
-        if let Some(s) = shared_scene(name) {
-            out.push((format!("seed-shared-{name}"), s));
-        }
+        out.push((format!("seed-shared-{name}"), shared_scene(name)));
     }
     let xml = |body: &str| format!("<scene version=\"3.0.0\">\n{SENSOR}\n{body}\n</scene>\n");
     let hand: [(&str, String, Meshes); 12] = [
@@ -668,9 +676,12 @@ fn seeds_are_meaningful() {
     for (name, input) in scene_seeds() {
         let text = String::from_utf8(input).unwrap();
         let (xml, meshes) = fuzz_checks::split_scene_input(&text);
-        let result = host_demo::scene::load::xml::load_str_with(xml, &name, std::path::Path::new(""), &|p| {
-            read(&meshes, p)
-        });
+        let result = host_demo::scene::load::xml::load_str_with(
+            xml,
+            &name,
+            std::path::Path::new(""),
+            &|p| read(&meshes, p),
+        );
         if let Ok(scene) = &result {
             fuzz_checks::check_scene(&name, scene);
             loaded.push(name);
@@ -680,10 +691,9 @@ fn seeds_are_meaningful() {
         "seed-conductor-obj",
         "seed-sampler-film",
         "seed-sphere-light",
+        "seed-shared-cornell-box",
+        "seed-shared-veach-mis",
     ];
-    if shared_scene("cornell-box").is_some() {
-        expected.extend(["seed-shared-cornell-box", "seed-shared-veach-mis"]);
-    }
     expected.sort_unstable();
     loaded.sort();
     assert_eq!(loaded, expected);

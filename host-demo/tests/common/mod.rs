@@ -2,7 +2,22 @@
 
 #![allow(dead_code)] // each test binary uses a subset
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+/// The shared Mitsuba 3 scenes with published references, `shared/scenes/` beside the
+/// repository (`../shared/scenes` from its root; CI always has them). A missing folder fails
+/// the test with the path it expected instead of skipping the reference comparisons.
+pub fn shared_scenes() -> PathBuf {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes");
+    let probe = dir.join("cornell-box/scene.xml");
+    assert!(
+        probe.is_file(),
+        "shared Mitsuba scenes not found: expected {} (the `shared/scenes` folder beside the \
+         repository, i.e. ../shared/scenes from its root)",
+        probe.display()
+    );
+    dir
+}
 
 /// Two-sided normal quantile: `z` with `erfc(z/√2) = alpha` (bisection, exact to f64).
 pub fn z_threshold(alpha: f64) -> f64 {

@@ -4,8 +4,8 @@
 use host_demo::scene::bsdf::Material;
 use host_demo::scene::load::obj::parse_obj;
 use host_demo::scene::load::ply::parse_ply;
-use host_demo::scene::{Prim, Scene};
 use host_demo::scene::load::xml::load_str_with;
+use host_demo::scene::{Prim, Scene};
 use std::path::Path;
 
 /// Inputs longer than this are not examined (the loaders are linear in the

@@ -70,6 +70,11 @@ pub struct GuidedOptions {
     /// Radiance-target vMF guides (NPM) are multiplied by the clamped cosine of the shading
     /// normal before sampling (Open PGL's `ApplyCosineProduct`).
     pub cosine_product: bool,
+    /// Test hook, 1 in every real render: factor on the guide pdf inside the continuation's
+    /// combined density (≠ 1 is a deliberate sample/pdf mismatch, a biased estimator; the
+    /// power check of `tests/unbiased.rs` uses it).
+    #[doc(hidden)]
+    pub guide_pdf_scale: f32,
 }
 
 impl Default for GuidedOptions {
@@ -81,6 +86,7 @@ impl Default for GuidedOptions {
             min_alpha: 0.05,
             cosine_product: true,
             train_epochs: 4.0,
+            guide_pdf_scale: 1.0,
         }
     }
 }
@@ -491,7 +497,7 @@ impl VertexStrategy for GuidedWorker<'_> {
             let frame = Frame::new(verts.ns[i]);
             let (f, pdf_bsdf) = verts.bsdf[i].eval(frame.to_local(verts.wo[i]), frame.to_local(wi));
             let c = self.selection[qi as usize];
-            let pdf = c * self.guide_pdf[i] + (1.0 - c) * pdf_bsdf;
+            let pdf = c * self.guide_pdf[i] * self.gopts.guide_pdf_scale + (1.0 - c) * pdf_bsdf;
             if !(pdf > 0.0 && pdf.is_finite()) || f.max_element() <= 0.0 {
                 out.set(i, Vec3::ZERO, Vec3::ZERO, 0.0);
                 continue;
