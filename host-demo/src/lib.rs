@@ -10,7 +10,7 @@
 //!   How a vertex picks its continuation direction is a [`render::strategy`]: BSDF sampling
 //!   (`pt`, `pt-nee`) or path guiding (`guided`, which decodes the guide for a whole bounce with
 //!   one batched call and records its training samples through the library's batch recorder).
-//! * [`bench`]: the equal-time benchmark and its report; the command line lives in the binary.
+//! * [`bench`](mod@bench): the equal-time benchmark and its report; the command line lives in the binary.
 //!
 //! Modules depend downwards only: `bench` → `render` → `scene` → `math`/`error`.
 

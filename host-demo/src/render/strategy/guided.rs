@@ -53,7 +53,7 @@ use guiding_core::sample::TrainingSample;
 use guiding_gpu::GpuError;
 use std::time::{Duration, Instant};
 
-/// Options of the guided integrator (beyond [`RenderOptions`]).
+/// Options of the guided integrator (beyond [`RenderOptions`](crate::render::RenderOptions)).
 #[derive(Clone, Copy, Debug)]
 pub struct GuidedOptions {
     /// Next-event estimation on every emitter NEE can sample (pt-nee mode).
