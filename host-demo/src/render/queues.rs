@@ -173,10 +173,8 @@ pub struct Continuations {
     pub pdf: Vec<f32>,
     /// BSDF-sampling density of `wi` (training records).
     pub bsdf_pdf: Vec<f32>,
-    /// `f · |cos|` for `wi` (training records).
+    /// `f · |cos|` for `wi` (training records of the vertices the strategy guides).
     pub bsdf_cos: Vec<Vec3>,
-    /// The vertex makes a training sample (the strategy guides it).
-    pub trainable: Vec<bool>,
 }
 
 impl Continuations {
@@ -192,8 +190,6 @@ impl Continuations {
         self.bsdf_pdf.resize(n, 0.0);
         self.bsdf_cos.clear();
         self.bsdf_cos.resize(n, Vec3::ZERO);
-        self.trainable.clear();
-        self.trainable.resize(n, false);
     }
 
     /// Writes the continuation of vertex `i`.

@@ -366,7 +366,8 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
             if let Some(r) = &mut self.recorder {
                 // A vertex that makes no sample only propagates: its weight as `f·cos / p`
                 // with `p = 1`.
-                let (sample_pdf, bsdf_cos) = if c.trainable[i] {
+                let trains = r.last_vertex(slot).is_some_and(|v| !v.is_delta);
+                let (sample_pdf, bsdf_cos) = if trains {
                     (c.pdf[i], c.bsdf_cos[i])
                 } else {
                     (1.0, c.weight[i])

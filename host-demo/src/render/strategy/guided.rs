@@ -505,7 +505,6 @@ impl VertexStrategy for GuidedWorker<'_> {
             out.set(i, wi, f / pdf, pdf);
             out.bsdf_pdf[i] = pdf_bsdf;
             out.bsdf_cos[i] = f;
-            out.trainable[i] = true;
         }
     }
 }
