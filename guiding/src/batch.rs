@@ -37,9 +37,9 @@ use guiding_core::model::{GuidingModel, QueryPoint};
 /// from the surface).
 #[derive(Clone, Debug, Default)]
 pub struct DistributionBatch {
-    field_id: u64,
-    generation: u64,
-    items: BatchItems,
+    pub(crate) field_id: u64,
+    pub(crate) generation: u64,
+    pub(crate) items: BatchItems,
 }
 
 impl DistributionBatch {

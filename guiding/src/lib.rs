@@ -79,6 +79,7 @@
 //! unnormalised value of a single lobe).
 
 pub mod batch;
+pub mod cache;
 pub mod config;
 pub mod error;
 pub mod field;
@@ -87,6 +88,7 @@ mod models;
 pub mod recorder;
 
 pub use batch::DistributionBatch;
+pub use cache::{CacheLookup, CacheOptions, GuideCache};
 pub use config::{GuidingConfig, ModelSize, Representation, Target};
 pub use error::GuidingError;
 pub use field::{DecodedDistribution, Distribution, FieldStats, GuidingField, ModelExport};

@@ -90,6 +90,49 @@ impl BatchItems {
         self.vmf.len().max(self.nasg.len()).max(self.df.len())
     }
 
+    /// Appends `other`'s lanes (same family; the selection constant is
+    /// `other`'s).
+    pub(crate) fn append(&mut self, other: &BatchItems) {
+        self.vmf.extend_from_slice(&other.vmf);
+        self.nasg.extend_from_slice(&other.nasg);
+        self.df.extend_from_slice(&other.df);
+        self.selection = other.selection;
+    }
+
+    /// Replaces the lanes by `source[i]`'s lane of `cells`, or of `network`
+    /// where `source[i]` has the bit `flag` (then the low bits index
+    /// `network`). Both come from the same field, so they share the family
+    /// and the selection constant.
+    pub(crate) fn gather(
+        &mut self,
+        cells: &BatchItems,
+        network: &BatchItems,
+        source: &[u32],
+        flag: u32,
+    ) {
+        fn pick<T: Copy>(cells: &[T], network: &[T], source: &[u32], flag: u32, out: &mut Vec<T>) {
+            out.clear();
+            if cells.is_empty() && network.is_empty() {
+                return;
+            }
+            out.extend(source.iter().map(|&s| {
+                if s & flag != 0 {
+                    network[(s & !flag) as usize]
+                } else {
+                    cells[s as usize]
+                }
+            }));
+        }
+        pick(&cells.vmf, &network.vmf, source, flag, &mut self.vmf);
+        pick(&cells.nasg, &network.nasg, source, flag, &mut self.nasg);
+        pick(&cells.df, &network.df, source, flag, &mut self.df);
+        self.selection = if cells.len() > 0 {
+            cells.selection
+        } else {
+            network.selection
+        };
+    }
+
     /// Lane `i` as a [`Decoded`] value (`None` out of range).
     pub(crate) fn get(&self, i: usize) -> Option<Decoded> {
         let selection = self.selection;

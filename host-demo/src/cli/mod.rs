@@ -68,6 +68,16 @@ enum DeviceArg {
 }
 
 #[derive(Clone, Copy, ValueEnum)]
+enum CacheArg {
+    /// Every guidable vertex runs the network.
+    Off,
+    /// The network while training, a spatial cache of the decoded guide afterwards.
+    Frozen,
+    /// The cache in every pass after the first update (refreshed after each update).
+    Always,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
 enum OnOff {
     /// Enabled.
     On,
@@ -165,6 +175,14 @@ enum Cmd {
         /// --plateau-window).
         #[arg(long, default_value_t = 0.01)]
         plateau_margin: f32,
+        /// Answer radiance-target guide queries from a spatial cache of the decoded guide
+        /// (one network pass per occupied cell, stochastic trilinear lookup) instead of the
+        /// network per vertex; product guides never use it.
+        #[arg(long, value_enum, default_value = "off")]
+        guide_cache: CacheArg,
+        /// Cells of the guide cache along the scene's longest axis, in [1, 256].
+        #[arg(long, default_value_t = 64)]
+        guide_cache_resolution: u32,
         /// NEE in the guided integrator (default: on when the scene has an emitter NEE can sample).
         #[arg(long, value_enum)]
         nee: Option<OnOff>,

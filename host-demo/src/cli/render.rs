@@ -1,10 +1,10 @@
 //! `host-demo render`: one image, its statistics and its output files.
 
-use super::{Cmd, DeviceArg, GuideArg, Integrator, OnOff, SizeArg, TargetArg};
+use super::{CacheArg, Cmd, DeviceArg, GuideArg, Integrator, OnOff, SizeArg, TargetArg};
 use guiding_core::field::{FieldConfig, PlateauConfig};
 use guiding_core::loss::Target;
 use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
-use host_demo::render::{render_guided, render_guided_gpu, GuidedOptions};
+use host_demo::render::{render_guided, render_guided_gpu, CacheMode, GuidedOptions};
 use host_demo::render::{render_with_stats, RenderStats};
 use host_demo::render::{IntegratorKind, RenderOptions};
 use serde_json::json;
@@ -37,6 +37,8 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         learning_rate,
         plateau_window,
         plateau_margin,
+        guide_cache,
+        guide_cache_resolution,
         nee,
         device,
         vk_device,
@@ -73,6 +75,12 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
     }
     if !(learning_rate.is_finite() && learning_rate > 0.0) {
         return bad(format!("--learning-rate {learning_rate} must be > 0"));
+    }
+    if !(1..=guiding::cache::MAX_CACHE_RESOLUTION).contains(&guide_cache_resolution) {
+        return bad(format!(
+            "--guide-cache-resolution {guide_cache_resolution} is not in [1, {}]",
+            guiding::cache::MAX_CACHE_RESOLUTION
+        ));
     }
     if !(plateau_margin.is_finite() && plateau_margin >= 0.0) {
         return bad(format!("--plateau-margin {plateau_margin} must be >= 0"));
@@ -149,6 +157,12 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
             },
             train_fraction,
             selection_probability,
+            cache: match guide_cache {
+                CacheArg::Off => CacheMode::Off,
+                CacheArg::Frozen => CacheMode::Frozen,
+                CacheArg::Always => CacheMode::Always,
+            },
+            cache_resolution: guide_cache_resolution,
             ..GuidedOptions::default()
         };
         let kind = match guide {
@@ -302,7 +316,8 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
             // the thread count estimate their share of the tracing wall time.
             let inference = (g.query.as_secs_f64() / threads as f64).min(trace);
             let training = g.training.as_secs_f64();
-            let wall = trace + training;
+            let cache_build = g.cache_build.as_secs_f64();
+            let wall = trace + training + cache_build;
             let used = g
                 .samples_recorded
                 .saturating_sub(g.rejected_samples + g.overflowed_samples);
@@ -315,6 +330,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
                 "inference": inference,
                 "inference_thread_s": g.query.as_secs_f64(),
                 "training": training,
+                "cache_build": cache_build,
             });
             doc["rays"] = json!(g.rays);
             doc["rays_per_second"] = json!(g.rays as f64 / wall.max(1e-9));
@@ -360,6 +376,13 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
                     "last_loss": if g.last_loss.is_finite() { json!(g.last_loss) } else { json!(null) },
                 },
                 "russian_roulette": rr_stage,
+                "guide_cache": {
+                    "ran": g.cache_hits > 0,
+                    "mode": g.cache,
+                    "cells": g.cache_cells,
+                    "hits": g.cache_hits,
+                    "misses": g.cache_misses,
+                },
             });
         }
         let text = format!("{doc:#}\n");

@@ -16,7 +16,7 @@ pub mod wavefront;
 
 pub use image::{Image, RenderStats};
 pub use options::{IntegratorKind, RenderOptions};
-pub use strategy::guided::{GuidedOptions, GuidedStats};
+pub use strategy::guided::{CacheMode, GuidedOptions, GuidedStats};
 
 use crate::scene::Scene;
 use guiding::GuidingField;

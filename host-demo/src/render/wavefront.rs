@@ -163,7 +163,8 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
         let mut bounce = 0u32;
         while !self.rays_in.is_empty() && bounce < self.opts.max_depth {
             self.stage_intersect_and_emission(bounce);
-            self.strategy.prepare(self.scene, &self.verts);
+            self.strategy
+                .prepare(self.scene, &self.verts, &mut self.rng);
             if self.nee {
                 self.stage_nee();
                 self.stage_shadow();

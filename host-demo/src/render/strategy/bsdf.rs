@@ -39,7 +39,7 @@ impl Strategy for BsdfSampling {
 }
 
 impl VertexStrategy for BsdfSampling {
-    fn prepare(&mut self, _: &Scene, _: &Vertices) {}
+    fn prepare(&mut self, _: &Scene, _: &Vertices, _: &mut [Rng]) {}
 
     fn light_pdfs(&mut self, _: &Vertices, lights: &mut LightSamples) {
         lights.sampling_pdf.clear();

@@ -32,6 +32,17 @@
 //! nothing is recorded any more. The training passes stay in the image (each is an unbiased
 //! estimate).
 //!
+//! # Guide cache
+//!
+//! With [`GuidedOptions::cache`] a radiance-target guide is answered from a
+//! [`GuideCache`] (the decoded guide per occupied cell of a fine spatial grid, looked up with
+//! a stochastic trilinear jitter drawn from the path's random stream) instead of one network
+//! pass per vertex: [`CacheMode::Frozen`] builds it when training stops, from the positions of
+//! the last training pass, [`CacheMode::Always`] also during training (refreshed after every
+//! update). A vertex with no cell near it is decoded by the network, and its position is added
+//! to the cache after the pass. Product-target guides depend on `ωo`, the normal and the
+//! roughness: they never use the cache (`--stats` says so).
+//!
 //! Radiance-target guides are sampled directly (the learned incident-radiance distribution,
 //! times the cosine with [`GuidedOptions::cosine_product`]) instead of the product with the
 //! BSDF: still unbiased through the combined density, just less efficient on glossy surfaces.
@@ -47,11 +58,26 @@ use crate::render::strategy::{Strategy, VertexStrategy};
 use crate::scene::bsdf::Material;
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
-use guiding::{DirectionSample, DistributionBatch, GuidingField};
+use guiding::{
+    CacheOptions, DirectionSample, DistributionBatch, GuideCache, GuidingError, GuidingField,
+};
 use guiding_core::model::QueryPoint;
 use guiding_core::sample::TrainingSample;
 use guiding_gpu::GpuError;
 use std::time::{Duration, Instant};
+
+/// When the guided integrator answers guide queries from a [`GuideCache`] (radiance-target
+/// guides on the CPU only).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum CacheMode {
+    /// Every guidable vertex runs the network (one batched decode per bounce).
+    #[default]
+    Off,
+    /// The network during training; the cache once training has stopped.
+    Frozen,
+    /// The cache in every pass after the first update (refreshed after each update).
+    Always,
+}
 
 /// Options of the guided integrator (beyond [`RenderOptions`](crate::render::RenderOptions)).
 #[derive(Clone, Copy, Debug)]
@@ -70,6 +96,10 @@ pub struct GuidedOptions {
     /// Radiance-target vMF guides (NPM) are multiplied by the clamped cosine of the shading
     /// normal before sampling (Open PGL's `ApplyCosineProduct`).
     pub cosine_product: bool,
+    /// When guide queries are answered from a spatial cache of the decoded guide.
+    pub cache: CacheMode,
+    /// Cells of the guide cache along the scene box's longest axis.
+    pub cache_resolution: u32,
     /// Test hook, 1 in every real render: factor on the guide pdf inside the continuation's
     /// combined density (≠ 1 is a deliberate sample/pdf mismatch, a biased estimator; the
     /// power check of `tests/unbiased.rs` uses it).
@@ -86,6 +116,8 @@ impl Default for GuidedOptions {
             min_alpha: 0.05,
             cosine_product: true,
             train_epochs: 4.0,
+            cache: CacheMode::Off,
+            cache_resolution: CacheOptions::default().resolution,
             guide_pdf_scale: 1.0,
         }
     }
@@ -137,6 +169,16 @@ pub struct GuidedStats {
     pub training: Duration,
     /// Rays traced (closest-hit and shadow).
     pub rays: u64,
+    /// The guide cache: `None` when off, else why it was not used or its size.
+    pub cache: Option<String>,
+    /// Guidable vertices answered by the cache / by the network because no cell was near.
+    pub cache_hits: u64,
+    /// See `cache_hits`.
+    pub cache_misses: u64,
+    /// Occupied cells of the cache at the end of the render.
+    pub cache_cells: u64,
+    /// Wall time of building, refreshing and extending the cache.
+    pub cache_build: Duration,
 }
 
 impl std::fmt::Display for GuidedStats {
@@ -164,6 +206,16 @@ impl std::fmt::Display for GuidedStats {
             self.overflowed_samples,
             self.last_loss
         )?;
+        if let Some(c) = &self.cache {
+            writeln!(
+                f,
+                "guide cache: {c}; {} cells, {} hits, {} misses (network), built in {:.3} s",
+                self.cache_cells,
+                self.cache_hits,
+                self.cache_misses,
+                self.cache_build.as_secs_f64()
+            )?;
+        }
         if let Some(p) = self.converged_at_pass {
             writeln!(
                 f,
@@ -191,6 +243,10 @@ pub struct Guided<'g> {
     gopts: GuidedOptions,
     stats: GuidedStats,
     stopped: bool,
+    /// The guide cache (see the module docs) and the positions of the latest training pass.
+    cache: Option<GuideCache>,
+    use_cache: bool,
+    last_positions: Vec<Vec3>,
 }
 
 impl<'g> Guided<'g> {
@@ -204,6 +260,26 @@ impl<'g> Guided<'g> {
             Some(d) => format!("{} on {}", describe(guide), d.device()),
             None => describe(guide),
         };
+        let radiance = guide.config().target == guiding::Target::Radiance;
+        let cache = match gopts.cache {
+            CacheMode::Off => None,
+            _ if gpu.is_some() => Some("not used (the guide runs on the device)".to_string()),
+            _ if !radiance => Some(
+                "not used (a product guide also depends on the outgoing direction, the normal \
+                 and the roughness)"
+                    .to_string(),
+            ),
+            mode => Some(format!(
+                "{} at {} cells on the longest axis",
+                if mode == CacheMode::Frozen {
+                    "after training"
+                } else {
+                    "every pass after the first update"
+                },
+                gopts.cache_resolution
+            )),
+        };
+        let use_cache = gopts.cache != CacheMode::Off && gpu.is_none() && radiance;
         Guided {
             guide,
             gpu,
@@ -211,10 +287,35 @@ impl<'g> Guided<'g> {
             stats: GuidedStats {
                 model,
                 last_loss: f64::NAN,
+                cache,
                 ..GuidedStats::default()
             },
             stopped: false,
+            cache: None,
+            use_cache,
+            last_positions: Vec::new(),
         }
+    }
+
+    /// Brings the cache to the field's current generation and adds the cells of `positions`
+    /// (building it if there is none yet).
+    fn update_cache(&mut self, positions: &[Vec3]) -> Result<(), GuidingError> {
+        let t0 = Instant::now();
+        match &mut self.cache {
+            Some(c) => {
+                c.refresh(self.guide)?;
+                c.extend(self.guide, positions)?;
+            }
+            None => {
+                let options = CacheOptions {
+                    resolution: self.gopts.cache_resolution,
+                };
+                self.cache = Some(self.guide.build_cache(positions, &options)?);
+            }
+        }
+        self.stats.cache_cells = self.cache.as_ref().map_or(0, |c| c.cells() as u64);
+        self.stats.cache_build += t0.elapsed();
+        Ok(())
     }
 
     /// Ends training (if the schedule has not) and returns the statistics, with the driver's
@@ -245,6 +346,9 @@ pub struct WorkerReport {
     guided_vertices: u64,
     query_time: Duration,
     gpu_error: Option<GpuError>,
+    cache_hits: u64,
+    /// Positions of the vertices the cache missed (decoded by the network).
+    missed_positions: Vec<Vec3>,
 }
 
 /// Marks a vertex that is not guided.
@@ -256,6 +360,10 @@ pub struct GuidedWorker<'g> {
     guide: &'g GuidingField,
     /// `--device gpu`: the network runs there (raw outputs decoded here).
     gpu: Option<&'g GpuGuide>,
+    /// The guide cache of this pass, if any: it answers instead of the network.
+    cache: Option<&'g GuideCache>,
+    jitter: Vec<Vec3>,
+    missed: Vec<u32>,
     gopts: GuidedOptions,
     report: WorkerReport,
     /// Raw network outputs of the guidable vertices (GPU path).
@@ -282,16 +390,26 @@ pub struct GuidedWorker<'g> {
 }
 
 impl<'g> GuidedWorker<'g> {
-    fn new(guide: &'g GuidingField, gpu: Option<&'g GpuGuide>, gopts: GuidedOptions) -> Self {
+    fn new(
+        guide: &'g GuidingField,
+        gpu: Option<&'g GpuGuide>,
+        cache: Option<&'g GuideCache>,
+        gopts: GuidedOptions,
+    ) -> Self {
         Self {
             guide,
             gpu,
+            cache,
+            jitter: Vec::new(),
+            missed: Vec::new(),
             gopts,
             report: WorkerReport {
                 queries: 0,
                 guided_vertices: 0,
                 query_time: Duration::ZERO,
                 gpu_error: None,
+                cache_hits: 0,
+                missed_positions: Vec::new(),
             },
             raw: Vec::new(),
             guided_index: Vec::new(),
@@ -348,12 +466,20 @@ impl VertexStrategy for GuidedWorker<'_> {
     /// One batched decode of the guide at the bounce's guidable vertices; with `--device gpu`
     /// the network runs there and its raw outputs go through the same decoders, and a device
     /// or decode failure ends the render after the pass.
-    fn prepare(&mut self, _: &Scene, verts: &Vertices) {
+    fn prepare(&mut self, _: &Scene, verts: &Vertices, rng: &mut [Rng]) {
         self.guided_index.clear();
         self.queries.clear();
+        self.jitter.clear();
         for i in 0..verts.len() {
             let mat = &verts.bsdf[i];
             if mat.guidable(self.gopts.min_alpha) {
+                if self.cache.is_some() {
+                    // Three 10-bit uniforms (cell centres of a 1024-grid) for the lookup.
+                    let bits = rng[verts.slot[i] as usize].next_u32();
+                    let unit = |b: u32| ((b & 1023) as f32 + 0.5) * (1.0 / 1024.0);
+                    self.jitter
+                        .push(Vec3::new(unit(bits), unit(bits >> 10), unit(bits >> 20)));
+                }
                 self.guided_index.push(self.queries.len() as u32);
                 self.queries.push(QueryPoint::from_vec3(
                     verts.position[i],
@@ -384,7 +510,35 @@ impl VertexStrategy for GuidedWorker<'_> {
                 }
             }
             Some(_) => self.decoded = DistributionBatch::new(),
-            None => field.decode_batch(&self.queries, &mut self.decoded),
+            None => match self.cache {
+                Some(cache) => {
+                    let looked_up = cache.decode_batch(
+                        field,
+                        &self.queries,
+                        &self.jitter,
+                        &mut self.decoded,
+                        &mut self.missed,
+                    );
+                    match looked_up {
+                        Ok(l) => {
+                            self.report.cache_hits += l.hits;
+                            self.report.missed_positions.extend(
+                                self.missed
+                                    .iter()
+                                    .map(|&k| Vec3::from_array(self.queries[k as usize].position)),
+                            );
+                        }
+                        // A stale cache (a bug): the network answers every vertex.
+                        Err(_) => {
+                            field.decode_batch(&self.queries, &mut self.decoded);
+                            self.report
+                                .missed_positions
+                                .extend(self.queries.iter().map(|q| Vec3::from_array(q.position)));
+                        }
+                    }
+                }
+                None => field.decode_batch(&self.queries, &mut self.decoded),
+            },
         }
         if self.gopts.cosine_product && field.config().target == guiding::Target::Radiance {
             self.normals.clear();
@@ -518,7 +672,12 @@ impl<'g> Strategy for Guided<'g> {
     type Error = GpuError;
 
     fn worker(&self) -> GuidedWorker<'_> {
-        GuidedWorker::new(self.guide, self.gpu.as_deref(), self.gopts)
+        GuidedWorker::new(
+            self.guide,
+            self.gpu.as_deref(),
+            self.cache.as_ref(),
+            self.gopts,
+        )
     }
 
     fn report(&self, worker: GuidedWorker<'_>) -> WorkerReport {
@@ -539,6 +698,14 @@ impl<'g> Strategy for Guided<'g> {
                 d.stop_training();
             }
             self.stopped = true;
+            if self.use_cache {
+                let positions = std::mem::take(&mut self.last_positions);
+                // Only a bug makes this fail (radiance target and resolution checked): the
+                // network then answers every query.
+                if self.update_cache(&positions).is_err() {
+                    self.cache = None;
+                }
+            }
         }
         self.stats.training_passes += u32::from(record);
         self.stats.passes_planned_for_training += u32::from(pass.train);
@@ -552,11 +719,15 @@ impl<'g> Strategy for Guided<'g> {
         reports: Vec<WorkerReport>,
         samples: Vec<TrainingSample>,
     ) -> Result<(), GpuError> {
+        let mut missed = Vec::new();
         let st = &mut self.stats;
         for r in reports {
             if let Some(e) = r.gpu_error {
                 return Err(e);
             }
+            st.cache_hits += r.cache_hits;
+            st.cache_misses += r.missed_positions.len() as u64;
+            missed.extend(r.missed_positions);
             st.guide_queries += r.queries;
             if recorded {
                 st.guide_queries_training += r.queries;
@@ -568,33 +739,55 @@ impl<'g> Strategy for Guided<'g> {
         if !recorded {
             st.samples_recorded_after_training += samples.len() as u64;
         }
-        if samples.is_empty() {
-            return Ok(());
+        if !samples.is_empty() {
+            let t_train = Instant::now();
+            if let Some(d) = self.gpu.as_deref_mut() {
+                let steps_before = d.steps();
+                let rep = d.update(&samples)?;
+                if rep.steps > 0 {
+                    st.last_loss = rep.mean_loss;
+                }
+                if !recorded {
+                    st.training_steps_after_training += d.steps() - steps_before;
+                }
+            } else {
+                let steps_before = self.guide.stats().steps;
+                self.guide.add_samples(&samples);
+                // Adam steps proportional to the samples of this pass (capped).
+                let rep = self.guide.update_proportional(self.gopts.train_epochs);
+                if rep.steps > 0 {
+                    st.last_loss = rep.mean_loss;
+                    st.loss_history.push(rep.mean_loss);
+                }
+                if !recorded {
+                    st.training_steps_after_training += self.guide.stats().steps - steps_before;
+                }
+            }
+            st.training += t_train.elapsed();
         }
-        let t_train = Instant::now();
-        if let Some(d) = self.gpu.as_deref_mut() {
-            let steps_before = d.steps();
-            let rep = d.update(&samples)?;
-            if rep.steps > 0 {
-                st.last_loss = rep.mean_loss;
-            }
-            if !recorded {
-                st.training_steps_after_training += d.steps() - steps_before;
-            }
-        } else {
-            let steps_before = self.guide.stats().steps;
-            self.guide.add_samples(&samples);
-            // Adam steps proportional to the samples of this pass (capped).
-            let rep = self.guide.update_proportional(self.gopts.train_epochs);
-            if rep.steps > 0 {
-                st.last_loss = rep.mean_loss;
-                st.loss_history.push(rep.mean_loss);
-            }
-            if !recorded {
-                st.training_steps_after_training += self.guide.stats().steps - steps_before;
+        if self.use_cache {
+            let result = if recorded {
+                self.last_positions.clear();
+                self.last_positions
+                    .extend(samples.iter().map(|s| Vec3::from_array(s.position)));
+                if self.gopts.cache == CacheMode::Always {
+                    let positions = std::mem::take(&mut self.last_positions);
+                    let r = self.update_cache(&positions);
+                    self.last_positions = positions;
+                    r
+                } else {
+                    Ok(())
+                }
+            } else if self.cache.is_some() && !missed.is_empty() {
+                self.update_cache(&missed)
+            } else {
+                Ok(())
+            };
+            // Only a bug makes this fail: the network then answers every query.
+            if result.is_err() {
+                self.cache = None;
             }
         }
-        st.training += t_train.elapsed();
         Ok(())
     }
 }

@@ -59,8 +59,9 @@ pub trait Strategy: Sync {
 
 /// The per-thread, per-bounce half of a [`Strategy`].
 pub trait VertexStrategy {
-    /// Called once per bounce before NEE and sampling.
-    fn prepare(&mut self, scene: &Scene, verts: &Vertices);
+    /// Called once per bounce before NEE and sampling; may draw from the paths' random
+    /// streams `rng[slot]`.
+    fn prepare(&mut self, scene: &Scene, verts: &Vertices, rng: &mut [Rng]);
 
     /// Fills `lights.sampling_pdf` with this strategy's density of each light direction.
     fn light_pdfs(&mut self, verts: &Vertices, lights: &mut LightSamples);

@@ -1,0 +1,344 @@
+//! [`GuideCache`]: the decoded guide stored per cell of a fine spatial grid,
+//! so a query costs a table lookup instead of a network pass (issue #14's
+//! "frozen guide"; the role of Open PGL's per-region mixtures).
+//!
+//! A radiance-target guide depends on the position alone: the network maps
+//! `x` to a directional distribution. Once the parameters stop changing
+//! (after training, or between two updates) the same distribution is
+//! decoded again and again at nearby points. The cache decodes it once per
+//! occupied cell and hands out copies:
+//!
+//! - **Cells.** Cubes of side `h = max extent / resolution` over the field's
+//!   box (plus one cell of margin). A cell exists only where the renderer has shown positions
+//!   ([`GuidingField::build_cache`], [`GuideCache::extend`]); it is decoded
+//!   at the centroid of the positions that created it, so the decode point
+//!   lies on (or next to) the surfaces that fall in the cell rather than at
+//!   a cell centre inside a wall.
+//! - **Stochastic trilinear lookup.** A query at `x` with three uniform
+//!   numbers `ξ` looks up the cell containing `x + (ξ − ½)·h`. Averaged over
+//!   `ξ` this box-jitter is the tent filter of width `2h`, i.e. trilinear
+//!   interpolation between the neighbouring cells' distributions, so the
+//!   spatial interpolation survives in expectation (the stochastic filtering
+//!   of Pharr et al. 2024 and Open PGL's spatial jitter). Where the jittered
+//!   cell is empty the query's own cell is used; where that is empty too the
+//!   query is decoded by the network (a *miss*, reported so the renderer can
+//!   [`extend`](GuideCache::extend) the cache).
+//! - **Unbiased by construction.** Each lane is one valid distribution
+//!   (the network's, at a point near the query), and the renderer samples it
+//!   and evaluates its density from the same lane: the estimator is
+//!   unbiased whatever cell was picked; only its variance depends on the
+//!   cache's resolution.
+//!
+//! Product-target guides also depend on `ωo`, the normal and the roughness,
+//! so [`GuidingField::build_cache`] refuses them.
+//!
+//! A cache is valid for the field generation it was built at; after an
+//! update that changed the parameters, [`GuideCache::refresh`] decodes its
+//! cells again (one batched decode of every cell, a few ms).
+
+use crate::batch::DistributionBatch;
+use crate::config::Target;
+use crate::error::GuidingError;
+use crate::field::GuidingField;
+use crate::models::{with_field, BatchItems, Decode};
+use glam::Vec3;
+use guiding_core::model::QueryPoint;
+
+/// Marks an empty cell.
+const EMPTY: u32 = u32::MAX;
+/// Marks a lane decoded by the network in [`GuideCache::decode_batch`].
+const MISS: u32 = 1 << 31;
+/// Most cells along one axis (the index is `resolution³` `u32`s at most).
+pub const MAX_CACHE_RESOLUTION: u32 = 256;
+
+/// Options of a [`GuideCache`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CacheOptions {
+    /// Cells along the longest axis of the field's box, in `[1,`
+    /// [`MAX_CACHE_RESOLUTION`]`]`.
+    pub resolution: u32,
+}
+
+impl Default for CacheOptions {
+    fn default() -> Self {
+        Self { resolution: 64 }
+    }
+}
+
+/// What one [`GuideCache::decode_batch`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CacheLookup {
+    /// Lanes copied from a cell.
+    pub hits: u64,
+    /// Lanes decoded by the network (no occupied cell near the query).
+    pub misses: u64,
+}
+
+/// The decoded guide per occupied cell of a spatial grid (see the [module
+/// docs](self)).
+#[derive(Clone, Debug)]
+pub struct GuideCache {
+    field_id: u64,
+    generation: u64,
+    lo: Vec3,
+    /// Cell side `h` and `1 / h`.
+    cell: f32,
+    inv_cell: f32,
+    res: [u32; 3],
+    /// Per cell: its lane in `items`, or [`EMPTY`].
+    index: Vec<u32>,
+    /// Per lane: the decode point (centroid of the positions that made it).
+    points: Vec<Vec3>,
+    items: BatchItems,
+}
+
+impl GuidingField {
+    /// A cache of this field's decoded guide over the cells that contain
+    /// `positions` (typically the vertices of the latest training pass).
+    ///
+    /// # Errors
+    /// [`GuidingError::InvalidConfig`] for a product-target field (its guide
+    /// depends on more than the position) or a resolution outside `[1,`
+    /// [`MAX_CACHE_RESOLUTION`]`]`.
+    pub fn build_cache(
+        &self,
+        positions: &[Vec3],
+        options: &CacheOptions,
+    ) -> Result<GuideCache, GuidingError> {
+        if self.config().target != Target::Radiance {
+            return Err(GuidingError::InvalidConfig(
+                "a guide cache needs a radiance-target field (a product guide also depends \
+                 on the outgoing direction, the normal and the roughness)"
+                    .into(),
+            ));
+        }
+        if !(1..=MAX_CACHE_RESOLUTION).contains(&options.resolution) {
+            return Err(GuidingError::InvalidConfig(format!(
+                "cache resolution {} outside [1, {MAX_CACHE_RESOLUTION}]",
+                options.resolution
+            )));
+        }
+        let (lo, hi) = self.bounds();
+        let (lo, hi) = (Vec3::from_array(lo), Vec3::from_array(hi));
+        let extent = hi - lo;
+        let cell = extent.max_element() / options.resolution as f32;
+        // One cell of margin on every side: surface points on the scene box (and rounding
+        // just past it) still fall in a cell.
+        let lo = lo - Vec3::splat(cell);
+        let res = (extent / cell)
+            .ceil()
+            .to_array()
+            .map(|r| (r as u32).clamp(1, options.resolution) + 2);
+        let mut cache = GuideCache {
+            field_id: self.id,
+            generation: self.generation,
+            lo,
+            cell,
+            inv_cell: 1.0 / cell,
+            res,
+            index: vec![EMPTY; res[0] as usize * res[1] as usize * res[2] as usize],
+            points: Vec::new(),
+            items: BatchItems::default(),
+        };
+        cache.extend(self, positions)?;
+        Ok(cache)
+    }
+}
+
+impl GuideCache {
+    /// Occupied cells.
+    #[must_use]
+    pub fn cells(&self) -> usize {
+        self.points.len()
+    }
+
+    /// Cells along x, y and z.
+    #[must_use]
+    pub fn resolution(&self) -> [u32; 3] {
+        self.res
+    }
+
+    /// Cell side in world units.
+    #[must_use]
+    pub fn cell_size(&self) -> f32 {
+        self.cell
+    }
+
+    /// The field generation the cells were decoded at.
+    #[must_use]
+    pub fn generation(&self) -> u64 {
+        self.generation
+    }
+
+    /// The cell containing `p`, or `None` outside the grid (or non-finite).
+    fn cell_of(&self, p: Vec3) -> Option<usize> {
+        let c = (p - self.lo) * self.inv_cell;
+        if !(c.cmpge(Vec3::ZERO).all() && c.is_finite()) {
+            return None;
+        }
+        let (x, y, z) = (c.x as u32, c.y as u32, c.z as u32);
+        if x >= self.res[0] || y >= self.res[1] || z >= self.res[2] {
+            return None;
+        }
+        let (nx, ny) = (self.res[0] as usize, self.res[1] as usize);
+        Some((z as usize * ny + y as usize) * nx + x as usize)
+    }
+
+    fn check(&self, field: &GuidingField) -> Result<(), GuidingError> {
+        if field.id != self.field_id || field.generation != self.generation {
+            return Err(GuidingError::StaleDistribution {
+                field_id: self.field_id,
+                generation: self.generation,
+                used_id: field.id,
+                used_generation: field.generation,
+            });
+        }
+        Ok(())
+    }
+
+    /// Adds the cells containing `positions` that are not in the cache yet,
+    /// each decoded at the centroid of its positions (non-finite positions
+    /// and those outside the field's box are ignored). The result does not
+    /// depend on the order of `positions`. Returns the number of cells
+    /// added.
+    ///
+    /// # Errors
+    /// [`GuidingError::StaleDistribution`] if the field was updated since the
+    /// cache was built or refreshed (call [`Self::refresh`] first), or is
+    /// another field.
+    pub fn extend(
+        &mut self,
+        field: &GuidingField,
+        positions: &[Vec3],
+    ) -> Result<usize, GuidingError> {
+        self.check(field)?;
+        // New positions keyed by cell, sorted by (cell, bits) so the centroid
+        // sums run in an order independent of the input's.
+        let mut fresh: Vec<(usize, [u32; 3])> = positions
+            .iter()
+            .filter_map(|&p| {
+                let c = self.cell_of(p)?;
+                (self.index[c] == EMPTY).then(|| (c, p.to_array().map(f32::to_bits)))
+            })
+            .collect();
+        fresh.sort_unstable();
+        let mut queries = Vec::new();
+        let mut k = 0;
+        while k < fresh.len() {
+            let c = fresh[k].0;
+            let (mut sum, mut n) = ([0.0f64; 3], 0u32);
+            while k < fresh.len() && fresh[k].0 == c {
+                for (s, b) in sum.iter_mut().zip(fresh[k].1) {
+                    *s += f64::from(f32::from_bits(b));
+                }
+                n += 1;
+                k += 1;
+            }
+            let centroid = Vec3::from_array(sum.map(|s| (s / f64::from(n)) as f32));
+            self.index[c] = (self.points.len() + queries.len()) as u32;
+            queries.push(QueryPoint::from_vec3(centroid, Vec3::Z, Vec3::Z, 1.0));
+        }
+        let added = queries.len();
+        if added > 0 {
+            let mut decoded = BatchItems::default();
+            decode_into(field, &queries, &mut decoded);
+            self.items.append(&decoded);
+            self.points
+                .extend(queries.iter().map(|q| Vec3::from_array(q.position)));
+        }
+        Ok(added)
+    }
+
+    /// Decodes every cell again with `field`'s current parameters (after an
+    /// update); the cells and their decode points stay.
+    ///
+    /// # Errors
+    /// [`GuidingError::StaleDistribution`] if `field` is not the field the
+    /// cache was built for.
+    pub fn refresh(&mut self, field: &GuidingField) -> Result<(), GuidingError> {
+        if field.id != self.field_id {
+            return Err(GuidingError::StaleDistribution {
+                field_id: self.field_id,
+                generation: self.generation,
+                used_id: field.id,
+                used_generation: field.generation,
+            });
+        }
+        if field.generation == self.generation {
+            return Ok(());
+        }
+        let queries: Vec<QueryPoint> = self
+            .points
+            .iter()
+            .map(|&p| QueryPoint::from_vec3(p, Vec3::Z, Vec3::Z, 1.0))
+            .collect();
+        self.generation = field.generation;
+        decode_into(field, &queries, &mut self.items);
+        Ok(())
+    }
+
+    /// Fills `out` with one distribution per query from the cache: lane `i`
+    /// is the cell found by the stochastic trilinear lookup of
+    /// `queries[i].position` with the three uniform numbers `jitter[i]`
+    /// (see the [module docs](self)), or the network's decode at the query
+    /// where no cell is near (its index is pushed to `missed`, after
+    /// `missed` is cleared). `out` then serves
+    /// [`GuidingField::sample_decoded`] / [`GuidingField::pdf_decoded`] as
+    /// after [`GuidingField::decode_batch`].
+    ///
+    /// # Errors
+    /// [`GuidingError::StaleDistribution`] if the field was updated since the
+    /// cache was built or refreshed; [`GuidingError::LengthMismatch`] if
+    /// `jitter` and `queries` differ in length. `out` is left empty then.
+    pub fn decode_batch(
+        &self,
+        field: &GuidingField,
+        queries: &[QueryPoint],
+        jitter: &[Vec3],
+        out: &mut DistributionBatch,
+        missed: &mut Vec<u32>,
+    ) -> Result<CacheLookup, GuidingError> {
+        out.items.clear();
+        missed.clear();
+        self.check(field)?;
+        if jitter.len() != queries.len() {
+            return Err(GuidingError::LengthMismatch {
+                what: format!("{} queries, {} jitters", queries.len(), jitter.len()),
+            });
+        }
+        // Source lane per query: a cell's lane, or MISS | index into `missed`.
+        let mut source = Vec::with_capacity(queries.len());
+        for (i, (q, &xi)) in queries.iter().zip(jitter).enumerate() {
+            let p = Vec3::from_array(q.position);
+            let jittered = p + (xi - Vec3::splat(0.5)) * self.cell;
+            let lane = [jittered, p]
+                .into_iter()
+                .filter_map(|x| self.cell_of(x))
+                .map(|c| self.index[c])
+                .find(|&l| l != EMPTY);
+            source.push(lane.unwrap_or_else(|| {
+                missed.push(i as u32);
+                MISS | (missed.len() as u32 - 1)
+            }));
+        }
+        let mut network = BatchItems::default();
+        if !missed.is_empty() {
+            let mq: Vec<QueryPoint> = missed.iter().map(|&i| queries[i as usize]).collect();
+            decode_into(field, &mq, &mut network);
+        }
+        out.field_id = field.id;
+        out.generation = field.generation;
+        out.items.gather(&self.items, &network, &source, MISS);
+        Ok(CacheLookup {
+            hits: (queries.len() - missed.len()) as u64,
+            misses: missed.len() as u64,
+        })
+    }
+}
+
+/// The field's batched decode of `queries` into `out`.
+fn decode_into(field: &GuidingField, queries: &[QueryPoint], out: &mut BatchItems) {
+    with_field!(&field.inner, f => f
+        .model()
+        .decode_batch_into(f.ema_params(), queries, out));
+}
