@@ -90,6 +90,11 @@ pub struct GuideCache {
     /// Per lane: the decode point (centroid of the positions that made it).
     points: Vec<Vec3>,
     items: BatchItems,
+    /// Per lane: the fitted guide-selection probability ([`GuideCache::fit_selection`]);
+    /// empty before a fit.
+    selection: Vec<f32>,
+    /// The fit's value for cells with too few samples (and cells added later).
+    global_selection: f32,
 }
 
 impl GuidingField {
@@ -139,6 +144,8 @@ impl GuidingField {
             index: vec![EMPTY; res[0] as usize * res[1] as usize * res[2] as usize],
             points: Vec::new(),
             items: BatchItems::default(),
+            selection: Vec::new(),
+            global_selection: 0.0,
         };
         cache.extend(self, positions)?;
         Ok(cache)
@@ -198,7 +205,8 @@ impl GuideCache {
 
     /// Adds the cells containing `positions` that are not in the cache yet,
     /// each decoded at the centroid of its positions (non-finite positions
-    /// and those outside the field's box are ignored). The result does not
+    /// and those outside the grid, the field's box plus one cell of margin,
+    /// are ignored). The result does not
     /// depend on the order of `positions`. Returns the number of cells
     /// added.
     ///
@@ -245,6 +253,10 @@ impl GuideCache {
             self.items.append(&decoded);
             self.points
                 .extend(queries.iter().map(|q| Vec3::from_array(q.position)));
+            if !self.selection.is_empty() {
+                self.selection
+                    .resize(self.points.len(), self.global_selection);
+            }
         }
         Ok(added)
     }
@@ -328,7 +340,8 @@ impl GuideCache {
         }
         out.field_id = field.id;
         out.generation = field.generation;
-        out.items.gather(&self.items, &network, &source, MISS);
+        out.items
+            .gather(&self.items, &self.selection, &network, &source, MISS);
         Ok(CacheLookup {
             hits: (queries.len() - missed.len()) as u64,
             misses: missed.len() as u64,
@@ -341,4 +354,201 @@ fn decode_into(field: &GuidingField, queries: &[QueryPoint], out: &mut BatchItem
     with_field!(&field.inner, f => f
         .model()
         .decode_batch_into(f.ema_params(), queries, out));
+}
+
+/// Options of [`GuideCache::fit_selection`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SelectionFit {
+    /// Smallest and largest selection probability tried (the candidates are
+    /// `CANDIDATES` values evenly spaced from `min` to `max`); `max < 1`
+    /// keeps a defensive share of BSDF sampling.
+    pub min: f32,
+    /// See `min`.
+    pub max: f32,
+    /// Cells with fewer usable samples take the fit over all samples.
+    pub min_samples: u32,
+    /// The renderer multiplies radiance vMF guides by the clamped cosine
+    /// before sampling ([`DistributionBatch::apply_cosine_product`]): the fit
+    /// evaluates the guide density the same way (ignored for NASG / DF).
+    pub cosine_product: bool,
+}
+
+impl Default for SelectionFit {
+    fn default() -> Self {
+        Self {
+            min: 0.1,
+            max: 0.9,
+            min_samples: 64,
+            cosine_product: true,
+        }
+    }
+}
+
+/// Candidate selection probabilities of [`GuideCache::fit_selection`].
+pub const CANDIDATES: usize = 9;
+
+/// What [`GuideCache::fit_selection`] found.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SelectionReport {
+    /// Samples that fell in a cell and had a finite, positive weight.
+    pub samples_used: u64,
+    /// Cells fitted on their own samples.
+    pub cells_fitted: u64,
+    /// Cells that took the global value (too few samples).
+    pub cells_global: u64,
+    /// The fit over all samples.
+    pub global: f32,
+    /// Mean fitted probability over the cells.
+    pub mean: f32,
+}
+
+impl GuideCache {
+    /// Fits a guide-selection probability `c` per cell: the candidate that
+    /// minimises the estimated second moment of the renderer's one-sample
+    /// MIS estimator `F / p_c` with `p_c = c·q + (1 − c)·p_bsdf` (the
+    /// variance-optimal sampling fraction of Müller et al. 2019, "Practical
+    /// Path Guiding in Production", §4, found here by a search over
+    /// candidates instead of their stochastic gradient descent).
+    ///
+    /// For any `c`, `∫ F² / p_c = E_s[F² / (p_c · p_s)]` whatever density
+    /// `p_s` the samples were drawn with, so the samples of a training pass
+    /// (drawn with an older guide and `c`, their `sample_pdf`) estimate the
+    /// second moment under the cached guide `q` for every candidate at
+    /// once: per cell, `M̂(c) = Σ F_i² / ((c·q(ω_i) + (1 − c)·p_bsdf,i) · p_s,i)`
+    /// with `F_i = Y(L_i ⊙ f cos)` (luminance of the sample's integrand).
+    /// `q` is the cell's decoded guide (times the cosine with
+    /// `cosine_product`). Cells with fewer than `min_samples` usable samples
+    /// take the minimiser of the sum over all cells. The probabilities then
+    /// replace the configuration's constant in [`Self::decode_batch`]'s
+    /// lanes (NASG keeps its learned per-point value).
+    ///
+    /// Deviation: NEE's share of the direct light is ignored (`F` counts the
+    /// emission along `ω` in full), as in the training target.
+    ///
+    /// # Errors
+    /// [`GuidingError::StaleDistribution`] as [`Self::decode_batch`];
+    /// [`GuidingError::InvalidConfig`] unless `0 < min ≤ max < 1`, or for a
+    /// NASG field (it learns its own selection probability).
+    pub fn fit_selection(
+        &mut self,
+        field: &GuidingField,
+        samples: &[guiding_core::sample::TrainingSample],
+        fit: &SelectionFit,
+    ) -> Result<SelectionReport, GuidingError> {
+        self.check(field)?;
+        if !self.items.nasg.is_empty() {
+            return Err(GuidingError::InvalidConfig(
+                "NASG learns its own selection probability".into(),
+            ));
+        }
+        if !(fit.min > 0.0 && fit.min <= fit.max && fit.max < 1.0) {
+            return Err(GuidingError::InvalidConfig(format!(
+                "selection fit range [{}, {}] must satisfy 0 < min <= max < 1",
+                fit.min, fit.max
+            )));
+        }
+        let candidate =
+            |k: usize| fit.min + (fit.max - fit.min) * k as f32 / (CANDIDATES - 1) as f32;
+        // The samples' own cells (no jitter) and their guide densities.
+        let mut lanes = Vec::new();
+        let mut kept = Vec::new();
+        for (i, s) in samples.iter().enumerate() {
+            if let Some(c) = self.cell_of(Vec3::from_array(s.position)) {
+                if self.index[c] != EMPTY {
+                    lanes.push(self.index[c]);
+                    kept.push(i);
+                }
+            }
+        }
+        let mut batch = DistributionBatch::new();
+        batch.field_id = field.id;
+        batch.generation = field.generation;
+        batch
+            .items
+            .gather(&self.items, &[], &BatchItems::default(), &lanes, MISS);
+        if fit.cosine_product {
+            let normals: Vec<Vec3> = kept
+                .iter()
+                .map(|&i| Vec3::from_array(samples[i].normal))
+                .collect();
+            batch.apply_cosine_product(&normals);
+        }
+        let directions: Vec<Vec3> = kept
+            .iter()
+            .map(|&i| Vec3::from_array(samples[i].wi))
+            .collect();
+        let all: Vec<u32> = (0..kept.len() as u32).collect();
+        let mut q = vec![0.0f32; kept.len()];
+        field.pdf_decoded(&batch, &all, &directions, &mut q)?;
+        // Second-moment estimates per cell and candidate (f64 sums).
+        let cells = self.points.len();
+        let mut moment = vec![[0.0f64; CANDIDATES]; cells];
+        let mut count = vec![0u32; cells];
+        let mut total = [0.0f64; CANDIDATES];
+        let mut used = 0u64;
+        for (k, &i) in kept.iter().enumerate() {
+            let s = &samples[i];
+            let f = 0.2126 * s.radiance[0] * s.bsdf_cos[0]
+                + 0.7152 * s.radiance[1] * s.bsdf_cos[1]
+                + 0.0722 * s.radiance[2] * s.bsdf_cos[2];
+            let (qk, pb, ps) = (q[k], s.bsdf_pdf, s.sample_pdf);
+            let w = f64::from(f) * f64::from(f) / f64::from(ps);
+            if !(w.is_finite() && w >= 0.0 && qk.is_finite() && qk >= 0.0 && pb >= 0.0) {
+                continue;
+            }
+            let mut terms = [0.0f64; CANDIDATES];
+            let mut ok = true;
+            for (j, t) in terms.iter_mut().enumerate() {
+                let c = f64::from(candidate(j));
+                let p = c * f64::from(qk) + (1.0 - c) * f64::from(pb);
+                *t = if w == 0.0 { 0.0 } else { w / p };
+                ok &= t.is_finite();
+            }
+            if !ok {
+                continue;
+            }
+            let lane = lanes[k] as usize;
+            for j in 0..CANDIDATES {
+                moment[lane][j] += terms[j];
+                total[j] += terms[j];
+            }
+            count[lane] += 1;
+            used += 1;
+        }
+        let argmin = |m: &[f64; CANDIDATES]| {
+            let mut best = 0;
+            for j in 1..CANDIDATES {
+                if m[j] < m[best] {
+                    best = j;
+                }
+            }
+            candidate(best)
+        };
+        let global = argmin(&total);
+        let mut report = SelectionReport {
+            samples_used: used,
+            global,
+            ..SelectionReport::default()
+        };
+        self.global_selection = global;
+        self.selection.clear();
+        let mut sum = 0.0f64;
+        for lane in 0..cells {
+            let c = if count[lane] >= fit.min_samples.max(1) {
+                report.cells_fitted += 1;
+                argmin(&moment[lane])
+            } else {
+                report.cells_global += 1;
+                global
+            };
+            sum += f64::from(c);
+            self.selection.push(c);
+        }
+        report.mean = if cells > 0 {
+            (sum / cells as f64) as f32
+        } else {
+            global
+        };
+        Ok(report)
+    }
 }

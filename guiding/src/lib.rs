@@ -88,7 +88,7 @@ mod models;
 pub mod recorder;
 
 pub use batch::DistributionBatch;
-pub use cache::{CacheLookup, CacheOptions, GuideCache};
+pub use cache::{CacheLookup, CacheOptions, GuideCache, SelectionFit, SelectionReport};
 pub use config::{GuidingConfig, ModelSize, Representation, Target};
 pub use error::GuidingError;
 pub use field::{DecodedDistribution, Distribution, FieldStats, GuidingField, ModelExport};

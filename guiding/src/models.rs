@@ -77,6 +77,9 @@ pub(crate) struct BatchItems {
     pub(crate) df: Vec<DfVertex>,
     /// The constant selection probability (NPM, DF).
     pub(crate) selection: f32,
+    /// Per-lane selection probabilities overriding `selection` (NPM, DF lanes of a
+    /// [`crate::GuideCache`] with fitted probabilities); empty otherwise.
+    pub(crate) lane_selection: Vec<f32>,
 }
 
 impl BatchItems {
@@ -84,6 +87,7 @@ impl BatchItems {
         self.vmf.clear();
         self.nasg.clear();
         self.df.clear();
+        self.lane_selection.clear();
     }
 
     pub(crate) fn len(&self) -> usize {
@@ -102,10 +106,13 @@ impl BatchItems {
     /// Replaces the lanes by `source[i]`'s lane of `cells`, or of `network`
     /// where `source[i]` has the bit `flag` (then the low bits index
     /// `network`). Both come from the same field, so they share the family
-    /// and the selection constant.
+    /// and the selection constant. A non-empty `cell_selection` (one per
+    /// lane of `cells`) becomes the per-lane selection probability; lanes
+    /// from `network` keep the constant.
     pub(crate) fn gather(
         &mut self,
         cells: &BatchItems,
+        cell_selection: &[f32],
         network: &BatchItems,
         source: &[u32],
         flag: u32,
@@ -131,11 +138,26 @@ impl BatchItems {
         } else {
             network.selection
         };
+        self.lane_selection.clear();
+        if !cell_selection.is_empty() {
+            let constant = self.selection;
+            self.lane_selection.extend(source.iter().map(|&s| {
+                if s & flag != 0 {
+                    constant
+                } else {
+                    cell_selection.get(s as usize).copied().unwrap_or(constant)
+                }
+            }));
+        }
     }
 
     /// Lane `i` as a [`Decoded`] value (`None` out of range).
     pub(crate) fn get(&self, i: usize) -> Option<Decoded> {
-        let selection = self.selection;
+        let selection = self
+            .lane_selection
+            .get(i)
+            .copied()
+            .unwrap_or(self.selection);
         if let Some(m) = self.vmf.get(i) {
             return Some(Decoded::Vmf {
                 mixture: *m,
@@ -155,6 +177,9 @@ impl BatchItems {
     pub(crate) fn selection_probability(&self, i: usize) -> f32 {
         if let Some(m) = self.nasg.get(i) {
             return m.selection_probability;
+        }
+        if let Some(&c) = self.lane_selection.get(i) {
+            return c;
         }
         if i < self.len() {
             self.selection

@@ -33,7 +33,7 @@ use guiding_core::loss::Target;
 use host_demo::render::strategy::gpu::GpuGuide;
 use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
 use host_demo::render::{render, Image, IntegratorKind, RenderOptions};
-use host_demo::render::{render_guided, render_guided_gpu, GuidedOptions};
+use host_demo::render::{render_guided, render_guided_gpu, CacheMode, GuidedOptions, GuidedStats};
 use host_demo::scene::builtin::load_builtin;
 use host_demo::scene::Scene;
 
@@ -414,6 +414,104 @@ fn power_check_rejects_a_scaled_guide_pdf() {
         !failures.is_empty(),
         "the per-block comparison did not detect a guide pdf scaled by 1.5"
     );
+}
+
+/// A guided render whose radiance-target NPM guide (trained as in [`guided_with`], NEE on) is
+/// answered from the guide cache in `mode` at `resolution` cells on the longest axis.
+fn guided_cached(
+    scene: &Scene,
+    mode: CacheMode,
+    resolution: u32,
+    seed: u64,
+) -> (Image, GuidedStats) {
+    let o = opts(IntegratorKind::PtNee, SPP, 1000 + seed);
+    let config = FieldConfig::DEFAULT
+        .with_batch_size(1024)
+        .with_steps_per_update(2)
+        .with_learning_rate(1e-2)
+        .with_threads(0)
+        .with_seed(seed as u32 + 7);
+    let mut g = build_guide(
+        GuideKind::Npm,
+        Target::Radiance,
+        ModelSize::Small,
+        scene.bounds(),
+        0.5,
+        config,
+    )
+    .expect("guide");
+    let gopts = GuidedOptions {
+        nee: true,
+        cache: mode,
+        cache_resolution: resolution,
+        ..GuidedOptions::default()
+    };
+    render_guided(scene, &o, &gopts, &mut g)
+}
+
+/// The guide cache keeps guided rendering unbiased: `guided npm` with a radiance-target guide
+/// answered from the cache (`CacheMode::Always`: during training too, refreshed after every
+/// update, at a coarse 8 cells so the stochastic lookup often takes a neighbouring cell's
+/// guide; `CacheMode::Frozen`: once training stops, at 16 and the default 64 cells) agrees with the
+/// `pt-nee` reference per block, the comparison and seeds' role as in
+/// [`all_integrators_agree_per_block`], Šidák over `modes × blocks × channels`. Every render
+/// must have answered guide queries from the cache (hits > 0); its power against a sample/pdf
+/// mismatch is [`power_check_rejects_a_scaled_guide_pdf`]'s.
+#[test]
+fn cached_guides_agree_per_block() {
+    let scene = load_builtin("cornell-box").expect("builtin");
+    let reference = reference_statistics(&scene);
+    let modes = [
+        (
+            "guided npm radiance, cache always at 8",
+            CacheMode::Always,
+            8,
+            600,
+        ),
+        (
+            "guided npm radiance, cache frozen at 16",
+            CacheMode::Frozen,
+            16,
+            700,
+        ),
+        (
+            "guided npm radiance, cache frozen at 64",
+            CacheMode::Frozen,
+            64,
+            800,
+        ),
+    ];
+    let level = sidak(ALPHA, modes.len() * reference.len() * 3);
+    let mut failures = Vec::new();
+    for (name, mode, resolution, seed0) in modes {
+        let totals = std::cell::Cell::new((0u64, 0u64, 0u64));
+        let stats = seed_statistics(|s| {
+            let (img, st) = guided_cached(&scene, mode, resolution, seed0 + s);
+            assert!(
+                st.cache
+                    .as_deref()
+                    .is_some_and(|c| !c.starts_with("not used")),
+                "{name}: {st}"
+            );
+            assert!(
+                st.cache_hits > 0 && st.cache_cells > 0,
+                "{name}: no cache hits: {st}"
+            );
+            if s == 0 {
+                eprintln!("{name}, seed 0:\n{st}");
+            }
+            let (h, m, c) = totals.get();
+            totals.set((h + st.cache_hits, m + st.cache_misses, c + st.cache_cells));
+            img
+        });
+        let (hits, misses, cells) = totals.get();
+        eprintln!(
+            "{name}: over {SEEDS} renders {hits} cache hits, {misses} misses, {:.0} cells each",
+            cells as f64 / SEEDS as f64
+        );
+        compare_blocks(name, "pt-nee", &stats, &reference, level, &mut failures);
+    }
+    assert!(failures.is_empty(), "biased:\n{}", failures.join("\n"));
 }
 
 /// Query points of the sharpness probe per image side: a `PROBE × PROBE` grid of camera rays.

@@ -39,13 +39,30 @@ pub struct Method {
 
 impl Method {
     /// Parses `pt`, `pt-nee`, or `GUIDE-TARGET` with GUIDE in npm|nasg|df-n|df-l and TARGET in
-    /// radiance|product (e.g. `npm-product`), optionally followed by `-nonee`: the guided
-    /// integrator without next-event estimation (the papers' setting, compared with `pt`).
+    /// radiance|product (e.g. `npm-product`), optionally followed by suffixes: `-nonee` (the
+    /// guided integrator without next-event estimation, the papers' setting, compared with
+    /// `pt`), `-nocache` / `-frozen` (`--guide-cache off` / `frozen` instead of the default).
     pub fn parse(full: &str) -> Result<Self> {
-        let (name, no_nee) = match full.strip_suffix("-nonee") {
-            Some(base) if base != "pt" && base != "pt-nee" => (base, true),
-            _ => (full, false),
-        };
+        const SUFFIXES: [(&str, [&str; 2]); 3] = [
+            ("-nonee", ["--nee", "off"]),
+            ("-nocache", ["--guide-cache", "off"]),
+            ("-frozen", ["--guide-cache", "frozen"]),
+        ];
+        let mut name = full;
+        let mut extra: Vec<&str> = Vec::new();
+        'strip: loop {
+            for (suffix, flags) in SUFFIXES {
+                match name.strip_suffix(suffix) {
+                    Some(base) if base != "pt" && base != "pt-nee" && !base.is_empty() => {
+                        name = base;
+                        extra.splice(0..0, flags);
+                        continue 'strip;
+                    }
+                    _ => {}
+                }
+            }
+            break;
+        }
         let mut args: Vec<&str> = match name {
             "pt" => vec!["--integrator", "pt"],
             "pt-nee" => vec!["--integrator", "pt-nee"],
@@ -72,9 +89,7 @@ impl Method {
                 ]
             }
         };
-        if no_nee {
-            args.extend(["--nee", "off"]);
-        }
+        args.extend(extra);
         Ok(Self {
             name: full.to_string(),
             args: args.into_iter().map(String::from).collect(),

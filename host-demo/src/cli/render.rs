@@ -39,6 +39,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         plateau_margin,
         guide_cache,
         guide_cache_resolution,
+        fit_selection,
         nee,
         device,
         vk_device,
@@ -163,6 +164,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
                 CacheArg::Always => CacheMode::Always,
             },
             cache_resolution: guide_cache_resolution,
+            fit_selection: matches!(fit_selection, OnOff::On),
             ..GuidedOptions::default()
         };
         let kind = match guide {

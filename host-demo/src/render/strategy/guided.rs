@@ -71,11 +71,12 @@ use std::time::{Duration, Instant};
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum CacheMode {
     /// Every guidable vertex runs the network (one batched decode per bounce).
-    #[default]
     Off,
     /// The network during training; the cache once training has stopped.
     Frozen,
-    /// The cache in every pass after the first update (refreshed after each update).
+    /// The cache in every pass after the first update (refreshed after each update): the
+    /// default (on builtin:door at 20 s, relMSE 0.20 against 0.22 frozen).
+    #[default]
     Always,
 }
 
@@ -100,6 +101,10 @@ pub struct GuidedOptions {
     pub cache: CacheMode,
     /// Cells of the guide cache along the scene box's longest axis.
     pub cache_resolution: u32,
+    /// With the cache on (NPM / DF): when training stops, fit the guide-selection probability
+    /// per cell to the last training pass's samples ([`GuideCache::fit_selection`]) instead of
+    /// the constant `selection_probability`.
+    pub fit_selection: bool,
     /// Test hook, 1 in every real render: factor on the guide pdf inside the continuation's
     /// combined density (≠ 1 is a deliberate sample/pdf mismatch, a biased estimator; the
     /// power check of `tests/unbiased.rs` uses it).
@@ -112,12 +117,13 @@ impl Default for GuidedOptions {
         Self {
             nee: true,
             train_fraction: 0.3,
-            selection_probability: 0.5,
+            selection_probability: 0.3,
             min_alpha: 0.05,
             cosine_product: true,
             train_epochs: 4.0,
-            cache: CacheMode::Off,
+            cache: CacheMode::Always,
             cache_resolution: CacheOptions::default().resolution,
+            fit_selection: false,
             guide_pdf_scale: 1.0,
         }
     }
@@ -177,8 +183,10 @@ pub struct GuidedStats {
     pub cache_misses: u64,
     /// Occupied cells of the cache at the end of the render.
     pub cache_cells: u64,
-    /// Wall time of building, refreshing and extending the cache.
+    /// Wall time of building, refreshing and extending the cache (and the selection fit).
     pub cache_build: Duration,
+    /// The per-cell selection-probability fit, if it ran.
+    pub selection_fit: Option<guiding::SelectionReport>,
 }
 
 impl std::fmt::Display for GuidedStats {
@@ -216,6 +224,14 @@ impl std::fmt::Display for GuidedStats {
                 self.cache_build.as_secs_f64()
             )?;
         }
+        if let Some(r) = &self.selection_fit {
+            writeln!(
+                f,
+                "selection probability: fitted per cell on {} samples: {} cells on their own, \
+                 {} at the global {:.2}; mean {:.3}",
+                r.samples_used, r.cells_fitted, r.cells_global, r.global, r.mean
+            )?;
+        }
         if let Some(p) = self.converged_at_pass {
             writeln!(
                 f,
@@ -243,10 +259,10 @@ pub struct Guided<'g> {
     gopts: GuidedOptions,
     stats: GuidedStats,
     stopped: bool,
-    /// The guide cache (see the module docs) and the positions of the latest training pass.
+    /// The guide cache (see the module docs) and the samples of the latest training pass.
     cache: Option<GuideCache>,
     use_cache: bool,
-    last_positions: Vec<Vec3>,
+    last_samples: Vec<TrainingSample>,
 }
 
 impl<'g> Guided<'g> {
@@ -293,7 +309,7 @@ impl<'g> Guided<'g> {
             stopped: false,
             cache: None,
             use_cache,
-            last_positions: Vec::new(),
+            last_samples: Vec::new(),
         }
     }
 
@@ -699,11 +715,27 @@ impl<'g> Strategy for Guided<'g> {
             }
             self.stopped = true;
             if self.use_cache {
-                let positions = std::mem::take(&mut self.last_positions);
+                let samples = std::mem::take(&mut self.last_samples);
+                let positions: Vec<Vec3> = samples
+                    .iter()
+                    .map(|s| Vec3::from_array(s.position))
+                    .collect();
                 // Only a bug makes this fail (radiance target and resolution checked): the
                 // network then answers every query.
                 if self.update_cache(&positions).is_err() {
                     self.cache = None;
+                }
+                let nasg = self.guide.config().representation == guiding::Representation::Nasg;
+                if let (Some(cache), true, false) =
+                    (self.cache.as_mut(), self.gopts.fit_selection, nasg)
+                {
+                    let t0 = Instant::now();
+                    let fit = guiding::SelectionFit {
+                        cosine_product: self.gopts.cosine_product,
+                        ..guiding::SelectionFit::default()
+                    };
+                    self.stats.selection_fit = cache.fit_selection(self.guide, &samples, &fit).ok();
+                    self.stats.cache_build += t0.elapsed();
                 }
             }
         }
@@ -767,14 +799,14 @@ impl<'g> Strategy for Guided<'g> {
         }
         if self.use_cache {
             let result = if recorded {
-                self.last_positions.clear();
-                self.last_positions
-                    .extend(samples.iter().map(|s| Vec3::from_array(s.position)));
+                self.last_samples.clear();
+                self.last_samples.extend_from_slice(&samples);
                 if self.gopts.cache == CacheMode::Always {
-                    let positions = std::mem::take(&mut self.last_positions);
-                    let r = self.update_cache(&positions);
-                    self.last_positions = positions;
-                    r
+                    let positions: Vec<Vec3> = samples
+                        .iter()
+                        .map(|s| Vec3::from_array(s.position))
+                        .collect();
+                    self.update_cache(&positions)
                 } else {
                     Ok(())
                 }
