@@ -29,6 +29,16 @@
 //!   unbiased whatever cell was picked; only its variance depends on the
 //!   cache's resolution.
 //!
+//! - **Cosine product per normal bin.** With [`CacheOptions::cosine_product`]
+//!   (vMF guides) a cell keeps one lane per octahedral bin (8 × 8) of the
+//!   shading normals that fell in it, holding the guide times the clamped
+//!   cosine of the bin's mean normal
+//!   ([`DistributionBatch::apply_cosine_product`], Open PGL's
+//!   `ApplyCosineProduct`): a query takes the lane of its own normal's bin,
+//!   so the per-vertex product is gone too. On a plane the mean normal is
+//!   the normal; on a curved surface it is off by at most the normal's
+//!   spread within the cell and bin (a valid distribution all the same).
+//!
 //! Product-target guides also depend on `ωo`, the normal and the roughness,
 //! so [`GuidingField::build_cache`] refuses them.
 //!
@@ -44,8 +54,10 @@ use crate::models::{with_field, BatchItems, Decode};
 use glam::Vec3;
 use guiding_core::model::QueryPoint;
 
-/// Marks an empty cell.
+/// Marks an empty cell (and the end of a cell's lane chain).
 const EMPTY: u32 = u32::MAX;
+/// Octahedral normal bins per axis with [`CacheOptions::cosine_product`].
+const NORMAL_BINS: u32 = 8;
 /// Marks a lane decoded by the network in [`GuideCache::decode_batch`].
 const MISS: u32 = 1 << 31;
 /// Most cells along one axis (the index is `resolution³` `u32`s at most).
@@ -57,12 +69,40 @@ pub struct CacheOptions {
     /// Cells along the longest axis of the field's box, in `[1,`
     /// [`MAX_CACHE_RESOLUTION`]`]`.
     pub resolution: u32,
+    /// vMF guides: store the product with the clamped cosine per normal bin
+    /// (see the [module docs](self)); lanes handed out are then already
+    /// multiplied, network-decoded misses included. Ignored for NASG and DF.
+    pub cosine_product: bool,
 }
 
 impl Default for CacheOptions {
     fn default() -> Self {
-        Self { resolution: 64 }
+        Self {
+            resolution: 64,
+            cosine_product: false,
+        }
     }
+}
+
+/// The octahedral bin (`NORMAL_BINS²` of them) of a normal; a zero or
+/// non-finite one counts as `+z` (the normal its lane's product falls back to).
+fn normal_bin(n: Vec3) -> u8 {
+    let l1 = n.x.abs() + n.y.abs() + n.z.abs();
+    let p = if l1 > 0.0 && l1.is_finite() {
+        n / l1
+    } else {
+        Vec3::Z
+    };
+    let (x, y) = if p.z >= 0.0 {
+        (p.x, p.y)
+    } else {
+        (
+            (1.0 - p.y.abs()).copysign(p.x),
+            (1.0 - p.x.abs()).copysign(p.y),
+        )
+    };
+    let b = |t: f32| (((t + 1.0) * 0.5 * NORMAL_BINS as f32) as u32).min(NORMAL_BINS - 1);
+    (b(x) + NORMAL_BINS * b(y)) as u8
 }
 
 /// What one [`GuideCache::decode_batch`] did.
@@ -85,10 +125,18 @@ pub struct GuideCache {
     cell: f32,
     inv_cell: f32,
     res: [u32; 3],
-    /// Per cell: its lane in `items`, or [`EMPTY`].
+    /// Cosine product per normal bin (vMF guides with the option on).
+    product: bool,
+    /// Per cell: its first lane in `items`, or [`EMPTY`].
     index: Vec<u32>,
+    /// Per lane: the next lane of the same cell (another normal bin), or [`EMPTY`].
+    next: Vec<u32>,
+    /// Per lane: its normal bin (0 without the product).
+    bin: Vec<u8>,
     /// Per lane: the decode point (centroid of the positions that made it).
     points: Vec<Vec3>,
+    /// Per lane: the unit mean normal of the cosine product (product only).
+    normals: Vec<Vec3>,
     items: BatchItems,
     /// Per lane: the fitted guide-selection probability ([`GuideCache::fit_selection`]);
     /// empty before a fit.
@@ -99,7 +147,8 @@ pub struct GuideCache {
 
 impl GuidingField {
     /// A cache of this field's decoded guide over the cells that contain
-    /// `positions` (typically the vertices of the latest training pass).
+    /// the positions of `points` (typically the vertices of the latest
+    /// training pass; their normals pick the bins of the cosine product).
     ///
     /// # Errors
     /// [`GuidingError::InvalidConfig`] for a product-target field (its guide
@@ -107,7 +156,7 @@ impl GuidingField {
     /// [`MAX_CACHE_RESOLUTION`]`]`.
     pub fn build_cache(
         &self,
-        positions: &[Vec3],
+        points: &[QueryPoint],
         options: &CacheOptions,
     ) -> Result<GuideCache, GuidingError> {
         if self.config().target != Target::Radiance {
@@ -141,22 +190,52 @@ impl GuidingField {
             cell,
             inv_cell: 1.0 / cell,
             res,
+            product: options.cosine_product
+                && self.config().representation == crate::config::Representation::Npm,
             index: vec![EMPTY; res[0] as usize * res[1] as usize * res[2] as usize],
+            next: Vec::new(),
+            bin: Vec::new(),
             points: Vec::new(),
+            normals: Vec::new(),
             items: BatchItems::default(),
             selection: Vec::new(),
             global_selection: 0.0,
         };
-        cache.extend(self, positions)?;
+        cache.extend(self, points)?;
         Ok(cache)
     }
 }
 
 impl GuideCache {
-    /// Occupied cells.
+    /// Stored distributions: occupied cells, times their normal bins with
+    /// the cosine product.
     #[must_use]
     pub fn cells(&self) -> usize {
         self.points.len()
+    }
+
+    /// Whether the lanes hold the cosine product (see [`CacheOptions`]).
+    #[must_use]
+    pub fn has_cosine_product(&self) -> bool {
+        self.product
+    }
+
+    /// The bin of normal `n` (always 0 without the product).
+    fn bin_of(&self, n: Vec3) -> u8 {
+        if self.product {
+            normal_bin(n)
+        } else {
+            0
+        }
+    }
+
+    /// The lane of `(cell, bin)`, or [`EMPTY`].
+    fn lane_of(&self, cell: usize, bin: u8) -> u32 {
+        let mut l = self.index[cell];
+        while l != EMPTY && self.bin[l as usize] != bin {
+            l = self.next[l as usize];
+        }
+        l
     }
 
     /// Cells along x, y and z.
@@ -203,12 +282,12 @@ impl GuideCache {
         Ok(())
     }
 
-    /// Adds the cells containing `positions` that are not in the cache yet,
-    /// each decoded at the centroid of its positions (non-finite positions
-    /// and those outside the grid, the field's box plus one cell of margin,
-    /// are ignored). The result does not
-    /// depend on the order of `positions`. Returns the number of cells
-    /// added.
+    /// Adds the cells (and normal bins) of `points` that are not in the
+    /// cache yet, each decoded at the centroid of its positions (and, with
+    /// the cosine product, multiplied by the clamped cosine of their mean
+    /// normal). Points with a non-finite position or outside the grid (the
+    /// field's box plus one cell of margin) are ignored. The result does not
+    /// depend on the order of `points`. Returns the number of lanes added.
     ///
     /// # Errors
     /// [`GuidingError::StaleDistribution`] if the field was updated since the
@@ -217,39 +296,59 @@ impl GuideCache {
     pub fn extend(
         &mut self,
         field: &GuidingField,
-        positions: &[Vec3],
+        points: &[QueryPoint],
     ) -> Result<usize, GuidingError> {
         self.check(field)?;
-        // New positions keyed by cell, sorted by (cell, bits) so the centroid
-        // sums run in an order independent of the input's.
-        let mut fresh: Vec<(usize, [u32; 3])> = positions
+        // New points keyed by (cell, bin), sorted with their bits so the
+        // centroid sums run in an order independent of the input's.
+        let mut fresh: Vec<(usize, u8, [u32; 6])> = points
             .iter()
-            .filter_map(|&p| {
+            .filter_map(|q| {
+                let p = Vec3::from_array(q.position);
                 let c = self.cell_of(p)?;
-                (self.index[c] == EMPTY).then(|| (c, p.to_array().map(f32::to_bits)))
+                let n = Vec3::from_array(q.normal);
+                let b = self.bin_of(n);
+                let n = if self.product && n.is_finite() {
+                    n
+                } else {
+                    Vec3::ZERO
+                };
+                let bits = [p.x, p.y, p.z, n.x, n.y, n.z].map(f32::to_bits);
+                (self.lane_of(c, b) == EMPTY).then_some((c, b, bits))
             })
             .collect();
         fresh.sort_unstable();
         let mut queries = Vec::new();
+        let mut normals = Vec::new();
         let mut k = 0;
         while k < fresh.len() {
-            let c = fresh[k].0;
-            let (mut sum, mut n) = ([0.0f64; 3], 0u32);
-            while k < fresh.len() && fresh[k].0 == c {
-                for (s, b) in sum.iter_mut().zip(fresh[k].1) {
-                    *s += f64::from(f32::from_bits(b));
+            let (c, b) = (fresh[k].0, fresh[k].1);
+            let (mut sum, mut n) = ([0.0f64; 6], 0u32);
+            while k < fresh.len() && fresh[k].0 == c && fresh[k].1 == b {
+                for (s, bits) in sum.iter_mut().zip(fresh[k].2) {
+                    *s += f64::from(f32::from_bits(bits));
                 }
                 n += 1;
                 k += 1;
             }
-            let centroid = Vec3::from_array(sum.map(|s| (s / f64::from(n)) as f32));
-            self.index[c] = (self.points.len() + queries.len()) as u32;
+            let mean = sum.map(|s| (s / f64::from(n)) as f32);
+            let lane = (self.points.len() + queries.len()) as u32;
+            self.next.push(self.index[c]);
+            self.bin.push(b);
+            self.index[c] = lane;
+            let centroid = Vec3::new(mean[0], mean[1], mean[2]);
             queries.push(QueryPoint::from_vec3(centroid, Vec3::Z, Vec3::Z, 1.0));
+            // The raw mean: the product normalises it (a zero mean reads as +z).
+            normals.push(Vec3::new(mean[3], mean[4], mean[5]));
         }
         let added = queries.len();
         if added > 0 {
             let mut decoded = BatchItems::default();
             decode_into(field, &queries, &mut decoded);
+            if self.product {
+                guiding_core::model::wavefront::cosine_product_batch(&mut decoded.vmf, &normals);
+                self.normals.extend_from_slice(&normals);
+            }
             self.items.append(&decoded);
             self.points
                 .extend(queries.iter().map(|q| Vec3::from_array(q.position)));
@@ -286,6 +385,12 @@ impl GuideCache {
             .collect();
         self.generation = field.generation;
         decode_into(field, &queries, &mut self.items);
+        if self.product {
+            guiding_core::model::wavefront::cosine_product_batch(
+                &mut self.items.vmf,
+                &self.normals,
+            );
+        }
         Ok(())
     }
 
@@ -294,7 +399,8 @@ impl GuideCache {
     /// `queries[i].position` with the three uniform numbers `jitter[i]`
     /// (see the [module docs](self)), or the network's decode at the query
     /// where no cell is near (its index is pushed to `missed`, after
-    /// `missed` is cleared). `out` then serves
+    /// `missed` is cleared). With the cosine product the lanes (misses too)
+    /// are already multiplied: do not apply it again. `out` then serves
     /// [`GuidingField::sample_decoded`] / [`GuidingField::pdf_decoded`] as
     /// after [`GuidingField::decode_batch`].
     ///
@@ -322,11 +428,12 @@ impl GuideCache {
         let mut source = Vec::with_capacity(queries.len());
         for (i, (q, &xi)) in queries.iter().zip(jitter).enumerate() {
             let p = Vec3::from_array(q.position);
+            let bin = self.bin_of(Vec3::from_array(q.normal));
             let jittered = p + (xi - Vec3::splat(0.5)) * self.cell;
             let lane = [jittered, p]
                 .into_iter()
                 .filter_map(|x| self.cell_of(x))
-                .map(|c| self.index[c])
+                .map(|c| self.lane_of(c, bin))
                 .find(|&l| l != EMPTY);
             source.push(lane.unwrap_or_else(|| {
                 missed.push(i as u32);
@@ -337,6 +444,10 @@ impl GuideCache {
         if !missed.is_empty() {
             let mq: Vec<QueryPoint> = missed.iter().map(|&i| queries[i as usize]).collect();
             decode_into(field, &mq, &mut network);
+            if self.product {
+                let normals: Vec<Vec3> = mq.iter().map(|q| Vec3::from_array(q.normal)).collect();
+                guiding_core::model::wavefront::cosine_product_batch(&mut network.vmf, &normals);
+            }
         }
         out.field_id = field.id;
         out.generation = field.generation;
@@ -361,41 +472,42 @@ fn decode_into(field: &GuidingField, queries: &[QueryPoint], out: &mut BatchItem
 pub struct SelectionFit {
     /// Smallest and largest selection probability tried (the candidates are
     /// `CANDIDATES` values evenly spaced from `min` to `max`); `max < 1`
-    /// keeps a defensive share of BSDF sampling.
+    /// keeps a defensive share of BSDF sampling, `min = 0` lets the fit turn
+    /// the guide off where the BSDF and NEE do better (the renderer then
+    /// skips the guide's sample and pdfs there).
     pub min: f32,
     /// See `min`.
     pub max: f32,
-    /// Cells with fewer usable samples take the fit over all samples.
-    pub min_samples: u32,
-    /// The renderer multiplies radiance vMF guides by the clamped cosine
-    /// before sampling ([`DistributionBatch::apply_cosine_product`]): the fit
-    /// evaluates the guide density the same way (ignored for NASG / DF).
-    pub cosine_product: bool,
+    /// Shrinkage towards the fit over all samples: each cell's estimate gets
+    /// this many pseudo-samples of the global mean estimate (a cell without
+    /// samples takes the global value; one with many keeps its own).
+    pub prior_samples: u32,
 }
 
 impl Default for SelectionFit {
     fn default() -> Self {
         Self {
-            min: 0.1,
+            min: 0.0,
             max: 0.9,
-            min_samples: 64,
-            cosine_product: true,
+            prior_samples: 32,
         }
     }
 }
 
 /// Candidate selection probabilities of [`GuideCache::fit_selection`].
-pub const CANDIDATES: usize = 9;
+pub const CANDIDATES: usize = 10;
 
 /// What [`GuideCache::fit_selection`] found.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct SelectionReport {
     /// Samples that fell in a cell and had a finite, positive weight.
     pub samples_used: u64,
-    /// Cells fitted on their own samples.
+    /// Cells with samples of their own.
     pub cells_fitted: u64,
-    /// Cells that took the global value (too few samples).
+    /// Cells without samples (the global value).
     pub cells_global: u64,
+    /// Cells fitted to `c = 0` (the guide off).
+    pub cells_off: u64,
     /// The fit over all samples.
     pub global: f32,
     /// Mean fitted probability over the cells.
@@ -415,24 +527,35 @@ impl GuideCache {
     /// (drawn with an older guide and `c`, their `sample_pdf`) estimate the
     /// second moment under the cached guide `q` for every candidate at
     /// once: per cell, `M̂(c) = Σ F_i² / ((c·q(ω_i) + (1 − c)·p_bsdf,i) · p_s,i)`
-    /// with `F_i = Y(L_i ⊙ f cos)` (luminance of the sample's integrand).
-    /// `q` is the cell's decoded guide (times the cosine with
-    /// `cosine_product`). Cells with fewer than `min_samples` usable samples
-    /// take the minimiser of the sum over all cells. The probabilities then
+    /// with `F_i = Y(L_i ⊙ f cos)` (luminance of the sample's integrand),
+    /// `L_i` the sample's MIS-weighted incident radiance `mis_radiance[i]`
+    /// when given ([`crate::BatchRecorder::mis_radiance`]: with NEE the
+    /// emission found along `ω_i` counts with its MIS weight, as in the
+    /// render), else its training radiance.
+    /// `q` is the lane the sample's position and normal fall in (with the
+    /// cache's cosine product, if it has one). Each cell's sums get
+    /// `prior_samples` pseudo-samples of the global mean
+    /// (`M̂(c) + n₀ · M̂_all(c) / N`), so sparse cells lean on the fit over
+    /// all samples (a cell without samples takes it). The probabilities then
     /// replace the configuration's constant in [`Self::decode_batch`]'s
     /// lanes (NASG keeps its learned per-point value).
     ///
-    /// Deviation: NEE's share of the direct light is ignored (`F` counts the
-    /// emission along `ω` in full), as in the training target.
+    /// Measured on `builtin:door` with NEE: with the training radiance
+    /// (emission in full) the fit picks `c = 0.9` and triples the per-pixel
+    /// variance, because it credits the guide with direct light that NEE
+    /// already estimates; hence `mis_radiance`.
     ///
     /// # Errors
     /// [`GuidingError::StaleDistribution`] as [`Self::decode_batch`];
-    /// [`GuidingError::InvalidConfig`] unless `0 < min ≤ max < 1`, or for a
-    /// NASG field (it learns its own selection probability).
+    /// [`GuidingError::InvalidConfig`] unless `0 ≤ min ≤ max < 1`, or for a
+    /// NASG field (it learns its own selection probability);
+    /// [`GuidingError::LengthMismatch`] if `mis_radiance` is given with
+    /// another length than `samples`.
     pub fn fit_selection(
         &mut self,
         field: &GuidingField,
         samples: &[guiding_core::sample::TrainingSample],
+        mis_radiance: Option<&[[f32; 3]]>,
         fit: &SelectionFit,
     ) -> Result<SelectionReport, GuidingError> {
         self.check(field)?;
@@ -441,11 +564,18 @@ impl GuideCache {
                 "NASG learns its own selection probability".into(),
             ));
         }
-        if !(fit.min > 0.0 && fit.min <= fit.max && fit.max < 1.0) {
+        if !(fit.min >= 0.0 && fit.min <= fit.max && fit.max < 1.0) {
             return Err(GuidingError::InvalidConfig(format!(
-                "selection fit range [{}, {}] must satisfy 0 < min <= max < 1",
+                "selection fit range [{}, {}] must satisfy 0 <= min <= max < 1",
                 fit.min, fit.max
             )));
+        }
+        if let Some(m) = mis_radiance {
+            if m.len() != samples.len() {
+                return Err(GuidingError::LengthMismatch {
+                    what: format!("{} samples, {} MIS radiances", samples.len(), m.len()),
+                });
+            }
         }
         let candidate =
             |k: usize| fit.min + (fit.max - fit.min) * k as f32 / (CANDIDATES - 1) as f32;
@@ -454,8 +584,9 @@ impl GuideCache {
         let mut kept = Vec::new();
         for (i, s) in samples.iter().enumerate() {
             if let Some(c) = self.cell_of(Vec3::from_array(s.position)) {
-                if self.index[c] != EMPTY {
-                    lanes.push(self.index[c]);
+                let lane = self.lane_of(c, self.bin_of(Vec3::from_array(s.normal)));
+                if lane != EMPTY {
+                    lanes.push(lane);
                     kept.push(i);
                 }
             }
@@ -466,13 +597,6 @@ impl GuideCache {
         batch
             .items
             .gather(&self.items, &[], &BatchItems::default(), &lanes, MISS);
-        if fit.cosine_product {
-            let normals: Vec<Vec3> = kept
-                .iter()
-                .map(|&i| Vec3::from_array(samples[i].normal))
-                .collect();
-            batch.apply_cosine_product(&normals);
-        }
         let directions: Vec<Vec3> = kept
             .iter()
             .map(|&i| Vec3::from_array(samples[i].wi))
@@ -488,21 +612,24 @@ impl GuideCache {
         let mut used = 0u64;
         for (k, &i) in kept.iter().enumerate() {
             let s = &samples[i];
-            let f = 0.2126 * s.radiance[0] * s.bsdf_cos[0]
-                + 0.7152 * s.radiance[1] * s.bsdf_cos[1]
-                + 0.0722 * s.radiance[2] * s.bsdf_cos[2];
+            let l = mis_radiance.map_or(s.radiance, |m| m[i]);
+            let f = 0.2126 * l[0] * s.bsdf_cos[0]
+                + 0.7152 * l[1] * s.bsdf_cos[1]
+                + 0.0722 * l[2] * s.bsdf_cos[2];
             let (qk, pb, ps) = (q[k], s.bsdf_pdf, s.sample_pdf);
             let w = f64::from(f) * f64::from(f) / f64::from(ps);
             if !(w.is_finite() && w >= 0.0 && qk.is_finite() && qk >= 0.0 && pb >= 0.0) {
                 continue;
             }
+            // An infinite term (a candidate density 0 where F ≠ 0, e.g. c = 0 with
+            // p_bsdf = 0) rules that candidate out for the cell; NaN drops the sample.
             let mut terms = [0.0f64; CANDIDATES];
             let mut ok = true;
             for (j, t) in terms.iter_mut().enumerate() {
                 let c = f64::from(candidate(j));
                 let p = c * f64::from(qk) + (1.0 - c) * f64::from(pb);
                 *t = if w == 0.0 { 0.0 } else { w / p };
-                ok &= t.is_finite();
+                ok &= !t.is_nan();
             }
             if !ok {
                 continue;
@@ -515,6 +642,8 @@ impl GuideCache {
             count[lane] += 1;
             used += 1;
         }
+        // The smallest estimate (every candidate infinite, which needs a sample
+        // with both densities 0: the largest).
         let argmin = |m: &[f64; CANDIDATES]| {
             let mut best = 0;
             for j in 1..CANDIDATES {
@@ -522,7 +651,11 @@ impl GuideCache {
                     best = j;
                 }
             }
-            candidate(best)
+            if m[best].is_finite() {
+                candidate(best)
+            } else {
+                fit.max
+            }
         };
         let global = argmin(&total);
         let mut report = SelectionReport {
@@ -533,14 +666,22 @@ impl GuideCache {
         self.global_selection = global;
         self.selection.clear();
         let mut sum = 0.0f64;
+        let prior = f64::from(fit.prior_samples) / (used.max(1) as f64);
         for lane in 0..cells {
-            let c = if count[lane] >= fit.min_samples.max(1) {
+            let c = if count[lane] > 0 {
                 report.cells_fitted += 1;
-                argmin(&moment[lane])
+                let mut m = moment[lane];
+                if prior > 0.0 {
+                    for (mj, tj) in m.iter_mut().zip(&total) {
+                        *mj += prior * tj;
+                    }
+                }
+                argmin(&m)
             } else {
                 report.cells_global += 1;
                 global
             };
+            report.cells_off += u64::from(c == 0.0);
             sum += f64::from(c);
             self.selection.push(c);
         }

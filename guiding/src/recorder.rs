@@ -31,6 +31,13 @@
 //! without double counting). This is Open PGL's behaviour without
 //! `useNEEMiWeights`. No sample is made for delta vertices (no guiding
 //! there) or vertices whose path ended (`sample_pdf = 0`).
+//!
+//! Beside each sample the recorders keep its **MIS-weighted** incident
+//! radiance `L̃_i(k)` (the emission along `ω_i` with its MIS weight against
+//! NEE, plus the rest as above): what the renderer's estimator actually got
+//! along `ω_i`. The guide learns the full radiance, but the variance of the
+//! one-sample MIS of guide and BSDF next to NEE depends on this share
+//! ([`crate::GuideCache::fit_selection`]).
 
 pub mod wavefront;
 
@@ -152,6 +159,7 @@ fn propagate<'a>(
     reversed: impl Iterator<Item = &'a PathVertex>,
     escaped: Escaped,
     samples: &mut Vec<TrainingSample>,
+    mis_radiance: &mut Vec<[f32; 3]>,
 ) -> [f32; 3] {
     // Incident radiance along the current vertex's `wi`: the training
     // target (emission in full) and the path estimate (MIS-weighted).
@@ -161,6 +169,7 @@ fn propagate<'a>(
         let continues = v.sample_pdf > 0.0;
         if continues && !v.is_delta {
             samples.push(v.training_sample(incident));
+            mis_radiance.push(incident_mis);
         }
         let scattered = if continues {
             mul(
@@ -176,6 +185,8 @@ fn propagate<'a>(
     }
     // Samples were pushed from the last vertex back; keep path order.
     samples[first_new..].reverse();
+    let first_mis = mis_radiance.len() - (samples.len() - first_new);
+    mis_radiance[first_mis..].reverse();
     incident_mis
 }
 
@@ -195,6 +206,7 @@ pub struct PathRecorder {
     vertices: Vec<PathVertex>,
     escaped: Escaped,
     samples: Vec<TrainingSample>,
+    mis_radiance: Vec<[f32; 3]>,
 }
 
 impl PathRecorder {
@@ -230,7 +242,12 @@ impl PathRecorder {
     /// Ends the path: propagates radiance back along it (see the [module
     /// docs](self)), appends its training samples and returns `L_o(0)`.
     pub fn end_path(&mut self) -> [f32; 3] {
-        let l0 = propagate(self.vertices.iter().rev(), self.escaped, &mut self.samples);
+        let l0 = propagate(
+            self.vertices.iter().rev(),
+            self.escaped,
+            &mut self.samples,
+            &mut self.mis_radiance,
+        );
         self.start_path();
         l0
     }
@@ -240,14 +257,22 @@ impl PathRecorder {
         &self.samples
     }
 
+    /// The MIS-weighted incident radiance of each of [`Self::samples`] (see
+    /// the [module docs](self)).
+    pub fn mis_radiance(&self) -> &[[f32; 3]] {
+        &self.mis_radiance
+    }
+
     /// Hands every finished path's samples to `field` and clears them;
     /// returns how many were handed over.
     pub fn flush_into(&mut self, field: &mut GuidingField) -> usize {
+        self.mis_radiance.clear();
         hand_over(&mut self.samples, field)
     }
 
     /// Drops the finished paths' samples.
     pub fn clear_samples(&mut self) {
         self.samples.clear();
+        self.mis_radiance.clear();
     }
 }

@@ -1,18 +1,28 @@
 //! The guide cache (`guiding::GuideCache`): a lookup that lands in a cell
 //! is the network's decode at the cell's decode point bit for bit (NPM,
 //! NASG, DF), stale caches are refused and `refresh` equals a fresh build,
-//! `extend` does not depend on the order of the positions and ignores
+//! `extend` does not depend on the order of the points and ignores
 //! positions off the grid, misses are decoded by the network, and the
 //! stochastic lookup picks the neighbouring cells with the tent
 //! (trilinear) weights: a chi² test over the cells a lane came from, with a
 //! committed negative control showing the same test rejects a defective
 //! lookup and wrong rules.
+//!
+//! The cosine-product mode (`CacheOptions::cosine_product`, NPM only): a
+//! lane per (cell, octahedral normal bin) holding the decode at the
+//! centroid times the clamped cosine of the normalised mean normal, bit for
+//! bit; a query takes its own bin's lane; misses are the network decode
+//! times the query's own cosine; `extend` stays order independent and
+//! counts lanes; NASG and DF ignore the option. The per-cell selection fit
+//! (`GuideCache::fit_selection`) is the argmin of the second-moment
+//! estimator written out here independently.
 
 use guiding::{
     CacheLookup, CacheOptions, DirectionSample, DistributionBatch, FieldConfig, GuideCache,
     GuidingConfig, GuidingError, GuidingField, ModelSize, PathRecorder, PathVertex, QueryPoint,
-    Target,
+    SelectionFit, Target, TrainingSample,
 };
+use guiding_core::frame::normalize_or;
 use guiding_core::glam::{Vec2, Vec3};
 use guiding_core::math::INV_FOUR_PI;
 use guiding_core::sphere::square_to_uniform_sphere;
@@ -26,7 +36,15 @@ const HI: [f32; 3] = [1.0, 2.0, 3.0];
 /// Cells on the longest axis (4 long): cells of side 0.5, so cell centres
 /// and the positions between them below are exact in `f32`.
 const RES: u32 = 8;
-const OPTIONS: CacheOptions = CacheOptions { resolution: RES };
+const OPTIONS: CacheOptions = CacheOptions {
+    resolution: RES,
+    cosine_product: false,
+};
+/// [`OPTIONS`] with the cosine product per normal bin.
+const PRODUCT: CacheOptions = CacheOptions {
+    resolution: RES,
+    cosine_product: true,
+};
 
 fn training() -> FieldConfig {
     FieldConfig::DEFAULT
@@ -117,9 +135,64 @@ fn trained(config: GuidingConfig, seed: u64) -> GuidingField {
 }
 
 /// A radiance query at `p` (normal, `ωo` and roughness arbitrary: a
-/// radiance guide ignores them).
+/// radiance guide ignores them, and so does a cache without the product).
 fn query(p: Vec3, rng: &mut Pcg32) -> QueryPoint {
     QueryPoint::from_vec3(p, unit(rng), unit(rng), rng.next_f32())
+}
+
+/// Queries at `positions` ([`query`]).
+fn queries_at(positions: &[Vec3], rng: &mut Pcg32) -> Vec<QueryPoint> {
+    positions.iter().map(|&p| query(p, rng)).collect()
+}
+
+/// A unit normal near one of six fixed directions, one per octant pair
+/// (the centres of octahedral bins, see [`octahedral_bin`], tilted by up to
+/// 0.08 rad): the shading normals of a box-like scene, so a cell's normals
+/// share a few bins and a bin often holds several of them.
+fn axis_normal(rng: &mut Pcg32) -> Vec3 {
+    let base = [
+        Vec3::new(0.125, 0.125, 0.75),
+        Vec3::new(0.625, 0.125, 0.25),
+        Vec3::new(0.125, 0.625, 0.25),
+    ];
+    let k = rng.next_u32() as usize % 6;
+    let d = if k < 3 { base[k] } else { -base[k - 3] }.normalize();
+    (d + unit(rng) * rng.uniform(0.0, 0.08)).normalize()
+}
+
+/// A query at `p` with an [`axis_normal`] (`ωo` and roughness arbitrary).
+fn axis_query(p: Vec3, rng: &mut Pcg32) -> QueryPoint {
+    QueryPoint::from_vec3(p, axis_normal(rng), unit(rng), rng.next_f32())
+}
+
+/// A random unit normal that is a fixed point of
+/// `guiding_core::frame::normalize_or`, so normalising it once or twice
+/// gives the same bits (about one random unit vector in six is not: its
+/// normalisation moves it by an ulp).
+fn fixed_unit(rng: &mut Pcg32) -> Vec3 {
+    loop {
+        let n = normalize_or(unit(rng), Vec3::Z);
+        if normalize_or(n, Vec3::Z) == n {
+            return n;
+        }
+    }
+}
+
+/// The octahedral normal bin (8 × 8 per the cache's docs) of a normal,
+/// written out here: the normal over its L1 norm, the lower hemisphere
+/// folded onto the outer triangles, each coordinate's `[−1, 1]` cut in 8.
+fn octahedral_bin(n: Vec3) -> u32 {
+    let p = n / (n.x.abs() + n.y.abs() + n.z.abs());
+    let (x, y) = if p.z >= 0.0 {
+        (p.x, p.y)
+    } else {
+        (
+            (1.0 - p.y.abs()).copysign(p.x),
+            (1.0 - p.x.abs()).copysign(p.y),
+        )
+    };
+    let b = |t: f32| (((t + 1.0) * 4.0) as u32).min(7);
+    b(x) + 8 * b(y)
 }
 
 /// The lower corner of the cache's grid and its cell side, as
@@ -220,6 +293,19 @@ fn network(field: &GuidingField, queries: &[QueryPoint]) -> Vec<Vec<u32>> {
     fingerprints(field, &batch)
 }
 
+/// Fingerprints of the network's decode of `queries` times the clamped
+/// cosine of `normals` (`DistributionBatch::apply_cosine_product`).
+fn network_product(
+    field: &GuidingField,
+    queries: &[QueryPoint],
+    normals: &[Vec3],
+) -> Vec<Vec<u32>> {
+    let mut batch = DistributionBatch::new();
+    field.decode_batch(queries, &mut batch);
+    assert!(batch.apply_cosine_product(normals));
+    fingerprints(field, &batch)
+}
+
 /// One random position in each of a scattered set of cells (the only
 /// position of its cell), inside the field's box.
 fn one_position_per_cell(cache_res: [u32; 3], rng: &mut Pcg32) -> Vec<Vec3> {
@@ -249,11 +335,13 @@ fn a_lookup_at_the_only_position_of_its_cell_is_the_network_decode_bit_for_bit()
         let empty = field.build_cache(&[], &OPTIONS).unwrap();
         assert_eq!(empty.cells(), 0);
         let positions = one_position_per_cell(empty.resolution(), &mut rng);
-        let cache = field.build_cache(&positions, &OPTIONS).unwrap();
+        let points = queries_at(&positions, &mut rng);
+        let cache = field.build_cache(&points, &OPTIONS).unwrap();
+        assert!(!cache.has_cosine_product());
         assert_eq!(cache.cells(), positions.len(), "{name}");
         assert_eq!(cache.generation(), field.generation());
         // In another order than the cache's cells, with other normals / ωo.
-        let mut queries: Vec<QueryPoint> = positions.iter().map(|&p| query(p, &mut rng)).collect();
+        let mut queries = queries_at(&positions, &mut rng);
         queries.reverse();
         let jitter = vec![Vec3::splat(0.5); queries.len()];
         let (got, lookup, missed) = cached(&cache, &field, &queries, &jitter);
@@ -282,56 +370,95 @@ fn build_cache_refuses_product_targets_and_bad_resolutions() {
         GuidingConfig::nasg_product(),
         GuidingConfig::df_linear().with_target(Target::Product),
     ];
-    let p = [Vec3::new(0.0, 0.0, 1.0)];
+    let p = [QueryPoint::from_vec3(
+        Vec3::new(0.0, 0.0, 1.0),
+        Vec3::Z,
+        Vec3::Z,
+        1.0,
+    )];
     for config in products {
         let field = GuidingField::new(config.with_size(ModelSize::Small), LO, HI).unwrap();
-        assert!(
-            matches!(
-                field.build_cache(&p, &OPTIONS),
-                Err(GuidingError::InvalidConfig(_))
-            ),
-            "{config:?}"
-        );
+        for options in [OPTIONS, PRODUCT] {
+            assert!(
+                matches!(
+                    field.build_cache(&p, &options),
+                    Err(GuidingError::InvalidConfig(_))
+                ),
+                "{config:?} {options:?}"
+            );
+        }
     }
     let field = GuidingField::new(radiance_presets()[0].1, LO, HI).unwrap();
-    for resolution in [0, 257, u32::MAX] {
-        let options = CacheOptions { resolution };
-        assert!(
-            matches!(
-                field.build_cache(&p, &options),
-                Err(GuidingError::InvalidConfig(_))
-            ),
-            "resolution {resolution}"
-        );
+    for cosine_product in [false, true] {
+        for resolution in [0, 257, u32::MAX] {
+            let options = CacheOptions {
+                resolution,
+                cosine_product,
+            };
+            assert!(
+                matches!(
+                    field.build_cache(&p, &options),
+                    Err(GuidingError::InvalidConfig(_))
+                ),
+                "resolution {resolution}"
+            );
+        }
+        for (resolution, res) in [(1, [3, 3, 3]), (256, [130, 258, 194])] {
+            let options = CacheOptions {
+                resolution,
+                cosine_product,
+            };
+            let cache = field.build_cache(&p, &options).unwrap();
+            assert_eq!(cache.resolution(), res, "resolution {resolution}");
+            assert_eq!(cache.cell_size(), 4.0 / resolution as f32);
+            assert_eq!(cache.cells(), 1);
+            assert_eq!(cache.has_cosine_product(), cosine_product);
+        }
     }
-    for (resolution, res) in [(1, [3, 3, 3]), (256, [130, 258, 194])] {
-        let options = CacheOptions { resolution };
-        let cache = field.build_cache(&p, &options).unwrap();
-        assert_eq!(cache.resolution(), res, "resolution {resolution}");
-        assert_eq!(cache.cell_size(), 4.0 / resolution as f32);
-        assert_eq!(cache.cells(), 1);
-    }
+}
+
+/// The radiance presets with [`OPTIONS`], and NPM with [`PRODUCT`].
+fn cache_variants() -> Vec<(&'static str, GuidingConfig, CacheOptions)> {
+    let mut v: Vec<_> = radiance_presets()
+        .into_iter()
+        .map(|(n, c)| (n, c, OPTIONS))
+        .collect();
+    v.push(("npm-cos", radiance_presets()[0].1, PRODUCT));
+    v
 }
 
 #[test]
 fn a_stale_cache_is_refused_and_refresh_equals_a_fresh_build() {
-    for (i, (name, config)) in radiance_presets().into_iter().enumerate() {
+    for (i, (name, config, options)) in cache_variants().into_iter().enumerate() {
         let mut field = trained(config, 30 + i as u64);
         let other = trained(config, 40 + i as u64);
         let mut rng = Pcg32::new(50 + i as u64, 1);
-        // Many positions per cell: the decode points are centroids.
-        let positions: Vec<Vec3> = (0..3000).map(|_| in_box(&mut rng)).collect();
-        let mut cache = field.build_cache(&positions, &OPTIONS).unwrap();
+        // Many points per cell (and per normal bin): the decode points are
+        // centroids, the product normals means.
+        let positions: Vec<QueryPoint> = (0..3000)
+            .map(|_| {
+                let p = in_box(&mut rng);
+                axis_query(p, &mut rng)
+            })
+            .collect();
+        let mut cache = field.build_cache(&positions, &options).unwrap();
+        assert_eq!(cache.has_cosine_product(), options.cosine_product);
         let queries: Vec<QueryPoint> = (0..200)
             .map(|_| {
                 let p = in_box(&mut rng);
-                query(p, &mut rng)
+                axis_query(p, &mut rng)
             })
             .collect();
         let jitter: Vec<Vec3> = (0..queries.len())
             .map(|_| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()))
             .collect();
-        let before = cached(&cache, &field, &queries, &jitter).0;
+        let before = cached(&cache, &field, &queries, &jitter);
+        assert!(
+            before.1.hits > queries.len() as u64 / 2,
+            "{name}: {:?}",
+            before.1
+        );
+        let before = before.0;
         let g0 = cache.generation();
 
         let stale = |cache: &GuideCache, field: &GuidingField| {
@@ -369,7 +496,7 @@ fn a_stale_cache_is_refused_and_refresh_equals_a_fresh_build() {
         assert_eq!(cache.generation(), field.generation());
         assert_eq!(cache.cells(), cells);
         let refreshed = cached(&cache, &field, &queries, &jitter);
-        let fresh = field.build_cache(&positions, &OPTIONS).unwrap();
+        let fresh = field.build_cache(&positions, &options).unwrap();
         assert_eq!(fresh.cells(), cells);
         let rebuilt = cached(&fresh, &field, &queries, &jitter);
         assert_eq!(refreshed.1, rebuilt.1, "{name}");
@@ -385,8 +512,20 @@ fn a_stale_cache_is_refused_and_refresh_equals_a_fresh_build() {
     }
 }
 
+/// The lane a point makes (and a lookup without jitter reads), computed
+/// independently: its cell, and with the cosine product its normal's bin.
+fn lane_key(cache: &GuideCache, q: &QueryPoint) -> Option<([u32; 3], u32)> {
+    let cell = cell_of(cache, Vec3::from_array(q.position))?;
+    let bin = if cache.has_cosine_product() {
+        octahedral_bin(Vec3::from_array(q.normal))
+    } else {
+        0
+    };
+    Some((cell, bin))
+}
+
 #[test]
-fn extend_is_order_independent_counts_new_cells_and_ignores_bad_positions() {
+fn extend_is_order_independent_counts_new_lanes_and_ignores_bad_positions() {
     let invalid = [
         Vec3::splat(f32::NAN),
         Vec3::new(0.0, f32::NAN, 1.0),
@@ -399,89 +538,112 @@ fn extend_is_order_independent_counts_new_cells_and_ignores_bad_positions() {
         Vec3::new(HI[0] + 2.0, 0.0, 1.0),
         Vec3::new(LO[0] - 2.0, 0.0, 1.0),
     ];
-    for (i, (name, config)) in radiance_presets().into_iter().enumerate() {
+    for (i, (name, config, options)) in cache_variants().into_iter().enumerate() {
         let field = trained(config, 60 + i as u64);
         let mut rng = Pcg32::new(70 + i as u64, 1);
-        // Positions in the lower half of the box (z < 1.5), a few just
-        // outside its faces (inside the grid's one-cell margin), repeated
-        // positions and the invalid ones mixed in.
-        let mut positions: Vec<Vec3> = (0..1500)
+        let invalid: Vec<QueryPoint> = invalid.iter().map(|&p| axis_query(p, &mut rng)).collect();
+        // Points in the lower half of the box (z < 1.5), a few just outside
+        // its faces (inside the grid's one-cell margin), with normals near
+        // the axes (several per bin), repeated points and the invalid ones
+        // mixed in.
+        let mut points: Vec<QueryPoint> = (0..1500)
             .map(|_| {
                 let p = in_box(&mut rng);
-                Vec3::new(p.x * 1.1, p.y * 1.05, p.z * 0.5 - 0.1)
+                axis_query(Vec3::new(p.x * 1.1, p.y * 1.05, p.z * 0.5 - 0.1), &mut rng)
             })
             .collect();
-        let repeats: Vec<Vec3> = positions[..100].to_vec();
-        positions.extend(repeats);
-        positions.extend(invalid);
-        let distinct = |ps: &[Vec3], cache: &GuideCache| -> HashSet<[u32; 3]> {
-            ps.iter().filter_map(|&p| cell_of(cache, p)).collect()
+        let repeats: Vec<QueryPoint> = points[..100].to_vec();
+        points.extend(repeats);
+        points.extend_from_slice(&invalid);
+        let distinct = |ps: &[QueryPoint], cache: &GuideCache| -> HashSet<([u32; 3], u32)> {
+            ps.iter().filter_map(|q| lane_key(cache, q)).collect()
         };
 
-        let mut a = field.build_cache(&[], &OPTIONS).unwrap();
-        let want_cells = distinct(&positions, &a);
-        assert_eq!(a.extend(&field, &positions).unwrap(), want_cells.len());
-        assert_eq!(a.cells(), want_cells.len(), "{name}");
-        assert_eq!(a.extend(&field, &positions).unwrap(), 0);
+        let mut a = field.build_cache(&[], &options).unwrap();
+        let want_lanes = distinct(&points, &a);
+        if options.cosine_product {
+            // Several bins per cell and several points per bin.
+            let cells: HashSet<[u32; 3]> = want_lanes.iter().map(|k| k.0).collect();
+            assert!(
+                want_lanes.len() > 2 * cells.len() && want_lanes.len() < points.len() * 3 / 4,
+                "{name}: {} lanes in {} cells",
+                want_lanes.len(),
+                cells.len()
+            );
+        }
+        assert_eq!(a.extend(&field, &points).unwrap(), want_lanes.len());
+        assert_eq!(a.cells(), want_lanes.len(), "{name}");
+        assert_eq!(a.extend(&field, &points).unwrap(), 0);
 
-        // Shuffled (Fisher–Yates): the same cells and decode points.
-        let mut shuffled = positions.clone();
+        // Shuffled (Fisher–Yates): the same lanes, decode points and normals.
+        let mut shuffled = points.clone();
         for k in (1..shuffled.len()).rev() {
             let j = rng.next_u32() as usize % (k + 1);
             shuffled.swap(k, j);
         }
-        let b = field.build_cache(&shuffled, &OPTIONS).unwrap();
+        let b = field.build_cache(&shuffled, &options).unwrap();
         assert_eq!(b.cells(), a.cells());
-        let queries: Vec<QueryPoint> = (0..400)
+        // Random queries with normals near the axes, and the points
+        // themselves (their own bins: hits even with the product).
+        let mut queries: Vec<QueryPoint> = (0..400)
             .map(|_| {
                 let p = in_box(&mut rng);
-                query(Vec3::new(p.x, p.y, p.z * 0.5), &mut rng)
+                axis_query(Vec3::new(p.x, p.y, p.z * 0.5), &mut rng)
             })
             .collect();
+        queries.extend_from_slice(&points[..400]);
         let jitter: Vec<Vec3> = (0..queries.len())
             .map(|_| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()))
             .collect();
         let (fa, la, ma) = cached(&a, &field, &queries, &jitter);
         let (fb, lb, mb) = cached(&b, &field, &queries, &jitter);
         assert_eq!((la, &ma), (lb, &mb), "{name}");
-        assert_eq!(
-            la.misses, 0,
-            "{name}: every query is inside an occupied cell"
-        );
+        if options.cosine_product {
+            // Points' own bins are always there; random ones mostly.
+            assert!(ma.iter().all(|&m| m < 400), "{name}: {ma:?}");
+            assert!(la.misses < 100, "{name}: {la:?}");
+        } else {
+            assert_eq!(
+                la.misses, 0,
+                "{name}: every query is inside an occupied cell"
+            );
+        }
         for (k, (x, y)) in fa.iter().zip(&fb).enumerate() {
             assert_eq!(x, y, "{name}: query {k}");
         }
 
         // Invalid positions alone add nothing.
-        let cells = a.cells();
+        let lanes = a.cells();
         assert_eq!(a.extend(&field, &invalid).unwrap(), 0, "{name}");
-        assert_eq!(a.cells(), cells);
+        assert_eq!(a.cells(), lanes);
 
-        // New positions overlapping the occupied half: as many cells as new
-        // distinct cells among them.
-        let upper: Vec<Vec3> = (0..300)
+        // New points overlapping the occupied half: as many lanes as new
+        // distinct (cell, bin) keys among them.
+        let upper: Vec<QueryPoint> = (0..300)
             .map(|_| {
                 let p = in_box(&mut rng);
-                Vec3::new(p.x, p.y, 1.0 + p.z * 0.5)
+                axis_query(Vec3::new(p.x, p.y, 1.0 + p.z * 0.5), &mut rng)
             })
             .collect();
-        let old = distinct(&positions, &a);
+        let old = distinct(&points, &a);
         let new = distinct(&upper, &a);
         let added = new.difference(&old).count();
         assert!(added > 0 && added < new.len(), "{name}: {added}");
         assert_eq!(a.extend(&field, &upper).unwrap(), added, "{name}");
-        assert_eq!(a.cells(), cells + added);
+        assert_eq!(a.cells(), lanes + added);
 
         // Misses: invalid query positions and one in the box but with no
         // occupied cell near (the cache `b` holds the lower half only),
-        // between hits; they are the network's decode of the query.
+        // between hits; they are the network's decode of the query (times
+        // the query's own clamped cosine with the product).
         let mut mixed: Vec<QueryPoint> = Vec::new();
         let mut want_missed = Vec::new();
         let far = [Vec3::new(0.0, 0.0, 2.9), Vec3::new(-0.9, 1.9, 2.8)];
-        for (k, &p) in invalid.iter().chain(&far).enumerate() {
-            mixed.push(queries[k]);
+        let far: Vec<QueryPoint> = far.iter().map(|&p| axis_query(p, &mut rng)).collect();
+        for (k, &q) in invalid.iter().chain(&far).enumerate() {
+            mixed.push(points[k]);
             want_missed.push(mixed.len() as u32);
-            mixed.push(query(p, &mut rng));
+            mixed.push(q);
         }
         let jitter: Vec<Vec3> = (0..mixed.len())
             .map(|_| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()))
@@ -498,7 +660,12 @@ fn extend_is_order_independent_counts_new_cells_and_ignores_bad_positions() {
         );
         for &m in &missed {
             let q = mixed[m as usize];
-            let want = network(&field, std::slice::from_ref(&q));
+            let q1 = std::slice::from_ref(&q);
+            let want = if options.cosine_product {
+                network_product(&field, q1, &[Vec3::from_array(q.normal)])
+            } else {
+                network(&field, q1)
+            };
             assert_eq!(got[m as usize], want[0], "{name}: miss at {:?}", q.position);
         }
     }
@@ -636,7 +803,10 @@ fn lookup_setup() -> (GuidingField, GuideCache) {
             }
         }
     }
-    let cache = field.build_cache(&centres, &OPTIONS).unwrap();
+    let mut rng = Pcg32::new(91, 1);
+    let cache = field
+        .build_cache(&queries_at(&centres, &mut rng), &OPTIONS)
+        .unwrap();
     assert_eq!(cache.cells(), centres.len());
     assert_eq!(cache.cell_size(), 0.5);
     (field, cache)
@@ -761,4 +931,692 @@ fn stochastic_lookup_test_rejects_wrong_rules() {
         lookup_test(&honest, swapped, "wrong rule: swapped weights"),
         "swapped tent weights were not rejected"
     );
+}
+
+// ---------------------------------------------------------------------------
+// The cosine product per normal bin.
+
+/// Fingerprints of the cache's lanes for `queries`, every jitter ½ (the
+/// query's own cell).
+fn cached_centred(
+    cache: &GuideCache,
+    field: &GuidingField,
+    queries: &[QueryPoint],
+) -> (Vec<Vec<u32>>, CacheLookup, Vec<u32>) {
+    cached(
+        cache,
+        field,
+        queries,
+        &vec![Vec3::splat(0.5); queries.len()],
+    )
+}
+
+/// A query at `p` with normal `n` (`ωo` and roughness arbitrary).
+fn at(p: Vec3, n: Vec3, rng: &mut Pcg32) -> QueryPoint {
+    QueryPoint::from_vec3(p, n, unit(rng), rng.next_f32())
+}
+
+/// The NPM radiance field (small) of the cosine-product tests.
+fn npm(seed: u64) -> GuidingField {
+    trained(radiance_presets()[0].1, seed)
+}
+
+#[test]
+fn a_product_lookup_at_the_only_point_of_its_lane_is_the_network_decode_times_its_cosine() {
+    let field = npm(110);
+    let mut rng = Pcg32::new(111, 1);
+    let empty = field.build_cache(&[], &PRODUCT).unwrap();
+    assert!(empty.has_cosine_product());
+    let positions = one_position_per_cell(empty.resolution(), &mut rng);
+    // One point per cell with a random normal (one bin each); the normals
+    // are fixed points of normalisation (see `fixed_unit`).
+    let points: Vec<QueryPoint> = positions
+        .iter()
+        .map(|&p| at(p, fixed_unit(&mut rng), &mut rng))
+        .collect();
+    let cache = field.build_cache(&points, &PRODUCT).unwrap();
+    assert_eq!(cache.cells(), points.len());
+    // In another order, with other ωo and roughness, the same normals.
+    let mut queries: Vec<QueryPoint> = points
+        .iter()
+        .map(|q| {
+            at(
+                Vec3::from_array(q.position),
+                Vec3::from_array(q.normal),
+                &mut rng,
+            )
+        })
+        .collect();
+    queries.reverse();
+    let normals: Vec<Vec3> = queries.iter().map(|q| Vec3::from_array(q.normal)).collect();
+    let (got, lookup, missed) = cached_centred(&cache, &field, &queries);
+    assert_eq!(
+        lookup,
+        CacheLookup {
+            hits: queries.len() as u64,
+            misses: 0
+        }
+    );
+    assert!(missed.is_empty());
+    let want = network_product(&field, &queries, &normals);
+    for (k, (g, w)) in got.iter().zip(&want).enumerate() {
+        assert_eq!(g, w, "query {k} at {:?}", queries[k].position);
+    }
+    // The product changed the lanes (the comparison has teeth), and the
+    // lanes differ from cell to cell.
+    let plain = network(&field, &queries);
+    assert!(got.iter().zip(&plain).all(|(g, p)| g != p));
+    let distinct: HashSet<&Vec<u32>> = got.iter().collect();
+    assert!(distinct.len() > got.len() / 2, "{}", distinct.len());
+}
+
+#[test]
+fn product_lanes_are_per_normal_bin_with_the_normalised_mean_normal() {
+    let field = npm(120);
+    let mut rng = Pcg32::new(121, 1);
+    let empty = field.build_cache(&[], &PRODUCT).unwrap();
+    let h = empty.cell_size();
+    // Cell 1: two points, normals +z and +x (bins 36 and 39): two lanes.
+    let c1 = cell_centre(&empty, [3, 4, 3]);
+    let (p1, p2) = (c1 + Vec3::new(0.125, 0.0, -0.0625), c1 - Vec3::splat(0.125));
+    // Cell 2: two points whose normals differ but share a bin: one lane.
+    let c2 = cell_centre(&empty, [1, 6, 2]);
+    let (p3, p4) = (
+        c2 + Vec3::new(0.1, 0.05, 0.0),
+        c2 - Vec3::new(0.0625, 0.1, 0.2),
+    );
+    let n3 = Vec3::new(0.05, 0.2, 1.0).normalize();
+    let n4 = Vec3::new(0.2, 0.05, 1.0).normalize();
+    let (bz, bx) = (octahedral_bin(Vec3::Z), octahedral_bin(Vec3::X));
+    assert_ne!(bz, bx);
+    assert_eq!((octahedral_bin(n3), octahedral_bin(n4)), (bz, bz));
+    let points = [
+        at(p1, Vec3::Z, &mut rng),
+        at(p2, Vec3::X, &mut rng),
+        at(p3, n3, &mut rng),
+        at(p4, n4, &mut rng),
+    ];
+    let cache = field.build_cache(&points, &PRODUCT).unwrap();
+    assert_eq!(cache.cells(), 3);
+    assert_eq!(cache.cell_size(), h);
+
+    // Cell 1: the bin of the query's normal picks the lane, wherever in the
+    // cell the query is (the jitter random: the neighbours are empty).
+    let nx = Vec3::new(1.0, 0.1, 0.1).normalize();
+    assert_eq!(octahedral_bin(nx), bx);
+    let queries = [
+        at(p1, Vec3::Z, &mut rng),
+        at(p2, Vec3::Z, &mut rng),
+        at(c1, Vec3::new(0.1, 0.1, 1.0).normalize(), &mut rng),
+        at(p2, Vec3::X, &mut rng),
+        at(p1, Vec3::X, &mut rng),
+        at(c1, nx, &mut rng),
+    ];
+    let jitter: Vec<Vec3> = (0..queries.len())
+        .map(|_| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()))
+        .collect();
+    let (got, lookup, _) = cached(&cache, &field, &queries, &jitter);
+    assert_eq!(lookup.misses, 0);
+    let lane_z = network_product(&field, &points[..1], &[Vec3::Z]);
+    let lane_x = network_product(&field, &points[1..2], &[Vec3::X]);
+    assert_ne!(lane_z, lane_x);
+    for (k, g) in got.iter().enumerate() {
+        let want = if k < 3 { &lane_z[0] } else { &lane_x[0] };
+        assert_eq!(g, want, "cell 1, query {k}");
+    }
+    // A bin cell 1 does not have (−z) misses.
+    let (_, lookup, missed) = cached_centred(&cache, &field, &[at(c1, -Vec3::Z, &mut rng)]);
+    assert_eq!((lookup.misses, missed), (1, vec![0]));
+
+    // Cell 2: one lane, decoded at the centroid (an f64 mean) times the
+    // clamped cosine of the mean normal (normalised once, by the product).
+    let mean = |a: Vec3, b: Vec3| {
+        let (a, b) = (a.as_dvec3(), b.as_dvec3());
+        ((a + b) / 2.0).as_vec3()
+    };
+    let centroid = at(mean(p3, p4), Vec3::Z, &mut rng);
+    let normal = mean(n3, n4);
+    let want = network_product(&field, &[centroid], &[normal]);
+    for q in [
+        at(p3, n3, &mut rng),
+        at(p4, n3, &mut rng),
+        at(c2, Vec3::Z, &mut rng),
+    ] {
+        let (got, lookup, _) = cached_centred(&cache, &field, &[q]);
+        assert_eq!(lookup.misses, 0);
+        assert_eq!(got, want, "cell 2 at {:?}", q.position);
+    }
+    // Neither point's own normal (nor the centroid's plain decode).
+    for n in [n3, n4] {
+        assert_ne!(want, network_product(&field, &[centroid], &[n]));
+    }
+    assert_ne!(want, network(&field, &[centroid]));
+}
+
+#[test]
+fn a_product_miss_is_the_network_decode_times_the_query_cosine() {
+    let field = npm(130);
+    let mut rng = Pcg32::new(131, 1);
+    let empty = field.build_cache(&[], &PRODUCT).unwrap();
+    let positions = one_position_per_cell(empty.resolution(), &mut rng);
+    // Every lane has the normal +z.
+    let points: Vec<QueryPoint> = positions
+        .iter()
+        .map(|&p| at(p, Vec3::Z, &mut rng))
+        .collect();
+    let cache = field.build_cache(&points, &PRODUCT).unwrap();
+    assert_eq!(cache.cells(), points.len());
+    let lanes = network_product(&field, &points, &vec![Vec3::Z; points.len()]);
+    // Misses: occupied cells but a bin they lack (random normals away
+    // from +z, one of them not unit), positions off the grid and
+    // non-finite ones; between them hits (+z at the points).
+    let mut misses = Vec::new();
+    for (k, &p) in positions[..6].iter().enumerate() {
+        let mut n = unit(&mut rng);
+        while octahedral_bin(n) == octahedral_bin(Vec3::Z) {
+            n = unit(&mut rng);
+        }
+        misses.push(at(p, if k == 0 { n * 2.5 } else { n }, &mut rng));
+    }
+    for p in [
+        Vec3::new(100.0, 0.0, 1.0),
+        Vec3::new(0.0, -3.5, 1.0),
+        Vec3::new(0.0, f32::NAN, 1.0),
+    ] {
+        misses.push(at(p, unit(&mut rng), &mut rng));
+    }
+    let mut mixed = Vec::new();
+    let mut want_missed = Vec::new();
+    for (k, &q) in misses.iter().enumerate() {
+        mixed.push(points[10 + k]);
+        want_missed.push(mixed.len() as u32);
+        mixed.push(q);
+    }
+    let (got, lookup, missed) = cached_centred(&cache, &field, &mixed);
+    assert_eq!(missed, want_missed);
+    assert_eq!(lookup.misses, misses.len() as u64);
+    for (k, g) in got.iter().enumerate() {
+        let q = mixed[k];
+        if k % 2 == 0 {
+            assert_eq!(g, &lanes[10 + k / 2], "hit {k}");
+        } else {
+            let q1 = std::slice::from_ref(&q);
+            let n = Vec3::from_array(q.normal);
+            assert_eq!(g, &network_product(&field, q1, &[n])[0], "miss {k}");
+            assert_ne!(g, &network(&field, q1)[0], "miss {k}: no product");
+            assert_ne!(
+                g,
+                &network_product(&field, q1, &[Vec3::Z])[0],
+                "miss {k}: the lanes' normal"
+            );
+        }
+    }
+}
+
+#[test]
+fn nasg_and_df_ignore_the_cosine_product() {
+    for (i, (name, config)) in radiance_presets().into_iter().enumerate().skip(1) {
+        let field = trained(config, 140 + i as u64);
+        let mut rng = Pcg32::new(150 + i as u64, 1);
+        let points: Vec<QueryPoint> = (0..1000)
+            .map(|_| {
+                let p = in_box(&mut rng);
+                axis_query(p, &mut rng)
+            })
+            .collect();
+        let plain = field.build_cache(&points, &OPTIONS).unwrap();
+        let product = field.build_cache(&points, &PRODUCT).unwrap();
+        assert!(!product.has_cosine_product(), "{name}");
+        assert_eq!(product.cells(), plain.cells(), "{name}");
+        let cells: HashSet<[u32; 3]> = points
+            .iter()
+            .filter_map(|q| cell_of(&plain, Vec3::from_array(q.position)))
+            .collect();
+        assert_eq!(product.cells(), cells.len(), "{name}: a lane per cell");
+        let queries: Vec<QueryPoint> = (0..300)
+            .map(|_| {
+                let p = in_box(&mut rng);
+                query(p, &mut rng)
+            })
+            .collect();
+        let jitter: Vec<Vec3> = (0..queries.len())
+            .map(|_| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()))
+            .collect();
+        let a = cached(&plain, &field, &queries, &jitter);
+        let b = cached(&product, &field, &queries, &jitter);
+        assert_eq!(a, b, "{name}");
+    }
+    // NPM does not (the comparison above would see the product).
+    let field = npm(149);
+    let mut rng = Pcg32::new(159, 1);
+    let points: Vec<QueryPoint> = (0..300)
+        .map(|_| {
+            let p = in_box(&mut rng);
+            axis_query(p, &mut rng)
+        })
+        .collect();
+    let plain = field.build_cache(&points, &OPTIONS).unwrap();
+    let product = field.build_cache(&points, &PRODUCT).unwrap();
+    assert!(product.has_cosine_product() && !plain.has_cosine_product());
+    assert!(product.cells() > plain.cells());
+    let a = cached_centred(&plain, &field, &points[..50]);
+    let b = cached_centred(&product, &field, &points[..50]);
+    assert!(a.0.iter().zip(&b.0).all(|(x, y)| x != y));
+}
+
+// ---------------------------------------------------------------------------
+// The per-cell selection fit.
+
+/// Candidates of the fit: `CANDIDATES` values evenly spaced over `[min, max]`.
+fn candidate(fit: &SelectionFit, k: usize) -> f32 {
+    fit.min + (fit.max - fit.min) * k as f32 / (guiding::cache::CANDIDATES - 1) as f32
+}
+
+/// The second-moment estimator of `fit_selection`'s docs, written out:
+/// `M̂(c) = Σ F² / ((c·q + (1 − c)·p_bsdf) · p_s)`, `F` the luminance of
+/// `L ⊙ f cos` with `L = radiance(sample)`, over the samples given (all
+/// usable; a candidate density 0 where `F ≠ 0` makes its sum infinite).
+fn moments(
+    fit: &SelectionFit,
+    samples: &[(TrainingSample, f32)],
+    radiance: &dyn Fn(&TrainingSample) -> [f32; 3],
+) -> Vec<f64> {
+    (0..guiding::cache::CANDIDATES)
+        .map(|k| {
+            let c = f64::from(candidate(fit, k));
+            samples
+                .iter()
+                .map(|(s, q)| {
+                    let f: f64 = [0.2126, 0.7152, 0.0722]
+                        .iter()
+                        .zip(radiance(s).iter().zip(&s.bsdf_cos))
+                        .map(|(y, (&l, &b))| y * f64::from(l) * f64::from(b))
+                        .sum();
+                    let p = c * f64::from(*q) + (1.0 - c) * f64::from(s.bsdf_pdf);
+                    f * f / (p * f64::from(s.sample_pdf))
+                })
+                .sum()
+        })
+        .collect()
+}
+
+/// The candidate minimising `moments` (the first of equal minima; `max`
+/// if every sum is infinite).
+fn argmin(fit: &SelectionFit, m: &[f64]) -> f32 {
+    let best = (0..m.len()).fold(0, |b, k| if m[k] < m[b] { k } else { b });
+    if m[best].is_finite() {
+        candidate(fit, best)
+    } else {
+        fit.max
+    }
+}
+
+#[test]
+fn fit_selection_refuses_nasg_bad_ranges_and_stale_fields() {
+    let mut rng = Pcg32::new(160, 1);
+    let points: Vec<QueryPoint> = (0..100)
+        .map(|_| {
+            let p = in_box(&mut rng);
+            axis_query(p, &mut rng)
+        })
+        .collect();
+    let sample = TrainingSample::new(
+        points[0],
+        [0.0, 0.0, 1.0],
+        [1.0; 3],
+        INV_FOUR_PI,
+        INV_FOUR_PI,
+        [1.0; 3],
+    );
+    let samples = vec![sample; 100];
+    let nasg = trained(radiance_presets()[1].1, 161);
+    for options in [OPTIONS, PRODUCT] {
+        let mut cache = nasg.build_cache(&points, &options).unwrap();
+        let r = cache.fit_selection(&nasg, &samples, None, &SelectionFit::default());
+        assert!(matches!(r, Err(GuidingError::InvalidConfig(_))), "{r:?}");
+    }
+    let mut field = npm(162);
+    let mut cache = field.build_cache(&points, &PRODUCT).unwrap();
+    for (min, max) in [(-0.1, 0.5), (0.6, 0.5), (0.1, 1.0), (f32::NAN, 0.5)] {
+        let fit = SelectionFit {
+            min,
+            max,
+            ..SelectionFit::default()
+        };
+        let r = cache.fit_selection(&field, &samples, None, &fit);
+        assert!(
+            matches!(r, Err(GuidingError::InvalidConfig(_))),
+            "[{min}, {max}]: {r:?}"
+        );
+    }
+    let fit = SelectionFit::default();
+    assert!(cache.fit_selection(&field, &samples, None, &fit).is_ok());
+    let mis = vec![[1.0; 3]; samples.len()];
+    assert!(cache
+        .fit_selection(&field, &samples, Some(&mis), &fit)
+        .is_ok());
+    let r = cache.fit_selection(&field, &samples, Some(&mis[1..]), &fit);
+    assert!(
+        matches!(r, Err(GuidingError::LengthMismatch { .. })),
+        "{r:?}"
+    );
+    train_once(&mut field, &mut rng);
+    let r = cache.fit_selection(&field, &samples, None, &fit);
+    assert!(
+        matches!(r, Err(GuidingError::StaleDistribution { .. })),
+        "{r:?}"
+    );
+}
+
+/// The fit of `fit_selection`'s docs per lane, from the sample sets of the
+/// lanes (`None`: a lane with no samples): the argmin of the lane's sums
+/// plus `prior_samples` pseudo-samples of the mean over all samples,
+/// `M̂(c) + n₀ · M̂_all(c) / N`; a lane without samples takes the argmin of
+/// `M̂_all`. Returns the per-lane values and the global one.
+fn expected_fit(
+    fit: &SelectionFit,
+    sets: &[Option<&[(TrainingSample, f32)]>],
+    radiance: &dyn Fn(&TrainingSample) -> [f32; 3],
+) -> (Vec<f32>, f32) {
+    let all: Vec<(TrainingSample, f32)> = sets
+        .iter()
+        .flatten()
+        .flat_map(|s| s.iter())
+        .copied()
+        .collect();
+    let total = moments(fit, &all, radiance);
+    let global = argmin(fit, &total);
+    let weight = f64::from(fit.prior_samples) / all.len() as f64;
+    let lanes = sets
+        .iter()
+        .map(|set| match set {
+            Some(set) if !set.is_empty() => {
+                let own = moments(fit, set, radiance);
+                let shrunk: Vec<f64> = own
+                    .iter()
+                    .zip(&total)
+                    .map(|(m, t)| if weight > 0.0 { m + weight * t } else { *m })
+                    .collect();
+                argmin(fit, &shrunk)
+            }
+            _ => global,
+        })
+        .collect();
+    (lanes, global)
+}
+
+/// The synthetic training samples of the fit tests, in lane `lane`'s cell
+/// `cell` with normals in `normal`'s bin (jittered around it), uniform
+/// directions with guide density `q(wi)` (NaN off the lanes), gray
+/// radiance `radiance(q, wi)`, BSDF density 1/4π.
+fn fit_samples(
+    n: usize,
+    cell: Vec3,
+    h: f32,
+    normal: Vec3,
+    q: &dyn Fn(Vec3) -> f32,
+    radiance: &dyn Fn(f32, Vec3) -> f32,
+    rng: &mut Pcg32,
+) -> Vec<(TrainingSample, f32)> {
+    (0..n)
+        .map(|_| {
+            let off = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
+            let p = cell + off * 0.9 * h;
+            let mut nn = (normal + unit(rng) * 0.1).normalize();
+            while octahedral_bin(nn) != octahedral_bin(normal) {
+                nn = (normal + unit(rng) * 0.1).normalize();
+            }
+            let wi = unit(rng);
+            let qk = q(wi);
+            let vertex = QueryPoint::from_vec3(p, nn, unit(rng), 1.0);
+            let s = TrainingSample::new(
+                vertex,
+                wi.to_array(),
+                [radiance(qk, wi); 3],
+                INV_FOUR_PI * rng.uniform(0.5, 1.5),
+                INV_FOUR_PI,
+                [rng.uniform(0.5, 1.0); 3],
+            );
+            (s, qk)
+        })
+        .collect()
+}
+
+/// The selection probabilities the cache hands out for `queries` (jitter
+/// ½), and which queries missed.
+fn selections(
+    cache: &GuideCache,
+    field: &GuidingField,
+    queries: &[QueryPoint],
+) -> (Vec<f32>, Vec<u32>) {
+    let mut batch = DistributionBatch::new();
+    let mut missed = Vec::new();
+    cache
+        .decode_batch(
+            field,
+            queries,
+            &vec![Vec3::splat(0.5); queries.len()],
+            &mut batch,
+            &mut missed,
+        )
+        .unwrap();
+    let c = (0..queries.len())
+        .map(|k| batch.selection_probability(k))
+        .collect();
+    (c, missed)
+}
+
+#[test]
+fn fit_selection_is_the_argmin_of_the_shrunk_second_moment_per_lane() {
+    let field = npm(170);
+    let mut rng = Pcg32::new(171, 1);
+    let empty = field.build_cache(&[], &PRODUCT).unwrap();
+    let h = empty.cell_size();
+    let centre = |c: [u32; 3]| cell_centre(&empty, c);
+    // Lanes: A (+z) and A' (−z) in one cell, B (+x), C (+z), E (+z, no
+    // samples); one point each.
+    let (ca, cb, cc, ce) = (
+        centre([2, 3, 2]),
+        centre([4, 6, 4]),
+        centre([3, 2, 5]),
+        centre([5, 2, 3]),
+    );
+    let lane_points = [
+        at(ca, Vec3::Z, &mut rng),
+        at(ca + Vec3::splat(0.0625), -Vec3::Z, &mut rng),
+        at(cb, Vec3::X, &mut rng),
+        at(cc, Vec3::Z, &mut rng),
+        at(ce, Vec3::Z, &mut rng),
+    ];
+    let mut cache = field.build_cache(&lane_points, &PRODUCT).unwrap();
+    assert_eq!(cache.cells(), 5);
+    // The known guide densities: a lane is the decode at its point times
+    // the clamped cosine of its normal (bit for bit, tested above).
+    let mut lanes = DistributionBatch::new();
+    field.decode_batch(&lane_points, &mut lanes);
+    let normals: Vec<Vec3> = lane_points
+        .iter()
+        .map(|q| Vec3::from_array(q.normal))
+        .collect();
+    assert!(lanes.apply_cosine_product(&normals));
+    let q_of = |lane: u32| {
+        let lanes = &lanes;
+        let field = &field;
+        move |wi: Vec3| {
+            let mut q = [0.0];
+            field.pdf_decoded(lanes, &[lane], &[wi], &mut q).unwrap();
+            q[0]
+        }
+    };
+    let none = |_: Vec3| f32::NAN;
+    // A: the radiance follows the guide (strong); B: half guide, half
+    // uniform (an optimum inside the range); A' and C: few samples, uniform
+    // (the BSDF fits: on their own the guide would be off); then samples no
+    // lane takes (a cell with no point, a bin cell A lacks).
+    let follows = |q: f32, _: Vec3| 30.0 * q;
+    let half = |q: f32, _: Vec3| 0.5 * q + 0.5 * INV_FOUR_PI;
+    let flat = |_: f32, _: Vec3| 0.5;
+    let a = fit_samples(300, ca, h, Vec3::Z, &q_of(0), &follows, &mut rng);
+    let a2 = fit_samples(40, ca, h, -Vec3::Z, &q_of(1), &flat, &mut rng);
+    let b = fit_samples(300, cb, h, Vec3::X, &q_of(2), &half, &mut rng);
+    let c = fit_samples(20, cc, h, Vec3::Z, &q_of(3), &flat, &mut rng);
+    let off = fit_samples(50, centre([1, 1, 1]), h, Vec3::Z, &none, &flat, &mut rng);
+    let off_bin = fit_samples(30, ca, h, Vec3::X, &none, &flat, &mut rng);
+    // Unusable samples in lane A: non-finite radiance, a zero sampling
+    // density, a negative BSDF density.
+    let mut bad = fit_samples(3, ca, h, Vec3::Z, &q_of(0), &follows, &mut rng);
+    bad[0].0.radiance[1] = f32::NAN;
+    bad[1].0.sample_pdf = 0.0;
+    bad[2].0.bsdf_pdf = -1.0;
+    let mut samples: Vec<TrainingSample> = Vec::new();
+    for set in [&a, &off, &a2, &bad, &b, &off_bin, &c] {
+        samples.extend(set.iter().map(|(s, _)| *s));
+    }
+    // Shuffled: the fit must not depend on the samples' order.
+    for k in (1..samples.len()).rev() {
+        let j = rng.next_u32() as usize % (k + 1);
+        samples.swap(k, j);
+    }
+    // MIS-weighted radiances (`mis_radiance`): what comes from well above
+    // the horizon mostly goes to NEE.
+    let mis_of = |s: &TrainingSample| {
+        let k = if s.wi[2] > 0.5 { 0.05 } else { 1.0 };
+        s.radiance.map(|l| l * k)
+    };
+    let mis: Vec<[f32; 3]> = samples.iter().map(mis_of).collect();
+    let training = |s: &TrainingSample| s.radiance;
+    let sets = [
+        Some(&a[..]),
+        Some(&a2[..]),
+        Some(&b[..]),
+        Some(&c[..]),
+        None,
+    ];
+    let used = a.len() + a2.len() + b.len() + c.len();
+
+    // A query in each lane (a sample's point; E's own point) and a miss (a
+    // bin cell A lacks).
+    let mut queries: Vec<QueryPoint> = [&a, &a2, &b, &c]
+        .iter()
+        .map(|s| {
+            let s = &s[0].0;
+            QueryPoint::new(s.position, s.normal, s.wo, s.roughness)
+        })
+        .collect();
+    queries.push(lane_points[4]);
+    queries.push(at(ca, Vec3::X, &mut rng));
+    let constant = lanes.selection_probability(0);
+    let mut results = Vec::new();
+    for (label, radiance, given) in [
+        (
+            "training radiance",
+            &training as &dyn Fn(&TrainingSample) -> [f32; 3],
+            None,
+        ),
+        ("MIS radiance", &mis_of, Some(&mis[..])),
+    ] {
+        for prior_samples in [1, 32, 1000] {
+            let fit = SelectionFit {
+                prior_samples,
+                ..SelectionFit::default()
+            };
+            assert_eq!(fit.min, 0.0);
+            let (want, global) = expected_fit(&fit, &sets, radiance);
+            let report = cache.fit_selection(&field, &samples, given, &fit).unwrap();
+            eprintln!("{label}, prior {prior_samples}: want {want:?}, global {global}: {report:?}");
+            assert_eq!(report.samples_used, used as u64, "{label}");
+            assert_eq!((report.cells_fitted, report.cells_global), (4, 1));
+            let off = want.iter().filter(|&&c| c == 0.0).count();
+            assert_eq!(report.cells_off, off as u64, "{label}");
+            assert_eq!(report.global, global, "{label}");
+            let mean = want.iter().map(|&c| f64::from(c)).sum::<f64>() / 5.0;
+            assert!(
+                (f64::from(report.mean) - mean).abs() < 1e-6,
+                "{label}: {report:?}"
+            );
+            // The lanes hand out the fitted values (any point of the lane's
+            // cell and bin), misses the configuration's constant.
+            let (got, missed) = selections(&cache, &field, &queries);
+            assert_eq!(missed, vec![5]);
+            assert_eq!(got[..5], want[..], "{label}, prior {prior_samples}");
+            assert_eq!(got[5], constant);
+            results.push((want, global));
+        }
+    }
+    // The cases have teeth: A and B fit differently (weak prior), B inside the range
+    // somewhere, the guide off (c = 0) somewhere, a lane away from both its
+    // own fit and the global one (the shrinkage interpolates), the prior's
+    // weight and the MIS radiance change the fit.
+    let unshrunk = |k: usize| {
+        let fit = SelectionFit::default();
+        argmin(&fit, &moments(&fit, sets[k].unwrap(), &training))
+    };
+    assert!(results.iter().any(|(w, _)| w[0] != w[2]));
+    assert!(results.iter().any(|(w, _)| w[2] > 0.0 && w[2] < 0.8));
+    assert!(results.iter().any(|(w, _)| w.contains(&0.0)));
+    let (w32, g32) = &results[1];
+    assert!(
+        (0..4).any(|k| w32[k] != unshrunk(k) && w32[k] != *g32),
+        "{results:?}"
+    );
+    assert_ne!(results[0].0, results[2].0);
+    assert_ne!(results[1].0, results[4].0);
+    assert!(results
+        .iter()
+        .any(|(w, _)| w.iter().any(|&c| c != constant)));
+    // A lane added after the fit takes the (latest) global value.
+    let d = at(centre([1, 1, 1]), Vec3::Z, &mut rng);
+    assert_eq!(cache.extend(&field, &[d]).unwrap(), 1);
+    let (got, missed) = selections(&cache, &field, &[d]);
+    assert!(missed.is_empty());
+    assert_eq!(got[0], results[5].1);
+}
+
+/// A sample without a BSDF density (`bsdf_pdf = 0`, "unknown" in
+/// `TrainingSample`'s docs) makes the sum of the candidate `c = 0`
+/// infinite. With `prior_samples: 0` the docs' estimator is each lane's own
+/// sums (no pseudo-samples), so a lane whose own samples all have a BSDF
+/// density keeps its own fit (a regression test: `fit_selection` once
+/// added `0 · ∞ = NaN` to the candidate `c = 0` of every lane, after which
+/// no candidate compared below it and every lane got `max`).
+#[test]
+fn fit_selection_without_prior_keeps_a_lane_own_fit_next_to_a_sample_without_bsdf_density() {
+    let field = npm(180);
+    let mut rng = Pcg32::new(181, 1);
+    let empty = field.build_cache(&[], &PRODUCT).unwrap();
+    let h = empty.cell_size();
+    let (ca, cb) = (
+        cell_centre(&empty, [2, 3, 2]),
+        cell_centre(&empty, [4, 6, 4]),
+    );
+    let points = [at(ca, Vec3::Z, &mut rng), at(cb, Vec3::Z, &mut rng)];
+    let mut cache = field.build_cache(&points, &PRODUCT).unwrap();
+    let mut lanes = DistributionBatch::new();
+    field.decode_batch(&points, &mut lanes);
+    assert!(lanes.apply_cosine_product(&[Vec3::Z; 2]));
+    let q_of = |lane: u32| {
+        let lanes = &lanes;
+        let field = &field;
+        move |wi: Vec3| {
+            let mut q = [0.0];
+            field.pdf_decoded(lanes, &[lane], &[wi], &mut q).unwrap();
+            q[0]
+        }
+    };
+    let flat = |_: f32, _: Vec3| 0.5;
+    let a = fit_samples(100, ca, h, Vec3::Z, &q_of(0), &flat, &mut rng);
+    let mut b = fit_samples(100, cb, h, Vec3::Z, &q_of(1), &flat, &mut rng);
+    b[0].0.bsdf_pdf = 0.0;
+    let samples: Vec<TrainingSample> = a.iter().chain(&b).map(|(s, _)| *s).collect();
+    let fit = SelectionFit {
+        prior_samples: 0,
+        ..SelectionFit::default()
+    };
+    let training = |s: &TrainingSample| s.radiance;
+    let (want, _) = expected_fit(&fit, &[Some(&a[..]), Some(&b[..])], &training);
+    // The BSDF fits lane A: the guide off there.
+    assert_eq!(want[0], 0.0);
+    cache.fit_selection(&field, &samples, None, &fit).unwrap();
+    let (got, _) = selections(&cache, &field, &points);
+    assert_eq!(got, want);
 }

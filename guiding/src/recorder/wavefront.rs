@@ -127,6 +127,8 @@ pub struct BatchRecorder {
     /// Per slot: `L̃_o(0)` of the block [`Self::end`] finished last.
     estimates: Vec<[f32; 3]>,
     samples: Vec<TrainingSample>,
+    /// Per sample: its MIS-weighted incident radiance.
+    mis_radiance: Vec<[f32; 3]>,
     ignored: u64,
 }
 
@@ -257,8 +259,12 @@ impl BatchRecorder {
                 prev: &self.prev,
                 at,
             };
-            self.estimates
-                .push(propagate(chain, escaped, &mut self.samples));
+            self.estimates.push(propagate(
+                chain,
+                escaped,
+                &mut self.samples,
+                &mut self.mis_radiance,
+            ));
         }
         self.vertices.clear();
         self.prev.clear();
@@ -287,21 +293,41 @@ impl BatchRecorder {
         self.samples.is_empty()
     }
 
+    /// The MIS-weighted incident radiance of each of [`Self::samples`] (see
+    /// [`crate::recorder`]).
+    pub fn mis_radiance(&self) -> &[[f32; 3]] {
+        &self.mis_radiance
+    }
+
     /// Removes the training samples and yields them (the buffer keeps its
-    /// capacity).
+    /// capacity); their MIS-weighted radiances are dropped.
     pub fn drain_samples(&mut self) -> std::vec::Drain<'_, TrainingSample> {
+        self.mis_radiance.clear();
         self.samples.drain(..)
+    }
+
+    /// Moves the training samples and their MIS-weighted incident radiances
+    /// to the ends of `samples` and `mis_radiance`.
+    pub fn drain_into(
+        &mut self,
+        samples: &mut Vec<TrainingSample>,
+        mis_radiance: &mut Vec<[f32; 3]>,
+    ) {
+        samples.append(&mut self.samples);
+        mis_radiance.append(&mut self.mis_radiance);
     }
 
     /// Hands every finished block's samples to `field` and clears them;
     /// returns how many were handed over.
     pub fn flush_into(&mut self, field: &mut GuidingField) -> usize {
+        self.mis_radiance.clear();
         hand_over(&mut self.samples, field)
     }
 
     /// Drops the finished blocks' samples.
     pub fn clear_samples(&mut self) {
         self.samples.clear();
+        self.mis_radiance.clear();
     }
 
     /// Calls ignored so far (slot out of range, or no vertex to fill in).

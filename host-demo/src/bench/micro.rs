@@ -358,8 +358,52 @@ fn guided_vertex(quick: bool) -> Result<Vec<MicroResult>, guiding::GuidingError>
                     }
                     black_box(acc);
                 });
+                // The guide cache (radiance targets): lookup with jitter instead of the
+                // network, the cosine product already in the lanes for NPM.
+                let cached = if target == guiding::Target::Radiance {
+                    let options = guiding::CacheOptions {
+                        cosine_product: true,
+                        ..guiding::CacheOptions::default()
+                    };
+                    let cache = field.build_cache(&queries, &options)?;
+                    let jitter: Vec<Vec3> = (0..N)
+                        .map(|_| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()))
+                        .collect();
+                    let mut missed = Vec::new();
+                    Some(median_secs(repeats, || {
+                        let ok = cache
+                            .decode_batch(&field, &queries, &jitter, &mut batch, &mut missed)
+                            .is_ok();
+                        for (i, c) in sel.iter_mut().enumerate() {
+                            *c = batch.selection_probability(i);
+                        }
+                        let ok = ok
+                            && field
+                                .sample_decoded(&batch, &lanes, &us, &mut samples)
+                                .is_ok()
+                            && field.pdf_decoded(&batch, &lanes2, &dirs, &mut pdfs).is_ok();
+                        black_box((ok, &samples, &pdfs, &sel));
+                    }))
+                } else {
+                    None
+                };
                 let ns = batched * 1e9 / N as f64;
                 let ns_q = per_query * 1e9 / N as f64;
+                if let Some(c) = cached {
+                    let ns_c = c * 1e9 / N as f64;
+                    out.push(MicroResult {
+                        group: "vertex",
+                        name: format!("{rep:?} {size:?} {target:?}: guided vertex (guide cache)"),
+                        value: ns_c,
+                        unit: "ns (1 thread)",
+                        ratio: ray.map(|r| ns_c / r),
+                        note: format!(
+                            "× one ray; jittered lookup in a {N}-cell cache (resolution 64), \
+                             {:.1}× faster than the batched decode",
+                            ns / ns_c
+                        ),
+                    });
+                }
                 out.push(MicroResult {
                     group: "vertex",
                     name: format!("{rep:?} {size:?} {target:?}: guided vertex (batched)"),

@@ -33,6 +33,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         train_fraction,
         selection_probability,
         steps_per_pass,
+        train_epochs,
         batch_size,
         learning_rate,
         plateau_window,
@@ -74,8 +75,15 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
     if !(1..=1 << 20).contains(&batch_size) {
         return bad(format!("--batch-size {batch_size} is not in [1, 2^20]"));
     }
+    let learning_rate = learning_rate.unwrap_or(match guide {
+        GuideArg::Npm => 5e-3,
+        _ => 3e-2,
+    });
     if !(learning_rate.is_finite() && learning_rate > 0.0) {
         return bad(format!("--learning-rate {learning_rate} must be > 0"));
+    }
+    if !(train_epochs.is_finite() && train_epochs > 0.0) {
+        return bad(format!("--train-epochs {train_epochs} must be > 0"));
     }
     if !(1..=guiding::cache::MAX_CACHE_RESOLUTION).contains(&guide_cache_resolution) {
         return bad(format!(
@@ -164,6 +172,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
                 CacheArg::Always => CacheMode::Always,
             },
             cache_resolution: guide_cache_resolution,
+            train_epochs,
             fit_selection: matches!(fit_selection, OnOff::On),
             ..GuidedOptions::default()
         };

@@ -37,7 +37,7 @@ use crate::render::image::{accumulate, finish_image, Image, RenderStats};
 use crate::render::options::RenderOptions;
 use crate::render::queues::{Continuations, LightSamples, RayQueue, ShadowQueue, Vertices};
 use crate::render::schedule::Schedule;
-use crate::render::strategy::{Strategy, VertexStrategy};
+use crate::render::strategy::{PassSamples, Strategy, VertexStrategy};
 use crate::scene::emitter::EmitterSample;
 use crate::scene::Scene;
 use glam::Vec3;
@@ -108,8 +108,10 @@ struct Worker<'s, V> {
     strategy: V,
     /// The library's wavefront recorder, on passes the strategy trains on.
     recorder: Option<BatchRecorder>,
-    /// Training samples of this pass's current block.
+    /// Training samples of this pass's current block, and their MIS-weighted incident
+    /// radiances.
     samples: Vec<TrainingSample>,
+    mis_radiance: Vec<[f32; 3]>,
 }
 
 impl<'s, V: VertexStrategy> Worker<'s, V> {
@@ -130,6 +132,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
             strategy,
             recorder: record.then(BatchRecorder::new),
             samples: Vec::new(),
+            mis_radiance: Vec::new(),
         }
     }
 
@@ -175,7 +178,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
         }
         if let Some(r) = &mut self.recorder {
             r.end();
-            self.samples.extend(r.drain_samples());
+            r.drain_into(&mut self.samples, &mut self.mis_radiance);
         }
     }
 
@@ -391,7 +394,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
 
 /// What one thread did in a pass: its blocks' radiance and training samples, its rays and
 /// its strategy's report.
-type BlockResult = (Vec<Vec3>, Vec<TrainingSample>);
+type BlockResult = (Vec<Vec3>, Vec<TrainingSample>, Vec<[f32; 3]>);
 
 /// Renders `scene` pass by pass with `strategy` (one sample per pixel over the whole image
 /// per pass, for the spp or time budget of `opts`, see [`crate::render::schedule`]);
@@ -446,6 +449,7 @@ pub fn render_passes<S: Strategy>(
                         let result = (
                             std::mem::take(&mut w.radiance),
                             std::mem::take(&mut w.samples),
+                            std::mem::take(&mut w.mis_radiance),
                         );
                         results.lock().unwrap_or_else(|e| e.into_inner())[b] = Some(result);
                     }
@@ -460,15 +464,16 @@ pub fn render_passes<S: Strategy>(
         });
         stats.trace += t_pass.elapsed();
         stats.rays += rays.into_inner() as u64;
-        let mut samples = Vec::new();
+        let mut samples = PassSamples::default();
         let results = results.into_inner().unwrap_or_else(|e| e.into_inner());
         for (b, r) in results.into_iter().enumerate() {
-            let Some((rad, s)) = r else {
+            let Some((rad, s, m)) = r else {
                 continue;
             };
             let start = b * block;
             accumulate(&mut sum[start..], &mut sum2[start..], &rad);
-            samples.extend(s);
+            samples.samples.extend(s);
+            samples.mis_radiance.extend(m);
         }
         let reports = reports.into_inner().unwrap_or_else(|e| e.into_inner());
         strategy.end_pass(&pass, record, reports, samples)?;

@@ -1,12 +1,11 @@
 //! BSDF sampling: the strategy of `pt` and `pt-nee`.
 
-use super::{Strategy, VertexStrategy};
+use super::{PassSamples, Strategy, VertexStrategy};
 use crate::math::{Frame, Rng};
 use crate::render::queues::{Continuations, LightSamples, Vertices};
 use crate::render::schedule::Pass;
 use crate::scene::bsdf::Material;
 use crate::scene::Scene;
-use guiding_core::sample::TrainingSample;
 
 /// Continues every path by sampling its BSDF; NEE's MIS partner is the BSDF density.
 #[derive(Clone, Copy, Debug, Default)]
@@ -32,7 +31,7 @@ impl Strategy for BsdfSampling {
         _: &Pass,
         _: bool,
         _: Vec<()>,
-        _: Vec<TrainingSample>,
+        _: PassSamples,
     ) -> Result<(), Self::Error> {
         Ok(())
     }

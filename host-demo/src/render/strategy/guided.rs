@@ -40,8 +40,15 @@
 //! pass per vertex: [`CacheMode::Frozen`] builds it when training stops, from the positions of
 //! the last training pass, [`CacheMode::Always`] also during training (refreshed after every
 //! update). A vertex with no cell near it is decoded by the network, and its position is added
-//! to the cache after the pass. Product-target guides depend on `ωo`, the normal and the
-//! roughness: they never use the cache (`--stats` says so).
+//! to the cache after the pass. With the cosine product the cache stores it per normal bin,
+//! so a cached vertex pays neither the network nor the product. Product-target guides depend
+//! on `ωo`, the normal and the roughness: they never use the cache (`--stats` says so).
+//!
+//! When training stops, [`GuidedOptions::fit_selection`] fits the guide-selection probability
+//! per cache cell to the last training pass ([`GuideCache::fit_selection`]: the candidate of
+//! `0, 0.1, …, 0.9` with the least estimated second moment, from the samples' MIS-weighted
+//! incident radiance); a vertex whose cell is fitted to `c = 0` is sampled by its BSDF alone
+//! and pays no guide sample or pdf.
 //!
 //! Radiance-target guides are sampled directly (the learned incident-radiance distribution,
 //! times the cosine with [`GuidedOptions::cosine_product`]) instead of the product with the
@@ -54,7 +61,7 @@ use crate::render::schedule::Pass;
 use crate::render::strategy::bsdf::sample_bsdf;
 use crate::render::strategy::gpu::GpuGuide;
 use crate::render::strategy::guide::describe;
-use crate::render::strategy::{Strategy, VertexStrategy};
+use crate::render::strategy::{PassSamples, Strategy, VertexStrategy};
 use crate::scene::bsdf::Material;
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
@@ -102,8 +109,9 @@ pub struct GuidedOptions {
     /// Cells of the guide cache along the scene box's longest axis.
     pub cache_resolution: u32,
     /// With the cache on (NPM / DF): when training stops, fit the guide-selection probability
-    /// per cell to the last training pass's samples ([`GuideCache::fit_selection`]) instead of
-    /// the constant `selection_probability`.
+    /// per cell to the last training pass's samples and their MIS-weighted radiances
+    /// ([`GuideCache::fit_selection`]) instead of the constant `selection_probability`; a
+    /// cell fitted to `c = 0` skips the guide's sample and pdfs.
     pub fit_selection: bool,
     /// Test hook, 1 in every real render: factor on the guide pdf inside the continuation's
     /// combined density (≠ 1 is a deliberate sample/pdf mismatch, a biased estimator; the
@@ -120,10 +128,10 @@ impl Default for GuidedOptions {
             selection_probability: 0.3,
             min_alpha: 0.05,
             cosine_product: true,
-            train_epochs: 4.0,
+            train_epochs: 1.0,
             cache: CacheMode::Always,
             cache_resolution: CacheOptions::default().resolution,
-            fit_selection: false,
+            fit_selection: true,
             guide_pdf_scale: 1.0,
         }
     }
@@ -227,9 +235,9 @@ impl std::fmt::Display for GuidedStats {
         if let Some(r) = &self.selection_fit {
             writeln!(
                 f,
-                "selection probability: fitted per cell on {} samples: {} cells on their own, \
-                 {} at the global {:.2}; mean {:.3}",
-                r.samples_used, r.cells_fitted, r.cells_global, r.global, r.mean
+                "selection probability: fitted per cell on {} samples: {} cells with samples \
+                 ({} with the guide off, c = 0), {} at the global {:.2}; mean {:.3}",
+                r.samples_used, r.cells_fitted, r.cells_off, r.cells_global, r.global, r.mean
             )?;
         }
         if let Some(p) = self.converged_at_pass {
@@ -263,6 +271,8 @@ pub struct Guided<'g> {
     cache: Option<GuideCache>,
     use_cache: bool,
     last_samples: Vec<TrainingSample>,
+    /// The MIS-weighted incident radiance of each of `last_samples`.
+    last_mis: Vec<[f32; 3]>,
 }
 
 impl<'g> Guided<'g> {
@@ -310,23 +320,25 @@ impl<'g> Guided<'g> {
             cache: None,
             use_cache,
             last_samples: Vec::new(),
+            last_mis: Vec::new(),
         }
     }
 
     /// Brings the cache to the field's current generation and adds the cells of `positions`
     /// (building it if there is none yet).
-    fn update_cache(&mut self, positions: &[Vec3]) -> Result<(), GuidingError> {
+    fn update_cache(&mut self, points: &[QueryPoint]) -> Result<(), GuidingError> {
         let t0 = Instant::now();
         match &mut self.cache {
             Some(c) => {
                 c.refresh(self.guide)?;
-                c.extend(self.guide, positions)?;
+                c.extend(self.guide, points)?;
             }
             None => {
                 let options = CacheOptions {
                     resolution: self.gopts.cache_resolution,
+                    cosine_product: self.gopts.cosine_product,
                 };
-                self.cache = Some(self.guide.build_cache(positions, &options)?);
+                self.cache = Some(self.guide.build_cache(points, &options)?);
             }
         }
         self.stats.cache_cells = self.cache.as_ref().map_or(0, |c| c.cells() as u64);
@@ -356,6 +368,14 @@ impl<'g> Guided<'g> {
     }
 }
 
+/// The shading points of training samples (position and normal for the cache).
+fn query_points(samples: &[TrainingSample]) -> Vec<QueryPoint> {
+    samples
+        .iter()
+        .map(|s| QueryPoint::new(s.position, s.normal, s.wo, s.roughness))
+        .collect()
+}
+
 /// What one render thread's worker did in a pass.
 pub struct WorkerReport {
     queries: u64,
@@ -363,8 +383,8 @@ pub struct WorkerReport {
     query_time: Duration,
     gpu_error: Option<GpuError>,
     cache_hits: u64,
-    /// Positions of the vertices the cache missed (decoded by the network).
-    missed_positions: Vec<Vec3>,
+    /// The queries the cache missed (decoded by the network).
+    missed_points: Vec<QueryPoint>,
 }
 
 /// Marks a vertex that is not guided.
@@ -425,7 +445,7 @@ impl<'g> GuidedWorker<'g> {
                 query_time: Duration::ZERO,
                 gpu_error: None,
                 cache_hits: 0,
-                missed_positions: Vec::new(),
+                missed_points: Vec::new(),
             },
             raw: Vec::new(),
             guided_index: Vec::new(),
@@ -511,6 +531,7 @@ impl VertexStrategy for GuidedWorker<'_> {
         self.report.guided_vertices += nq as u64;
         let t0 = Instant::now();
         let field = self.guide;
+        let mut from_cache = self.cache.is_some();
         match self.gpu {
             Some(gpu) if self.report.gpu_error.is_none() => {
                 let decoded = gpu.infer(&self.queries, &mut self.raw).and_then(|()| {
@@ -538,25 +559,28 @@ impl VertexStrategy for GuidedWorker<'_> {
                     match looked_up {
                         Ok(l) => {
                             self.report.cache_hits += l.hits;
-                            self.report.missed_positions.extend(
-                                self.missed
-                                    .iter()
-                                    .map(|&k| Vec3::from_array(self.queries[k as usize].position)),
-                            );
+                            self.report
+                                .missed_points
+                                .extend(self.missed.iter().map(|&k| self.queries[k as usize]));
                         }
                         // A stale cache (a bug): the network answers every vertex.
                         Err(_) => {
                             field.decode_batch(&self.queries, &mut self.decoded);
-                            self.report
-                                .missed_positions
-                                .extend(self.queries.iter().map(|q| Vec3::from_array(q.position)));
+                            self.report.missed_points.extend_from_slice(&self.queries);
+                            from_cache = false;
                         }
                     }
                 }
                 None => field.decode_batch(&self.queries, &mut self.decoded),
             },
         }
-        if self.gopts.cosine_product && field.config().target == guiding::Target::Radiance {
+        // A cache with the cosine product hands out multiplied lanes (stale-cache fallback
+        // aside, which only a bug reaches).
+        let producted = from_cache && self.cache.is_some_and(GuideCache::has_cosine_product);
+        if self.gopts.cosine_product
+            && field.config().target == guiding::Target::Radiance
+            && !producted
+        {
             self.normals.clear();
             self.normals
                 .extend(self.queries.iter().map(|q| Vec3::from_array(q.normal)));
@@ -574,7 +598,8 @@ impl VertexStrategy for GuidedWorker<'_> {
         self.clear_pdf_queue();
         for k in 0..lights.len() {
             let qi = self.guided_index[lights.vertex[k] as usize];
-            if qi != NONE && !lights.light[k].delta {
+            // c = 0 (a fitted cell where the guide does not pay): the BSDF density alone.
+            if qi != NONE && !lights.light[k].delta && self.selection[qi as usize] > 0.0 {
                 self.pdf_query.push(qi);
                 self.pdf_dir.push(lights.light[k].wo);
                 self.pdf_entry.push(k as u32);
@@ -615,7 +640,7 @@ impl VertexStrategy for GuidedWorker<'_> {
                 continue;
             }
             sample_bsdf(verts, i, rng, out);
-            if qi != NONE && out.wi[i] != Vec3::ZERO {
+            if qi != NONE && self.selection[qi as usize] > 0.0 && out.wi[i] != Vec3::ZERO {
                 self.pdf_query.push(qi);
                 self.pdf_dir.push(out.wi[i]);
                 self.pdf_entry.push(i as u32);
@@ -661,7 +686,8 @@ impl VertexStrategy for GuidedWorker<'_> {
         // Weights with the combined density of the guided vertices.
         for i in 0..n {
             let (qi, wi) = (self.guided_index[i], out.wi[i]);
-            if qi == NONE || wi == Vec3::ZERO {
+            // c = 0: BSDF sampling alone, whose weight sample_bsdf has set.
+            if qi == NONE || wi == Vec3::ZERO || self.selection[qi as usize] <= 0.0 {
                 continue;
             }
             let frame = Frame::new(verts.ns[i]);
@@ -716,13 +742,10 @@ impl<'g> Strategy for Guided<'g> {
             self.stopped = true;
             if self.use_cache {
                 let samples = std::mem::take(&mut self.last_samples);
-                let positions: Vec<Vec3> = samples
-                    .iter()
-                    .map(|s| Vec3::from_array(s.position))
-                    .collect();
+                let points = query_points(&samples);
                 // Only a bug makes this fail (radiance target and resolution checked): the
                 // network then answers every query.
-                if self.update_cache(&positions).is_err() {
+                if self.update_cache(&points).is_err() {
                     self.cache = None;
                 }
                 let nasg = self.guide.config().representation == guiding::Representation::Nasg;
@@ -730,11 +753,11 @@ impl<'g> Strategy for Guided<'g> {
                     (self.cache.as_mut(), self.gopts.fit_selection, nasg)
                 {
                     let t0 = Instant::now();
-                    let fit = guiding::SelectionFit {
-                        cosine_product: self.gopts.cosine_product,
-                        ..guiding::SelectionFit::default()
-                    };
-                    self.stats.selection_fit = cache.fit_selection(self.guide, &samples, &fit).ok();
+                    let fit = guiding::SelectionFit::default();
+                    let mis = std::mem::take(&mut self.last_mis);
+                    let mis = (mis.len() == samples.len()).then_some(mis.as_slice());
+                    self.stats.selection_fit =
+                        cache.fit_selection(self.guide, &samples, mis, &fit).ok();
                     self.stats.cache_build += t0.elapsed();
                 }
             }
@@ -749,8 +772,12 @@ impl<'g> Strategy for Guided<'g> {
         _: &Pass,
         recorded: bool,
         reports: Vec<WorkerReport>,
-        samples: Vec<TrainingSample>,
+        pass_samples: PassSamples,
     ) -> Result<(), GpuError> {
+        let PassSamples {
+            samples,
+            mis_radiance,
+        } = pass_samples;
         let mut missed = Vec::new();
         let st = &mut self.stats;
         for r in reports {
@@ -758,8 +785,8 @@ impl<'g> Strategy for Guided<'g> {
                 return Err(e);
             }
             st.cache_hits += r.cache_hits;
-            st.cache_misses += r.missed_positions.len() as u64;
-            missed.extend(r.missed_positions);
+            st.cache_misses += r.missed_points.len() as u64;
+            missed.extend(r.missed_points);
             st.guide_queries += r.queries;
             if recorded {
                 st.guide_queries_training += r.queries;
@@ -801,12 +828,9 @@ impl<'g> Strategy for Guided<'g> {
             let result = if recorded {
                 self.last_samples.clear();
                 self.last_samples.extend_from_slice(&samples);
+                self.last_mis = mis_radiance;
                 if self.gopts.cache == CacheMode::Always {
-                    let positions: Vec<Vec3> = samples
-                        .iter()
-                        .map(|s| Vec3::from_array(s.position))
-                        .collect();
-                    self.update_cache(&positions)
+                    self.update_cache(&query_points(&samples))
                 } else {
                     Ok(())
                 }

@@ -26,6 +26,16 @@ pub mod gpu;
 pub mod guide;
 pub mod guided;
 
+/// The training samples of a pass (block order), with the MIS-weighted incident radiance of
+/// each ([`guiding::BatchRecorder::mis_radiance`]).
+#[derive(Clone, Debug, Default)]
+pub struct PassSamples {
+    /// The samples.
+    pub samples: Vec<TrainingSample>,
+    /// Per sample: the incident radiance with the emission MIS-weighted against NEE.
+    pub mis_radiance: Vec<[f32; 3]>,
+}
+
 /// One direction-sampling strategy of a render, shared by the render threads.
 pub trait Strategy: Sync {
     /// Per-thread state.
@@ -53,7 +63,7 @@ pub trait Strategy: Sync {
         pass: &Pass,
         recorded: bool,
         reports: Vec<Self::Report>,
-        samples: Vec<TrainingSample>,
+        samples: PassSamples,
     ) -> Result<(), Self::Error>;
 }
 
