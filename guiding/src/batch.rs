@@ -40,6 +40,8 @@ pub struct DistributionBatch {
     pub(crate) field_id: u64,
     pub(crate) generation: u64,
     pub(crate) items: BatchItems,
+    /// Scratch of [`crate::GuideCache::decode_batch`] (each lane's source).
+    pub(crate) source: Vec<u32>,
 }
 
 impl DistributionBatch {

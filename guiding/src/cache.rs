@@ -270,14 +270,20 @@ impl GuideCache {
         Some((z as usize * ny + y as usize) * nx + x as usize)
     }
 
+    /// The error for using the cache with `field` when it was built for
+    /// another field or generation.
+    fn stale(&self, field: &GuidingField) -> GuidingError {
+        GuidingError::StaleDistribution {
+            field_id: self.field_id,
+            generation: self.generation,
+            used_id: field.id,
+            used_generation: field.generation,
+        }
+    }
+
     fn check(&self, field: &GuidingField) -> Result<(), GuidingError> {
         if field.id != self.field_id || field.generation != self.generation {
-            return Err(GuidingError::StaleDistribution {
-                field_id: self.field_id,
-                generation: self.generation,
-                used_id: field.id,
-                used_generation: field.generation,
-            });
+            return Err(self.stale(field));
         }
         Ok(())
     }
@@ -368,12 +374,7 @@ impl GuideCache {
     /// cache was built for.
     pub fn refresh(&mut self, field: &GuidingField) -> Result<(), GuidingError> {
         if field.id != self.field_id {
-            return Err(GuidingError::StaleDistribution {
-                field_id: self.field_id,
-                generation: self.generation,
-                used_id: field.id,
-                used_generation: field.generation,
-            });
+            return Err(self.stale(field));
         }
         if field.generation == self.generation {
             return Ok(());
@@ -424,8 +425,10 @@ impl GuideCache {
                 what: format!("{} queries, {} jitters", queries.len(), jitter.len()),
             });
         }
-        // Source lane per query: a cell's lane, or MISS | index into `missed`.
-        let mut source = Vec::with_capacity(queries.len());
+        // Source lane per query: a cell's lane, or MISS | index into `missed`
+        // (in `out`'s reused scratch: no allocation per call in steady state).
+        let mut source = std::mem::take(&mut out.source);
+        source.clear();
         for (i, (q, &xi)) in queries.iter().zip(jitter).enumerate() {
             let p = Vec3::from_array(q.position);
             let bin = self.bin_of(Vec3::from_array(q.normal));
@@ -453,6 +456,7 @@ impl GuideCache {
         out.generation = field.generation;
         out.items
             .gather(&self.items, &self.selection, &network, &source, MISS);
+        out.source = source;
         Ok(CacheLookup {
             hits: (queries.len() - missed.len()) as u64,
             misses: missed.len() as u64,

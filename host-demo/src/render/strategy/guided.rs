@@ -826,14 +826,15 @@ impl<'g> Strategy for Guided<'g> {
         }
         if self.use_cache {
             let result = if recorded {
-                self.last_samples.clear();
-                self.last_samples.extend_from_slice(&samples);
-                self.last_mis = mis_radiance;
-                if self.gopts.cache == CacheMode::Always {
+                let r = if self.gopts.cache == CacheMode::Always {
                     self.update_cache(&query_points(&samples))
                 } else {
                     Ok(())
-                }
+                };
+                // Kept (moved, not copied) for the selection fit when training stops.
+                self.last_samples = samples;
+                self.last_mis = mis_radiance;
+                r
             } else if self.cache.is_some() && !missed.is_empty() {
                 self.update_cache(&missed)
             } else {
