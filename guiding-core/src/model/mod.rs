@@ -10,6 +10,8 @@ pub mod df;
 pub mod nasg;
 pub mod npm;
 #[cfg(feature = "std")]
+pub mod vmf_gradient;
+#[cfg(feature = "std")]
 pub mod wavefront;
 
 use crate::gradient::GradientSink;

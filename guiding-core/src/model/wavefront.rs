@@ -34,6 +34,7 @@ use super::nasg::{Nasg, NASG_LOBES, NASG_OUTPUTS, NASG_SELECTION_OUTPUT};
 use super::npm::{
     all_finite, encode_inputs_fast, join_rows, split_rows, Npm, NPM_LOBES, NPM_OUTPUTS,
 };
+use super::vmf_gradient::grad_log_pdf_vmf_batch;
 use super::{GuidingModel, QueryPoint};
 use crate::encoding::grid_backward;
 use crate::factorised::{self, direction_from_square, square_from_direction};
@@ -189,17 +190,23 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Npm<IN, WIDTH, HI
             self.mlp_offset as usize,
             samples,
             grad,
-            |s, y, dy| {
-                // NPM eq. 9: ℓ = −w ln q(ωᵢ), ∂ℓ/∂y = −w ∇_y ln q.
-                let w = kl_weight(s, target);
-                let raw: [[f32; VMF_RAW_PER_LOBE]; NPM_LOBES] = split_rows(y);
-                let mut g = [[0.0f32; VMF_RAW_PER_LOBE]; NPM_LOBES];
-                let log_q = VmfMixture::grad_log_pdf(&raw, s.wi(), &mut g);
-                join_rows(&g, dy);
-                for d in dy.iter_mut() {
-                    *d *= -w;
+            |chunk, live, ys, dys, losses| {
+                // NPM eq. 9: ℓ = −w ln q(ωᵢ), ∂ℓ/∂y = −w ∇_y ln q, the
+                // gradient of ln q vectorised over the chunk.
+                let m = ys.len();
+                let mut dirs = [Vec3::Z; TRAIN_CHUNK];
+                let mut log_q = [0.0f32; TRAIN_CHUNK];
+                for k in 0..m {
+                    dirs[k] = chunk[live[k]].wi();
                 }
-                -w * log_q
+                grad_log_pdf_vmf_batch(ys, &dirs[..m], dys, &mut log_q[..m]);
+                for k in 0..m {
+                    let w = kl_weight(&chunk[live[k]], target);
+                    for d in dys[k].iter_mut() {
+                        *d *= -w;
+                    }
+                    losses[k] = -w * log_q[k];
+                }
             },
         )
     }
@@ -212,6 +219,11 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Npm<IN, WIDTH, HI
 /// out again if anything is not finite (as the per-query kernels do), run
 /// backward in one batched call and scattered into the grid. Returns the
 /// summed loss.
+///
+/// `output_grads(chunk, live, ys, dys, losses)` gets the chunk, the indices
+/// of its live samples and their outputs, and writes each live sample's
+/// output gradient (into a zeroed row) and loss, so a model can vectorise
+/// its loss over the chunk.
 #[allow(clippy::too_many_arguments)] // the model's layout plus the loss
 fn mixture_gradient_batch<const IN: usize, const W: usize, const OUT: usize, const H: usize>(
     params: &[f32],
@@ -220,7 +232,7 @@ fn mixture_gradient_batch<const IN: usize, const W: usize, const OUT: usize, con
     offset: usize,
     samples: &[TrainingSample],
     grad: &mut [f32],
-    output_grad: impl Fn(&TrainingSample, &[f32; OUT], &mut [f32; OUT]) -> f32,
+    output_grads: impl Fn(&[TrainingSample], &[usize], &[[f32; OUT]], &mut [[f32; OUT]], &mut [f32]),
 ) -> f64 {
     let t = super::npm::target_from_code(target);
     let mut xs = [[0.0f32; IN]; TRAIN_CHUNK];
@@ -248,13 +260,13 @@ fn mixture_gradient_batch<const IN: usize, const W: usize, const OUT: usize, con
             continue;
         }
         Mlp::<IN, W, OUT, H>::forward_batch(params, offset, &xs[..m], &mut ys[..m], &mut ctxs[..m]);
+        for dy in &mut dys[..m] {
+            *dy = [0.0; OUT];
+        }
+        output_grads(chunk, &live[..m], &ys[..m], &mut dys[..m], &mut losses[..m]);
         for k in 0..m {
-            dys[k] = [0.0; OUT];
-            let loss = output_grad(&chunk[live[k]], &ys[k], &mut dys[k]);
-            ok[k] = loss.is_finite() && all_finite(&ys[k]) && all_finite(&dys[k]);
-            if ok[k] {
-                losses[k] = loss;
-            } else {
+            ok[k] = losses[k].is_finite() && all_finite(&ys[k]) && all_finite(&dys[k]);
+            if !ok[k] {
                 exclude(&mut dys[k], &mut xs[k], &mut ctxs[k], &mut losses[k]);
             }
         }
@@ -728,20 +740,23 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Nasg<IN, WIDTH, H
             self.mlp_offset as usize,
             samples,
             grad,
-            |s, y, dy| {
+            |chunk, live, ys, dys, losses| {
                 // NASG eq. 18 on the lobes and the selection output.
-                let w = kl_weight(s, target);
-                let raw: [[f32; NASG_RAW_PER_LOBE]; NASG_LOBES] = split_rows(y);
-                let mut g = [[0.0f32; NASG_RAW_PER_LOBE]; NASG_LOBES];
-                let log_q = NasgMixture::grad_log_pdf(&raw, s.wi(), &mut g);
-                let (c, dc_dr) = decode_selection(y[NASG_SELECTION_OUTPUT]);
-                let terms = nasg_mis_loss(w, log_q, c, s.bsdf_pdf, blend);
-                join_rows(&g, dy);
-                for d in &mut dy[..NASG_SELECTION_OUTPUT] {
-                    *d *= terms.dloss_dlog_guide;
+                for (k, (y, dy)) in ys.iter().zip(dys.iter_mut()).enumerate() {
+                    let s = &chunk[live[k]];
+                    let w = kl_weight(s, target);
+                    let raw: [[f32; NASG_RAW_PER_LOBE]; NASG_LOBES] = split_rows(y);
+                    let mut g = [[0.0f32; NASG_RAW_PER_LOBE]; NASG_LOBES];
+                    let log_q = NasgMixture::grad_log_pdf(&raw, s.wi(), &mut g);
+                    let (c, dc_dr) = decode_selection(y[NASG_SELECTION_OUTPUT]);
+                    let terms = nasg_mis_loss(w, log_q, c, s.bsdf_pdf, blend);
+                    join_rows(&g, dy);
+                    for d in &mut dy[..NASG_SELECTION_OUTPUT] {
+                        *d *= terms.dloss_dlog_guide;
+                    }
+                    dy[NASG_SELECTION_OUTPUT] = terms.dloss_dselection * dc_dr;
+                    losses[k] = terms.loss;
                 }
-                dy[NASG_SELECTION_OUTPUT] = terms.dloss_dselection * dc_dr;
-                terms.loss
             },
         )
     }

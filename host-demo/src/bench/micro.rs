@@ -17,7 +17,7 @@ use guiding_core::math::INV_FOUR_PI;
 use guiding_core::mixture::nasg::{NasgMixture, NASG_RAW_PER_LOBE};
 use guiding_core::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
 use guiding_core::mlp::Mlp;
-use guiding_core::model::npm::NPM_OUTPUTS;
+use guiding_core::model::npm::{NPM_LOBES, NPM_OUTPUTS};
 use guiding_core::model::QueryPoint;
 use guiding_core::pdf1d::Interpolation;
 use guiding_core::rng::Rng;
@@ -514,6 +514,49 @@ pub fn run(quick: bool) -> Result<Vec<MicroResult>, guiding::GuidingError> {
     let mut out = distributions(quick);
     out.extend(guided_vertex(quick)?);
     out.extend(models(quick)?);
+    out.push(vmf_loss_gradient(quick));
     out.extend(mlp(quick));
     Ok(out)
+}
+
+/// ns per sample of NPM's loss gradient `∇_y ln q(ω)` (8 vMF lobes):
+/// the vectorised batch kernel the training runs, next to the per-sample
+/// reference `VmfMixture::grad_log_pdf` in the same process (the ratio).
+fn vmf_loss_gradient(quick: bool) -> MicroResult {
+    use guiding_core::model::vmf_gradient::grad_log_pdf_vmf_batch;
+    let (repeats, n) = if quick { (3, 2048) } else { (7, 8192) };
+    let mut rng = Rng::new(31);
+    let ys: Vec<[f32; NPM_OUTPUTS]> = (0..n)
+        .map(|_| std::array::from_fn(|_| 6.0 * rng.next_f32() - 3.0))
+        .collect();
+    let dirs: Vec<Vec3> = (0..n)
+        .map(|_| square_to_uniform_sphere(Vec2::new(rng.next_f32(), rng.next_f32())))
+        .collect();
+    let mut dys = vec![[0.0f32; NPM_OUTPUTS]; n];
+    let mut lps = vec![0.0f32; n];
+    let batched = median_secs(repeats, || {
+        grad_log_pdf_vmf_batch(black_box(&ys), &dirs, &mut dys, &mut lps);
+        black_box(&dys);
+    });
+    let per_sample = median_secs(repeats, || {
+        let mut acc = 0.0f32;
+        for (y, &d) in ys.iter().zip(&dirs) {
+            let raw: [[f32; VMF_RAW_PER_LOBE]; NPM_LOBES] =
+                std::array::from_fn(|k| std::array::from_fn(|r| y[k * VMF_RAW_PER_LOBE + r]));
+            let mut g = [[0.0f32; VMF_RAW_PER_LOBE]; NPM_LOBES];
+            acc += VmfMixture::grad_log_pdf(&raw, black_box(d), &mut g) + g[0][0];
+        }
+        black_box(acc);
+    });
+    MicroResult {
+        group: "model",
+        name: "NPM loss gradient (8 vMF lobes), batched".into(),
+        value: batched * 1e9 / n as f64,
+        unit: "ns/sample (1 thread)",
+        ratio: Some(per_sample / batched),
+        note: format!(
+            "speed-up over the per-sample VmfMixture::grad_log_pdf ({:.0} ns/sample)",
+            per_sample * 1e9 / n as f64
+        ),
+    }
 }
