@@ -65,9 +65,11 @@ fn guided(
         .with_seed(o.seed as u32);
     let mut g = build_guide(kind, target, size, scene.bounds(), 0.5, config).expect("guide");
     // Every training pass takes `steps` Adam steps (the cap): these tests are about what a
-    // trained guide does, not about the step schedule.
+    // trained guide does, not about the step schedule; their pass counts are written for a
+    // training fraction of 0.3 (not the default's).
     let gopts = GuidedOptions {
         nee,
+        train_fraction: 0.3,
         train_epochs: f32::MAX,
         ..GuidedOptions::default()
     };

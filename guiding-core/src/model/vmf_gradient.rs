@@ -45,10 +45,7 @@ pub fn grad_log_pdf_vmf_batch(
     dys: &mut [[f32; NPM_OUTPUTS]],
     log_pdfs: &mut [f32],
 ) {
-    assert!(
-        ys.len() == dirs.len() && ys.len() == dys.len() && ys.len() == log_pdfs.len(),
-        "one direction, gradient and log pdf per raw row"
-    );
+    // Both variants check the lengths (in the portable one).
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") {
         // SAFETY: AVX2 support was just checked.

@@ -550,7 +550,7 @@ fn vmf_loss_gradient(quick: bool) -> MicroResult {
     });
     MicroResult {
         group: "model",
-        name: "NPM loss gradient (8 vMF lobes), batched".into(),
+        name: "NPM loss gradient of 8 vMF lobes: batched kernel".into(),
         value: batched * 1e9 / n as f64,
         unit: "ns/sample (1 thread)",
         ratio: Some(per_sample / batched),

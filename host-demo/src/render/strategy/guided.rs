@@ -124,7 +124,7 @@ impl Default for GuidedOptions {
     fn default() -> Self {
         Self {
             nee: true,
-            train_fraction: 0.3,
+            train_fraction: 0.2,
             selection_probability: 0.3,
             min_alpha: 0.05,
             cosine_product: true,
