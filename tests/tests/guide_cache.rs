@@ -1240,6 +1240,52 @@ fn moments(
         .collect()
 }
 
+/// `report.variance_ratio` written out from its docs: per lane with
+/// samples `V(c) = M̂(c) − (Σ F/p_s)² / n` at the lane's fitted `c` and at
+/// `c = 0`, each summed over the lanes, then their ratio; with the bound of
+/// its difference to `fit_selection`'s value. That one forms `F` in `f32`
+/// (a relative error below 2⁻²² from three products and two sums), so each
+/// `F²` term, and each sum of them, is off by a relative 2⁻²¹ at most, and
+/// `V = M̂ − mean term` (which cancels where the guide matches the
+/// integrand) by `2⁻²¹ (M̂ + mean term)`.
+fn expected_variance_ratio(
+    fit: &SelectionFit,
+    sets: &[Option<&[(TrainingSample, f32)]>],
+    fitted: &[f32],
+    radiance: &dyn Fn(&TrainingSample) -> [f32; 3],
+) -> (f64, f64) {
+    let (mut v_fit, mut v_bsdf) = (0.0f64, 0.0f64);
+    let (mut e_fit, mut e_bsdf) = (0.0f64, 0.0f64);
+    for (set, &c) in sets.iter().zip(fitted) {
+        let Some(set) = set else { continue };
+        let m = moments(fit, set, radiance);
+        let sum: f64 = set
+            .iter()
+            .map(|(s, _)| {
+                let f: f64 = [0.2126, 0.7152, 0.0722]
+                    .iter()
+                    .zip(radiance(s).iter().zip(&s.bsdf_cos))
+                    .map(|(y, (&l, &b))| y * f64::from(l) * f64::from(b))
+                    .sum();
+                f / f64::from(s.sample_pdf)
+            })
+            .sum();
+        let mean_term = sum * sum / set.len() as f64;
+        let j = (0..m.len())
+            .find(|&k| candidate(fit, k) == c)
+            .expect("a fitted value is a candidate");
+        v_fit += m[j] - mean_term;
+        v_bsdf += m[0] - mean_term;
+        e_fit += m[j] + mean_term;
+        e_bsdf += m[0] + mean_term;
+    }
+    let ratio = v_fit / v_bsdf;
+    let eps = 2f64.powi(-21);
+    let bound =
+        eps * (e_fit + ratio.abs() * e_bsdf) / (v_bsdf.abs() * (1.0 - eps * e_bsdf / v_bsdf.abs()));
+    (ratio, bound)
+}
+
 /// The candidate minimising `moments` (the first of equal minima; `max`
 /// if every sum is infinite).
 fn argmin(fit: &SelectionFit, m: &[f64]) -> f32 {
@@ -1529,6 +1575,16 @@ fn fit_selection_is_the_argmin_of_the_shrunk_second_moment_per_lane() {
             let off = want.iter().filter(|&&c| c == 0.0).count();
             assert_eq!(report.cells_off, off as u64, "{label}");
             assert_eq!(report.global, global, "{label}");
+            let (ratio, bound) = expected_variance_ratio(&fit, &sets, &want, radiance);
+            eprintln!("{label}, prior {prior_samples}: variance ratio {ratio} ± {bound}");
+            assert!(
+                (report.variance_ratio - ratio).abs() <= bound,
+                "{label}: variance ratio {} against {ratio} ± {bound}",
+                report.variance_ratio
+            );
+            // The guide lowers the variance of these lanes (lane A's radiance
+            // follows it: a variance estimate near 0, here even below).
+            assert!(ratio < 1.0 && bound < 0.01, "{label}: {ratio} ± {bound}");
             let mean = want.iter().map(|&c| f64::from(c)).sum::<f64>() / 5.0;
             assert!(
                 (f64::from(report.mean) - mean).abs() < 1e-6,

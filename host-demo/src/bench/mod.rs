@@ -380,8 +380,11 @@ pub fn run(opts: &BenchOptions) -> Result<Vec<RunRecord>> {
         let reference = read_exr(&reference_for(opts, scene, &pb)?)?;
         let slug = scene_slug(scene);
         for budget in &opts.budgets {
-            for method in &opts.methods {
-                for seed in 0..opts.seeds {
+            // Seeds outside, methods inside: on a shared machine whose speed drifts over
+            // minutes, the methods of one seed run next to each other, so a slow spell falls on
+            // every method alike instead of on all seeds of one.
+            for seed in 0..opts.seeds {
+                for method in &opts.methods {
                     pb.set_message(format!("{slug} {} {:?} seed {seed}", method.name, budget));
                     let stem = opts.out.join("runs").join(format!(
                         "{slug}-{}-{}{}-s{seed}",

@@ -236,8 +236,15 @@ impl std::fmt::Display for GuidedStats {
             writeln!(
                 f,
                 "selection probability: fitted per cell on {} samples: {} cells with samples \
-                 ({} with the guide off, c = 0), {} at the global {:.2}; mean {:.3}",
-                r.samples_used, r.cells_fitted, r.cells_off, r.cells_global, r.global, r.mean
+                 ({} with the guide off, c = 0), {} at the global {:.2}; mean {:.3}; estimated \
+                 vertex variance {:.3}x that of BSDF sampling alone",
+                r.samples_used,
+                r.cells_fitted,
+                r.cells_off,
+                r.cells_global,
+                r.global,
+                r.mean,
+                r.variance_ratio
             )?;
         }
         if let Some(p) = self.converged_at_pass {
