@@ -1212,6 +1212,15 @@ fn candidate(fit: &SelectionFit, k: usize) -> f32 {
     fit.min + (fit.max - fit.min) * k as f32 / (guiding::cache::CANDIDATES - 1) as f32
 }
 
+/// `F = Y(L ⊙ f cos)`: the luminance of a sample's integrand, in `f64`.
+fn integrand(s: &TrainingSample, radiance: &dyn Fn(&TrainingSample) -> [f32; 3]) -> f64 {
+    [0.2126, 0.7152, 0.0722]
+        .iter()
+        .zip(radiance(s).iter().zip(&s.bsdf_cos))
+        .map(|(y, (&l, &b))| y * f64::from(l) * f64::from(b))
+        .sum()
+}
+
 /// The second-moment estimator of `fit_selection`'s docs, written out:
 /// `M̂(c) = Σ F² / ((c·q + (1 − c)·p_bsdf) · p_s)`, `F` the luminance of
 /// `L ⊙ f cos` with `L = radiance(sample)`, over the samples given (all
@@ -1227,11 +1236,7 @@ fn moments(
             samples
                 .iter()
                 .map(|(s, q)| {
-                    let f: f64 = [0.2126, 0.7152, 0.0722]
-                        .iter()
-                        .zip(radiance(s).iter().zip(&s.bsdf_cos))
-                        .map(|(y, (&l, &b))| y * f64::from(l) * f64::from(b))
-                        .sum();
+                    let f = integrand(s, radiance);
                     let p = c * f64::from(*q) + (1.0 - c) * f64::from(s.bsdf_pdf);
                     f * f / (p * f64::from(s.sample_pdf))
                 })
@@ -1261,14 +1266,7 @@ fn expected_variance_ratio(
         let m = moments(fit, set, radiance);
         let sum: f64 = set
             .iter()
-            .map(|(s, _)| {
-                let f: f64 = [0.2126, 0.7152, 0.0722]
-                    .iter()
-                    .zip(radiance(s).iter().zip(&s.bsdf_cos))
-                    .map(|(y, (&l, &b))| y * f64::from(l) * f64::from(b))
-                    .sum();
-                f / f64::from(s.sample_pdf)
-            })
+            .map(|(s, _)| integrand(s, radiance) / f64::from(s.sample_pdf))
             .sum();
         let mean_term = sum * sum / set.len() as f64;
         let j = (0..m.len())
