@@ -1,7 +1,7 @@
 //! The NPM training loss gradient over a batch of samples, vectorised
 //! across samples (`std`, CPU only): [`grad_log_pdf_vmf_batch`].
 //!
-//! Training NPM spends most of its time not in the network but in the
+//! Training NPM spent most of its time not in the network but in the
 //! per-sample `∇_y ln q(ωᵢ)` of [`VmfMixture::grad_log_pdf`] (Dong et al.
 //! 2023, eq. 9: `ℓ = −w ln q(ωᵢ)`): per lobe two sigmoids, two sine-cosine
 //! pairs, `exp κ`, the normaliser's `expm1` and `ln`, and four more `exp`
@@ -25,6 +25,8 @@ use crate::math::{
     exp, expm1_inline, expm1_nonpositive, ln_inline, sanitize, sigmoid, sin_cos_turns, INV_FOUR_PI,
     PI, TWO_PI,
 };
+#[cfg(doc)]
+use crate::mixture::vmf::VmfMixture;
 use crate::mixture::vmf::{VMF_LOG_KAPPA_MAX, VMF_LOG_KAPPA_MIN, VMF_RAW_LIMIT, VMF_RAW_PER_LOBE};
 use glam::Vec3;
 
