@@ -669,13 +669,9 @@ impl GuideCache {
                     best = j;
                 }
             }
-            if m[best].is_finite() {
-                best
-            } else {
-                CANDIDATES - 1
-            }
+            m[best].is_finite().then_some(best)
         };
-        let argmin = |m: &[f64; CANDIDATES]| candidate(argmin_index(m));
+        let argmin = |m: &[f64; CANDIDATES]| argmin_index(m).map_or(fit.max, candidate);
         let global = argmin(&total);
         let mut report = SelectionReport {
             samples_used: used,
@@ -696,12 +692,13 @@ impl GuideCache {
                         *mj += prior * tj;
                     }
                 }
+                // V(c) = M̂(c) − μ̂²/n per cell (its own samples, unshrunk); a cell
+                // with every candidate infinite makes the ratio NaN.
                 let j = argmin_index(&m);
-                // V(c) = M̂(c) − μ̂²/n per cell (its own samples, unshrunk).
                 let mean_term = first[lane] * first[lane] / f64::from(count[lane]);
-                var_fit += moment[lane][j] - mean_term;
+                var_fit += j.map_or(f64::INFINITY, |j| moment[lane][j]) - mean_term;
                 var_bsdf += moment[lane][0] - mean_term;
-                candidate(j)
+                j.map_or(fit.max, candidate)
             } else {
                 report.cells_global += 1;
                 global

@@ -103,7 +103,10 @@ type Lanes = [[f32; GRAD_BLOCK]; NPM_LOBES];
 
 /// `1 − cos∠(axis, d)` for a unit `d` of length `len` (precomputed), as
 /// `sphere::one_minus_cos_angle`: `|axis × d|² / (len (len + dot))` where
-/// the angle is acute (no cancellation), `1 − dot / len` otherwise.
+/// the angle is acute (no cancellation), `1 − dot / len` otherwise. Not
+/// the shared function itself: its early return for a degenerate `d` and
+/// the out-of-line `sqrt` keep the lane loop scalar (measured: 650 against
+/// 150 ns per sample); here `d` is unit by construction.
 #[inline(always)]
 fn one_minus_cos(a: [f32; 3], d: [f32; 3], len: f32) -> f32 {
     let dot = a[0] * d[0] + a[1] * d[1] + a[2] * d[2];
