@@ -86,6 +86,7 @@ pub mod field;
 pub mod file;
 mod models;
 pub mod recorder;
+pub mod trial;
 
 pub use batch::DistributionBatch;
 pub use cache::{CacheLookup, CacheOptions, GuideCache, SelectionFit, SelectionReport};
@@ -98,6 +99,7 @@ pub use guiding_core::model::QueryPoint;
 pub use guiding_core::optim::AdamConfig;
 pub use guiding_core::sample::{Rejection, TrainingSample};
 pub use recorder::{BatchRecorder, Continuation, PathRecorder, PathVertex};
+pub use trial::{GuideTrial, TrialArm, TrialOptions, TrialVerdict};
 
 /// The README's code examples (`guiding-core` kernels and the embedding API),
 /// compiled and run as doctests.

@@ -76,6 +76,29 @@ fn guided(
     render_guided(scene, o, &gopts, &mut g)
 }
 
+/// Asserts that `img`'s mean agrees with `reference`'s within `Z` combined standard errors,
+/// per channel.
+fn assert_same_mean(label: &str, img: &Image, reference: &Image) {
+    let (m, se) = (img.mean(), img.mean_std_error());
+    let (rm, rse) = (reference.mean(), reference.mean_std_error());
+    for c in 0..3 {
+        let sigma = (se[c] * se[c] + rse[c] * rse[c]).sqrt();
+        eprintln!(
+            "{label} ch{c}: {:.5} against pt-nee {:.5}, sigma {:.5}, z {:.2}",
+            m[c],
+            rm[c],
+            sigma,
+            (m[c] - rm[c]) / sigma
+        );
+        assert!(
+            (m[c] - rm[c]).abs() <= Z * sigma + 1e-6,
+            "{label} channel {c}: {} against {} (sigma {sigma})",
+            m[c],
+            rm[c]
+        );
+    }
+}
+
 /// Mean over pixels and channels of the per-pixel variance of the mean.
 fn mean_pixel_variance(img: &Image) -> f64 {
     let s: f64 = img
@@ -93,7 +116,6 @@ fn guided_unbiased_cornell() {
     let scene = load_builtin("cornell-box").unwrap();
     let (w, h) = (res(48), res(48));
     let reference = render(&scene, &opts(IntegratorKind::PtNee, 64, w, h, 1, 0));
-    let (rm, rse) = (reference.mean(), reference.mean_std_error());
     let cases = [
         (GuideKind::Npm, Target::Product),
         (GuideKind::Npm, Target::Radiance),
@@ -106,23 +128,7 @@ fn guided_unbiased_cornell() {
         let (img, st) = guided(&scene, kind, target, ModelSize::Small, &o, true, 2, 4096);
         assert!(img.all_finite());
         assert!(st.training_steps > 0 && st.guide_queries > 0);
-        let (m, se) = (img.mean(), img.mean_std_error());
-        for c in 0..3 {
-            let sigma = (se[c] * se[c] + rse[c] * rse[c]).sqrt();
-            eprintln!(
-                "{kind:?} {target:?} ch{c}: guided {:.5} pt-nee {:.5} sigma {:.5} z {:.2}",
-                m[c],
-                rm[c],
-                sigma,
-                (m[c] - rm[c]) / sigma
-            );
-            assert!(
-                (m[c] - rm[c]).abs() <= Z * sigma + 1e-6,
-                "{kind:?} {target:?} channel {c}: {} vs {} (sigma {sigma})",
-                m[c],
-                rm[c]
-            );
-        }
+        assert_same_mean(&format!("{kind:?} {target:?}"), &img, &reference);
     }
 }
 
@@ -143,20 +149,7 @@ fn guided_unbiased_cornell_no_nee() {
         2,
         4096,
     );
-    let (m, se, rm, rse) = (
-        img.mean(),
-        img.mean_std_error(),
-        reference.mean(),
-        reference.mean_std_error(),
-    );
-    for c in 0..3 {
-        let sigma = (se[c] * se[c] + rse[c] * rse[c]).sqrt();
-        eprintln!(
-            "no-NEE ch{c}: guided {:.5} pt-nee {:.5} sigma {:.5}",
-            m[c], rm[c], sigma
-        );
-        assert!((m[c] - rm[c]).abs() <= Z * sigma + 1e-6);
-    }
+    assert_same_mean("no-NEE", &img, &reference);
 }
 
 /// (b) The trained NPM product guide (demo size, no NEE) lowers the mean per-pixel variance
@@ -396,4 +389,56 @@ fn guided_deterministic_across_threads() {
     };
     let (a, b) = (run(1), run(2));
     assert_eq!(a.pixels, b.pixels);
+}
+
+/// (e) The efficiency trial of a time-budget render: after training and one warm-up pass it
+/// runs 4 guided and 4 unguided passes, and when its verdict is "does not pay" every later
+/// pass runs with the guide off (each counted in the trial's statistics). The image, whichever the
+/// verdict, stays unbiased (z-test against pt-nee as in (a)). An spp-budget render never
+/// runs it.
+#[test]
+fn efficiency_trial_decides_once_and_keeps_the_image_unbiased() {
+    let scene = load_builtin("cornell-box").unwrap();
+    let (w, h) = (res(32), res(32));
+    let reference = render(&scene, &opts(IntegratorKind::PtNee, 256, w, h, 1, 0));
+    let config = FieldConfig::DEFAULT.with_threads(2).with_seed(3);
+    let small_npm = || {
+        build_guide(
+            GuideKind::Npm,
+            Target::Radiance,
+            ModelSize::Small,
+            scene.bounds(),
+            0.5,
+            config,
+        )
+        .expect("guide")
+    };
+    let mut g = small_npm();
+    let o = RenderOptions {
+        time_budget: Some(std::time::Duration::from_secs(3)),
+        ..opts(IntegratorKind::PtNee, 1, w, h, 5, 2)
+    };
+    let gopts = GuidedOptions {
+        train_fraction: 0.3,
+        ..GuidedOptions::default()
+    };
+    let (img, st) = render_guided(&scene, &o, &gopts, &mut g);
+    eprintln!("{st}");
+    let trial = st.trial.as_ref().expect("the trial ran");
+    let verdict = trial
+        .verdict
+        .expect("3 s of a 32 x 32 image finish the trial");
+    assert_eq!(trial.passes, 8);
+    assert_eq!(verdict.passes_per_arm, 4);
+    let after_trial = st.passes - st.training_passes - 1 - trial.passes;
+    let expected_off = if verdict.keep_guide { 0 } else { after_trial };
+    assert_eq!(trial.passes_guide_off, expected_off);
+    assert!(verdict.guided_seconds > 0.0 && verdict.unguided_seconds > 0.0);
+    assert!(verdict.cost_ratio.is_finite());
+    assert_same_mean("trial", &img, &reference);
+    // The same render with an spp budget: no trial.
+    let mut g = small_npm();
+    let o = opts(IntegratorKind::PtNee, 16, w, h, 5, 2);
+    let (_, st) = render_guided(&scene, &o, &gopts, &mut g);
+    assert!(st.trial.is_none());
 }

@@ -202,6 +202,11 @@ enum Cmd {
         /// On builtin:door, 64 spp: relMSE 0.187 against 0.198 with the constant 0.3.
         #[arg(long, value_enum, default_value = "on")]
         fit_selection: OnOff,
+        /// With --time: once training has stopped, alternate 4 guided and 4 unguided passes
+        /// (BSDF sampling and NEE), compare relMSE per pass x seconds per pass on the image,
+        /// and switch the guide off for the rest of the render when it does not pay.
+        #[arg(long, value_enum, default_value = "on")]
+        guide_trial: OnOff,
         /// NEE in the guided integrator (default: on when the scene has an emitter NEE can sample).
         #[arg(long, value_enum)]
         nee: Option<OnOff>,

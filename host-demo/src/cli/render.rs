@@ -41,6 +41,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         guide_cache,
         guide_cache_resolution,
         fit_selection,
+        guide_trial,
         nee,
         device,
         vk_device,
@@ -174,6 +175,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
             cache_resolution: guide_cache_resolution,
             train_epochs,
             fit_selection: matches!(fit_selection, OnOff::On),
+            efficiency_trial: matches!(guide_trial, OnOff::On),
             ..GuidedOptions::default()
         };
         let kind = match guide {
@@ -387,6 +389,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
                     "last_loss": if g.last_loss.is_finite() { json!(g.last_loss) } else { json!(null) },
                 },
                 "russian_roulette": rr_stage,
+                "efficiency_trial": trial_json(g.trial.as_ref()),
                 "guide_cache": {
                     "ran": g.cache_hits > 0,
                     "mode": g.cache,
@@ -403,6 +406,30 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         })?;
     }
     Ok(())
+}
+
+/// The `--stats` entry of the efficiency trial.
+fn trial_json(t: Option<&host_demo::render::TrialStats>) -> serde_json::Value {
+    let Some(t) = t else {
+        return json!({"ran": false, "reason": "off, an spp budget, or training never stopped"});
+    };
+    let finite = |x: f64| if x.is_finite() { json!(x) } else { json!(null) };
+    match &t.verdict {
+        None => json!({"ran": true, "finished": false, "passes": t.passes}),
+        Some(v) => json!({
+            "ran": true,
+            "finished": true,
+            "passes": t.passes,
+            "keep_guide": v.keep_guide,
+            "guided_relmse_per_pass": finite(v.guided_variance),
+            "unguided_relmse_per_pass": finite(v.unguided_variance),
+            "guided_seconds_per_pass": v.guided_seconds,
+            "unguided_seconds_per_pass": v.unguided_seconds,
+            "cost_ratio": finite(v.cost_ratio),
+            "pixels_skipped": v.pixels_skipped,
+            "passes_guide_off": t.passes_guide_off,
+        }),
+    }
 }
 
 /// True when every material is Lambertian (a `twosided` counts when both its sides are), so

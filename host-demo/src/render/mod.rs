@@ -16,7 +16,7 @@ pub mod wavefront;
 
 pub use image::{Image, RenderStats};
 pub use options::{IntegratorKind, RenderOptions};
-pub use strategy::guided::{CacheMode, GuidedOptions, GuidedStats};
+pub use strategy::guided::{CacheMode, GuidedOptions, GuidedStats, TrialStats};
 
 use crate::scene::Scene;
 use guiding::GuidingField;
@@ -79,7 +79,12 @@ fn render_guided_on(
     guide: &mut GuidingField,
     gpu: Option<&mut GpuGuide>,
 ) -> Result<(Image, GuidedStats), GpuError> {
-    let mut strategy = Guided::new(guide, gpu, gopts);
+    // The efficiency trial weighs time: only a time budget asks that question.
+    let gopts = GuidedOptions {
+        efficiency_trial: gopts.efficiency_trial && opts.time_budget.is_some(),
+        ..*gopts
+    };
+    let mut strategy = Guided::new(guide, gpu, &gopts);
     let (img, rs) =
         wavefront::render_passes(scene, opts, gopts.nee, gopts.train_fraction, &mut strategy)?;
     Ok((img, strategy.finish(&rs)))

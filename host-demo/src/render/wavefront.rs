@@ -37,7 +37,7 @@ use crate::render::image::{accumulate, finish_image, Image, RenderStats};
 use crate::render::options::RenderOptions;
 use crate::render::queues::{Continuations, LightSamples, RayQueue, ShadowQueue, Vertices};
 use crate::render::schedule::Schedule;
-use crate::render::strategy::{PassSamples, Strategy, VertexStrategy};
+use crate::render::strategy::{PassImage, PassSamples, Strategy, VertexStrategy};
 use crate::scene::emitter::EmitterSample;
 use crate::scene::Scene;
 use glam::Vec3;
@@ -420,6 +420,8 @@ pub fn render_passes<S: Strategy>(
     let mut sum = vec![[0.0f64; 3]; npix];
     let mut sum2 = vec![[0.0f64; 3]; npix];
     let mut sched = Schedule::new(opts, train_fraction);
+    // The current pass's pixel values, for a strategy that asks for them.
+    let mut pass_image: Vec<[f32; 3]> = Vec::new();
     let nee = nee && scene.has_samplable_emitter();
     let mut stats = RenderStats {
         nee,
@@ -427,6 +429,7 @@ pub fn render_passes<S: Strategy>(
     };
     while let Some(pass) = sched.next_pass() {
         let record = strategy.begin_pass(&pass);
+        let wants_image = strategy.wants_pass_image(&pass);
         let t_pass = Instant::now();
         let next = AtomicUsize::new(0);
         let results: Mutex<Vec<Option<BlockResult>>> =
@@ -462,10 +465,30 @@ pub fn render_passes<S: Strategy>(
                 });
             }
         });
-        stats.trace += t_pass.elapsed();
+        let pass_seconds = t_pass.elapsed();
+        stats.trace += pass_seconds;
         stats.rays += rays.into_inner() as u64;
         let mut samples = PassSamples::default();
         let results = results.into_inner().unwrap_or_else(|e| e.into_inner());
+        if wants_image {
+            pass_image.clear();
+            for (rad, _, _) in results.iter().flatten() {
+                pass_image.extend(rad.iter().map(|v| v.to_array()));
+            }
+            if pass_image.len() == npix {
+                strategy.observe_pass_image(
+                    &pass,
+                    &PassImage {
+                        width,
+                        height,
+                        pixels: &pass_image,
+                        sum_before: &sum,
+                        passes_before: pass.index,
+                        seconds: pass_seconds.as_secs_f64(),
+                    },
+                );
+            }
+        }
         for (b, r) in results.into_iter().enumerate() {
             let Some((rad, s, m)) = r else {
                 continue;

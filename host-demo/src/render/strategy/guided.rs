@@ -50,6 +50,16 @@
 //! incident radiance); a vertex whose cell is fitted to `c = 0` is sampled by its BSDF alone
 //! and pays no guide sample or pdf.
 //!
+//! # Efficiency trial
+//!
+//! With a time budget ([`GuidedOptions::efficiency_trial`]), once training has stopped and one
+//! warm-up pass has run, the next passes alternate the guided estimator and the same
+//! integrator with the guide off (BSDF sampling and NEE: `pt-nee`'s estimator), 4 each, and a
+//! [`GuideTrial`] compares their relMSE per pass times seconds per pass on the image itself.
+//! If the guide does not pay it stays off for the rest of the render (no lookup, sample or
+//! pdf: the cost of `pt-nee`); `--stats` shows the two costs and the verdict. Every trial pass
+//! is unbiased and stays in the image.
+//!
 //! Radiance-target guides are sampled directly (the learned incident-radiance distribution,
 //! times the cosine with [`GuidedOptions::cosine_product`]) instead of the product with the
 //! BSDF: still unbiased through the combined density, just less efficient on glossy surfaces.
@@ -61,12 +71,13 @@ use crate::render::schedule::Pass;
 use crate::render::strategy::bsdf::sample_bsdf;
 use crate::render::strategy::gpu::GpuGuide;
 use crate::render::strategy::guide::describe;
-use crate::render::strategy::{PassSamples, Strategy, VertexStrategy};
+use crate::render::strategy::{PassImage, PassSamples, Strategy, VertexStrategy};
 use crate::scene::bsdf::Material;
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
 use guiding::{
-    CacheOptions, DirectionSample, DistributionBatch, GuideCache, GuidingError, GuidingField,
+    CacheOptions, DirectionSample, DistributionBatch, GuideCache, GuideTrial, GuidingError,
+    GuidingField, TrialArm, TrialOptions, TrialVerdict,
 };
 use guiding_core::model::QueryPoint;
 use guiding_core::sample::TrainingSample;
@@ -113,6 +124,11 @@ pub struct GuidedOptions {
     /// ([`GuideCache::fit_selection`]) instead of the constant `selection_probability`; a
     /// cell fitted to `c = 0` skips the guide's sample and pdfs.
     pub fit_selection: bool,
+    /// With a time budget: once training has stopped (after one warm-up pass), run the
+    /// guided / unguided [`GuideTrial`] (alternating passes, the efficiency `V · t` of each on
+    /// the image) and switch the guide off for the rest of the render when it does not pay.
+    /// spp-budget renders never run it (at equal samples the guide is judged per sample).
+    pub efficiency_trial: bool,
     /// Test hook, 1 in every real render: factor on the guide pdf inside the continuation's
     /// combined density (≠ 1 is a deliberate sample/pdf mismatch, a biased estimator; the
     /// power check of `tests/unbiased.rs` uses it).
@@ -132,6 +148,7 @@ impl Default for GuidedOptions {
             cache: CacheMode::Always,
             cache_resolution: CacheOptions::default().resolution,
             fit_selection: true,
+            efficiency_trial: true,
             guide_pdf_scale: 1.0,
         }
     }
@@ -195,6 +212,20 @@ pub struct GuidedStats {
     pub cache_build: Duration,
     /// The per-cell selection-probability fit, if it ran.
     pub selection_fit: Option<guiding::SelectionReport>,
+    /// The efficiency trial: `None` when it did not run (off, spp budget, or the render ended
+    /// before training stopped), else its verdict if it finished.
+    pub trial: Option<TrialStats>,
+}
+
+/// What the efficiency trial of a guided render did.
+#[derive(Clone, Debug, Default)]
+pub struct TrialStats {
+    /// Trial passes run (both arms).
+    pub passes: u32,
+    /// The verdict, once both arms had their passes.
+    pub verdict: Option<TrialVerdict>,
+    /// Passes after the trial rendered with the guide off (it did not pay).
+    pub passes_guide_off: u32,
 }
 
 impl std::fmt::Display for GuidedStats {
@@ -247,6 +278,40 @@ impl std::fmt::Display for GuidedStats {
                 r.variance_ratio
             )?;
         }
+        if let Some(t) = &self.trial {
+            match &t.verdict {
+                Some(v) => writeln!(
+                    f,
+                    "efficiency trial: {} + {} passes; relMSE per pass x seconds per pass: \
+                     guided {:.3e} x {:.4} s, unguided {:.3e} x {:.4} s, ratio {:.3}: {}{}",
+                    v.passes_per_arm,
+                    v.passes_per_arm,
+                    v.guided_variance,
+                    v.guided_seconds,
+                    v.unguided_variance,
+                    v.unguided_seconds,
+                    v.cost_ratio,
+                    if v.keep_guide {
+                        "the guide pays, kept".to_string()
+                    } else {
+                        format!(
+                            "skipped: the guide does not pay, off for the remaining {} passes",
+                            t.passes_guide_off
+                        )
+                    },
+                    if v.pixels_skipped > 0 {
+                        format!(" ({} non-finite pixels left out)", v.pixels_skipped)
+                    } else {
+                        String::new()
+                    }
+                )?,
+                None => writeln!(
+                    f,
+                    "efficiency trial: unfinished ({} passes before the budget ended)",
+                    t.passes
+                )?,
+            }
+        }
         if let Some(p) = self.converged_at_pass {
             writeln!(
                 f,
@@ -280,6 +345,14 @@ pub struct Guided<'g> {
     last_samples: Vec<TrainingSample>,
     /// The MIS-weighted incident radiance of each of `last_samples`.
     last_mis: Vec<[f32; 3]>,
+    /// The efficiency trial while it runs (created at its first pass, dropped at its verdict).
+    trial: Option<GuideTrial>,
+    /// The warm-up pass after training has run (the trial starts after it).
+    trial_warm: bool,
+    /// The trial arm of the current pass, if it is a trial pass.
+    pass_arm: Option<TrialArm>,
+    /// The current pass runs with the guide off (BSDF sampling and NEE only).
+    guide_off: bool,
 }
 
 impl<'g> Guided<'g> {
@@ -328,6 +401,39 @@ impl<'g> Guided<'g> {
             use_cache,
             last_samples: Vec::new(),
             last_mis: Vec::new(),
+            trial: None,
+            trial_warm: false,
+            pass_arm: None,
+            guide_off: false,
+        }
+    }
+
+    /// Decides the current pass's trial arm and whether the guide is off (after
+    /// [`Strategy::begin_pass`] has handled training).
+    fn plan_trial_pass(&mut self) {
+        self.pass_arm = None;
+        self.guide_off = false;
+        if !(self.stopped && self.gopts.efficiency_trial) {
+            return;
+        }
+        if !self.trial_warm {
+            self.trial_warm = true;
+            return;
+        }
+        let t = self.stats.trial.get_or_insert_with(TrialStats::default);
+        match t.verdict {
+            Some(v) => {
+                self.guide_off = !v.keep_guide;
+                t.passes_guide_off += u32::from(self.guide_off);
+            }
+            None => {
+                let arm = self
+                    .trial
+                    .as_ref()
+                    .map_or(Some(TrialArm::Guided), GuideTrial::next_arm);
+                self.pass_arm = arm;
+                self.guide_off = arm == Some(TrialArm::Unguided);
+            }
         }
     }
 
@@ -405,6 +511,8 @@ pub struct GuidedWorker<'g> {
     gpu: Option<&'g GpuGuide>,
     /// The guide cache of this pass, if any: it answers instead of the network.
     cache: Option<&'g GuideCache>,
+    /// This pass runs with the guide off: every vertex samples its BSDF.
+    off: bool,
     jitter: Vec<Vec3>,
     missed: Vec<u32>,
     gopts: GuidedOptions,
@@ -438,11 +546,13 @@ impl<'g> GuidedWorker<'g> {
         gpu: Option<&'g GpuGuide>,
         cache: Option<&'g GuideCache>,
         gopts: GuidedOptions,
+        off: bool,
     ) -> Self {
         Self {
             guide,
             gpu,
             cache,
+            off,
             jitter: Vec::new(),
             missed: Vec::new(),
             gopts,
@@ -513,6 +623,11 @@ impl VertexStrategy for GuidedWorker<'_> {
         self.guided_index.clear();
         self.queries.clear();
         self.jitter.clear();
+        self.selection.clear();
+        if self.off {
+            self.guided_index.resize(verts.len(), NONE);
+            return;
+        }
         for i in 0..verts.len() {
             let mat = &verts.bsdf[i];
             if mat.guidable(self.gopts.min_alpha) {
@@ -726,6 +841,7 @@ impl<'g> Strategy for Guided<'g> {
             self.gpu.as_deref(),
             self.cache.as_ref(),
             self.gopts,
+            self.guide_off,
         )
     }
 
@@ -771,7 +887,42 @@ impl<'g> Strategy for Guided<'g> {
         }
         self.stats.training_passes += u32::from(record);
         self.stats.passes_planned_for_training += u32::from(pass.train);
+        self.plan_trial_pass();
         record
+    }
+
+    fn wants_pass_image(&self, _: &Pass) -> bool {
+        self.pass_arm.is_some()
+    }
+
+    fn observe_pass_image(&mut self, _: &Pass, image: &PassImage<'_>) {
+        let Some(arm) = self.pass_arm else {
+            return;
+        };
+        if self.trial.is_none() {
+            // Weighted by the image before the trial (the mean of the passes so far).
+            let n = f64::from(image.passes_before.max(1));
+            let before: Vec<[f32; 3]> = image
+                .sum_before
+                .iter()
+                .map(|s| s.map(|x| (x / n) as f32))
+                .collect();
+            let (w, h) = (image.width as usize, image.height as usize);
+            // Only an empty image fails: the trial then never decides (the guide stays on).
+            self.trial = GuideTrial::new(w, h, &before, TrialOptions::default()).ok();
+        }
+        let Some(trial) = &mut self.trial else {
+            return;
+        };
+        if trial.record(arm, image.pixels, image.seconds).is_err() {
+            return;
+        }
+        let t = self.stats.trial.get_or_insert_with(TrialStats::default);
+        t.passes += 1;
+        if let Some(v) = trial.verdict() {
+            t.verdict = Some(v);
+            self.trial = None;
+        }
     }
 
     fn end_pass(

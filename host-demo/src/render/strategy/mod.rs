@@ -36,6 +36,23 @@ pub struct PassSamples {
     pub mis_radiance: Vec<[f32; 3]>,
 }
 
+/// One pass's image, for a strategy that asked for it ([`Strategy::wants_pass_image`]).
+#[derive(Clone, Copy, Debug)]
+pub struct PassImage<'a> {
+    /// Image size; pixels are row-major.
+    pub width: u32,
+    /// See `width`.
+    pub height: u32,
+    /// This pass's pixel values (one sample per pixel).
+    pub pixels: &'a [[f32; 3]],
+    /// Per pixel, the sums of the `passes_before` earlier passes.
+    pub sum_before: &'a [[f64; 3]],
+    /// Passes before this one.
+    pub passes_before: u32,
+    /// Wall seconds of this pass's tracing.
+    pub seconds: f64,
+}
+
 /// One direction-sampling strategy of a render, shared by the render threads.
 pub trait Strategy: Sync {
     /// Per-thread state.
@@ -55,6 +72,17 @@ pub trait Strategy: Sync {
 
     /// Called before pass `pass`; returns whether its paths are recorded for training.
     fn begin_pass(&mut self, pass: &Pass) -> bool;
+
+    /// Whether the strategy wants the image of pass `pass` (its pixel values alone, not the
+    /// running mean) through [`Strategy::observe_pass_image`]; asked after
+    /// [`Strategy::begin_pass`].
+    fn wants_pass_image(&self, _pass: &Pass) -> bool {
+        false
+    }
+
+    /// The image of a pass it asked for ([`Strategy::wants_pass_image`]); called before
+    /// [`Strategy::end_pass`].
+    fn observe_pass_image(&mut self, _pass: &Pass, _image: &PassImage<'_>) {}
 
     /// Called after each pass with the threads' reports and the pass's training samples
     /// (block order, so deterministic). An error ends the render.

@@ -1,0 +1,344 @@
+//! Does the guide pay? An interleaved A/B trial of whole passes, guided against unguided, that
+//! compares the two estimators' **efficiency** (variance × time) on the renderer's own image.
+//!
+//! A guide that samples better per sample can still lose at equal time: every guided vertex pays
+//! for the guide's lookup, sample and densities, and on a scene that BSDF sampling and NEE
+//! already handle well the saved variance is smaller than the added cost. The per-vertex
+//! selection-probability fit ([`crate::GuideCache::fit_selection`]) sees only the variance of
+//! one vertex's estimator, not the cost, nor how much of the pixel's variance that vertex carries.
+//! This trial measures both at the level the user sees, once training has stopped:
+//!
+//! 1. the renderer runs `2K` passes (one sample per pixel over the whole image), alternating
+//!    [`TrialArm::Guided`] and [`TrialArm::Unguided`] (its own estimator with the guide switched
+//!    off: BSDF sampling and NEE), and hands each pass's pixel values and seconds to
+//!    [`GuideTrial::record`]; both arms are unbiased, so every pass stays in the image;
+//! 2. per arm `a`, the per-pass relative variance is estimated from its `K` passes,
+//!    `V_a = (1 / 3N) Σ_p Σ_ch s²_{a,p,ch} / (m_{p,ch}² + ε)`, with `s²` the unbiased sample
+//!    variance of the pixel's `K` values, `ε = 0.01` (the denominator of the relMSE the
+//!    benchmark reports, so `V_a` estimates the relMSE one pass of that arm would have against
+//!    the truth) and `m` the renderer's image *before* the trial (its mean so far), smoothed by
+//!    a `(2r + 1)²` box filter (`r = 2`). The weights must not come from the trial's own
+//!    passes: with a noisy image their mean's `m²` grows with the pixel's variance
+//!    (`E[m²] = μ² + σ²/2K`), every term `s²/(m² + ε)` tends to the same constant and the two
+//!    arms look alike whatever their variances. The image before the trial is independent of
+//!    the trial's passes, so both arms are weighted alike, and the filter takes out most of its
+//!    noise;
+//! 3. the efficiency cost of an arm is `V_a · t_a` with `t_a` its mean seconds per pass: the
+//!    relMSE it reaches in one second is `V_a · t_a` (variance of a mean of `n = T / t_a`
+//!    passes). The guide is kept when `V_g · t_g ≤ V_u · t_u` ([`TrialVerdict::keep_guide`]).
+//!
+//! This is the pixel-level counterpart of Müller et al.'s "is guiding worth it" question
+//! (*Practical Path Guiding*, 2017, spends a budget fraction on learning and decides nothing;
+//! Open PGL leaves the choice to the user). Deviations: the arms alternate pass by pass so a
+//! drift of the machine's speed falls on both; pixels with a non-finite value in any trial pass
+//! are left out of both sums (and counted), so one NaN cannot decide.
+//!
+//! The decision is made once, from `K` passes per arm (default 4): the relative standard error
+//! of each `V_a` is about `√(2 / (3N(K − 1)))` for independent pixels (0.3 % at 320 × 240),
+//! far below the gaps that matter; heavy-tailed pixels (fireflies) widen it, and count against
+//! the arm that makes them, as they should.
+
+use crate::GuidingError;
+
+/// The two estimators a [`GuideTrial`] compares.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TrialArm {
+    /// The renderer's guided estimator (guide and BSDF in one-sample MIS).
+    Guided,
+    /// The same renderer with the guide switched off (BSDF sampling and NEE only).
+    Unguided,
+}
+
+impl TrialArm {
+    fn index(self) -> usize {
+        match self {
+            TrialArm::Guided => 0,
+            TrialArm::Unguided => 1,
+        }
+    }
+}
+
+/// Options of a [`GuideTrial`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrialOptions {
+    /// Passes per arm (`K` in the module docs), at least 2.
+    pub passes_per_arm: u32,
+    /// `ε` of the relative variance's denominator `m² + ε`.
+    pub epsilon: f64,
+    /// Radius `r` of the box filter on the image before the trial (0: none).
+    pub smoothing_radius: u32,
+}
+
+impl Default for TrialOptions {
+    fn default() -> Self {
+        Self {
+            passes_per_arm: 4,
+            epsilon: 0.01,
+            smoothing_radius: 2,
+        }
+    }
+}
+
+/// What a finished [`GuideTrial`] measured and decided.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrialVerdict {
+    /// `V_g · t_g ≤ V_u · t_u`: the guided estimator reaches a lower relMSE per second.
+    pub keep_guide: bool,
+    /// Per-pass relative variance of the guided arm (`V_g`).
+    pub guided_variance: f64,
+    /// Per-pass relative variance of the unguided arm (`V_u`).
+    pub unguided_variance: f64,
+    /// Mean seconds per guided pass (`t_g`).
+    pub guided_seconds: f64,
+    /// Mean seconds per unguided pass (`t_u`).
+    pub unguided_seconds: f64,
+    /// `(V_g · t_g) / (V_u · t_u)`: below 1 the guide pays (`NaN` if the unguided cost is 0).
+    pub cost_ratio: f64,
+    /// Passes each arm ran.
+    pub passes_per_arm: u32,
+    /// Pixels left out because a trial pass gave them a non-finite value.
+    pub pixels_skipped: u64,
+}
+
+/// Per-arm sums of one trial.
+#[derive(Clone, Debug, Default)]
+struct ArmSums {
+    passes: u32,
+    seconds: f64,
+    sum: Vec<[f64; 3]>,
+    sum2: Vec<[f64; 3]>,
+}
+
+/// The interleaved guided / unguided trial of the [module docs](self).
+#[derive(Clone, Debug)]
+pub struct GuideTrial {
+    options: TrialOptions,
+    pixels: usize,
+    /// `1 / (m̃² + ε)` per pixel and channel, from the smoothed image before the trial.
+    weight: Vec<[f64; 3]>,
+    arms: [ArmSums; 2],
+    /// Pixels with a non-finite value in some trial pass.
+    bad: Vec<bool>,
+}
+
+impl GuideTrial {
+    /// A trial over images of `width × height` pixels (row-major), weighted by `image`: the
+    /// renderer's estimate of the image before the trial (its mean so far), which must not
+    /// include any trial pass. Non-finite values in it count as 0.
+    ///
+    /// # Errors
+    /// [`GuidingError::InvalidConfig`] for no pixels, fewer than 2 passes per arm or an
+    /// `epsilon` that is not finite and positive; [`GuidingError::LengthMismatch`] if `image`
+    /// does not have `width × height` pixels.
+    pub fn new(
+        width: usize,
+        height: usize,
+        image: &[[f32; 3]],
+        options: TrialOptions,
+    ) -> Result<Self, GuidingError> {
+        let pixels = width.saturating_mul(height);
+        if image.len() != pixels {
+            return Err(GuidingError::LengthMismatch {
+                what: format!(
+                    "a trial of {width} x {height} pixels weighted by an image of {}",
+                    image.len()
+                ),
+            });
+        }
+        if pixels == 0 || options.passes_per_arm < 2 {
+            return Err(GuidingError::InvalidConfig(format!(
+                "a guide trial needs pixels and at least 2 passes per arm (got {pixels} pixels, \
+                 {} passes)",
+                options.passes_per_arm
+            )));
+        }
+        if !(options.epsilon.is_finite() && options.epsilon > 0.0) {
+            return Err(GuidingError::InvalidConfig(format!(
+                "the trial's epsilon must be finite and positive, got {}",
+                options.epsilon
+            )));
+        }
+        let arm = || ArmSums {
+            passes: 0,
+            seconds: 0.0,
+            sum: vec![[0.0; 3]; pixels],
+            sum2: vec![[0.0; 3]; pixels],
+        };
+        let smooth = box_filter(width, height, image, options.smoothing_radius as usize);
+        let weight = smooth
+            .iter()
+            .map(|m| m.map(|x| 1.0 / (x * x + options.epsilon)))
+            .collect();
+        Ok(Self {
+            options,
+            pixels,
+            weight,
+            arms: [arm(), arm()],
+            bad: vec![false; pixels],
+        })
+    }
+
+    /// The arm the next pass should run, alternating (guided first), or `None` once both have
+    /// their passes.
+    pub fn next_arm(&self) -> Option<TrialArm> {
+        let k = self.options.passes_per_arm;
+        let (g, u) = (self.arms[0].passes, self.arms[1].passes);
+        if g >= k && u >= k {
+            None
+        } else if g <= u && g < k {
+            Some(TrialArm::Guided)
+        } else {
+            Some(TrialArm::Unguided)
+        }
+    }
+
+    /// Adds one pass of `arm`: its pixel values (RGB, the same pixel order every pass) and the
+    /// seconds it took.
+    ///
+    /// # Errors
+    /// [`GuidingError::LengthMismatch`] if the image has another size;
+    /// [`GuidingError::InvalidConfig`] if the seconds are not finite and non-negative or the
+    /// arm already has its passes. Nothing is added then.
+    pub fn record(
+        &mut self,
+        arm: TrialArm,
+        pixels: &[[f32; 3]],
+        seconds: f64,
+    ) -> Result<(), GuidingError> {
+        if pixels.len() != self.pixels {
+            return Err(GuidingError::LengthMismatch {
+                what: format!(
+                    "a trial pass of {} pixels for a trial of {}",
+                    pixels.len(),
+                    self.pixels
+                ),
+            });
+        }
+        if !(seconds.is_finite() && seconds >= 0.0) {
+            return Err(GuidingError::InvalidConfig(format!(
+                "a trial pass took {seconds} s"
+            )));
+        }
+        let a = &mut self.arms[arm.index()];
+        if a.passes >= self.options.passes_per_arm {
+            return Err(GuidingError::InvalidConfig(format!(
+                "the {arm:?} arm already has its {} passes",
+                a.passes
+            )));
+        }
+        a.passes += 1;
+        a.seconds += seconds;
+        for (p, v) in pixels.iter().enumerate() {
+            if !v.iter().all(|x| x.is_finite()) {
+                self.bad[p] = true;
+                continue;
+            }
+            for (ch, &x) in v.iter().enumerate() {
+                let x = f64::from(x);
+                a.sum[p][ch] += x;
+                a.sum2[p][ch] += x * x;
+            }
+        }
+        Ok(())
+    }
+
+    /// The verdict once both arms have their passes, else `None`.
+    pub fn verdict(&self) -> Option<TrialVerdict> {
+        if self.next_arm().is_some() {
+            return None;
+        }
+        let k = f64::from(self.options.passes_per_arm);
+        let mut var = [0.0f64; 2];
+        let mut used = 0u64;
+        for (p, w) in self.weight.iter().enumerate() {
+            if self.bad[p] {
+                continue;
+            }
+            used += 1;
+            for (a, arm) in self.arms.iter().enumerate() {
+                for (ch, &w) in w.iter().enumerate() {
+                    let (s, s2) = (arm.sum[p][ch], arm.sum2[p][ch]);
+                    // Unbiased sample variance; rounding can make it a hair negative.
+                    let s_var = ((s2 - s * s / k) / (k - 1.0)).max(0.0);
+                    var[a] += s_var * w;
+                }
+            }
+        }
+        let cells = (3 * used).max(1) as f64;
+        let (vg, vu) = (var[0] / cells, var[1] / cells);
+        let (tg, tu) = (self.arms[0].seconds / k, self.arms[1].seconds / k);
+        let (cg, cu) = (vg * tg, vu * tu);
+        let cost_ratio = if cu > 0.0 { cg / cu } else { f64::NAN };
+        Some(TrialVerdict {
+            keep_guide: cg <= cu,
+            guided_variance: vg,
+            unguided_variance: vu,
+            guided_seconds: tg,
+            unguided_seconds: tu,
+            cost_ratio,
+            passes_per_arm: self.options.passes_per_arm,
+            pixels_skipped: (self.pixels as u64) - used,
+        })
+    }
+}
+
+/// The mean of each pixel's `(2r + 1)²` neighbourhood (clipped at the borders), per channel;
+/// non-finite values count as 0. Separable: rows, then columns.
+fn box_filter(width: usize, height: usize, image: &[[f32; 3]], r: usize) -> Vec<[f64; 3]> {
+    let value = |v: f32| if v.is_finite() { f64::from(v) } else { 0.0 };
+    let src: Vec<[f64; 3]> = image.iter().map(|p| p.map(value)).collect();
+    if r == 0 {
+        return src;
+    }
+    // One 1-D pass over `n` samples at `at(i)`, written to `out(i)`.
+    let pass_1d =
+        |n: usize, get: &dyn Fn(usize) -> [f64; 3], set: &mut dyn FnMut(usize, [f64; 3])| {
+            for i in 0..n {
+                let (lo, hi) = (i.saturating_sub(r), (i + r).min(n - 1));
+                let mut acc = [0.0; 3];
+                for j in lo..=hi {
+                    let v = get(j);
+                    for ch in 0..3 {
+                        acc[ch] += v[ch];
+                    }
+                }
+                let count = (hi - lo + 1) as f64;
+                set(i, acc.map(|a| a / count));
+            }
+        };
+    let mut rows = vec![[0.0; 3]; src.len()];
+    for y in 0..height {
+        let base = y * width;
+        pass_1d(width, &|x| src[base + x], &mut |x, v| rows[base + x] = v);
+    }
+    let mut out = vec![[0.0; 3]; src.len()];
+    for x in 0..width {
+        pass_1d(height, &|y| rows[y * width + x], &mut |y, v| {
+            out[y * width + x] = v
+        });
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::box_filter;
+
+    #[test]
+    fn box_filter_keeps_constants_and_averages_an_impulse() {
+        let (w, h) = (7, 6);
+        let flat = vec![[0.25, 1.0, 3.0]; w * h];
+        for v in box_filter(w, h, &flat, 2) {
+            assert_eq!(v, [0.25, 1.0, 3.0]);
+        }
+        let mut impulse = vec![[0.0; 3]; w * h];
+        impulse[3 * w + 3] = [25.0, f32::NAN, 0.0];
+        let out = box_filter(w, h, &impulse, 2);
+        // Interior pixel (3, 3): its 5 x 5 neighbourhood holds the impulse once.
+        assert_eq!(out[3 * w + 3], [1.0, 0.0, 0.0]);
+        // Corner (0, 0): a 3 x 3 clipped neighbourhood that misses (3, 3).
+        assert_eq!(out[0], [0.0; 3]);
+        // (1, 1): clipped to 4 x 4 = 16 pixels, which include (3, 3).
+        assert_eq!(out[w + 1], [25.0 / 16.0, 0.0, 0.0]);
+    }
+}

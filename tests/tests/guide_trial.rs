@@ -1,0 +1,280 @@
+//! The guided / unguided efficiency trial (`guiding::GuideTrial`): its variance estimate is the
+//! per-pass relative variance within a standard error derived from the chi-square law of the
+//! sample variance, its verdict follows variance × time, and the weighting by the image before
+//! the trial is what keeps a noisy image from making the two arms look alike (a committed
+//! negative control computes the defective self-weighted estimate from the same samples).
+
+use guiding::{GuideTrial, GuidingError, TrialArm, TrialOptions};
+use guiding_core::rng::Rng;
+use statrs::distribution::{ContinuousCDF, Normal};
+
+const W: usize = 64;
+const H: usize = 48;
+const MEAN: [f32; 3] = [0.5, 0.2, 1.0];
+
+/// Standard normal by Box–Muller.
+fn gauss(rng: &mut Rng) -> f64 {
+    let u1 = f64::from(rng.next_f32()).max(1e-12);
+    let u2 = f64::from(rng.next_f32());
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+}
+
+/// How an arm's pixel values scatter around the true mean `m` of their channel.
+#[derive(Clone, Copy)]
+enum Noise {
+    /// Gaussian with standard deviation `scale · (0.5 + x / W) · m` (varies over the image, so
+    /// the weighting matters).
+    Gauss(f64),
+    /// A firefly estimator: `m / q` with probability `q`, else 0 (heavy-tailed, as the
+    /// per-pass values of a hard pixel are).
+    Firefly(f64),
+}
+
+impl Noise {
+    fn draw(self, p: usize, m: f64, rng: &mut Rng) -> f64 {
+        match self {
+            Noise::Gauss(scale) => m + scale * (0.5 + (p % W) as f64 / W as f64) * m * gauss(rng),
+            Noise::Firefly(q) => {
+                if f64::from(rng.next_f32()) < q {
+                    m / q
+                } else {
+                    0.0
+                }
+            }
+        }
+    }
+
+    /// Variance and fourth central moment of pixel `p`'s values.
+    fn moments(self, p: usize, m: f64) -> (f64, f64) {
+        match self {
+            Noise::Gauss(scale) => {
+                let sd = scale * (0.5 + (p % W) as f64 / W as f64) * m;
+                (sd * sd, 3.0 * sd.powi(4))
+            }
+            Noise::Firefly(q) => {
+                let a = m / q;
+                let b = q * (1.0 - q);
+                (a * a * b, a.powi(4) * b * (1.0 - 3.0 * q + 3.0 * q * q))
+            }
+        }
+    }
+}
+
+/// Two-sided Šidák-corrected normal quantile for `tests` comparisons at family level `alpha`.
+fn z_bound(alpha: f64, tests: usize) -> f64 {
+    let per_test = 1.0 - (1.0 - alpha).powf(1.0 / tests as f64);
+    Normal::new(0.0, 1.0)
+        .expect("unit normal")
+        .inverse_cdf(1.0 - per_test / 2.0)
+}
+
+/// The trial's expected `V` of an arm and its standard error: the sample variance `s²` of `K`
+/// values has mean `σ²` and variance `(μ₄ − σ⁴ (K − 3) / (K − 1)) / K`.
+fn expected(noise: Noise, k: u32, eps: f64) -> (f64, f64) {
+    let (mut v, mut var) = (0.0, 0.0);
+    let kf = f64::from(k);
+    for p in 0..W * H {
+        for m in MEAN {
+            let m = f64::from(m);
+            let (s2, mu4) = noise.moments(p, m);
+            let w = 1.0 / (m * m + eps);
+            v += s2 * w;
+            var += (mu4 - s2 * s2 * (kf - 3.0) / (kf - 1.0)) / kf * w * w;
+        }
+    }
+    let cells = (3 * W * H) as f64;
+    (v / cells, var.sqrt() / cells)
+}
+
+/// Runs a trial with passes of the arms' noise `(guided, unguided)` and pass times; returns
+/// the trial and every pass's pixels per arm.
+fn run_trial(
+    seed: u32,
+    noise: (Noise, Noise),
+    seconds: (f64, f64),
+) -> (GuideTrial, [Vec<Vec<[f32; 3]>>; 2]) {
+    let image = vec![MEAN; W * H];
+    let mut trial = GuideTrial::new(W, H, &image, TrialOptions::default()).expect("valid trial");
+    let mut rng = Rng::new(seed);
+    let mut passes: [Vec<Vec<[f32; 3]>>; 2] = [Vec::new(), Vec::new()];
+    while let Some(arm) = trial.next_arm() {
+        let (noise, t, slot) = match arm {
+            TrialArm::Guided => (noise.0, seconds.0, 0),
+            TrialArm::Unguided => (noise.1, seconds.1, 1),
+        };
+        let pixels: Vec<[f32; 3]> = (0..W * H)
+            .map(|p| MEAN.map(|m| noise.draw(p, f64::from(m), &mut rng) as f32))
+            .collect();
+        trial.record(arm, &pixels, t).expect("a valid pass");
+        passes[slot].push(pixels);
+    }
+    (trial, passes)
+}
+
+#[test]
+fn arms_alternate_guided_first_until_both_have_their_passes() {
+    let image = vec![[0.0; 3]; 4];
+    let options = TrialOptions {
+        passes_per_arm: 3,
+        ..TrialOptions::default()
+    };
+    let mut trial = GuideTrial::new(2, 2, &image, options).expect("valid trial");
+    let mut order = Vec::new();
+    while let Some(arm) = trial.next_arm() {
+        assert!(trial.verdict().is_none());
+        trial.record(arm, &image, 0.1).expect("valid pass");
+        order.push(arm);
+    }
+    use TrialArm::{Guided as G, Unguided as U};
+    assert_eq!(order, [G, U, G, U, G, U]);
+    assert!(trial.verdict().is_some());
+    assert!(matches!(
+        trial.record(G, &image, 0.1),
+        Err(GuidingError::InvalidConfig(_))
+    ));
+}
+
+#[test]
+fn variance_estimate_is_the_per_pass_relative_variance_and_the_verdict_follows_cost() {
+    let eps = TrialOptions::default().epsilon;
+    let k = TrialOptions::default().passes_per_arm;
+    // Guided: half the standard deviation (a quarter of the variance) of the unguided arm.
+    let (guided, unguided) = (Noise::Gauss(1.0), Noise::Gauss(2.0));
+    let (vg, seg) = expected(guided, k, eps);
+    let (vu, seu) = expected(unguided, k, eps);
+    // Two cases of two arms, plus two cost ratios.
+    let z = z_bound(1e-3, 6);
+    for (seed, tg, keep) in [(11, 3.0, true), (12, 5.0, false)] {
+        let (trial, _) = run_trial(seed, (guided, unguided), (tg, 1.0));
+        let v = trial.verdict().expect("finished");
+        assert!(
+            (v.guided_variance - vg).abs() <= z * seg,
+            "guided V {} against {vg} ± {}",
+            v.guided_variance,
+            z * seg
+        );
+        assert!(
+            (v.unguided_variance - vu).abs() <= z * seu,
+            "unguided V {} against {vu} ± {}",
+            v.unguided_variance,
+            z * seu
+        );
+        assert_eq!(v.guided_seconds, tg);
+        assert_eq!(v.unguided_seconds, 1.0);
+        // Cost ratio (V_g t_g) / (V_u t_u); its relative error by the delta method.
+        let ratio = vg * tg / vu;
+        let rel = ((seg / vg).powi(2) + (seu / vu).powi(2)).sqrt();
+        assert!(
+            (v.cost_ratio / ratio - 1.0).abs() <= z * rel,
+            "cost ratio {} against {ratio}",
+            v.cost_ratio
+        );
+        // 0.75 keeps the guide, 1.25 does not: a verdict that ignored the time (or the
+        // variance) would keep it in both cases.
+        assert_eq!(v.keep_guide, keep, "t_g = {tg}: ratio {}", v.cost_ratio);
+        assert_eq!(v.pixels_skipped, 0);
+    }
+}
+
+/// Negative control: weighting each pixel by the trial's own mean instead of the image before
+/// the trial. With heavy-tailed passes (fireflies: relative variance 1 guided, 19 unguided) a
+/// pixel's `m²` and `s²` come from the same rare large values, `s² / m²` is bounded whatever
+/// their size, and the self-weighted ratio is pulled towards 1: it misses the true 1 / 19 by
+/// many standard errors, while the trial's estimate is within its bound.
+#[test]
+fn weights_from_the_image_before_the_trial_see_through_noise() {
+    let (eps, k) = (TrialOptions::default().epsilon, 4u32);
+    let (guided, unguided) = (Noise::Firefly(0.5), Noise::Firefly(0.05));
+    let (vg, seg) = expected(guided, k, eps);
+    let (vu, seu) = expected(unguided, k, eps);
+    let truth = vg / vu;
+    let rel = ((seg / vg).powi(2) + (seu / vu).powi(2)).sqrt();
+    let z = z_bound(1e-3, 1);
+    let (trial, passes) = run_trial(21, (guided, unguided), (1.0, 1.0));
+    let v = trial.verdict().expect("finished");
+    assert!(
+        (v.cost_ratio / truth - 1.0).abs() <= z * rel,
+        "ratio {} against {truth}",
+        v.cost_ratio
+    );
+    // The defective estimate from the same samples.
+    let kf = f64::from(k);
+    let mut self_weighted = [0.0f64; 2];
+    for cell in 0..3 * W * H {
+        let (p, ch) = (cell / 3, cell % 3);
+        let value = |a: usize, i: usize| f64::from(passes[a][i][p][ch]);
+        let mean = (0..2)
+            .flat_map(|a| (0..k as usize).map(move |i| (a, i)))
+            .map(|(a, i)| value(a, i))
+            .sum::<f64>()
+            / (2.0 * kf);
+        for (a, acc) in self_weighted.iter_mut().enumerate() {
+            let m = (0..k as usize).map(|i| value(a, i)).sum::<f64>() / kf;
+            let s2 = (0..k as usize)
+                .map(|i| (value(a, i) - m).powi(2))
+                .sum::<f64>()
+                / (kf - 1.0);
+            *acc += s2 / (mean * mean + eps);
+        }
+    }
+    let defective = self_weighted[0] / self_weighted[1];
+    assert!(
+        (defective / truth - 1.0).abs() > 10.0 * rel,
+        "the self-weighted ratio {defective} should miss {truth} by far (rel. SE {rel})"
+    );
+}
+
+#[test]
+fn non_finite_pixels_are_left_out_and_counted() {
+    let image = vec![MEAN; W * H];
+    let mut trial = GuideTrial::new(W, H, &image, TrialOptions::default()).expect("valid");
+    let mut rng = Rng::new(5);
+    while let Some(arm) = trial.next_arm() {
+        let mut pixels: Vec<[f32; 3]> = (0..W * H)
+            .map(|_| MEAN.map(|m| m * (1.0 + 0.1 * gauss(&mut rng) as f32)))
+            .collect();
+        if arm == TrialArm::Unguided {
+            pixels[7] = [f32::NAN, 0.0, 0.0];
+            pixels[9] = [0.0, f32::INFINITY, 0.0];
+        }
+        trial.record(arm, &pixels, 1.0).expect("valid");
+    }
+    let v = trial.verdict().expect("finished");
+    assert_eq!(v.pixels_skipped, 2);
+    assert!(v.guided_variance.is_finite() && v.unguided_variance.is_finite());
+    assert!(v.cost_ratio.is_finite());
+}
+
+#[test]
+fn bad_arguments_are_errors() {
+    let image = vec![[0.0; 3]; 6];
+    let ok = TrialOptions::default();
+    assert!(GuideTrial::new(0, 0, &[], ok).is_err());
+    assert!(matches!(
+        GuideTrial::new(2, 2, &image, ok),
+        Err(GuidingError::LengthMismatch { .. })
+    ));
+    for bad in [
+        TrialOptions {
+            passes_per_arm: 1,
+            ..ok
+        },
+        TrialOptions { epsilon: 0.0, ..ok },
+        TrialOptions {
+            epsilon: f64::NAN,
+            ..ok
+        },
+    ] {
+        assert!(GuideTrial::new(3, 2, &image, bad).is_err());
+    }
+    let mut trial = GuideTrial::new(3, 2, &image, ok).expect("valid");
+    assert!(trial.record(TrialArm::Guided, &image[..5], 1.0).is_err());
+    for t in [f64::NAN, -1.0, f64::INFINITY] {
+        assert!(trial.record(TrialArm::Guided, &image, t).is_err());
+    }
+    assert_eq!(
+        trial.next_arm(),
+        Some(TrialArm::Guided),
+        "nothing was added"
+    );
+}
