@@ -20,6 +20,21 @@ fn methods_and_budgets_parse() {
             "product"
         ]
     );
+    assert_eq!(
+        Method::parse("npm-radiance-nonee-notrial").unwrap().args,
+        [
+            "--integrator",
+            "guided",
+            "--guide",
+            "npm",
+            "--target",
+            "radiance",
+            "--nee",
+            "off",
+            "--guide-trial",
+            "off"
+        ]
+    );
     for bad in [
         "",
         "npm",

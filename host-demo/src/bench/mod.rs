@@ -41,12 +41,14 @@ impl Method {
     /// Parses `pt`, `pt-nee`, or `GUIDE-TARGET` with GUIDE in npm|nasg|df-n|df-l and TARGET in
     /// radiance|product (e.g. `npm-product`), optionally followed by suffixes: `-nonee` (the
     /// guided integrator without next-event estimation, the papers' setting, compared with
-    /// `pt`), `-nocache` / `-frozen` (`--guide-cache off` / `frozen` instead of the default).
+    /// `pt`), `-nocache` / `-frozen` (`--guide-cache off` / `frozen` instead of the default),
+    /// `-notrial` (`--guide-trial off`: the guide stays on whether it pays or not).
     pub fn parse(full: &str) -> Result<Self> {
-        const SUFFIXES: [(&str, [&str; 2]); 3] = [
+        const SUFFIXES: [(&str, [&str; 2]); 4] = [
             ("-nonee", ["--nee", "off"]),
             ("-nocache", ["--guide-cache", "off"]),
             ("-frozen", ["--guide-cache", "frozen"]),
+            ("-notrial", ["--guide-trial", "off"]),
         ];
         let mut name = full;
         let mut extra: Vec<&str> = Vec::new();
