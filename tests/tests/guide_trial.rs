@@ -92,9 +92,10 @@ fn run_trial(
     seed: u32,
     noise: (Noise, Noise),
     seconds: (f64, f64),
+    options: TrialOptions,
 ) -> (GuideTrial, [Vec<Vec<[f32; 3]>>; 2]) {
     let image = vec![MEAN; W * H];
-    let mut trial = GuideTrial::new(W, H, &image, TrialOptions::default()).expect("valid trial");
+    let mut trial = GuideTrial::new(W, H, &image, options).expect("valid trial");
     let mut rng = Rng::new(seed);
     let mut passes: [Vec<Vec<[f32; 3]>>; 2] = [Vec::new(), Vec::new()];
     while let Some(arm) = trial.next_arm() {
@@ -145,7 +146,7 @@ fn variance_estimate_is_the_per_pass_relative_variance_and_the_verdict_follows_c
     // Two cases of two arms, plus two cost ratios.
     let z = z_bound(1e-3, 6);
     for (seed, tg, keep) in [(11, 3.0, true), (12, 5.0, false)] {
-        let (trial, _) = run_trial(seed, (guided, unguided), (tg, 1.0));
+        let (trial, _) = run_trial(seed, (guided, unguided), (tg, 1.0), TrialOptions::default());
         let v = trial.verdict().expect("finished");
         assert!(
             (v.guided_variance - vg).abs() <= z * seg,
@@ -172,6 +173,7 @@ fn variance_estimate_is_the_per_pass_relative_variance_and_the_verdict_follows_c
         // 0.75 keeps the guide, 1.25 does not: a verdict that ignored the time (or the
         // variance) would keep it in both cases.
         assert_eq!(v.keep_guide, keep, "t_g = {tg}: ratio {}", v.cost_ratio);
+        assert_eq!(v.passes_per_arm, k, "0.75 and 1.25 are no clear case");
         assert_eq!(v.pixels_skipped, 0);
     }
 }
@@ -190,7 +192,12 @@ fn weights_from_the_image_before_the_trial_see_through_noise() {
     let truth = vg / vu;
     let rel = ((seg / vg).powi(2) + (seu / vu).powi(2)).sqrt();
     let z = z_bound(1e-3, 1);
-    let (trial, passes) = run_trial(21, (guided, unguided), (1.0, 1.0));
+    // All 4 passes per arm (no early verdict: the case is clear).
+    let options = TrialOptions {
+        decisive_ratio: 0.0,
+        ..TrialOptions::default()
+    };
+    let (trial, passes) = run_trial(21, (guided, unguided), (1.0, 1.0), options);
     let v = trial.verdict().expect("finished");
     assert!(
         (v.cost_ratio / truth - 1.0).abs() <= z * rel,
@@ -222,6 +229,40 @@ fn weights_from_the_image_before_the_trial_see_through_noise() {
         (defective / truth - 1.0).abs() > 10.0 * rel,
         "the self-weighted ratio {defective} should miss {truth} by far (rel. SE {rel})"
     );
+}
+
+/// A clear case ends the trial after 2 passes per arm: cost ratio 1 / 4 keeps the guide, 4 turns
+/// it off; the estimates are those of `k = 2` within their standard errors.
+#[test]
+fn a_clear_case_ends_the_trial_after_two_passes_per_arm() {
+    let eps = TrialOptions::default().epsilon;
+    let z = z_bound(1e-3, 4);
+    for (seed, scales, keep) in [(31, (1.0, 2.0), true), (32, (2.0, 1.0), false)] {
+        let (guided, unguided) = (Noise::Gauss(scales.0), Noise::Gauss(scales.1));
+        let (trial, passes) = run_trial(
+            seed,
+            (guided, unguided),
+            (1.0, 1.0),
+            TrialOptions::default(),
+        );
+        let v = trial.verdict().expect("ended early");
+        assert_eq!(v.passes_per_arm, 2);
+        assert_eq!((passes[0].len(), passes[1].len()), (2, 2));
+        assert!(trial.next_arm().is_none());
+        assert_eq!(v.keep_guide, keep);
+        let (vg, seg) = expected(guided, 2, eps);
+        let (vu, seu) = expected(unguided, 2, eps);
+        assert!(
+            (v.guided_variance - vg).abs() <= z * seg,
+            "{} against {vg}",
+            v.guided_variance
+        );
+        assert!(
+            (v.unguided_variance - vu).abs() <= z * seu,
+            "{} against {vu}",
+            v.unguided_variance
+        );
+    }
 }
 
 #[test]
@@ -262,6 +303,14 @@ fn bad_arguments_are_errors() {
         TrialOptions { epsilon: 0.0, ..ok },
         TrialOptions {
             epsilon: f64::NAN,
+            ..ok
+        },
+        TrialOptions {
+            decisive_ratio: 1.5,
+            ..ok
+        },
+        TrialOptions {
+            decisive_ratio: f64::NAN,
             ..ok
         },
     ] {

@@ -79,9 +79,14 @@ fn render_guided_on(
     guide: &mut GuidingField,
     gpu: Option<&mut GpuGuide>,
 ) -> Result<(Image, GuidedStats), GpuError> {
-    // The efficiency trial weighs time: only a time budget asks that question.
+    // The efficiency trial weighs time: only a time budget asks that question. Without NEE
+    // its unguided arm is BSDF sampling alone, whose trial passes cost the image far more
+    // than they can save on a scene with small emitters (see `GuidedOptions`).
     let gopts = GuidedOptions {
-        efficiency_trial: gopts.efficiency_trial && opts.time_budget.is_some(),
+        efficiency_trial: gopts.efficiency_trial
+            && opts.time_budget.is_some()
+            && gopts.nee
+            && scene.has_samplable_emitter(),
         ..*gopts
     };
     let mut strategy = Guided::new(guide, gpu, &gopts);
