@@ -80,6 +80,7 @@
 
 pub mod batch;
 pub mod cache;
+pub mod combine;
 pub mod config;
 pub mod error;
 pub mod field;
@@ -90,6 +91,7 @@ pub mod trial;
 
 pub use batch::DistributionBatch;
 pub use cache::{CacheLookup, CacheOptions, GuideCache, SelectionFit, SelectionReport};
+pub use combine::{Combination, CombineOptions, GroupWeight, PassCombiner};
 pub use config::{GuidingConfig, ModelSize, Representation, Target};
 pub use error::GuidingError;
 pub use field::{DecodedDistribution, Distribution, FieldStats, GuidingField, ModelExport};

@@ -234,6 +234,11 @@ fn render_and_compare_end_to_end() {
     assert_eq!(s["stages"]["training"]["steps_after_stop"], 0);
     assert_eq!(s["stages"]["russian_roulette"]["ran"], true);
     assert_eq!(s["stages"]["product_inputs"]["all_materials_diffuse"], true);
+    // A time budget with NEE: the probe ran (its first training pass unguided) and the passes
+    // were weighted.
+    assert_eq!(s["stages"]["training_probe"]["ran"], true, "{s}");
+    assert!(s["stages"]["training_probe"]["passes_guide_off"].as_u64() >= Some(1));
+    assert!(s["stages"]["pass_weights"]["ran"].as_bool().is_some());
     assert!(s["training_samples_used"].as_u64().is_some());
     assert!(s["time_s"]["inference"].as_f64().expect("inference") >= 0.0);
     assert!(exr_b.with_extension("png").exists());

@@ -76,6 +76,19 @@ fn guided(
     render_guided(scene, o, &gopts, &mut g)
 }
 
+/// The small NPM radiance guide of the time-budget tests.
+fn small_npm_radiance(scene: &Scene, config: FieldConfig) -> guiding::GuidingField {
+    build_guide(
+        GuideKind::Npm,
+        Target::Radiance,
+        ModelSize::Small,
+        scene.bounds(),
+        0.5,
+        config,
+    )
+    .expect("guide")
+}
+
 /// Asserts that `img`'s mean agrees with `reference`'s within `Z` combined standard errors,
 /// per channel.
 fn assert_same_mean(label: &str, img: &Image, reference: &Image) {
@@ -402,24 +415,17 @@ fn efficiency_trial_decides_once_and_keeps_the_image_unbiased() {
     let (w, h) = (res(32), res(32));
     let reference = render(&scene, &opts(IntegratorKind::PtNee, 256, w, h, 1, 0));
     let config = FieldConfig::DEFAULT.with_threads(2).with_seed(3);
-    let small_npm = || {
-        build_guide(
-            GuideKind::Npm,
-            Target::Radiance,
-            ModelSize::Small,
-            scene.bounds(),
-            0.5,
-            config,
-        )
-        .expect("guide")
-    };
+    let small_npm = || small_npm_radiance(&scene, config);
     let mut g = small_npm();
     let o = RenderOptions {
         time_budget: Some(std::time::Duration::from_secs(3)),
         ..opts(IntegratorKind::PtNee, 1, w, h, 5, 2)
     };
+    // The training probe (tested in (g)) would often end training on this scene before the
+    // trial.
     let gopts = GuidedOptions {
         train_fraction: 0.3,
+        training_probe: false,
         ..GuidedOptions::default()
     };
     let (img, st) = render_guided(&scene, &o, &gopts, &mut g);
@@ -442,4 +448,96 @@ fn efficiency_trial_decides_once_and_keeps_the_image_unbiased() {
     let o = opts(IntegratorKind::PtNee, 16, w, h, 5, 2);
     let (_, st) = render_guided(&scene, &o, &gopts, &mut g);
     assert!(st.trial.is_none());
+}
+
+/// (f) The inverse-variance combination of passes: with it (the default) a guided render's
+/// stats report a group per training pass plus the steady groups, with shares summing to 1,
+/// and the weighted image stays unbiased (z-test against pt-nee as in (a)); without it no
+/// combination runs and the image is the plain mean of the same passes.
+#[test]
+fn pass_weights_keep_the_image_unbiased() {
+    let scene = load_builtin("cornell-box").unwrap();
+    let (w, h) = (res(32), res(32));
+    let reference = render(&scene, &opts(IntegratorKind::PtNee, 256, w, h, 1, 0));
+    let config = FieldConfig::DEFAULT.with_threads(2).with_seed(4);
+    let o = opts(IntegratorKind::PtNee, 64, w, h, 9, 2);
+    let run = |weight_passes: bool| {
+        let mut g = small_npm_radiance(&scene, config);
+        let gopts = GuidedOptions {
+            train_fraction: 0.3,
+            weight_passes,
+            ..GuidedOptions::default()
+        };
+        render_guided(&scene, &o, &gopts, &mut g)
+    };
+    let (img, st) = run(true);
+    eprintln!("{st}");
+    let weights = st.pass_weights.as_ref().expect("the combination ran");
+    let training_groups = weights
+        .groups
+        .iter()
+        .filter(|g| g.group < host_demo::render::strategy::guided::GROUP_UNGUIDED)
+        .count();
+    assert_eq!(training_groups as u32, st.training_passes);
+    let passes: u32 = weights.groups.iter().map(|g| g.passes).sum();
+    assert_eq!(passes, st.passes);
+    let shares: f64 = weights.groups.iter().map(|g| g.share).sum();
+    assert!((shares - 1.0).abs() < 1e-9, "shares sum to {shares}");
+    assert!(weights.predicted_gain.is_finite() && weights.predicted_gain > 0.0);
+    assert!(img.all_finite());
+    assert_same_mean("weighted passes", &img, &reference);
+    let (plain, st) = run(false);
+    assert!(st.pass_weights.is_none());
+    assert_same_mean("plain mean", &plain, &reference);
+}
+
+/// (g) The training probe: the first training pass of a time-budget render with NEE runs with
+/// the guide off; before pass 4 the best guided training pass is compared with it. Forced to
+/// abandon (threshold 0), training ends there and every later pass runs with the guide off (no
+/// trial); forced to keep (threshold ∞), training runs its course and the trial follows. Both
+/// images stay unbiased (z-test against pt-nee as in (a)); with the probe off there is none.
+#[test]
+fn training_probe_abandons_training_and_keeps_the_image_unbiased() {
+    let scene = load_builtin("cornell-box").unwrap();
+    let (w, h) = (res(32), res(32));
+    let reference = render(&scene, &opts(IntegratorKind::PtNee, 256, w, h, 1, 0));
+    let config = FieldConfig::DEFAULT.with_threads(2).with_seed(5);
+    let o = RenderOptions {
+        time_budget: Some(std::time::Duration::from_secs(3)),
+        ..opts(IntegratorKind::PtNee, 1, w, h, 11, 2)
+    };
+    let run = |training_probe: bool, probe_threshold: f64| {
+        let mut g = small_npm_radiance(&scene, config);
+        let gopts = GuidedOptions {
+            train_fraction: 0.3,
+            training_probe,
+            probe_threshold,
+            ..GuidedOptions::default()
+        };
+        render_guided(&scene, &o, &gopts, &mut g)
+    };
+    let (img, st) = run(true, 0.0);
+    eprintln!("{st}");
+    let probe = st.probe.expect("the probe ran");
+    let v = probe.verdict.expect("a verdict before pass 4");
+    assert_eq!(v.at_pass, 4);
+    assert!(v.abandoned && v.cost_ratio.is_finite() && v.cost_ratio > 0.0);
+    assert_eq!(st.training_passes, 4);
+    assert!(st.trial.is_none());
+    // Pass 0 and every pass from 4 on; passes 1-3 were guided.
+    assert_eq!(probe.passes_guide_off, st.passes - 3);
+    assert_eq!(st.samples_recorded_after_training, 0);
+    assert_same_mean("probe abandoned", &img, &reference);
+
+    let (img, st) = run(true, f64::INFINITY);
+    eprintln!("{st}");
+    let probe = st.probe.expect("the probe ran");
+    assert!(!probe.verdict.expect("a verdict").abandoned);
+    assert_eq!(probe.passes_guide_off, 1);
+    assert!(st.training_passes > 4);
+    assert!(st.trial.is_some());
+    assert_same_mean("probe kept", &img, &reference);
+
+    let (_, st) = run(false, f64::INFINITY);
+    assert!(st.probe.is_none());
 }

@@ -42,13 +42,16 @@ impl Method {
     /// radiance|product (e.g. `npm-product`), optionally followed by suffixes: `-nonee` (the
     /// guided integrator without next-event estimation, the papers' setting, compared with
     /// `pt`), `-nocache` / `-frozen` (`--guide-cache off` / `frozen` instead of the default),
-    /// `-notrial` (`--guide-trial off`: the guide stays on whether it pays or not).
+    /// `-notrial` (`--guide-trial off`: the guide stays on whether it pays or not), `-noweights`
+    /// (`--pass-weights off`: the plain mean of all passes), `-noprobe` (`--training-probe off`).
     pub fn parse(full: &str) -> Result<Self> {
-        const SUFFIXES: [(&str, [&str; 2]); 4] = [
+        const SUFFIXES: [(&str, [&str; 2]); 6] = [
             ("-nonee", ["--nee", "off"]),
             ("-nocache", ["--guide-cache", "off"]),
             ("-frozen", ["--guide-cache", "frozen"]),
             ("-notrial", ["--guide-trial", "off"]),
+            ("-noweights", ["--pass-weights", "off"]),
+            ("-noprobe", ["--training-probe", "off"]),
         ];
         let mut name = full;
         let mut extra: Vec<&str> = Vec::new();

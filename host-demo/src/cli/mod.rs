@@ -211,6 +211,16 @@ enum Cmd {
         /// and switch the guide off for the rest of the render when it does not pay.
         #[arg(long, value_enum, default_value = "on")]
         guide_trial: OnOff,
+        /// Combine the passes with inverse-variance weights (each training pass its own group,
+        /// the guided and the unguided passes after training one each; weights estimated on the
+        /// other half of a checkerboard so the image stays unbiased) instead of the plain mean.
+        #[arg(long, value_enum, default_value = "on")]
+        pass_weights: OnOff,
+        /// With the trial on: render the first training pass with the guide off and, after 3
+        /// guided training passes, end training and keep the guide off when even the best of
+        /// them costs more than 1.25x the unguided pass (relMSE per pass x seconds per pass).
+        #[arg(long, value_enum, default_value = "on")]
+        training_probe: OnOff,
         /// NEE in the guided integrator (default: on when the scene has an emitter NEE can sample).
         #[arg(long, value_enum)]
         nee: Option<OnOff>,

@@ -42,6 +42,8 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         guide_cache_resolution,
         fit_selection,
         guide_trial,
+        pass_weights,
+        training_probe,
         nee,
         device,
         vk_device,
@@ -176,6 +178,8 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
             train_epochs,
             fit_selection: matches!(fit_selection, OnOff::On),
             efficiency_trial: matches!(guide_trial, OnOff::On),
+            weight_passes: matches!(pass_weights, OnOff::On),
+            training_probe: matches!(training_probe, OnOff::On),
             ..GuidedOptions::default()
         };
         let kind = match guide {
@@ -390,6 +394,8 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
                 },
                 "russian_roulette": rr_stage,
                 "efficiency_trial": trial_json(g.trial.as_ref()),
+                "pass_weights": pass_weights_json(g.pass_weights.as_ref()),
+                "training_probe": probe_json(g.probe.as_ref()),
                 "guide_cache": {
                     "ran": g.cache_hits > 0,
                     "mode": g.cache,
@@ -430,6 +436,61 @@ fn trial_json(t: Option<&host_demo::render::TrialStats>) -> serde_json::Value {
             "passes_guide_off": t.passes_guide_off,
         }),
     }
+}
+
+/// The `--stats` entry of the training probe.
+fn probe_json(p: Option<&host_demo::render::ProbeStats>) -> serde_json::Value {
+    let Some(p) = p else {
+        return json!({"ran": false, "reason": "off, or the efficiency trial is off"});
+    };
+    let finite = |x: f64| if x.is_finite() { json!(x) } else { json!(null) };
+    match &p.verdict {
+        None => json!({"ran": true, "finished": false, "passes_guide_off": p.passes_guide_off}),
+        Some(v) => json!({
+            "ran": true,
+            "finished": true,
+            "at_pass": v.at_pass,
+            "abandoned": v.abandoned,
+            "guided_relmse_per_pass": finite(v.guided_variance),
+            "guided_seconds_per_pass": v.guided_seconds,
+            "unguided_relmse_per_pass": finite(v.unguided_variance),
+            "unguided_seconds_per_pass": v.unguided_seconds,
+            "cost_ratio": finite(v.cost_ratio),
+            "passes_guide_off": p.passes_guide_off,
+        }),
+    }
+}
+
+/// The `--stats` entry of the inverse-variance combination of the passes.
+fn pass_weights_json(w: Option<&host_demo::render::PassWeightStats>) -> serde_json::Value {
+    let Some(w) = w else {
+        return json!({"ran": false, "reason": "off, or a single group of passes"});
+    };
+    let finite = |x: f64| if x.is_finite() { json!(x) } else { json!(null) };
+    let groups: Vec<serde_json::Value> = w
+        .groups
+        .iter()
+        .map(|g| {
+            let kind = match g.group {
+                host_demo::render::strategy::guided::GROUP_GUIDED => json!("guided"),
+                host_demo::render::strategy::guided::GROUP_UNGUIDED => json!("unguided"),
+                pass => json!({"training_pass": pass}),
+            };
+            json!({
+                "group": kind,
+                "passes": g.passes,
+                "relmse_per_pass": [finite(g.relative_variance[0]), finite(g.relative_variance[1])],
+                "share": finite(g.share),
+            })
+        })
+        .collect();
+    json!({
+        "ran": true,
+        "fell_back": w.fell_back,
+        "predicted_gain": finite(w.predicted_gain),
+        "seconds": w.seconds,
+        "groups": groups,
+    })
 }
 
 /// True when every material is Lambertian (a `twosided` counts when both its sides are), so

@@ -16,7 +16,8 @@ pub mod wavefront;
 
 pub use image::{Image, RenderStats};
 pub use options::{IntegratorKind, RenderOptions};
-pub use strategy::guided::{CacheMode, GuidedOptions, GuidedStats, TrialStats};
+pub use strategy::guided::{CacheMode, GuidedOptions, GuidedStats, PassWeightStats, TrialStats};
+pub use strategy::probe::{ProbeStats, ProbeVerdict};
 
 use crate::scene::Scene;
 use guiding::GuidingField;

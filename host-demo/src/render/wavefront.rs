@@ -504,8 +504,12 @@ pub fn render_passes<S: Strategy>(
     stats.passes = sched.passes();
     stats.wall = sched.elapsed();
     sched.finish();
-    Ok((
-        finish_image(width, height, stats.passes, &sum, &sum2),
-        stats,
-    ))
+    let mut image = finish_image(width, height, stats.passes, &sum, &sum2);
+    if let Some((pixels, var_of_mean)) = strategy.combined_image() {
+        if pixels.len() == npix && var_of_mean.len() == npix {
+            image.pixels = pixels;
+            image.var_of_mean = var_of_mean;
+        }
+    }
+    Ok((image, stats))
 }

@@ -72,13 +72,14 @@ use crate::render::schedule::Pass;
 use crate::render::strategy::bsdf::sample_bsdf;
 use crate::render::strategy::gpu::GpuGuide;
 use crate::render::strategy::guide::describe;
-use crate::render::strategy::{PassImage, PassSamples, Strategy, VertexStrategy};
+use crate::render::strategy::probe::{self, ProbeStats, ABANDON_RATIO, PROBE_GUIDED_PASSES};
+use crate::render::strategy::{CombinedImage, PassImage, PassSamples, Strategy, VertexStrategy};
 use crate::scene::bsdf::Material;
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
 use guiding::{
-    CacheOptions, DirectionSample, DistributionBatch, GuideCache, GuideTrial, GuidingError,
-    GuidingField, TrialArm, TrialOptions, TrialVerdict,
+    CacheOptions, CombineOptions, DirectionSample, DistributionBatch, GroupWeight, GuideCache,
+    GuideTrial, GuidingError, GuidingField, PassCombiner, TrialArm, TrialOptions, TrialVerdict,
 };
 use guiding_core::model::QueryPoint;
 use guiding_core::sample::TrainingSample;
@@ -132,6 +133,18 @@ pub struct GuidedOptions {
     /// renders without NEE: the unguided arm is then BSDF sampling alone, and on
     /// `builtin:door` its 4 trial passes among 77 were about a quarter of the image's relMSE.
     pub efficiency_trial: bool,
+    /// Combine the passes with inverse-variance weights ([`guiding::PassCombiner`]): each
+    /// training pass is a group of its own (its guide is new), the guided and the unguided
+    /// passes after training are one group each. Off: the plain mean of all passes.
+    pub weight_passes: bool,
+    /// With the efficiency trial on: the [training probe](super::probe) (the first training
+    /// pass unguided, and training abandoned after a few guided passes when they are clearly
+    /// less efficient than it).
+    pub training_probe: bool,
+    /// Test hook, [`ABANDON_RATIO`] in every real render: the probe's threshold (0 forces an
+    /// abandonment, infinity forbids it).
+    #[doc(hidden)]
+    pub probe_threshold: f64,
     /// Test hook, 1 in every real render: factor on the guide pdf inside the continuation's
     /// combined density (≠ 1 is a deliberate sample/pdf mismatch, a biased estimator; the
     /// power check of `tests/unbiased.rs` uses it).
@@ -152,6 +165,9 @@ impl Default for GuidedOptions {
             cache_resolution: CacheOptions::default().resolution,
             fit_selection: true,
             efficiency_trial: true,
+            weight_passes: true,
+            training_probe: true,
+            probe_threshold: ABANDON_RATIO,
             guide_pdf_scale: 1.0,
         }
     }
@@ -218,6 +234,71 @@ pub struct GuidedStats {
     /// The efficiency trial: `None` when it did not run (off, spp budget, or the render ended
     /// before training stopped), else its verdict if it finished.
     pub trial: Option<TrialStats>,
+    /// The inverse-variance combination of the passes, if it ran (more than one group).
+    pub pass_weights: Option<PassWeightStats>,
+    /// The training probe, if it was on.
+    pub probe: Option<ProbeStats>,
+}
+
+/// What the inverse-variance combination of a guided render's passes did.
+#[derive(Clone, Debug, Default)]
+pub struct PassWeightStats {
+    /// Per group: the training passes (one each, by pass index), then the guided and the
+    /// unguided passes after training ([`GROUP_GUIDED`], [`GROUP_UNGUIDED`]).
+    pub groups: Vec<GroupWeight>,
+    /// The weights were unusable and the image is the plain mean.
+    pub fell_back: bool,
+    /// [`guiding::Combination::predicted_gain`]: the weighted image's relMSE over the plain
+    /// mean's, as the weights' own variance estimates predict it.
+    pub predicted_gain: f64,
+    /// Wall seconds of the combination (after the last pass).
+    pub seconds: f64,
+}
+
+/// Group id of the guided passes after training (a training pass's group is its index).
+pub const GROUP_GUIDED: u32 = u32::MAX;
+/// Group id of the passes after training with the guide off.
+pub const GROUP_UNGUIDED: u32 = u32::MAX - 1;
+
+impl std::fmt::Display for PassWeightStats {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (mut train_passes, mut train_share) = (0u32, 0.0f64);
+        let mut train_var = (f64::INFINITY, 0.0f64);
+        let mut rest = String::new();
+        for g in &self.groups {
+            let v = (g.relative_variance[0] + g.relative_variance[1]) / 2.0;
+            let name = match g.group {
+                GROUP_GUIDED => "guided",
+                GROUP_UNGUIDED => "unguided",
+                _ => {
+                    train_passes += g.passes;
+                    train_share += g.share;
+                    train_var = (train_var.0.min(v), train_var.1.max(v));
+                    continue;
+                }
+            };
+            rest.push_str(&format!(
+                ", {} {name} passes {:.1} % (relMSE per pass {v:.3e})",
+                g.passes,
+                100.0 * g.share
+            ));
+        }
+        write!(
+            f,
+            "pass weights: {}; {train_passes} training passes {:.1} % of the image (relMSE per \
+             pass {:.3e} .. {:.3e}){rest}; predicted relMSE {:.3}x the plain mean's, {:.3} s",
+            if self.fell_back {
+                "plain mean (no usable variance estimate)"
+            } else {
+                "inverse variance, weights from the other checkerboard half"
+            },
+            100.0 * train_share,
+            train_var.0,
+            train_var.1,
+            self.predicted_gain,
+            self.seconds
+        )
+    }
 }
 
 /// What the efficiency trial of a guided render did.
@@ -315,6 +396,12 @@ impl std::fmt::Display for GuidedStats {
                 )?,
             }
         }
+        if let Some(w) = &self.pass_weights {
+            writeln!(f, "{w}")?;
+        }
+        if let Some(p) = &self.probe {
+            writeln!(f, "{p}")?;
+        }
         if let Some(p) = self.converged_at_pass {
             writeln!(
                 f,
@@ -356,6 +443,15 @@ pub struct Guided<'g> {
     pass_arm: Option<TrialArm>,
     /// The current pass runs with the guide off (BSDF sampling and NEE only).
     guide_off: bool,
+    /// The inverse-variance combination of the passes (created at the first pass).
+    combiner: Option<PassCombiner>,
+    /// The current pass's group in `combiner` (`None` when neither the weights nor the probe
+    /// need it).
+    pass_group: Option<u32>,
+    /// Tracing seconds of the training passes so far, by pass index (for the probe).
+    training_seconds: Vec<(u32, f64)>,
+    /// The probe abandoned the guide: every pass from then on runs with it off.
+    abandoned: bool,
 }
 
 impl<'g> Guided<'g> {
@@ -408,6 +504,10 @@ impl<'g> Guided<'g> {
             trial_warm: false,
             pass_arm: None,
             guide_off: false,
+            combiner: None,
+            pass_group: None,
+            training_seconds: Vec::new(),
+            abandoned: false,
         }
     }
 
@@ -416,6 +516,10 @@ impl<'g> Guided<'g> {
     fn plan_trial_pass(&mut self) {
         self.pass_arm = None;
         self.guide_off = false;
+        if self.abandoned {
+            self.guide_off = true;
+            return;
+        }
         if !(self.stopped && self.gopts.efficiency_trial) {
             return;
         }
@@ -438,6 +542,35 @@ impl<'g> Guided<'g> {
                 self.guide_off = arm == Some(TrialArm::Unguided);
             }
         }
+    }
+
+    /// The training probe runs: the efficiency trial is on (time budget, NEE) and so is the
+    /// probe.
+    fn probe_on(&self) -> bool {
+        self.gopts.efficiency_trial && self.gopts.training_probe
+    }
+
+    /// The probe's verdict before pass `at_pass`, from the combiner's variance estimates of the
+    /// unguided first pass and the guided training passes since.
+    fn run_probe(&self, at_pass: u32) -> Option<probe::ProbeVerdict> {
+        let c = self.combiner.as_ref()?.combine();
+        let seconds = |pass: u32| {
+            self.training_seconds
+                .iter()
+                .find(|&&(p, _)| p == pass)
+                .map(|&(_, t)| t)
+        };
+        let variance = |g: &GroupWeight| (g.relative_variance[0] + g.relative_variance[1]) / 2.0;
+        let mut unguided = None;
+        let mut guided = Vec::new();
+        for g in &c.groups {
+            match g.group {
+                GROUP_UNGUIDED => unguided = Some((variance(g), seconds(0)?)),
+                GROUP_GUIDED => {}
+                pass => guided.push((variance(g), seconds(pass)?)),
+            }
+        }
+        probe::decide(at_pass, unguided?, &guided, self.gopts.probe_threshold)
     }
 
     /// Brings the cache to the field's current generation and adds the cells of `positions`
@@ -855,18 +988,30 @@ impl<'g> Strategy for Guided<'g> {
     /// Records the training passes until the loss has converged (a plateau); the first pass
     /// that does not record stops training.
     fn begin_pass(&mut self, pass: &Pass) -> bool {
-        let converged = self.gpu.is_none() && self.guide.is_converged();
+        // (Once stopped, by the schedule or the probe, the field counts as converged.)
+        let converged = !self.stopped && self.gpu.is_none() && self.guide.is_converged();
         if pass.train && converged && self.stats.converged_at_pass.is_none() {
             self.stats.converged_at_pass = Some(pass.index);
         }
-        let record = pass.train && !converged;
+        let mut record = pass.train && !converged && !self.stopped;
+        if record && !self.stopped && self.probe_on() && pass.index == 1 + PROBE_GUIDED_PASSES {
+            let verdict = self.run_probe(pass.index);
+            self.stats
+                .probe
+                .get_or_insert_with(ProbeStats::default)
+                .verdict = verdict;
+            if verdict.is_some_and(|v| v.abandoned) {
+                record = false;
+                self.abandoned = true;
+            }
+        }
         if !record && !self.stopped {
             self.guide.stop_training();
             if let Some(d) = self.gpu.as_deref_mut() {
                 d.stop_training();
             }
             self.stopped = true;
-            if self.use_cache {
+            if self.use_cache && !self.abandoned {
                 let samples = std::mem::take(&mut self.last_samples);
                 let points = query_points(&samples);
                 // Only a bug makes this fail (radiance target and resolution checked): the
@@ -891,14 +1036,66 @@ impl<'g> Strategy for Guided<'g> {
         self.stats.training_passes += u32::from(record);
         self.stats.passes_planned_for_training += u32::from(pass.train);
         self.plan_trial_pass();
+        let probe_pass = record && pass.index == 0 && self.probe_on();
+        if probe_pass {
+            // The probe's unguided pass (see the probe module).
+            self.guide_off = true;
+        }
+        if probe_pass || self.abandoned {
+            self.stats
+                .probe
+                .get_or_insert_with(ProbeStats::default)
+                .passes_guide_off += 1;
+        }
+        let probe_pending =
+            self.probe_on() && record && self.stats.probe.is_some_and(|p| p.verdict.is_none());
+        self.pass_group =
+            (self.gopts.weight_passes || probe_pending).then_some(if self.guide_off {
+                GROUP_UNGUIDED
+            } else if record {
+                pass.index.min(GROUP_UNGUIDED - 1)
+            } else {
+                GROUP_GUIDED
+            });
         record
     }
 
     fn wants_pass_image(&self, _: &Pass) -> bool {
-        self.pass_arm.is_some()
+        self.pass_arm.is_some() || self.pass_group.is_some()
     }
 
-    fn observe_pass_image(&mut self, _: &Pass, image: &PassImage<'_>) {
+    fn combined_image(&mut self) -> Option<CombinedImage> {
+        if !self.gopts.weight_passes {
+            return None;
+        }
+        let combiner = self.combiner.as_ref().filter(|c| c.group_count() > 1)?;
+        let t0 = Instant::now();
+        let c = combiner.combine();
+        self.stats.pass_weights = Some(PassWeightStats {
+            predicted_gain: c.predicted_gain(),
+            groups: c.groups,
+            fell_back: c.fell_back,
+            seconds: t0.elapsed().as_secs_f64(),
+        });
+        Some((c.pixels, c.var_of_mean))
+    }
+
+    fn observe_pass_image(&mut self, pass: &Pass, image: &PassImage<'_>) {
+        if !self.stopped && self.probe_on() {
+            self.training_seconds.push((pass.index, image.seconds));
+        }
+        if let Some(group) = self.pass_group {
+            let (w, h) = (image.width as usize, image.height as usize);
+            if self.combiner.is_none() {
+                // Only an empty image fails: the render keeps the plain mean.
+                self.combiner = PassCombiner::new(w, h, CombineOptions::default()).ok();
+            }
+            if let Some(c) = &mut self.combiner {
+                if c.add_pass(group, image.pixels).is_err() {
+                    self.combiner = None;
+                }
+            }
+        }
         let Some(arm) = self.pass_arm else {
             return;
         };

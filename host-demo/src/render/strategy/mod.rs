@@ -25,6 +25,7 @@ pub mod bsdf;
 pub mod gpu;
 pub mod guide;
 pub mod guided;
+pub mod probe;
 
 /// The training samples of a pass (block order), with the MIS-weighted incident radiance of
 /// each ([`guiding::BatchRecorder::mis_radiance`]).
@@ -35,6 +36,10 @@ pub struct PassSamples {
     /// Per sample: the incident radiance with the emission MIS-weighted against NEE.
     pub mis_radiance: Vec<[f32; 3]>,
 }
+
+/// A strategy's own combination of a render's passes: per pixel (row-major) the value and the
+/// variance of that estimate.
+pub type CombinedImage = (Vec<[f32; 3]>, Vec<[f32; 3]>);
 
 /// One pass's image, for a strategy that asked for it ([`Strategy::wants_pass_image`]).
 #[derive(Clone, Copy, Debug)]
@@ -83,6 +88,13 @@ pub trait Strategy: Sync {
     /// The image of a pass it asked for ([`Strategy::wants_pass_image`]); called before
     /// [`Strategy::end_pass`].
     fn observe_pass_image(&mut self, _pass: &Pass, _image: &PassImage<'_>) {}
+
+    /// At the end of the render: the strategy's own combination of the passes it observed
+    /// (pixel values and the variance of each, row-major), replacing the plain mean; `None`
+    /// (the default) keeps the plain mean.
+    fn combined_image(&mut self) -> Option<CombinedImage> {
+        None
+    }
 
     /// Called after each pass with the threads' reports and the pass's training samples
     /// (block order, so deterministic). An error ends the render.
