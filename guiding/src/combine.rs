@@ -68,6 +68,20 @@ impl Default for CombineOptions {
     }
 }
 
+/// Whose pixels give the denominators `m̃` of a half's relative variances.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Denominator {
+    /// The half's own (box filtered): what [`PassCombiner::combine`] uses. With many passes
+    /// per pixel the mean hardly depends on any one of them.
+    SameHalf,
+    /// The other half's, box filtered around the pixel (radius at least 1): independent of the
+    /// pixel's own values. With a few heavy-tailed passes a pixel's mean and its deviations
+    /// come from the same rare large value, and the self-normalised `V` of every group looks
+    /// alike (the trial's negative control in `guiding::trial` shows the same); the training
+    /// probe compares its few passes with this.
+    OtherHalf,
+}
+
 /// What [`PassCombiner::combine`] decided for one group.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GroupWeight {
@@ -275,6 +289,12 @@ impl PassCombiner {
 
     /// The combined image (see the [module docs](self)); the plain mean for a single group.
     pub fn combine(&self) -> Combination {
+        self.combine_with(Denominator::SameHalf)
+    }
+
+    /// [`combine`](Self::combine) with the relative variances' denominators `m̃` taken from
+    /// `denominator`'s pixels.
+    pub fn combine_with(&self, denominator: Denominator) -> Combination {
         let npix = self.width * self.height;
         let total: u32 = self.passes();
         let n = f64::from(total.max(1));
@@ -291,7 +311,7 @@ impl PassCombiner {
             })
             .collect();
         let half = |p: usize| (p % self.width + p / self.width) % 2;
-        let per_half = [0, 1].map(|h| self.half_variance(&mean, h));
+        let per_half = [0, 1].map(|h| self.half_variance(&mean, h, denominator));
         let variance: Vec<[f64; 2]> = (0..self.groups.len())
             .map(|gi| [per_half[0][gi], per_half[1][gi]])
             .collect();
@@ -364,8 +384,8 @@ impl PassCombiner {
     }
 
     /// `V_g` of every group estimated on half `h` (`NaN` for an empty half).
-    fn half_variance(&self, mean: &[[f64; 3]], h: usize) -> Vec<f64> {
-        let weight = self.half_weights(mean, h);
+    fn half_variance(&self, mean: &[[f64; 3]], h: usize, denominator: Denominator) -> Vec<f64> {
+        let weight = self.half_weights(mean, h, denominator);
         let w = self.width;
         let mut acc = vec![0.0f64; self.groups.len()];
         let mut cells = 0usize;
@@ -388,21 +408,25 @@ impl PassCombiner {
             .collect()
     }
 
-    /// `1 / (m̃² + ε)` on half `h` (the box filter of `mean` over that half's pixels alone);
-    /// zero on the other half.
-    fn half_weights(&self, mean: &[[f64; 3]], h: usize) -> Vec<[f64; 3]> {
+    /// `1 / (m̃² + ε)` on half `h` (the box filter of `mean` over the pixels of that half, or
+    /// of the other one with [`Denominator::OtherHalf`]); zero on the other half.
+    fn half_weights(&self, mean: &[[f64; 3]], h: usize, denominator: Denominator) -> Vec<[f64; 3]> {
         let (w, ht) = (self.width, self.height);
         let in_half = |p: usize| (p % w + p / w) % 2 == h;
+        let (source, radius) = match denominator {
+            Denominator::SameHalf => (h, self.options.smoothing_radius as usize),
+            Denominator::OtherHalf => (1 - h, (self.options.smoothing_radius as usize).max(1)),
+        };
         let masked: Vec<[f64; 4]> = (0..w * ht)
             .map(|p| {
-                if in_half(p) {
+                if (p % w + p / w) % 2 == source {
                     [mean[p][0], mean[p][1], mean[p][2], 1.0]
                 } else {
                     [0.0; 4]
                 }
             })
             .collect();
-        let smooth = box_sum(w, ht, &masked, self.options.smoothing_radius as usize);
+        let smooth = box_sum(w, ht, &masked, radius);
         let eps = self.options.epsilon;
         (0..w * ht)
             .map(|p| {

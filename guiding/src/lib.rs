@@ -91,7 +91,7 @@ pub mod trial;
 
 pub use batch::DistributionBatch;
 pub use cache::{CacheLookup, CacheOptions, GuideCache, SelectionFit, SelectionReport};
-pub use combine::{Combination, CombineOptions, GroupWeight, PassCombiner};
+pub use combine::{Combination, CombineOptions, Denominator, GroupWeight, PassCombiner};
 pub use config::{GuidingConfig, ModelSize, Representation, Target};
 pub use error::GuidingError;
 pub use field::{DecodedDistribution, Distribution, FieldStats, GuidingField, ModelExport};

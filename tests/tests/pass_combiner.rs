@@ -4,9 +4,11 @@
 //! beats the plain mean, the cross-half weighting is unbiased where a committed negative
 //! control (the same weights applied to the half they were estimated on) is not, and the cap
 //! at the largest group keeps one-pass groups of a heavy-tailed estimator from being weighted
-//! up (a second negative control runs without the cap).
+//! up (a second negative control runs without the cap), and with a few heavy-tailed passes
+//! only denominators from the other half tell the groups apart (a third control shows the
+//! self-normalised estimates crushing the difference).
 
-use guiding::{Combination, CombineOptions, GuidingError, PassCombiner};
+use guiding::{Combination, CombineOptions, Denominator, GuidingError, PassCombiner};
 use guiding_core::rng::Rng;
 use guiding_tests::chi2::sidak;
 use statrs::distribution::{ContinuousCDF, Normal};
@@ -419,4 +421,64 @@ fn bad_input_is_rejected_and_degenerate_images_fall_back() {
         .all(|v| v.iter().all(|x| x.is_finite())));
     let shares: f64 = out.groups.iter().map(|g| g.share).sum();
     assert!((shares - 1.0).abs() < 1e-9, "shares sum to {shares}");
+}
+
+/// Four passes: one of a firefly estimator (`q = 0.05`), three Gaussian. With denominators from
+/// the other half (independent of a pixel's values), `E[V_g] = E[D_g / n_g] · E[w]` with the same
+/// `w` for both groups, so the ratio of the groups' mean `V` over renders is the ratio of
+/// `E[D_g] / n_g = σ_g² (1 − 2/N) + S/N²` (z-test, delta-method standard error over 300 renders).
+/// Self-normalised (the denominator from the pixel's own mean), a firefly raises its own
+/// denominator and the ratio falls significantly below it: the defect the probe avoids.
+#[test]
+fn other_half_denominators_tell_few_heavy_tailed_passes_apart() {
+    let (w, h, mu) = (32usize, 24usize, 1.0f64);
+    let firefly = Noise::Firefly(0.05);
+    let gauss = Noise::Gauss((firefly.variance(mu) / 4.0).sqrt());
+    let groups = [(0u32, 1u32, firefly), (1, 3, gauss)];
+    let total = 4.0;
+    let s_all = firefly.variance(mu) + 3.0 * gauss.variance(mu);
+    let e_d = |v: f64| v * (1.0 - 2.0 / total) + s_all / (total * total);
+    let expected = e_d(firefly.variance(mu)) / e_d(gauss.variance(mu));
+    let mut rng = Rng::new(0xde70);
+    let trials = 300;
+    let mut v = [[Vec::new(), Vec::new()], [Vec::new(), Vec::new()]];
+    for _ in 0..trials {
+        let (c, _) = render(w, h, mu, &groups, CombineOptions::default(), &mut rng);
+        for (k, d) in [Denominator::OtherHalf, Denominator::SameHalf]
+            .into_iter()
+            .enumerate()
+        {
+            let out = c.combine_with(d);
+            for (g, acc) in out.groups.iter().zip(&mut v[k]) {
+                let r = &g.relative_variance;
+                acc.push((r[0] + r[1]) / 2.0);
+            }
+        }
+    }
+    // Ratio of means and its delta-method standard error.
+    let ratio = |a: &[f64], b: &[f64]| {
+        let n = a.len() as f64;
+        let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
+        let (mut vaa, mut vbb, mut vab) = (0.0, 0.0, 0.0);
+        for (x, y) in a.iter().zip(b) {
+            vaa += (x - ma) * (x - ma) / (n - 1.0);
+            vbb += (y - mb) * (y - mb) / (n - 1.0);
+            vab += (x - ma) * (y - mb) / (n - 1.0);
+        }
+        let r = ma / mb;
+        let var = r * r * (vaa / (ma * ma) + vbb / (mb * mb) - 2.0 * vab / (ma * mb)) / n;
+        (r, var.sqrt())
+    };
+    let (r, se) = ratio(&v[0][0], &v[0][1]);
+    let z = (r - expected) / se;
+    assert!(
+        z.abs() < z_critical(2),
+        "other half: ratio {r} ± {se}, expected {expected} (z {z:.2})"
+    );
+    let (r_self, se_self) = ratio(&v[1][0], &v[1][1]);
+    let z_self = (r_self - expected) / se_self;
+    assert!(
+        z_self < -z_critical_one_sided(2),
+        "the self-normalised control should fall below {expected}: {r_self} ± {se_self}"
+    );
 }

@@ -421,37 +421,58 @@ fn guided_vertex(quick: bool) -> Result<Vec<MicroResult>, guiding::GuidingError>
     Ok(out)
 }
 
-/// Single-core f32 FMA peak measured in this process: twelve independent
-/// 8-lane chains of fused multiply-adds (two FMA pipes × 4 cycles of
-/// latency, with margin), in GFLOP/s (2 flops per lane per FMA). `None`
-/// without AVX2 + FMA.
-fn measured_fma_peak_gflops() -> Option<f64> {
+/// Single-core f32 FMA peak measured in this process: twelve independent chains of fused
+/// multiply-adds (two FMA pipes × 4 cycles of latency, with margin) as wide as the widest
+/// vectors the batched MLP dispatches to (16 lanes with AVX-512F, else 8 with AVX2 + FMA), in
+/// GFLOP/s (2 flops per lane per FMA), with the lane count. `None` without AVX2 + FMA.
+fn measured_fma_peak_gflops() -> Option<(f64, u32)> {
     #[cfg(target_arch = "x86_64")]
     {
-        if !(std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")) {
-            return None;
-        }
         const ITERS: usize = 1 << 22;
-        /// # Safety
-        /// The CPU must support AVX2 and FMA.
-        #[target_feature(enable = "avx2,fma")]
-        unsafe fn chains() -> f32 {
-            let mut acc = [[1.0f32; 8]; 12];
-            let (a, b) = (black_box(0.999_999_9f32), black_box(1e-7f32));
-            for _ in 0..ITERS {
-                for chain in &mut acc {
-                    for x in chain.iter_mut() {
-                        *x = x.mul_add(a, b);
+        /// Twelve chains of `$lanes`-lane FMAs in a function with `$features` enabled (the loop
+        /// must sit in that function for `mul_add` to become one vector FMA per chain).
+        macro_rules! fma_chains {
+            ($name:ident, $features:literal, $lanes:literal) => {
+                /// # Safety
+                /// The CPU must support the enabled features.
+                #[target_feature(enable = $features)]
+                unsafe fn $name() -> f32 {
+                    // 12 chains of $lanes lanes, flat so the compiler keeps one vector
+                    // register per chain.
+                    let mut acc = [1.0f32; 12 * $lanes];
+                    let (a, b) = (black_box(0.999_999_9f32), black_box(1e-7f32));
+                    for _ in 0..ITERS {
+                        for x in acc.iter_mut() {
+                            *x = x.mul_add(a, b);
+                        }
                     }
+                    acc.iter().sum()
                 }
-            }
-            acc.iter().flatten().sum()
+            };
         }
-        // SAFETY: AVX2 and FMA were checked above.
+        fma_chains!(chains16, "avx512f,avx2,fma", 16);
+        fma_chains!(chains8, "avx2,fma", 8);
+        let lanes = if std::is_x86_feature_detected!("avx512f") {
+            16u32
+        } else if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+            8
+        } else {
+            return None;
+        };
         let secs = median_secs(5, || {
-            black_box(unsafe { chains() });
+            // SAFETY: the features were checked above.
+            black_box(unsafe {
+                if lanes == 16 {
+                    chains16()
+                } else {
+                    chains8()
+                }
+            });
         });
-        Some(12.0 * 8.0 * 2.0 * ITERS as f64 / secs * 1e-9)
+        Some((
+            12.0 * f64::from(lanes) * 2.0 * ITERS as f64 / secs * 1e-9,
+            lanes,
+        ))
     }
     #[cfg(not(target_arch = "x86_64"))]
     None
@@ -482,7 +503,9 @@ fn mlp(quick: bool) -> Vec<MicroResult> {
     });
     let peak = measured_fma_peak_gflops();
     let note = match peak {
-        Some(g) => format!("measured 1-core FMA peak {g:.0} GFLOP/s (12 × 8-lane FMA chains)"),
+        Some((g, lanes)) => {
+            format!("measured 1-core FMA peak {g:.0} GFLOP/s (12 × {lanes}-lane FMA chains)")
+        }
         None => "peak unknown (no AVX2 + FMA)".into(),
     };
     let mut out = Vec::new();
@@ -498,7 +521,7 @@ fn mlp(quick: bool) -> Vec<MicroResult> {
             unit: "GFLOP/s (1 thread)",
             ratio: Some(ratio_base / secs),
             note: match peak {
-                Some(g) => format!("{:.0} % of the {note}", 100.0 * gflops / g),
+                Some((g, _)) => format!("{:.0} % of the {note}", 100.0 * gflops / g),
                 None => note.clone(),
             },
         });

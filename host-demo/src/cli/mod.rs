@@ -218,7 +218,7 @@ enum Cmd {
         pass_weights: OnOff,
         /// With the trial on: render the first training pass with the guide off and, after 3
         /// guided training passes, end training and keep the guide off when even the best of
-        /// them costs more than 1.25x the unguided pass (relMSE per pass x seconds per pass).
+        /// them costs more than the unguided pass (relMSE per pass x seconds per pass).
         #[arg(long, value_enum, default_value = "on")]
         training_probe: OnOff,
         /// NEE in the guided integrator (default: on when the scene has an emitter NEE can sample).

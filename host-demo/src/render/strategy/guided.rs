@@ -213,6 +213,9 @@ pub struct GuidedStats {
     pub converged_at_pass: Option<u32>,
     /// Wall time of the rendering passes (includes the guide queries).
     pub trace: Duration,
+    /// Wall time of the whole render (passes, training, cache, the per-pass bookkeeping and
+    /// the final combination).
+    pub wall: Duration,
     /// Thread time spent in guide queries, summed over the render threads.
     pub query: Duration,
     /// Wall time of recording back-propagation + `add_samples` + `update`.
@@ -553,7 +556,10 @@ impl<'g> Guided<'g> {
     /// The probe's verdict before pass `at_pass`, from the combiner's variance estimates of the
     /// unguided first pass and the guided training passes since.
     fn run_probe(&self, at_pass: u32) -> Option<probe::ProbeVerdict> {
-        let c = self.combiner.as_ref()?.combine();
+        let c = self
+            .combiner
+            .as_ref()?
+            .combine_with(guiding::Denominator::OtherHalf);
         let seconds = |pass: u32| {
             self.training_seconds
                 .iter()
@@ -605,6 +611,7 @@ impl<'g> Guided<'g> {
         stats.nee = rs.nee;
         stats.passes = rs.passes;
         stats.trace = rs.trace;
+        stats.wall = rs.wall;
         stats.rays = rs.rays;
         let fs = self.guide.stats();
         stats.training_steps = match &self.gpu {
