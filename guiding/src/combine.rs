@@ -99,6 +99,13 @@ pub struct GroupWeight {
     pub share: f64,
 }
 
+impl GroupWeight {
+    /// `V_g` averaged over the two halves.
+    pub fn mean_relative_variance(&self) -> f64 {
+        (self.relative_variance[0] + self.relative_variance[1]) / 2.0
+    }
+}
+
 /// The combined image and its weights.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Combination {

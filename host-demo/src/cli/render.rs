@@ -393,7 +393,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
                     "loss_history": g.loss_history,
                     "steps": g.training_steps,
                     "steps_after_stop": g.training_steps_after_training,
-                    "last_loss": if g.last_loss.is_finite() { json!(g.last_loss) } else { json!(null) },
+                    "last_loss": finite(g.last_loss),
                 },
                 "russian_roulette": rr_stage,
                 "efficiency_trial": trial_json(g.trial.as_ref()),
@@ -417,12 +417,20 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
     Ok(())
 }
 
+/// A JSON number, or `null` where it is not finite (JSON has no NaN or infinity).
+fn finite(x: f64) -> serde_json::Value {
+    if x.is_finite() {
+        json!(x)
+    } else {
+        json!(null)
+    }
+}
+
 /// The `--stats` entry of the efficiency trial.
 fn trial_json(t: Option<&host_demo::render::TrialStats>) -> serde_json::Value {
     let Some(t) = t else {
         return json!({"ran": false, "reason": "off, an spp budget, or training never stopped"});
     };
-    let finite = |x: f64| if x.is_finite() { json!(x) } else { json!(null) };
     match &t.verdict {
         None => json!({"ran": true, "finished": false, "passes": t.passes}),
         Some(v) => json!({
@@ -446,7 +454,6 @@ fn probe_json(p: Option<&host_demo::render::ProbeStats>) -> serde_json::Value {
     let Some(p) = p else {
         return json!({"ran": false, "reason": "off, or the efficiency trial is off"});
     };
-    let finite = |x: f64| if x.is_finite() { json!(x) } else { json!(null) };
     match &p.verdict {
         None => json!({"ran": true, "finished": false, "passes_guide_off": p.passes_guide_off}),
         Some(v) => json!({
@@ -469,7 +476,6 @@ fn pass_weights_json(w: Option<&host_demo::render::PassWeightStats>) -> serde_js
     let Some(w) = w else {
         return json!({"ran": false, "reason": "off, or a single group of passes"});
     };
-    let finite = |x: f64| if x.is_finite() { json!(x) } else { json!(null) };
     let groups: Vec<serde_json::Value> = w
         .groups
         .iter()

@@ -502,8 +502,6 @@ pub fn render_passes<S: Strategy>(
         strategy.end_pass(&pass, record, reports, samples)?;
     }
     stats.passes = sched.passes();
-    stats.wall = sched.elapsed();
-    sched.finish();
     let mut image = finish_image(width, height, stats.passes, &sum, &sum2);
     if let Some((pixels, var_of_mean)) = strategy.combined_image() {
         if pixels.len() == npix && var_of_mean.len() == npix {
@@ -511,5 +509,8 @@ pub fn render_passes<S: Strategy>(
             image.var_of_mean = var_of_mean;
         }
     }
+    // After the strategy's combination: the render's wall time includes it.
+    stats.wall = sched.elapsed();
+    sched.finish();
     Ok((image, stats))
 }

@@ -269,7 +269,7 @@ impl std::fmt::Display for PassWeightStats {
         let mut train_var = (f64::INFINITY, 0.0f64);
         let mut rest = String::new();
         for g in &self.groups {
-            let v = (g.relative_variance[0] + g.relative_variance[1]) / 2.0;
+            let v = g.mean_relative_variance();
             let name = match g.group {
                 GROUP_GUIDED => "guided",
                 GROUP_UNGUIDED => "unguided",
@@ -451,8 +451,9 @@ pub struct Guided<'g> {
     /// The current pass's group in `combiner` (`None` when neither the weights nor the probe
     /// need it).
     pass_group: Option<u32>,
-    /// Tracing seconds of the training passes so far, by pass index (for the probe).
-    training_seconds: Vec<(u32, f64)>,
+    /// Tracing seconds of the training passes so far, indexed by pass (training passes are
+    /// the first ones; for the probe).
+    training_seconds: Vec<f64>,
     /// The probe abandoned the guide: every pass from then on runs with it off.
     abandoned: bool,
 }
@@ -560,20 +561,15 @@ impl<'g> Guided<'g> {
             .combiner
             .as_ref()?
             .combine_with(guiding::Denominator::OtherHalf);
-        let seconds = |pass: u32| {
-            self.training_seconds
-                .iter()
-                .find(|&&(p, _)| p == pass)
-                .map(|&(_, t)| t)
-        };
-        let variance = |g: &GroupWeight| (g.relative_variance[0] + g.relative_variance[1]) / 2.0;
+        let seconds = |pass: u32| self.training_seconds.get(pass as usize).copied();
         let mut unguided = None;
         let mut guided = Vec::new();
         for g in &c.groups {
+            let v = g.mean_relative_variance();
             match g.group {
-                GROUP_UNGUIDED => unguided = Some((variance(g), seconds(0)?)),
+                GROUP_UNGUIDED => unguided = Some((v, seconds(0)?)),
                 GROUP_GUIDED => {}
-                pass => guided.push((variance(g), seconds(pass)?)),
+                pass => guided.push((v, seconds(pass)?)),
             }
         }
         probe::decide(at_pass, unguided?, &guided, self.gopts.probe_threshold)
@@ -1001,7 +997,7 @@ impl<'g> Strategy for Guided<'g> {
             self.stats.converged_at_pass = Some(pass.index);
         }
         let mut record = pass.train && !converged && !self.stopped;
-        if record && !self.stopped && self.probe_on() && pass.index == 1 + PROBE_GUIDED_PASSES {
+        if record && self.probe_on() && pass.index == 1 + PROBE_GUIDED_PASSES {
             let verdict = self.run_probe(pass.index);
             self.stats
                 .probe
@@ -1088,8 +1084,8 @@ impl<'g> Strategy for Guided<'g> {
     }
 
     fn observe_pass_image(&mut self, pass: &Pass, image: &PassImage<'_>) {
-        if !self.stopped && self.probe_on() {
-            self.training_seconds.push((pass.index, image.seconds));
+        if !self.stopped && self.probe_on() && pass.index as usize == self.training_seconds.len() {
+            self.training_seconds.push(image.seconds);
         }
         if let Some(group) = self.pass_group {
             let (w, h) = (image.width as usize, image.height as usize);
