@@ -405,7 +405,8 @@ fn guided_deterministic_across_threads() {
 }
 
 /// (e) The efficiency trial of a time-budget render: after training and one warm-up pass it
-/// runs 4 guided and 4 unguided passes (2 and 2 in a clear case), and when its verdict is "does not pay" every later
+/// runs 4 guided and 4 unguided passes (2 or 3 of each when the case is clear after that many:
+/// the early verdict is checked whenever both arms have `k ≥ 2` passes), and when its verdict is "does not pay" every later
 /// pass runs with the guide off (each counted in the trial's statistics). The image, whichever the
 /// verdict, stays unbiased (z-test against pt-nee as in (a)). An spp-budget render never
 /// runs it.
@@ -434,8 +435,8 @@ fn efficiency_trial_decides_once_and_keeps_the_image_unbiased() {
     let verdict = trial
         .verdict
         .expect("3 s of a 32 x 32 image finish the trial");
-    // 4 passes per arm, or 2 when the case is clear.
-    assert!([2, 4].contains(&verdict.passes_per_arm));
+    // 4 passes per arm, or 2 or 3 when the case is clear by then (timing decides which).
+    assert!((2..=4).contains(&verdict.passes_per_arm));
     assert_eq!(trial.passes, 2 * verdict.passes_per_arm);
     let after_trial = st.passes - st.training_passes - 1 - trial.passes;
     let expected_off = if verdict.keep_guide { 0 } else { after_trial };
