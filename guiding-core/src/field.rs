@@ -33,10 +33,10 @@
 //! without the clip one huge but valid outlier sample (radiance `10³⁰`)
 //! would stop the whole step. Adam's update is invariant to the gradient's
 //! scale, so the clip only changes how much the outlier step weighs against
-//! its neighbours in the moments. (Within a finite step, [`adam_step`]
+//! its neighbours in the moments. (Within a finite step, [`adam_step`](crate::optim::adam_step)
 //! additionally leaves an element untouched if its own update would
 //! overflow; [`UpdateReport::element_skips`] counts those.) After each
-//! applied step the EMA copy is updated ([`ema_update`], debiased, decay
+//! applied step the EMA copy is updated ([`ema_update`](crate::optim::ema_update), debiased, decay
 //! [`FieldConfig::ema_decay`]); inference always uses the EMA weights. Before
 //! the first step the EMA equals the initial parameters.
 //!
@@ -80,7 +80,7 @@
 
 use crate::lobe::DirectionSample;
 use crate::model::{GuidingModel, QueryPoint};
-use crate::optim::{adam_step, ema_update, AdamConfig};
+use crate::optim::{adam_ema_step, AdamConfig};
 use crate::rng::{shuffle, Rng};
 use crate::sample::{Rejection, TrainingSample, REJECTION_KINDS};
 use core::fmt;
@@ -469,7 +469,7 @@ pub struct UpdateReport {
     pub batch_size: usize,
     /// Mean batch loss over the applied steps (`NaN` if none was applied).
     pub mean_loss: f64,
-    /// Parameter elements that [`adam_step`] left untouched inside applied
+    /// Parameter elements that [`adam_step`](crate::optim::adam_step) left untouched inside applied
     /// steps because their update would not be finite.
     pub element_skips: u64,
     /// Whether training has stopped (after this update, or before it, in
@@ -1216,10 +1216,7 @@ fn train_step<M: GuidingModel + Send + Sync>(
     let adam = &config.adam;
     let decay = config.ema_decay;
     let apply = |p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [f32], e: &mut [f32]| {
-        let skipped = adam_step(p, g, m, v, step, adam);
-        ema_update(e, p, decay, step);
-        g.fill(0.0);
-        skipped as u64
+        adam_ema_step(p, g, m, v, e, step, adam, decay) as u64
     };
     let element_skips = if elem_threads == 1 {
         apply(

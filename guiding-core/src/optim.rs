@@ -321,3 +321,126 @@ pub fn ema_update(ema: &mut [f32], params: &[f32], decay: f32, step: u32) {
         i += 1;
     }
 }
+
+/// Elements per block of [`adam_ema_step`]: the five buffers of one block
+/// (80 KiB) stay in L2 from Adam to the EMA to the zeroing.
+#[cfg(feature = "std")]
+const FUSED_BLOCK: usize = 4096;
+
+/// Lanes of one [`adam_lanes`] call (a multiple of every x86 vector width).
+#[cfg(feature = "std")]
+const FUSED_LANES: usize = 16;
+
+/// [`adam_update_with_factors`] on `FUSED_LANES` elements at once, written
+/// so that the compiler vectorises it: finiteness as `|x| < ∞` (false for
+/// NaN), the commit as a bit mask. Returns the number of skipped elements.
+#[cfg(feature = "std")]
+#[inline(always)]
+fn adam_lanes(
+    p: &mut [f32; FUSED_LANES],
+    g: &[f32; FUSED_LANES],
+    m: &mut [f32; FUSED_LANES],
+    v: &mut [f32; FUSED_LANES],
+    cfg: &AdamConfig,
+    f: &AdamStepFactors,
+) -> u32 {
+    let mut skipped = 0u32;
+    for l in 0..FUSED_LANES {
+        let grad = g[l];
+        let gl = grad + cfg.l2_regularization * p[l];
+        let m_new = cfg.beta1 * m[l] + (1.0 - cfg.beta1) * gl;
+        let v_new = cfg.beta2 * v[l] + (1.0 - cfg.beta2) * (gl * gl);
+        let m_hat = m_new / f.bias_correction1;
+        let v_hat = v_new / f.bias_correction2;
+        let p_new = p[l] - cfg.learning_rate * m_hat / (v_hat.sqrt() + cfg.epsilon);
+        let ok = (grad.abs() < f32::INFINITY)
+            & (p_new.abs() < f32::INFINITY)
+            & (m_new.abs() < f32::INFINITY)
+            & (v_new.abs() < f32::INFINITY);
+        let keep = u32::from(ok).wrapping_neg();
+        let pick =
+            |new: f32, old: f32| f32::from_bits((new.to_bits() & keep) | (old.to_bits() & !keep));
+        p[l] = pick(p_new, p[l]);
+        m[l] = pick(m_new, m[l]);
+        v[l] = pick(v_new, v[l]);
+        skipped += 1 - u32::from(ok);
+    }
+    skipped
+}
+
+/// One whole optimiser step of the CPU runtime, fused: [`adam_step`] on
+/// `params`, `m`, `v` with `grads`, then [`ema_update`] of `ema` towards the
+/// new `params` with `ema_decay`, then `grads` zeroed — the three passes done
+/// block by block, so each block is read from memory once. Returns how many
+/// elements Adam skipped (as [`adam_step`]).
+///
+/// Every result is bit for bit that of [`adam_update_with_factors`] and
+/// [`ema_update_element`]: the same operations in the same order (Rust never
+/// contracts them into fused multiply-adds), with the element's commit
+/// written as a bit mask instead of a branch and `f32::sqrt` (correctly
+/// rounded, as `libm::sqrtf`), so that the loop vectorises.
+///
+/// # Panics
+/// If `grads`, `m`, `v` or `ema` is shorter than `params`.
+#[cfg(feature = "std")]
+#[allow(clippy::too_many_arguments)] // the optimiser's five buffers and its settings
+pub fn adam_ema_step(
+    params: &mut [f32],
+    grads: &mut [f32],
+    m: &mut [f32],
+    v: &mut [f32],
+    ema: &mut [f32],
+    step: u32,
+    cfg: &AdamConfig,
+    ema_decay: f32,
+) -> usize {
+    let n = params.len();
+    let (grads, m, v, ema) = (&mut grads[..n], &mut m[..n], &mut v[..n], &mut ema[..n]);
+    let f = AdamStepFactors::new(step, cfg);
+    let alpha = ema_weight(ema_decay, step);
+    let mut skipped = 0usize;
+    let mut start = 0;
+    while start < n {
+        let end = (start + FUSED_BLOCK).min(n);
+        let p = &mut params[start..end];
+        let g = &mut grads[start..end];
+        let mb = &mut m[start..end];
+        let vb = &mut v[start..end];
+        let lanes = p.len() / FUSED_LANES * FUSED_LANES;
+        let mut k = 0;
+        while k < lanes {
+            let r = k..k + FUSED_LANES;
+            skipped += adam_lanes(
+                (&mut p[r.clone()])
+                    .try_into()
+                    .unwrap_or_else(|_| unreachable!()),
+                (&g[r.clone()])
+                    .try_into()
+                    .unwrap_or_else(|_| unreachable!()),
+                (&mut mb[r.clone()])
+                    .try_into()
+                    .unwrap_or_else(|_| unreachable!()),
+                (&mut vb[r]).try_into().unwrap_or_else(|_| unreachable!()),
+                cfg,
+                &f,
+            ) as usize;
+            k += FUSED_LANES;
+        }
+        for i in lanes..p.len() {
+            skipped += usize::from(!adam_update_with_factors(
+                &mut p[i], &mut mb[i], &mut vb[i], g[i], cfg, &f,
+            ));
+        }
+        let e = &mut ema[start..end];
+        if alpha >= 1.0 {
+            e.copy_from_slice(p);
+        } else {
+            for (e, p) in e.iter_mut().zip(p.iter()) {
+                *e = (1.0 - alpha) * *e + alpha * *p;
+            }
+        }
+        g.fill(0.0);
+        start = end;
+    }
+    skipped
+}

@@ -6,13 +6,15 @@
 
 use glam::{DVec3, Vec3};
 use guiding_core::encoding::frequency::frequency_width;
+use guiding_core::encoding::grid::grid_forward_fast;
 use guiding_core::encoding::grid::{grid_init_value, GRID_INIT_SCALE};
 use guiding_core::encoding::one_blob::ONE_BLOB_DEFAULT_BINS;
 use guiding_core::encoding::spherical_harmonics::sh_width;
 use guiding_core::encoding::triangle_wave::TRIANGLE_WAVE_DF_FREQUENCIES;
 use guiding_core::encoding::{
-    frequency_encode, grid_backward, grid_corners, grid_forward, grid_init, one_blob_encode,
-    sh_encode, triangle_wave_backward, triangle_wave_encode, GridConfig,
+    frequency_encode, grid_backward, grid_backward_traced, grid_corners, grid_forward,
+    grid_forward_traced, grid_init, one_blob_encode, one_blob_encode4, sh_encode,
+    triangle_wave_backward, triangle_wave_encode, GridConfig, GridTrace, GRID_TRACE_LEVELS,
 };
 use guiding_tests::chi2::Warp;
 use guiding_tests::gradcheck::{central_difference, GradientErrors};
@@ -1126,5 +1128,117 @@ proptest! {
         prop_assert!(g.is_finite());
         frequency_encode(&[x, -x, 0.5 * x], k, &mut out, off);
         prop_assert!(out.iter().all(|v| (-1.0..=1.0).contains(v)));
+    }
+}
+
+// ---------------------------------------------------------------------------
+// CPU fast paths of the batched training: bit-identical to the kernels.
+
+/// `one_blob_encode4` (all 16 kernels in one vectorisable loop) writes what
+/// four `one_blob_encode(x, 4, ..)` calls write, bit for bit: for values
+/// inside, outside and at the ends of `[0, 1]`, ±∞ and NaN, and for offsets
+/// where the output array cuts the encoding short.
+#[test]
+fn one_blob_encode4_equals_four_single_encodings() {
+    let mut rng = Pcg32::new(5, 12);
+    let specials = [
+        0.0,
+        1.0,
+        -0.0,
+        -3.0,
+        7.5,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        f32::NAN,
+    ];
+    for case in 0..200 {
+        let xs: [f32; 4] = core::array::from_fn(|k| {
+            if case % 4 == 0 {
+                specials[(case / 4 + 3 * k) % specials.len()]
+            } else {
+                rng.uniform(-0.25, 1.25)
+            }
+        });
+        for offset in [0usize, 3, 10, 17, 30] {
+            let mut a = [-1.0f32; 26];
+            let mut b = [-1.0f32; 26];
+            let end = one_blob_encode4(&xs, &mut a, offset);
+            let mut o = offset;
+            for &x in &xs {
+                o = one_blob_encode(x, 4, &mut b, o);
+            }
+            assert_eq!(end, o, "{xs:?} at {offset}");
+            let (ab, bb): (Vec<u32>, Vec<u32>) = (
+                a.iter().map(|v| v.to_bits()).collect(),
+                b.iter().map(|v| v.to_bits()).collect(),
+            );
+            assert_eq!(ab, bb, "{xs:?} at {offset}");
+        }
+    }
+}
+
+/// `grid_forward_traced` gives `grid_forward_fast`'s outputs bit for bit and
+/// `grid_backward_traced` from its trace gives `grid_backward`'s gradient bit
+/// for bit (accumulated over many positions into one buffer, as a training
+/// chunk does); grids it cannot trace (2 features, more levels than a trace
+/// holds, a parameter buffer that ends inside the grid) record nothing and
+/// still agree.
+#[test]
+fn traced_grid_passes_equal_the_kernels() {
+    let traced = GridConfig::new(NPM_BOX_MIN, NPM_BOX_MAX, 4, 4, 2.0, 4).with_offset(7);
+    let cases = [
+        (traced, true, 0usize),
+        (traced.with_smoothstep(true), true, 0),
+        (dyadic_config(), false, 0),
+        (
+            GridConfig::new(
+                NPM_BOX_MIN,
+                NPM_BOX_MAX,
+                GRID_TRACE_LEVELS as u32 + 1,
+                2,
+                1.3,
+                4,
+            ),
+            false,
+            0,
+        ),
+        (traced, false, 5),
+    ];
+    let mut rng = Pcg32::new(77, 3);
+    for (case, &(cfg, records, short)) in cases.iter().enumerate() {
+        let len = cfg.offset as usize + cfg.param_count();
+        let params = random_params(&mut rng, len - short);
+        let mut grad_traced = vec![0.0f32; len + 3];
+        let mut grad_kernel = grad_traced.clone();
+        for _ in 0..300 {
+            let x = random_position(&mut rng, &cfg, 0.1);
+            let mut a = [0.0f32; 64];
+            let mut b = [0.0f32; 64];
+            let mut trace = GridTrace::EMPTY;
+            let end = grid_forward_traced(&params, &cfg, x, &mut a, 2, &mut trace);
+            assert_eq!(
+                end,
+                grid_forward_fast(&params, &cfg, x, &mut b, 2),
+                "case {case}"
+            );
+            assert_eq!(
+                a.map(f32::to_bits),
+                b.map(f32::to_bits),
+                "case {case}: forward"
+            );
+            assert_eq!(trace.levels() > 0, records, "case {case}: recorded");
+            let d: [f32; 64] = core::array::from_fn(|_| rng.uniform(-1.0, 1.0));
+            grid_backward_traced(&cfg, x, &trace, &d, 2, &mut grad_traced);
+            grid_backward(&cfg, x, &d, 2, &mut grad_kernel[..]);
+        }
+        let (gt, gk): (Vec<u32>, Vec<u32>) = (
+            grad_traced.iter().map(|v| v.to_bits()).collect(),
+            grad_kernel.iter().map(|v| v.to_bits()).collect(),
+        );
+        assert_eq!(gt, gk, "case {case}: backward");
+        assert!(
+            grad_kernel.iter().any(|&g| g != 0.0),
+            "case {case}: gradient written"
+        );
     }
 }

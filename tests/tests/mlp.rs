@@ -30,7 +30,8 @@
 
 use guiding_core::mlp::{BatchKernel, Mlp, MlpContext, OUTPUT_INIT_SCALE};
 use guiding_core::optim::{
-    adam_step, adam_update, all_finite, ema_update, ema_weight, powi, AdamConfig, AdamStepFactors,
+    adam_ema_step, adam_step, adam_update, adam_update_with_factors, all_finite, ema_update,
+    ema_update_element, ema_weight, powi, AdamConfig, AdamStepFactors,
 };
 use guiding_core::rng::{hash2, pcg_hash, symmetric_unit_f32, uniform_at, unit_f32, Rng};
 use guiding_tests::gradcheck::{central_difference, GradientErrors};
@@ -1379,6 +1380,61 @@ fn adam_update_equals_adam_step() {
     assert_eq!(AdamConfig::default(), AdamConfig::DEFAULT);
     assert_eq!(AdamConfig::DEFAULT.beta2, 0.99);
     assert_eq!(AdamConfig::DEFAULT.epsilon, 1e-15);
+}
+
+/// The fused CPU step (`adam_ema_step`: vectorised Adam, EMA and zeroing,
+/// block by block) equals the per-element kernels bit for bit: over a
+/// length that is neither a multiple of the lane count nor of the block,
+/// at step 1 (EMA weight 1: a copy) and later steps, with non-finite
+/// gradients and an element whose update overflows (both skipped and
+/// counted, exactly as `adam_update_with_factors` skips them).
+#[test]
+fn fused_adam_ema_step_equals_the_per_element_kernels() {
+    let cfg = AdamConfig::DEFAULT
+        .with_learning_rate(3e-2)
+        .with_l2_regularization(1e-4);
+    let decay = 0.95;
+    let mut rng = Pcg32::new(21, 4);
+    let n = 2 * 4096 + 37;
+    let mut p: Vec<f32> = (0..n).map(|_| rng.uniform(-1.0, 1.0)).collect();
+    let (mut m, mut v, mut e) = (vec![0.0f32; n], vec![0.0f32; n], p.clone());
+    let (mut p2, mut m2, mut v2, mut e2) = (p.clone(), m.clone(), v.clone(), e.clone());
+    for t in 1..=6u32 {
+        let mut g: Vec<f32> = (0..n).map(|_| rng.uniform(-2.0, 2.0)).collect();
+        let bad = [
+            (3, f32::NAN),
+            (4100, f32::INFINITY),
+            (n - 1, f32::NEG_INFINITY),
+        ];
+        for &(i, x) in &bad {
+            g[i] = x;
+        }
+        // Finite, but g² overflows: v would be ∞, so the element is skipped.
+        g[17] = 3e19;
+        let mut expected_skips = 0;
+        let f = AdamStepFactors::new(t, &cfg);
+        let alpha = ema_weight(decay, t);
+        for i in 0..n {
+            if !adam_update_with_factors(&mut p2[i], &mut m2[i], &mut v2[i], g[i], &cfg, &f) {
+                expected_skips += 1;
+            }
+            ema_update_element(&mut e2[i], p2[i], alpha);
+        }
+        let skipped = adam_ema_step(&mut p, &mut g, &mut m, &mut v, &mut e, t, &cfg, decay);
+        assert_eq!(skipped, expected_skips, "step {t}");
+        assert_eq!(skipped, bad.len() + 1, "step {t}");
+        assert!(g.iter().all(|&x| x.to_bits() == 0), "gradient zeroed");
+        assert_same(&format!("params, step {t}"), &p, &p2);
+        assert_same(&format!("m, step {t}"), &m, &m2);
+        assert_same(&format!("v, step {t}"), &v, &v2);
+        assert_same(&format!("ema, step {t}"), &e, &e2);
+    }
+    assert!(p
+        .iter()
+        .chain(&m)
+        .chain(&v)
+        .chain(&e)
+        .all(|x| x.is_finite()));
 }
 
 /// Square-and-multiply: relative error ≤ `t u` (squaring doubles it), × 2.

@@ -433,6 +433,125 @@ pub fn grid_forward<const N: usize>(
     out_offset.wrapping_add(levels * f)
 }
 
+/// Most levels a [`GridTrace`] records (grids with more take the untraced
+/// path).
+#[cfg(feature = "std")]
+pub const GRID_TRACE_LEVELS: usize = 8;
+
+/// One query's cell corners at every level, recorded by
+/// [`grid_forward_traced`] so that [`grid_backward_traced`] scatters the
+/// gradient without locating the cells again (the batched training path,
+/// `std`). `levels == 0` means nothing was recorded.
+#[cfg(feature = "std")]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GridTrace {
+    /// Absolute index of feature 0 of each corner, per level.
+    index: [[u32; 8]; GRID_TRACE_LEVELS],
+    /// Weight of each corner, per level.
+    weight: [[f32; 8]; GRID_TRACE_LEVELS],
+    /// Levels recorded (0: none, the backward pass locates the cells).
+    levels: u32,
+}
+
+#[cfg(feature = "std")]
+impl GridTrace {
+    /// A trace with nothing recorded.
+    pub const EMPTY: Self = Self {
+        index: [[0; 8]; GRID_TRACE_LEVELS],
+        weight: [[0.0; 8]; GRID_TRACE_LEVELS],
+        levels: 0,
+    };
+
+    /// Levels recorded (0 when the forward pass took the untraced path).
+    #[must_use]
+    pub const fn levels(&self) -> usize {
+        self.levels as usize
+    }
+}
+
+/// Whether [`grid_forward_traced`] can record `cfg` for a buffer of
+/// `len` floats: 4 features, at most [`GRID_TRACE_LEVELS`] levels, the whole
+/// grid inside the buffer and its indices below `2³²`.
+#[cfg(feature = "std")]
+fn traceable(cfg: &GridConfig, len: usize) -> bool {
+    let end = (cfg.offset as usize).checked_add(cfg.param_count());
+    cfg.feature_count() == 4
+        && cfg.level_count() <= GRID_TRACE_LEVELS
+        && matches!(end, Some(e) if e <= len && e <= u32::MAX as usize)
+}
+
+/// [`grid_forward_fast`] that also records each level's corners in
+/// `trace` (bit-identical outputs: the same corners, the same sums). When
+/// the grid is not traceable (more than [`GRID_TRACE_LEVELS`] levels, not 4
+/// features, a buffer too short or above `2³²` floats) or the outputs do not
+/// fit `out`, nothing is recorded (`trace.levels() == 0`) and the result
+/// is [`grid_forward_fast`]'s.
+#[cfg(feature = "std")]
+pub fn grid_forward_traced<const N: usize>(
+    params: &[f32],
+    cfg: &GridConfig,
+    position: Vec3,
+    out: &mut [f32; N],
+    out_offset: usize,
+    trace: &mut GridTrace,
+) -> usize {
+    const F: usize = 4;
+    let levels = cfg.level_count();
+    trace.levels = 0;
+    if !traceable(cfg, params.len()) || out_offset + levels * F > N {
+        return grid_forward_fast(params, cfg, position, out, out_offset);
+    }
+    let end = forward4(params, cfg, position, out, out_offset, |l, c, i, w| {
+        // In range: the whole grid ends below 2³² (`traceable`).
+        trace.index[l][c] = i as u32;
+        trace.weight[l][c] = w;
+    });
+    trace.levels = levels as u32;
+    end
+}
+
+/// [`grid_backward`] from the corners [`grid_forward_traced`] recorded for
+/// the same `cfg` and `position`: the same additions `grad[i] += w·d` (each
+/// gradient element gets at most one per query and level, so their order
+/// within a query cannot change a bit), without locating the cells again.
+/// Falls back to [`grid_backward`] when `trace` recorded nothing or the
+/// grid does not lie inside `grad`.
+#[cfg(feature = "std")]
+pub fn grid_backward_traced<const N: usize>(
+    cfg: &GridConfig,
+    position: Vec3,
+    trace: &GridTrace,
+    d_out: &[f32; N],
+    d_out_offset: usize,
+    grad: &mut [f32],
+) {
+    const F: usize = 4;
+    let levels = trace.levels();
+    if levels == 0
+        || levels != cfg.level_count()
+        || !traceable(cfg, grad.len())
+        || d_out_offset + levels * F > N
+    {
+        grid_backward(cfg, position, d_out, d_out_offset, grad);
+        return;
+    }
+    for l in 0..levels {
+        let d: &[f32; F] = d_out[d_out_offset + l * F..d_out_offset + (l + 1) * F]
+            .try_into()
+            .unwrap_or_else(|_| unreachable!());
+        for c in 0..8 {
+            let i = trace.index[l][c] as usize;
+            let w = trace.weight[l][c];
+            let g: &mut [f32; F] = (&mut grad[i..i + F])
+                .try_into()
+                .unwrap_or_else(|_| unreachable!());
+            for k in 0..F {
+                g[k] += w * d[k];
+            }
+        }
+    }
+}
+
 /// [`grid_forward`] for grids of 4 features whose whole parameter region
 /// lies inside `params` (checked once here, instead of per element): the
 /// four features of a corner are read as one `[f32; 4]` and the corners
@@ -455,6 +574,24 @@ pub fn grid_forward_fast<const N: usize>(
     if cfg.feature_count() != F || !fits || out_offset + levels * F > N {
         return grid_forward(params, cfg, position, out, out_offset);
     }
+    forward4(params, cfg, position, out, out_offset, |_, _, _, _| {})
+}
+
+/// The loop of [`grid_forward_fast`] (its checks done by the caller:
+/// 4 features, the grid inside `params`, the outputs inside `out`), telling
+/// `corner(level, c, index, weight)` each corner it reads.
+#[cfg(feature = "std")]
+#[inline(always)]
+fn forward4<const N: usize>(
+    params: &[f32],
+    cfg: &GridConfig,
+    position: Vec3,
+    out: &mut [f32; N],
+    out_offset: usize,
+    mut corner: impl FnMut(usize, usize, usize, f32),
+) -> usize {
+    const F: usize = 4;
+    let levels = cfg.level_count();
     let u = unit_position(cfg, position);
     let smooth = cfg.smoothstep != 0;
     let mut base = cfg.offset as usize;
@@ -472,6 +609,7 @@ pub fn grid_forward_fast<const N: usize>(
             for k in 0..F {
                 acc[k] += w * theta[k];
             }
+            corner(l, c, i, w);
         }
         let o = out_offset + l * F;
         out[o..o + F].copy_from_slice(&acc);

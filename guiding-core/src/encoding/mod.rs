@@ -38,7 +38,9 @@ pub use frequency::frequency_encode;
 pub use grid::{
     grid_backward, grid_corners, grid_forward, grid_init, grid_init_value, GridConfig, GridCorners,
 };
-pub use one_blob::one_blob_encode;
+#[cfg(feature = "std")]
+pub use grid::{grid_backward_traced, grid_forward_traced, GridTrace, GRID_TRACE_LEVELS};
+pub use one_blob::{one_blob_encode, one_blob_encode4};
 pub use spherical_harmonics::sh_encode;
 pub use triangle_wave::{triangle_wave_backward, triangle_wave_encode};
 

@@ -49,7 +49,7 @@
 
 use crate::encoding::grid::{GRID_MAX_FEATURES, GRID_MAX_LEVELS, GRID_MAX_RESOLUTION};
 use crate::encoding::GridConfig;
-use crate::encoding::{grid_backward, grid_forward, grid_init, one_blob_encode, sh_encode};
+use crate::encoding::{grid_backward, grid_forward, grid_init, one_blob_encode4, sh_encode};
 use crate::gradient::GradientSink;
 use crate::lobe::DirectionSample;
 use crate::loss::{kl_weight, Target};
@@ -71,7 +71,7 @@ pub const NPM_DEFAULT_SELECTION_PROBABILITY: f32 = 0.5;
 /// Spherical-harmonics degree (bands) of `ωo` in the product inputs: 16 values.
 pub const PRODUCT_SH_DEGREE: u32 = 4;
 /// One-blob bins of each normal component and of the roughness.
-pub const PRODUCT_ONE_BLOB_BINS: u32 = 4;
+pub const PRODUCT_ONE_BLOB_BINS: u32 = crate::encoding::one_blob::ONE_BLOB_FIXED_BINS as u32;
 /// Width of the product inputs appended after the grid features:
 /// `16 (SH of ωo) + 3 × 4 (normal) + 4 (roughness) = 32`.
 pub const PRODUCT_INPUT_DIMS: usize = 32;
@@ -189,6 +189,22 @@ pub fn encode_inputs_fast<const N: usize>(
     encode_product_inputs(target, query, out, o)
 }
 
+/// [`encode_inputs_fast`] that also records the grid's corners in `trace`
+/// for [`crate::encoding::grid_backward_traced`] (the batched gradient).
+#[cfg(feature = "std")]
+pub fn encode_inputs_traced<const N: usize>(
+    params: &[f32],
+    grid: &GridConfig,
+    target: u32,
+    query: &QueryPoint,
+    out: &mut [f32; N],
+    trace: &mut crate::encoding::GridTrace,
+) -> usize {
+    let o =
+        crate::encoding::grid::grid_forward_traced(params, grid, query.position(), out, 0, trace);
+    encode_product_inputs(target, query, out, o)
+}
+
 /// The product inputs of [`encode_inputs`] from `out[o]` on (nothing for the
 /// radiance target); returns the end offset.
 #[inline]
@@ -200,12 +216,16 @@ fn encode_product_inputs<const N: usize>(
 ) -> usize {
     if target != 0 {
         o = sh_encode(Vec3::from_array(query.wo), PRODUCT_SH_DEGREE, out, o);
-        let mut c = 0;
-        while c < 3 {
-            o = one_blob_encode(0.5 * query.normal[c] + 0.5, PRODUCT_ONE_BLOB_BINS, out, o);
-            c += 1;
-        }
-        o = one_blob_encode(query.roughness, PRODUCT_ONE_BLOB_BINS, out, o);
+        // The normal's components mapped from [−1, 1] to [0, 1], then the
+        // roughness: 4 one-blob bins each, in one vectorisable loop.
+        let n = query.normal;
+        let scalars = [
+            0.5 * n[0] + 0.5,
+            0.5 * n[1] + 0.5,
+            0.5 * n[2] + 0.5,
+            query.roughness,
+        ];
+        o = one_blob_encode4(&scalars, out, o);
     }
     o
 }

@@ -24,19 +24,21 @@
 //! multiply-adds, another summation order); see [`crate::mlp`] for the bound.
 //! Everything else (encodings, decoders, losses) is the per-query code.
 //!
-//! Chunks live in stack arrays (no allocation): `WAVEFRONT_CHUNK · IN` inputs,
-//! `WAVEFRONT_CHUNK · OUT` outputs and, for training,
-//! `TRAIN_CHUNK · HIDDEN · WIDTH` activations (at most 64 KiB for the paper
-//! NASG network, 4 × 128).
+//! Decode chunks live in stack arrays (no allocation): `WAVEFRONT_CHUNK · IN`
+//! inputs and `WAVEFRONT_CHUNK · OUT` outputs. A gradient call allocates its
+//! chunk buffers once (`TRAIN_CHUNK` rows of inputs, outputs, gradients and
+//! `HIDDEN · WIDTH` activations: 256 KiB for the paper NASG network, 4 × 128)
+//! and reuses them for every chunk of the batch.
 
 use super::df::{Df, DF_CONDITIONAL_BINS, DF_MARGINAL_BINS};
 use super::nasg::{Nasg, NASG_LOBES, NASG_OUTPUTS, NASG_SELECTION_OUTPUT};
 use super::npm::{
-    all_finite, encode_inputs_fast, join_rows, split_rows, Npm, NPM_LOBES, NPM_OUTPUTS,
+    all_finite, encode_inputs_fast, encode_inputs_traced, join_rows, split_rows, Npm, NPM_LOBES,
+    NPM_OUTPUTS,
 };
 use super::vmf_gradient::grad_log_pdf_vmf_batch;
 use super::{GuidingModel, QueryPoint};
-use crate::encoding::grid_backward;
+use crate::encoding::{grid_backward_traced, GridTrace};
 use crate::factorised::{self, direction_from_square, square_from_direction};
 use crate::lobe::DirectionSample;
 use crate::loss::{kl_weight, nasg_mis_loss};
@@ -48,13 +50,21 @@ use crate::pdf1d::{Boundary, Pdf1d};
 use crate::sample::TrainingSample;
 use bytemuck::{Pod, Zeroable};
 use glam::{Vec2, Vec3};
+use std::vec;
 
 /// Queries per chunk of a batched decode (inputs and outputs of one chunk
 /// stay in L1).
 pub const WAVEFRONT_CHUNK: usize = 64;
 
-/// Samples per chunk of a batched gradient.
-pub const TRAIN_CHUNK: usize = 32;
+/// Samples per chunk of a batched gradient. Each chunk pays a fixed cost in
+/// the batched MLP (the weights packed for the SIMD kernel, the gradient
+/// loaded into and saved from its padded accumulators: about 4 passes over
+/// the network's parameters), which a chunk of 32 samples could not amortise.
+/// Measured with one thread (NPM / NASG / DF-L compact product, samples per
+/// second): 32 → 593 k / 205 k / 393 k, 64 → 625 k / 199 k / 412 k,
+/// 128 → 895 k / 212 k / 456 k, 256 → 930 k / 197 k / 330 k (larger chunks
+/// leave L2).
+pub const TRAIN_CHUNK: usize = 128;
 
 /// Largest DF base input (`[grid | product inputs]`) a [`DfVertex`] holds:
 /// 64, the paper product model's `IN_M`.
@@ -225,6 +235,7 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Npm<IN, WIDTH, HI
 /// output gradient (into a zeroed row) and loss, so a model can vectorise
 /// its loss over the chunk.
 #[allow(clippy::too_many_arguments)] // the model's layout plus the loss
+#[allow(clippy::useless_vec)] // chunk buffers on the heap: too large for a worker's stack
 fn mixture_gradient_batch<const IN: usize, const W: usize, const OUT: usize, const H: usize>(
     params: &[f32],
     grid: &crate::encoding::GridConfig,
@@ -235,14 +246,15 @@ fn mixture_gradient_batch<const IN: usize, const W: usize, const OUT: usize, con
     output_grads: impl Fn(&[TrainingSample], &[usize], &[[f32; OUT]], &mut [[f32; OUT]], &mut [f32]),
 ) -> f64 {
     let t = super::npm::target_from_code(target);
-    let mut xs = [[0.0f32; IN]; TRAIN_CHUNK];
-    let mut ys = [[0.0f32; OUT]; TRAIN_CHUNK];
-    let mut dys = [[0.0f32; OUT]; TRAIN_CHUNK];
-    let mut dxs = [[0.0f32; IN]; TRAIN_CHUNK];
-    let mut ctxs = [MlpContext::<W, H>::ZERO; TRAIN_CHUNK];
-    let mut live = [0usize; TRAIN_CHUNK];
-    let mut losses = [0.0f32; TRAIN_CHUNK];
-    let mut ok = [false; TRAIN_CHUNK];
+    let mut xs = vec![[0.0f32; IN]; TRAIN_CHUNK];
+    let mut ys = vec![[0.0f32; OUT]; TRAIN_CHUNK];
+    let mut dys = vec![[0.0f32; OUT]; TRAIN_CHUNK];
+    let mut dxs = vec![[0.0f32; IN]; TRAIN_CHUNK];
+    let mut ctxs = vec![MlpContext::<W, H>::ZERO; TRAIN_CHUNK];
+    let mut live = vec![0usize; TRAIN_CHUNK];
+    let mut losses = vec![0.0f32; TRAIN_CHUNK];
+    let mut ok = vec![false; TRAIN_CHUNK];
+    let mut traces = vec![GridTrace::EMPTY; TRAIN_CHUNK];
     let mut total = 0.0f64;
     for chunk in samples.chunks(TRAIN_CHUNK) {
         // Samples with a usable weight, encoded.
@@ -253,7 +265,14 @@ fn mixture_gradient_batch<const IN: usize, const W: usize, const OUT: usize, con
             }
             live[m] = j;
             xs[m] = [0.0; IN];
-            encode_inputs_fast(params, grid, target, &QueryPoint::of_sample(s), &mut xs[m]);
+            encode_inputs_traced(
+                params,
+                grid,
+                target,
+                &QueryPoint::of_sample(s),
+                &mut xs[m],
+                &mut traces[m],
+            );
             m += 1;
         }
         if m == 0 {
@@ -281,7 +300,8 @@ fn mixture_gradient_batch<const IN: usize, const W: usize, const OUT: usize, con
         );
         for k in 0..m {
             if ok[k] {
-                grid_backward(grid, chunk[live[k]].position(), &dxs[k], 0, grad);
+                let position = chunk[live[k]].position();
+                grid_backward_traced(grid, position, &traces[k], &dxs[k], 0, grad);
                 total += f64::from(losses[k]);
             }
         }
@@ -1016,6 +1036,7 @@ impl<
     /// backward over the chunk; the guide term is skipped where its weight
     /// is zero and a sample the per-query kernel would reject (invalid,
     /// non-finite output or gradient) adds nothing. Returns the summed loss.
+    #[allow(clippy::useless_vec)] // chunk buffers on the heap: too large for a worker's stack
     pub(crate) fn gradient_batch(
         &self,
         params: &[f32],
@@ -1034,24 +1055,25 @@ impl<
             self.cache_offset as usize,
         );
         type Ctx<const W: usize, const H: usize> = MlpContext<W, H>;
-        let mut xb = [[0.0f32; IN_M]; TRAIN_CHUNK];
-        let mut xc = [[0.0f32; IN_C]; TRAIN_CHUNK];
-        let mut xr = [[0.0f32; IN_R]; TRAIN_CHUNK];
-        let mut yr = [[0.0f32; 3]; TRAIN_CHUNK];
-        let mut ym = [[0.0f32; DF_MARGINAL_BINS]; TRAIN_CHUNK];
-        let mut yc = [[0.0f32; DF_CONDITIONAL_BINS]; TRAIN_CHUNK];
-        let mut dr = [[0.0f32; 3]; TRAIN_CHUNK];
-        let mut dm = [[0.0f32; DF_MARGINAL_BINS]; TRAIN_CHUNK];
-        let mut dc = [[0.0f32; DF_CONDITIONAL_BINS]; TRAIN_CHUNK];
-        let mut dxb = [[0.0f32; IN_M]; TRAIN_CHUNK];
-        let mut dxc = [[0.0f32; IN_C]; TRAIN_CHUNK];
-        let mut dxr = [[0.0f32; IN_R]; TRAIN_CHUNK];
-        let mut cr = [Ctx::<CACHE_WIDTH, CACHE_HIDDEN>::ZERO; TRAIN_CHUNK];
-        let mut cm = [Ctx::<WIDTH, HIDDEN>::ZERO; TRAIN_CHUNK];
-        let mut cc = [Ctx::<WIDTH, HIDDEN>::ZERO; TRAIN_CHUNK];
-        let mut live = [0usize; TRAIN_CHUNK];
-        let mut ok = [false; TRAIN_CHUNK];
-        let mut losses = [0.0f32; TRAIN_CHUNK];
+        let mut xb = vec![[0.0f32; IN_M]; TRAIN_CHUNK];
+        let mut xc = vec![[0.0f32; IN_C]; TRAIN_CHUNK];
+        let mut xr = vec![[0.0f32; IN_R]; TRAIN_CHUNK];
+        let mut yr = vec![[0.0f32; 3]; TRAIN_CHUNK];
+        let mut ym = vec![[0.0f32; DF_MARGINAL_BINS]; TRAIN_CHUNK];
+        let mut yc = vec![[0.0f32; DF_CONDITIONAL_BINS]; TRAIN_CHUNK];
+        let mut dr = vec![[0.0f32; 3]; TRAIN_CHUNK];
+        let mut dm = vec![[0.0f32; DF_MARGINAL_BINS]; TRAIN_CHUNK];
+        let mut dc = vec![[0.0f32; DF_CONDITIONAL_BINS]; TRAIN_CHUNK];
+        let mut dxb = vec![[0.0f32; IN_M]; TRAIN_CHUNK];
+        let mut dxc = vec![[0.0f32; IN_C]; TRAIN_CHUNK];
+        let mut dxr = vec![[0.0f32; IN_R]; TRAIN_CHUNK];
+        let mut cr = vec![Ctx::<CACHE_WIDTH, CACHE_HIDDEN>::ZERO; TRAIN_CHUNK];
+        let mut cm = vec![Ctx::<WIDTH, HIDDEN>::ZERO; TRAIN_CHUNK];
+        let mut cc = vec![Ctx::<WIDTH, HIDDEN>::ZERO; TRAIN_CHUNK];
+        let mut live = vec![0usize; TRAIN_CHUNK];
+        let mut ok = vec![false; TRAIN_CHUNK];
+        let mut losses = vec![0.0f32; TRAIN_CHUNK];
+        let mut traces = vec![GridTrace::EMPTY; TRAIN_CHUNK];
         let lambda_c = self.cache_weight();
         let g = self.grid.output_dims();
         let mut total = 0.0f64;
@@ -1063,12 +1085,13 @@ impl<
                 }
                 live[m] = j;
                 xb[m] = [0.0; IN_M];
-                encode_inputs_fast(
+                encode_inputs_traced(
                     params,
                     &self.grid,
                     self.target,
                     &QueryPoint::of_sample(s),
                     &mut xb[m],
+                    &mut traces[m],
                 );
                 xr[m] = self.cache_input(&xb[m], s.wi());
                 xc[m] = Self::conditional_input(&xb[m], square_from_direction(s.wi()).x);
@@ -1195,7 +1218,8 @@ impl<
                 for i in 0..g.min(IN_M).min(IN_R) {
                     d[i] += dxr[k][i];
                 }
-                grid_backward(&self.grid, chunk[live[k]].position(), &d, 0, grad);
+                let position = chunk[live[k]].position();
+                grid_backward_traced(&self.grid, position, &traces[k], &d, 0, grad);
                 total += f64::from(losses[k]);
             }
         }
