@@ -620,3 +620,20 @@ pub const fn add_saturating(a: usize, b: usize) -> usize {
         s
     }
 }
+
+/// `true` if every entry of the array is finite (no NaN, no ±∞). The
+/// kernels' form: an index loop over a fixed-size array, which rust-gpu
+/// compiles (a slice of a local array it cannot); on whole buffers the CPU
+/// runtime uses the branch-free [`crate::optim::all_finite`] over a slice.
+#[inline]
+#[must_use]
+pub fn all_finite<const N: usize>(v: &[f32; N]) -> bool {
+    let mut i = 0;
+    while i < N {
+        if !v[i].is_finite() {
+            return false;
+        }
+        i += 1;
+    }
+    true
+}

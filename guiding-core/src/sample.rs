@@ -1,6 +1,7 @@
 //! The training record a renderer hands to the guiding field, and its
 //! validation.
 
+use crate::math::all_finite;
 use crate::model::QueryPoint;
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
@@ -67,17 +68,6 @@ pub enum Rejection {
 
 /// Number of distinct [`Rejection`] codes (`1..=REJECTION_KINDS`).
 pub const REJECTION_KINDS: usize = 4;
-
-fn all_finite<const N: usize>(v: &[f32; N]) -> bool {
-    let mut i = 0;
-    while i < N {
-        if !v[i].is_finite() {
-            return false;
-        }
-        i += 1;
-    }
-    true
-}
 
 fn all_non_negative(v: &[f32; 3]) -> bool {
     v[0] >= 0.0 && v[1] >= 0.0 && v[2] >= 0.0

@@ -28,6 +28,9 @@
 //! trains guides until their lobes are sharp (measured), freezes them and compares the same
 //! way, which catches biases that only show with sharp lobes.
 
+mod common;
+
+use common::sidak;
 use guiding_core::field::FieldConfig;
 use guiding_core::loss::Target;
 use host_demo::render::strategy::gpu::GpuGuide;
@@ -173,11 +176,6 @@ fn inc_beta(x: f64, a: f64, b: f64) -> f64 {
 /// Two-sided Student-t tail probability `P(|T| ≥ t)` with `df` degrees of freedom.
 fn t_two_sided(t: f64, df: f64) -> f64 {
     inc_beta(df / (df + t * t), 0.5 * df, 0.5)
-}
-
-/// Šidák-corrected per-test level `1 − (1 − alpha)^{1/n}`.
-fn sidak(alpha: f64, n: usize) -> f64 {
-    -((-alpha).ln_1p() / n as f64).exp_m1()
 }
 
 /// A method under test: renders the scene with the given seed.

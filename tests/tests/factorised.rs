@@ -335,7 +335,7 @@ fn chi2_p_value(observed: &[u64], expected: &[f64]) -> f64 {
 /// Šidák-corrected per-test level over every chi² test of the suite (this
 /// file's [`STANDALONE_CHI2_TESTS`] and the registry's cases).
 fn sidak_alpha() -> f64 {
-    1.0 - (1.0 - CHI2_ALPHA).powf(1.0 / guiding_tests::total_chi2_tests() as f64)
+    guiding_tests::chi2::sidak(CHI2_ALPHA, guiding_tests::total_chi2_tests())
 }
 
 fn check_chi2<const N: usize>() {

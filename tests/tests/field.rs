@@ -15,6 +15,7 @@ use guiding_core::loss::{kl_weight, Target};
 use guiding_core::math::INV_FOUR_PI;
 use guiding_core::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
 use guiding_core::model::{GuidingModel, QueryPoint};
+use guiding_core::optim::all_finite;
 use guiding_core::rng::{hash2, symmetric_unit_f32};
 use guiding_core::sample::{Rejection, TrainingSample, REJECTION_KINDS};
 use guiding_core::sphere::square_to_uniform_sphere;
@@ -155,10 +156,6 @@ fn query(p: [f32; 3]) -> QueryPoint {
 
 fn bits(v: &[f32]) -> Vec<u32> {
     v.iter().map(|x| x.to_bits()).collect()
-}
-
-fn all_finite(v: &[f32]) -> bool {
-    v.iter().all(|x| x.is_finite())
 }
 
 /// Trains `updates` updates of `steps_per_update` steps on a fixed stream.

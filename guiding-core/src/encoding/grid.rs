@@ -60,6 +60,7 @@
 
 use crate::encoding::write_clamped;
 use crate::gradient::GradientSink;
+use crate::rng::pcg_hash;
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
@@ -233,7 +234,7 @@ fn level_walk(cfg: &GridConfig, level: u32) -> (u32, usize) {
 
 /// `floor(base · scale_pow)` clamped to `[1, GRID_MAX_RESOLUTION]`, NaN → 1.
 #[inline]
-fn resolution_at(base: u32, scale_pow: f32) -> u32 {
+pub(crate) const fn resolution_at(base: u32, scale_pow: f32) -> u32 {
     let r = base as f32 * scale_pow;
     if r >= GRID_MAX_RESOLUTION as f32 {
         GRID_MAX_RESOLUTION
@@ -671,15 +672,6 @@ pub fn grid_backward<const N: usize, G: GradientSink + ?Sized>(
         scale_pow *= cfg.per_level_scale;
         l += 1;
     }
-}
-
-/// PCG hash (Jarzynski & Olano 2020, "Hash Functions for GPU Rendering"):
-/// one round of PCG's LCG and RXS-M-XS output permutation; a bijection of `u32`.
-#[inline]
-fn pcg_hash(input: u32) -> u32 {
-    let state = input.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
-    let word = ((state >> ((state >> 28) + 4)) ^ state).wrapping_mul(277_803_737);
-    (word >> 22) ^ word
 }
 
 /// Initial value of grid parameter `index` (relative to the grid's start):

@@ -47,7 +47,7 @@
 //! - A zero normal (unknown) encodes as three one-blobs of `½`; a zero `ωo`
 //!   encodes as `+z` (see `sh_encode`).
 
-use crate::encoding::grid::{GRID_MAX_FEATURES, GRID_MAX_LEVELS, GRID_MAX_RESOLUTION};
+use crate::encoding::grid::{resolution_at, GRID_MAX_FEATURES, GRID_MAX_LEVELS};
 use crate::encoding::GridConfig;
 use crate::encoding::{grid_backward, grid_forward, grid_init, one_blob_encode4, sh_encode};
 use crate::gradient::GradientSink;
@@ -105,19 +105,6 @@ pub const fn input_dims(grid: &GridConfig, target: Target) -> usize {
     match target {
         Target::Radiance => grid.output_dims(),
         Target::Product => grid.output_dims() + PRODUCT_INPUT_DIMS,
-    }
-}
-
-/// `floor(base · scale_pow)` clamped to `[1, GRID_MAX_RESOLUTION]`, NaN → 1
-/// (the same `f32` arithmetic as the grid encoding).
-const fn resolution_at(base: u32, scale_pow: f32) -> u32 {
-    let r = base as f32 * scale_pow;
-    if r >= GRID_MAX_RESOLUTION as f32 {
-        GRID_MAX_RESOLUTION
-    } else if r >= 1.0 {
-        r as u32
-    } else {
-        1
     }
 }
 
@@ -277,19 +264,7 @@ pub(crate) fn clean_probability(p: f32) -> f32 {
     }
 }
 
-/// `true` if every entry is finite.
-#[inline]
-#[must_use]
-pub(crate) fn all_finite<const N: usize>(v: &[f32; N]) -> bool {
-    let mut i = 0;
-    while i < N {
-        if !v[i].is_finite() {
-            return false;
-        }
-        i += 1;
-    }
-    true
-}
+pub(crate) use crate::math::all_finite;
 
 /// The flat output `y` as `K` rows of `R` (row-major, `y[k R + r]`); entries
 /// past `N` read as 0.

@@ -8,6 +8,7 @@ use guiding_core::model::df::{DfSmallProduct, DfSmallRadiance};
 use guiding_core::model::nasg::{NasgSmallProduct, NasgSmallRadiance};
 use guiding_core::model::npm::{NpmSmallProduct, NpmSmallRadiance};
 use guiding_core::model::{GuidingModel, QueryPoint};
+use guiding_core::optim::all_finite;
 use guiding_core::pdf1d::Interpolation;
 use guiding_core::sample::{Rejection, TrainingSample, REJECTION_KINDS, UNIT_TOLERANCE};
 use guiding_core::sphere::square_to_uniform_sphere;
@@ -126,10 +127,6 @@ fn expected_rejection(s: &TrainingSample) -> Option<Rejection> {
         return Some(Rejection::NonUnitDirection);
     }
     None
-}
-
-fn all_finite(v: &[f32]) -> bool {
-    v.iter().all(|x| x.is_finite())
 }
 
 /// Fuzz target `training_step`: the first byte picks one of the eight small
