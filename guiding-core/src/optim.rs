@@ -315,6 +315,8 @@ pub fn ema_update_element(ema: &mut f32, param: f32, alpha: f32) {
 /// If `params` is shorter than `ema`.
 pub fn ema_update(ema: &mut [f32], params: &[f32], decay: f32, step: u32) {
     let alpha = ema_weight(decay, step);
+    // One bounds check up front, so the loop below vectorises.
+    let params = &params[..ema.len()];
     let mut i = 0;
     while i < ema.len() {
         ema_update_element(&mut ema[i], params[i], alpha);
@@ -397,7 +399,6 @@ pub fn adam_ema_step(
     let n = params.len();
     let (grads, m, v, ema) = (&mut grads[..n], &mut m[..n], &mut v[..n], &mut ema[..n]);
     let f = AdamStepFactors::new(step, cfg);
-    let alpha = ema_weight(ema_decay, step);
     let mut skipped = 0usize;
     let mut start = 0;
     while start < n {
@@ -431,14 +432,7 @@ pub fn adam_ema_step(
                 &mut p[i], &mut mb[i], &mut vb[i], g[i], cfg, &f,
             ));
         }
-        let e = &mut ema[start..end];
-        if alpha >= 1.0 {
-            e.copy_from_slice(p);
-        } else {
-            for (e, p) in e.iter_mut().zip(p.iter()) {
-                *e = (1.0 - alpha) * *e + alpha * *p;
-            }
-        }
+        ema_update(&mut ema[start..end], p, ema_decay, step);
         g.fill(0.0);
         start = end;
     }

@@ -58,7 +58,7 @@
 //! cost — loop bounds unknown to the compiler — is negligible next to the 8
 //! scattered memory reads per level.
 
-use crate::encoding::write_clamped;
+use crate::encoding::{clamp_unit, write_clamped};
 use crate::gradient::GradientSink;
 use crate::rng::pcg_hash;
 use bytemuck::{Pod, Zeroable};
@@ -264,18 +264,7 @@ fn unit_coordinate(x: f32, lo: f32, hi: f32) -> f32 {
     if !(half_extent > 0.0 && half_extent <= f32::MAX) {
         return 0.5;
     }
-    let t = (0.5 * x - 0.5 * lo) / half_extent;
-    if t >= 0.0 {
-        if t <= 1.0 {
-            t
-        } else {
-            1.0
-        }
-    } else if t < 0.0 {
-        0.0
-    } else {
-        0.5
-    }
+    clamp_unit((0.5 * x - 0.5 * lo) / half_extent)
 }
 
 /// The position normalised to the box, in `[0, 1]³` (see [`unit_coordinate`]).

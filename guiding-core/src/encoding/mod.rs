@@ -44,6 +44,23 @@ pub use one_blob::{one_blob_encode, one_blob_encode4};
 pub use spherical_harmonics::sh_encode;
 pub use triangle_wave::{triangle_wave_backward, triangle_wave_encode};
 
+/// `x` clamped to `[0, 1]` (±∞ to the ends), NaN to `0.5` (the centre): the
+/// grid's normalised coordinate and the one-blob input.
+#[inline]
+pub(crate) fn clamp_unit(x: f32) -> f32 {
+    if x >= 0.0 {
+        if x <= 1.0 {
+            x
+        } else {
+            1.0
+        }
+    } else if x < 0.0 {
+        0.0
+    } else {
+        0.5
+    }
+}
+
 /// Writes `value` to `out[index]` if `index < N`; otherwise does nothing.
 #[inline]
 pub(crate) fn write_clamped<const N: usize>(out: &mut [f32; N], index: usize, value: f32) {

@@ -19,7 +19,7 @@
 //! periodic wrap-around; this follows the paper's text (a Gaussian with
 //! `σ = 1/k`, "discretised into the bins" = sampled at the bin centres).
 
-use crate::encoding::write_clamped;
+use crate::encoding::{clamp_unit, write_clamped};
 use crate::math::exp;
 
 /// Bins NPM uses per encoded scalar.
@@ -55,22 +55,6 @@ pub fn one_blob_encode<const N: usize>(
         i += 1;
     }
     end
-}
-
-/// `x` clamped to `[0, 1]` (±∞ to the ends), NaN to `0.5`.
-#[inline]
-fn clamp_unit(x: f32) -> f32 {
-    if x >= 0.0 {
-        if x <= 1.0 {
-            x
-        } else {
-            1.0
-        }
-    } else if x < 0.0 {
-        0.0
-    } else {
-        0.5
-    }
 }
 
 /// Bins of [`one_blob_encode4`].
