@@ -28,6 +28,7 @@ use crate::field::{DecodedDistribution, GuidingField};
 use crate::models::{self, with_field, BatchItems, Decode};
 use glam::{Vec2, Vec3};
 use guiding_core::lobe::DirectionSample;
+use guiding_core::model::mixture_batch;
 use guiding_core::model::{GuidingModel, QueryPoint};
 
 /// Decoded distributions of a batch of shading points (see the [module
@@ -221,13 +222,9 @@ impl GuidingField {
         self.check_batch(batch, lanes)?;
         let items = &batch.items;
         if !items.vmf.is_empty() {
-            for ((o, &l), &ub) in out.iter_mut().zip(lanes).zip(u) {
-                *o = items.vmf[l as usize].sample(ub);
-            }
+            mixture_batch::vmf_sample_batch(&items.vmf, lanes, u, out);
         } else if !items.nasg.is_empty() {
-            for ((o, &l), &ub) in out.iter_mut().zip(lanes).zip(u) {
-                *o = items.nasg[l as usize].sample(ub);
-            }
+            mixture_batch::nasg_sample_batch(&items.nasg, lanes, u, out);
         } else if !items.df.is_empty() {
             with_field!(&self.inner, f => f
                 .model()
@@ -262,13 +259,9 @@ impl GuidingField {
         self.check_batch(batch, lanes)?;
         let items = &batch.items;
         if !items.vmf.is_empty() {
-            for ((o, &l), &d) in out.iter_mut().zip(lanes).zip(directions) {
-                *o = items.vmf[l as usize].pdf(d);
-            }
+            mixture_batch::vmf_pdf_batch(&items.vmf, lanes, directions, out);
         } else if !items.nasg.is_empty() {
-            for ((o, &l), &d) in out.iter_mut().zip(lanes).zip(directions) {
-                *o = items.nasg[l as usize].pdf(d);
-            }
+            mixture_batch::nasg_pdf_batch(&items.nasg, lanes, directions, out);
         } else if !items.df.is_empty() {
             with_field!(&self.inner, f => f
                 .model()

@@ -307,7 +307,7 @@ impl<const K: usize> NasgMixture<K> {
 
     /// `ln(G_k / K_k)` of lobe `k` at the unit direction `u` (`(0, 0, 0)`: the
     /// antipode convention).
-    #[inline]
+    #[inline(always)]
     fn log_lobe_pdf(&self, k: usize, u: Vec3) -> f32 {
         let vx = u.x * self.x_x[k] + u.y * self.x_y[k] + u.z * self.x_z[k];
         let vy = u.x * self.y_x[k] + u.y * self.y_y[k] + u.z * self.y_z[k];
@@ -341,12 +341,22 @@ impl<const K: usize> NasgMixture<K> {
         let mut terms = [0.0f32; K];
         let mut k = 0;
         while k < K {
-            let w = self.weight[k];
-            let p = w * exp(self.log_lobe_pdf(k, u));
-            terms[k] = if w > 0.0 { p } else { 0.0 };
+            terms[k] = self.lobe_term(k, u);
             k += 1;
         }
         pairwise_sum(&mut terms)
+    }
+
+    /// The term `w_k G_k(u) / K_k` of lobe `k` (exactly 0 for a zero weight).
+    #[inline(always)]
+    fn lobe_term(&self, k: usize, u: Vec3) -> f32 {
+        let w = self.weight[k];
+        let p = w * exp(self.log_lobe_pdf(k, u));
+        if w > 0.0 {
+            p
+        } else {
+            0.0
+        }
     }
 
     /// `ln p(ω)` by log-sum-exp: finite also where every lobe's density
@@ -380,6 +390,20 @@ impl<const K: usize> NasgMixture<K> {
         }
     }
 
+    /// The direction [`Self::sample`] draws from `u`, without its density
+    /// (the batched CPU path evaluates the densities of many samples at once,
+    /// [`crate::model::mixture_batch`]).
+    #[inline]
+    #[must_use]
+    pub fn sample_direction(&self, u: Vec2) -> Vec3 {
+        let (k, u_lobe) = match select_component(&self.weight, u.x) {
+            Some(sel) => sel,
+            // Unreachable for mixtures built by this module (weights sum to 1).
+            None => (0, u.x),
+        };
+        self.lobe(k).sample(Vec2::new(u_lobe, u.y)).direction
+    }
+
     /// Draws a direction: `u.x` selects the lobe by the weights and is then
     /// rescaled and reused as the lobe's azimuth number (half and azimuth, see
     /// [`NasgLobe::sample`]); `u.y` is the lobe's polar number. The returned
@@ -387,12 +411,7 @@ impl<const K: usize> NasgMixture<K> {
     #[inline]
     #[must_use]
     pub fn sample(&self, u: Vec2) -> DirectionSample {
-        let (k, u_lobe) = match select_component(&self.weight, u.x) {
-            Some(sel) => sel,
-            // Unreachable for mixtures built by this module (weights sum to 1).
-            None => (0, u.x),
-        };
-        let direction = self.lobe(k).sample(Vec2::new(u_lobe, u.y)).direction;
+        let direction = self.sample_direction(u);
         // The sampled direction is unit up to rounding (~10⁻⁷): the
         // normalisation of `pdf` is skipped (a relative change of ~10⁻⁷ times
         // the exponent, far below 10⁻⁴ wherever a term is not negligible).

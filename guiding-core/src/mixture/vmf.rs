@@ -275,18 +275,27 @@ impl<const K: usize> VmfMixture<K> {
         pairwise_sum(&mut terms)
     }
 
+    /// The direction [`Self::sample`] draws from `u`, without its density
+    /// (the batched CPU path evaluates the densities of many samples at once,
+    /// [`crate::model::mixture_batch`]).
+    #[inline]
+    #[must_use]
+    pub fn sample_direction(&self, u: Vec2) -> Vec3 {
+        let (k, u_lobe) = match select_component(&self.weight, u.x) {
+            Some(sel) => sel,
+            // Unreachable for mixtures built by this module (weights sum to 1).
+            None => (0, u.x),
+        };
+        self.lobe(k).sample_direction(Vec2::new(u_lobe, u.y))
+    }
+
     /// Draws a direction: `u.x` selects the lobe by the weights and is then
     /// rescaled and reused as the lobe's azimuth number; `u.y` is the lobe's
     /// polar number. The returned pdf is the full mixture density.
     #[inline]
     #[must_use]
     pub fn sample(&self, u: Vec2) -> DirectionSample {
-        let (k, u_lobe) = match select_component(&self.weight, u.x) {
-            Some(sel) => sel,
-            // Unreachable for mixtures built by this module (weights sum to 1).
-            None => (0, u.x),
-        };
-        let direction = self.lobe(k).sample_direction(Vec2::new(u_lobe, u.y));
+        let direction = self.sample_direction(u);
         // The sampled direction is unit up to rounding (~10⁻⁷), so the
         // normalisation of `pdf` is skipped: the density differs from
         // `pdf(direction)` by a relative ~10⁻⁷ κt, far below 10⁻⁴ wherever

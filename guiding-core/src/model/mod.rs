@@ -7,6 +7,8 @@
 //! gradients are accumulated into a buffer of the same layout.
 
 pub mod df;
+#[cfg(feature = "std")]
+pub mod mixture_batch;
 pub mod nasg;
 pub mod npm;
 #[cfg(feature = "std")]
