@@ -23,7 +23,7 @@
 
 use crate::lobe::DirectionSample;
 use crate::math::INV_FOUR_PI;
-use crate::pdf1d::{Boundary, Interpolation, Pdf1d};
+use crate::pdf1d::{Boundary, Interpolation, Pdf1d, RunningSums};
 use crate::sphere::{square_to_uniform_sphere, uniform_sphere_to_square};
 use bytemuck::{Pod, Zeroable};
 use glam::{Vec2, Vec3};
@@ -195,6 +195,26 @@ unsafe impl<const M: usize, const N: usize> Zeroable for FactorisedTable<M, N> {
 // SAFETY: see above; `Copy + 'static` holds for every `M`, `N`.
 unsafe impl<const M: usize, const N: usize> Pod for FactorisedTable<M, N> {}
 
+/// The running sums of a [`FactorisedTable`]'s marginal and rows
+/// ([`FactorisedTable::running_sums`]), kept next to a table that is sampled
+/// many times.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TableSums<const M: usize, const N: usize> {
+    /// The marginal's.
+    pub marginal: RunningSums<M>,
+    /// Each row's.
+    pub rows: [RunningSums<N>; M],
+}
+
+impl<const M: usize, const N: usize> TableSums<M, N> {
+    /// All zeros (a placeholder to overwrite).
+    pub const ZERO: Self = Self {
+        marginal: RunningSums::ZERO,
+        rows: [RunningSums::ZERO; M],
+    };
+}
+
 impl<const M: usize, const N: usize> FactorisedTable<M, N> {
     /// All-zero table (written out: `Zeroable::zeroed` goes through
     /// `MaybeUninit`, which rust-gpu cannot compile).
@@ -257,8 +277,14 @@ impl<const M: usize, const N: usize> FactorisedTable<M, N> {
     #[inline]
     #[must_use]
     pub fn pdf(&self, direction: Vec3) -> f32 {
-        // `pdf_square` on a point already in [0, 1]².
-        let eps = square_from_direction(direction);
+        self.pdf_at_square(square_from_direction(direction))
+    }
+
+    /// [`Self::pdf`] of the direction whose square point is `eps` (as
+    /// [`square_from_direction`] returns it, in `[0, 1]²`).
+    #[inline]
+    #[must_use]
+    pub fn pdf_at_square(&self, eps: Vec2) -> f32 {
         let p1 = self.marginal.pdf_in_unit_interval(eps.x);
         let p2 = self.conditionals[Self::row(eps.x)].pdf_in_unit_interval(eps.y);
         p1 * p2 * INV_FOUR_PI
@@ -282,17 +308,88 @@ impl<const M: usize, const N: usize> FactorisedTable<M, N> {
     /// the latter is returned (still finite and `> 0`).
     #[must_use]
     pub fn sample(&self, u: Vec2) -> DirectionSample {
-        let (mut e1, mut p1) = sample_marginal(&self.marginal, u.x);
+        let (e1, p1) = self.sample_first(u.x);
+        self.sample_second(e1, p1, u.y)
+    }
+
+    /// The first half of [`Self::sample`]: `ε₁` and its marginal density
+    /// from `ux` (a batch can fetch the row of `ε₁` before the second half).
+    #[inline]
+    #[must_use]
+    pub fn sample_first(&self, ux: f32) -> (f32, f32) {
+        sample_marginal(&self.marginal, ux)
+    }
+
+    /// [`Self::sample_first`] from the table's [`Self::running_sums`] (the
+    /// same bits, without the pass over the marginal's pieces).
+    #[inline]
+    #[must_use]
+    pub fn sample_first_with(&self, sums: &TableSums<M, N>, ux: f32) -> (f32, f32) {
+        self.marginal
+            .sample_with_sums(&sums.marginal, ux, SAMPLE_MARGIN)
+    }
+
+    /// The second half of [`Self::sample`] from [`Self::sample_first`]'s
+    /// `(ε₁, p(ε₁))` and `uy`.
+    #[must_use]
+    pub fn sample_second(&self, e1: f32, p1: f32, uy: f32) -> DirectionSample {
+        let (e1, p1, r) = self.keep_in_row(e1, p1);
+        let (e2, p2) = sample_conditional(&self.conditionals[r], uy);
+        self.finish_sample(e1, p1, e2, p2)
+    }
+
+    /// [`Self::sample_second`] from the table's [`Self::running_sums`] (the
+    /// same bits).
+    #[must_use]
+    pub fn sample_second_with(
+        &self,
+        sums: &TableSums<M, N>,
+        e1: f32,
+        p1: f32,
+        uy: f32,
+    ) -> DirectionSample {
+        let (e1, p1, r) = self.keep_in_row(e1, p1);
+        let (e2, p2) = self.conditionals[r].sample_with_sums(&sums.rows[r], uy, SAMPLE_MARGIN);
+        self.finish_sample(e1, p1, e2, p2)
+    }
+
+    /// The running sums of the marginal and of every row, for
+    /// [`Self::sample_first_with`] / [`Self::sample_second_with`].
+    #[must_use]
+    pub fn running_sums(&self) -> TableSums<M, N> {
+        let mut sums = TableSums {
+            marginal: self.marginal.running_sums(),
+            rows: [RunningSums::ZERO; M],
+        };
+        let mut i = 0;
+        while i < M {
+            sums.rows[i] = self.conditionals[i].running_sums();
+            i += 1;
+        }
+        sums
+    }
+
+    /// `ε₁` kept [`SAMPLE_MARGIN`] inside its row (see [`Self::sample`]), its
+    /// density, and the row.
+    #[inline]
+    fn keep_in_row(&self, e1: f32, p1: f32) -> (f32, f32, usize) {
         let r = Self::row(e1);
         let m = SAMPLE_MARGIN.min(0.25 / M as f32);
         let (lo, hi) = (r as f32 / M as f32 + m, (r + 1) as f32 / M as f32 - m);
-        if !(e1 >= lo && e1 <= hi) {
+        if e1 >= lo && e1 <= hi {
+            (e1, p1, r)
+        } else {
             // Within the margin of a row edge (only where a linear piece
             // straddles it): moved inside the row, within the same piece.
-            e1 = e1.clamp(lo, hi);
-            p1 = self.marginal.pdf_in_unit_interval(e1);
+            let e1 = e1.clamp(lo, hi);
+            (e1, self.marginal.pdf_in_unit_interval(e1), r)
         }
-        let (e2, p2) = sample_conditional(&self.conditionals[r], u.y);
+    }
+
+    /// The direction of `(ε₁, ε₂)` and its density as [`Self::pdf`]
+    /// evaluates it (the sampled one where that underflows).
+    #[inline]
+    fn finish_sample(&self, e1: f32, p1: f32, e2: f32, p2: f32) -> DirectionSample {
         let direction = direction_from_square(Vec2::new(e1, e2));
         let mut pdf = self.pdf(direction);
         if pdf <= 0.0 || pdf.is_nan() {

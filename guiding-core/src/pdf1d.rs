@@ -263,6 +263,26 @@ fn bin_index<const N: usize>(s: f32) -> usize {
     }
 }
 
+/// The running sums of a [`Pdf1d`]'s piece masses ([`Pdf1d::running_sums`]):
+/// the first `N` pieces' cumulative masses, and the total with a linear
+/// density's end piece.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RunningSums<const N: usize> {
+    /// Cumulative mass after pieces `0..=k`.
+    pub ends: [f32; N],
+    /// Mass of all pieces.
+    pub total: f32,
+}
+
+impl<const N: usize> RunningSums<N> {
+    /// All zeros (no density's sums; a placeholder to overwrite).
+    pub const ZERO: Self = Self {
+        ends: [0.0; N],
+        total: 0.0,
+    };
+}
+
 /// A density on `[0, 1]` from `N ≥ 1` bin values of mean one (Figueiredo et
 /// al. 2025, §3.1).
 ///
@@ -530,7 +550,14 @@ impl<const N: usize> Pdf1d<N> {
     /// `margin ≤ 0` or NaN is [`Self::sample`] exactly.
     #[must_use]
     pub fn sample_with_margin(&self, u: f32, margin: f32) -> (f32, f32) {
-        let u = clamp_unit(u);
+        self.sample_with_sums(&self.running_sums(), u, margin)
+    }
+
+    /// The running sums [`Self::sample_with_margin`] draws from: computed
+    /// once and kept ([`RunningSums`]), they save a sampler the serial pass
+    /// over the pieces (a frozen, tabulated distribution sampled many times).
+    #[must_use]
+    pub fn running_sums(&self) -> RunningSums<N> {
         let linear = self.interpolation() == Interpolation::Linear;
         let inv_n = 1.0 / N as f32;
         // Running sums of the piece masses `w (a + b) / 2` (as `piece_mass`;
@@ -562,7 +589,20 @@ impl<const N: usize> Pdf1d<N> {
                 k += 1;
             }
         }
-        let total = acc + last_mass;
+        RunningSums {
+            ends,
+            total: acc + last_mass,
+        }
+    }
+
+    /// [`Self::sample_with_margin`] from this density's [`Self::running_sums`]
+    /// (the same result, bit for bit, when `sums` are this density's).
+    #[must_use]
+    pub fn sample_with_sums(&self, sums: &RunningSums<N>, u: f32, margin: f32) -> (f32, f32) {
+        let u = clamp_unit(u);
+        let linear = self.interpolation() == Interpolation::Linear;
+        let ends = &sums.ends;
+        let total = sums.total;
         if !(total > 0.0 && total <= f32::MAX) {
             // Not a density built by the constructors (e.g. zeroed).
             return (u, self.pdf(u));

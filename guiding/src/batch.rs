@@ -30,6 +30,7 @@ use glam::{Vec2, Vec3};
 use guiding_core::lobe::DirectionSample;
 use guiding_core::model::mixture_batch;
 use guiding_core::model::{GuidingModel, QueryPoint};
+use std::sync::Arc;
 
 /// Decoded distributions of a batch of shading points (see the [module
 /// docs](self)). Reusable: decoding into it again keeps its allocations.
@@ -40,10 +41,20 @@ use guiding_core::model::{GuidingModel, QueryPoint};
 pub struct DistributionBatch {
     pub(crate) field_id: u64,
     pub(crate) generation: u64,
+    /// The lanes (without `cells`), or the lanes the network decoded
+    /// (with `cells`: a guide cache's misses).
     pub(crate) items: BatchItems,
-    /// Scratch of [`crate::GuideCache::decode_batch`] (each lane's source).
+    /// A [`crate::GuideCache`]'s stored lanes, shared rather than copied:
+    /// lane `i` is then `cells[source[i]]`, or `items[source[i] & !CACHE_MISS]`
+    /// where `source[i]` has the bit [`CACHE_MISS`].
+    pub(crate) cells: Option<Arc<BatchItems>>,
+    /// Each lane's source with `cells` (see there); also the cache's scratch.
     pub(crate) source: Vec<u32>,
 }
+
+/// Marks a lane of a [`DistributionBatch`] that the network decoded (a guide
+/// cache's miss): the low bits index `items`.
+pub(crate) const CACHE_MISS: u32 = 1 << 31;
 
 impl DistributionBatch {
     /// An empty batch.
@@ -55,7 +66,74 @@ impl DistributionBatch {
     /// Number of decoded lanes (the length of the latest decode).
     #[must_use]
     pub fn len(&self) -> usize {
-        self.items.len()
+        if self.cells.is_some() {
+            self.source.len()
+        } else {
+            self.items.len()
+        }
+    }
+
+    /// The buffer and index that hold lane `i` (`i` in range).
+    fn resolve(&self, i: usize) -> (&BatchItems, usize) {
+        match &self.cells {
+            None => (&self.items, i),
+            Some(cells) => match self.source.get(i) {
+                Some(&s) if s & CACHE_MISS != 0 => (&self.items, (s & !CACHE_MISS) as usize),
+                Some(&s) => (cells, s as usize),
+                None => (&self.items, usize::MAX),
+            },
+        }
+    }
+
+    /// Copies the shared cache lanes in (before lanes are changed in place).
+    fn materialize(&mut self) {
+        if let Some(cells) = self.cells.take() {
+            let network = std::mem::take(&mut self.items);
+            self.items.gather(
+                &cells,
+                &cells.lane_selection,
+                &network,
+                &self.source,
+                CACHE_MISS,
+            );
+        }
+    }
+
+    /// Evaluates `eval` (a family kernel over `(buffer, lanes, inputs,
+    /// outputs)`) for `lanes` of this batch: on its own lanes, or, with
+    /// shared cache lanes, on the cells with the lanes translated (and on the
+    /// network's lanes for a cache's misses, if any).
+    fn route<I: Copy, O: Copy>(
+        &self,
+        lanes: &[u32],
+        inputs: &[I],
+        out: &mut [O],
+        eval: impl Fn(&BatchItems, &[u32], &[I], &mut [O]),
+    ) {
+        let Some(cells) = &self.cells else {
+            eval(&self.items, lanes, inputs, out);
+            return;
+        };
+        let mapped: Vec<u32> = lanes.iter().map(|&l| self.source[l as usize]).collect();
+        if mapped.iter().all(|&s| s & CACHE_MISS == 0) {
+            eval(cells, &mapped, inputs, out);
+            return;
+        }
+        for miss in [false, true] {
+            let picked: Vec<usize> = (0..mapped.len())
+                .filter(|&k| (mapped[k] & CACHE_MISS != 0) == miss)
+                .collect();
+            if picked.is_empty() {
+                continue;
+            }
+            let sub: Vec<u32> = picked.iter().map(|&k| mapped[k] & !CACHE_MISS).collect();
+            let inp: Vec<I> = picked.iter().map(|&k| inputs[k]).collect();
+            let mut res: Vec<O> = picked.iter().map(|&k| out[k]).collect();
+            eval(if miss { &self.items } else { cells }, &sub, &inp, &mut res);
+            for (&k, r) in picked.iter().zip(res) {
+                out[k] = r;
+            }
+        }
     }
 
     /// Whether it holds no lane.
@@ -69,7 +147,11 @@ impl DistributionBatch {
     /// for a lane out of range.
     #[must_use]
     pub fn selection_probability(&self, i: usize) -> f32 {
-        self.items.selection_probability(i)
+        if i >= self.len() {
+            return 0.0;
+        }
+        let (items, k) = self.resolve(i);
+        items.selection_probability(k)
     }
 
     /// Multiplies every lane's vMF mixture by the clamped cosine
@@ -81,6 +163,7 @@ impl DistributionBatch {
     /// of what is sampled). Returns `false` and changes nothing for NASG and
     /// DF (no closed-form product) or when the lengths differ.
     pub fn apply_cosine_product(&mut self, normals: &[Vec3]) -> bool {
+        self.materialize();
         let vmf = &mut self.items.vmf;
         if vmf.is_empty() || vmf.len() != normals.len() {
             return false;
@@ -93,8 +176,12 @@ impl DistributionBatch {
     /// field later (`None` out of range).
     #[must_use]
     pub fn get(&self, i: usize) -> Option<DecodedDistribution> {
-        self.items
-            .get(i)
+        if i >= self.len() {
+            return None;
+        }
+        let (items, k) = self.resolve(i);
+        items
+            .get(k)
             .map(|d| DecodedDistribution::new(self.field_id, self.generation, d))
     }
 }
@@ -107,6 +194,7 @@ impl GuidingField {
     pub fn decode_batch(&self, queries: &[QueryPoint], out: &mut DistributionBatch) {
         out.field_id = self.id;
         out.generation = self.generation;
+        out.cells = None;
         with_field!(&self.inner, f => f
             .model()
             .decode_batch_into(f.ema_params(), queries, &mut out.items));
@@ -130,6 +218,7 @@ impl GuidingField {
         use guiding_core::model::npm::NPM_OUTPUTS;
         use guiding_core::model::wavefront::{decode_nasg_batch, decode_vmf_batch};
         out.items.clear();
+        out.cells = None;
         out.field_id = self.id;
         out.generation = self.generation;
         let r = models::raw_outputs(&self.inner);
@@ -220,16 +309,19 @@ impl GuidingField {
             });
         }
         self.check_batch(batch, lanes)?;
-        let items = &batch.items;
-        if !items.vmf.is_empty() {
-            mixture_batch::vmf_sample_batch(&items.vmf, lanes, u, out);
-        } else if !items.nasg.is_empty() {
-            mixture_batch::nasg_sample_batch(&items.nasg, lanes, u, out);
-        } else if !items.df.is_empty() {
-            with_field!(&self.inner, f => f
-                .model()
-                .sample_vertices_any(f.ema_params(), &items.df, lanes, u, out));
-        }
+        batch.route(lanes, u, out, |items, lanes, u, out| {
+            if !items.vmf.is_empty() {
+                mixture_batch::vmf_sample_batch(&items.vmf, lanes, u, out);
+            } else if !items.nasg.is_empty() {
+                mixture_batch::nasg_sample_batch(&items.nasg, lanes, u, out);
+            } else if !items.df.is_empty() {
+                with_field!(&self.inner, f => f
+                    .model()
+                    .sample_vertices_any(f.ema_params(), &items.df, lanes, u, out));
+            } else if !items.df_table.is_empty() {
+                mixture_batch::table_sample_batch(&items.df_table, &items.df_sums, lanes, u, out);
+            }
+        });
         Ok(())
     }
 
@@ -257,16 +349,19 @@ impl GuidingField {
             });
         }
         self.check_batch(batch, lanes)?;
-        let items = &batch.items;
-        if !items.vmf.is_empty() {
-            mixture_batch::vmf_pdf_batch(&items.vmf, lanes, directions, out);
-        } else if !items.nasg.is_empty() {
-            mixture_batch::nasg_pdf_batch(&items.nasg, lanes, directions, out);
-        } else if !items.df.is_empty() {
-            with_field!(&self.inner, f => f
-                .model()
-                .pdf_vertices_any(f.ema_params(), &items.df, lanes, directions, out));
-        }
+        batch.route(lanes, directions, out, |items, lanes, directions, out| {
+            if !items.vmf.is_empty() {
+                mixture_batch::vmf_pdf_batch(&items.vmf, lanes, directions, out);
+            } else if !items.nasg.is_empty() {
+                mixture_batch::nasg_pdf_batch(&items.nasg, lanes, directions, out);
+            } else if !items.df.is_empty() {
+                with_field!(&self.inner, f => f
+                    .model()
+                    .pdf_vertices_any(f.ema_params(), &items.df, lanes, directions, out));
+            } else if !items.df_table.is_empty() {
+                mixture_batch::table_pdf_batch(&items.df_table, lanes, directions, out);
+            }
+        });
         Ok(())
     }
 }

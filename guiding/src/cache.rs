@@ -46,20 +46,19 @@
 //! update that changed the parameters, [`GuideCache::refresh`] decodes its
 //! cells again (one batched decode of every cell, a few ms).
 
-use crate::batch::DistributionBatch;
+use crate::batch::{DistributionBatch, CACHE_MISS as MISS};
 use crate::config::Target;
 use crate::error::GuidingError;
 use crate::field::GuidingField;
 use crate::models::{with_field, BatchItems, Decode};
 use glam::Vec3;
 use guiding_core::model::QueryPoint;
+use std::sync::Arc;
 
 /// Marks an empty cell (and the end of a cell's lane chain).
 const EMPTY: u32 = u32::MAX;
 /// Octahedral normal bins per axis with [`CacheOptions::cosine_product`].
 const NORMAL_BINS: u32 = 8;
-/// Marks a lane decoded by the network in [`GuideCache::decode_batch`].
-const MISS: u32 = 1 << 31;
 /// Most cells along one axis (the index is `resolution³` `u32`s at most).
 pub const MAX_CACHE_RESOLUTION: u32 = 256;
 
@@ -73,6 +72,15 @@ pub struct CacheOptions {
     /// (see the [module docs](self)); lanes handed out are then already
     /// multiplied, network-decoded misses included. Ignored for NASG and DF.
     pub cosine_product: bool,
+    /// DF guides: store each cell's frozen distribution as a table
+    /// ([`guiding_core::model::wavefront::DfTable`]: the marginal, and the
+    /// conditional at the 32 marginal bins' centres, ~2.4 kB a cell), so a
+    /// query runs no network at all; otherwise a cell keeps the marginal and
+    /// every sample and pdf runs the conditional network. A deviation from
+    /// DF's conditional, continuous in `ε₁`, that keeps the estimator
+    /// unbiased (a table samples and evaluates the same density). Ignored
+    /// for NPM and NASG. On by default.
+    pub df_table: bool,
 }
 
 impl Default for CacheOptions {
@@ -80,6 +88,7 @@ impl Default for CacheOptions {
         Self {
             resolution: 64,
             cosine_product: false,
+            df_table: true,
         }
     }
 }
@@ -127,6 +136,8 @@ pub struct GuideCache {
     res: [u32; 3],
     /// Cosine product per normal bin (vMF guides with the option on).
     product: bool,
+    /// Tabulated DF cells (DF guides with [`CacheOptions::df_table`]).
+    tabulate: bool,
     /// Per cell: its first lane in `items`, or [`EMPTY`].
     index: Vec<u32>,
     /// Per lane: the next lane of the same cell (another normal bin), or [`EMPTY`].
@@ -137,10 +148,11 @@ pub struct GuideCache {
     points: Vec<Vec3>,
     /// Per lane: the unit mean normal of the cosine product (product only).
     normals: Vec<Vec3>,
-    items: BatchItems,
-    /// Per lane: the fitted guide-selection probability ([`GuideCache::fit_selection`]);
-    /// empty before a fit.
-    selection: Vec<f32>,
+    /// The decoded lanes, shared with the batches [`GuideCache::decode_batch`]
+    /// fills (no copy per query); their `lane_selection` holds the fitted
+    /// guide-selection probabilities ([`GuideCache::fit_selection`]), empty
+    /// before a fit.
+    items: Arc<BatchItems>,
     /// The fit's value for cells with too few samples (and cells added later).
     global_selection: f32,
 }
@@ -192,13 +204,18 @@ impl GuidingField {
             res,
             product: options.cosine_product
                 && self.config().representation == crate::config::Representation::Npm,
+            tabulate: options.df_table
+                && matches!(
+                    self.config().representation,
+                    crate::config::Representation::DfNearest
+                        | crate::config::Representation::DfLinear
+                ),
             index: vec![EMPTY; res[0] as usize * res[1] as usize * res[2] as usize],
             next: Vec::new(),
             bin: Vec::new(),
             points: Vec::new(),
             normals: Vec::new(),
-            items: BatchItems::default(),
-            selection: Vec::new(),
+            items: Arc::default(),
             global_selection: 0.0,
         };
         cache.extend(self, points)?;
@@ -350,16 +367,18 @@ impl GuideCache {
         let added = queries.len();
         if added > 0 {
             let mut decoded = BatchItems::default();
-            decode_into(field, &queries, &mut decoded);
+            decode_cells(field, &queries, self.tabulate, &mut decoded);
             if self.product {
                 guiding_core::model::wavefront::cosine_product_batch(&mut decoded.vmf, &normals);
                 self.normals.extend_from_slice(&normals);
             }
-            self.items.append(&decoded);
+            let items = Arc::make_mut(&mut self.items);
+            items.append(&decoded);
             self.points
                 .extend(queries.iter().map(|q| Vec3::from_array(q.position)));
-            if !self.selection.is_empty() {
-                self.selection
+            if !items.lane_selection.is_empty() {
+                items
+                    .lane_selection
                     .resize(self.points.len(), self.global_selection);
             }
         }
@@ -385,12 +404,13 @@ impl GuideCache {
             .map(|&p| QueryPoint::from_vec3(p, Vec3::Z, Vec3::Z, 1.0))
             .collect();
         self.generation = field.generation;
-        decode_into(field, &queries, &mut self.items);
+        let items = Arc::make_mut(&mut self.items);
+        // The fitted probabilities stay with their cells.
+        let selection = std::mem::take(&mut items.lane_selection);
+        decode_cells(field, &queries, self.tabulate, items);
+        items.lane_selection = selection;
         if self.product {
-            guiding_core::model::wavefront::cosine_product_batch(
-                &mut self.items.vmf,
-                &self.normals,
-            );
+            guiding_core::model::wavefront::cosine_product_batch(&mut items.vmf, &self.normals);
         }
         Ok(())
     }
@@ -418,6 +438,7 @@ impl GuideCache {
         missed: &mut Vec<u32>,
     ) -> Result<CacheLookup, GuidingError> {
         out.items.clear();
+        out.cells = None;
         missed.clear();
         self.check(field)?;
         if jitter.len() != queries.len() {
@@ -443,19 +464,19 @@ impl GuideCache {
                 MISS | (missed.len() as u32 - 1)
             }));
         }
-        let mut network = BatchItems::default();
+        // The misses in `out`'s own lanes; the cells shared.
         if !missed.is_empty() {
             let mq: Vec<QueryPoint> = missed.iter().map(|&i| queries[i as usize]).collect();
-            decode_into(field, &mq, &mut network);
+            decode_into(field, &mq, &mut out.items);
             if self.product {
                 let normals: Vec<Vec3> = mq.iter().map(|q| Vec3::from_array(q.normal)).collect();
-                guiding_core::model::wavefront::cosine_product_batch(&mut network.vmf, &normals);
+                guiding_core::model::wavefront::cosine_product_batch(&mut out.items.vmf, &normals);
             }
         }
+        out.items.selection = self.items.selection;
         out.field_id = field.id;
         out.generation = field.generation;
-        out.items
-            .gather(&self.items, &self.selection, &network, &source, MISS);
+        out.cells = Some(Arc::clone(&self.items));
         out.source = source;
         Ok(CacheLookup {
             hits: (queries.len() - missed.len()) as u64,
@@ -469,6 +490,26 @@ fn decode_into(field: &GuidingField, queries: &[QueryPoint], out: &mut BatchItem
     with_field!(&field.inner, f => f
         .model()
         .decode_batch_into(f.ema_params(), queries, out));
+}
+
+/// [`decode_into`] for a cache's cells: DF vertices replaced by their tables
+/// with `tabulate`.
+fn decode_cells(
+    field: &GuidingField,
+    queries: &[QueryPoint],
+    tabulate: bool,
+    out: &mut BatchItems,
+) {
+    decode_into(field, queries, out);
+    if tabulate && !out.df.is_empty() {
+        let mut tables = vec![guiding_core::model::wavefront::DfTable::ZERO; out.df.len()];
+        with_field!(&field.inner, f => f
+            .model()
+            .tabulate_vertices_any(f.ema_params(), &out.df, &mut tables));
+        out.df.clear();
+        out.df_sums = tables.iter().map(|t| t.running_sums()).collect();
+        out.df_table = tables;
+    }
 }
 
 /// Options of [`GuideCache::fit_selection`].
@@ -607,12 +648,13 @@ impl GuideCache {
                 }
             }
         }
+        // The samples' lanes, shared with the cache.
         let mut batch = DistributionBatch::new();
         batch.field_id = field.id;
         batch.generation = field.generation;
-        batch
-            .items
-            .gather(&self.items, &[], &BatchItems::default(), &lanes, MISS);
+        batch.items.selection = self.items.selection;
+        batch.cells = Some(Arc::clone(&self.items));
+        batch.source = lanes.clone();
         let directions: Vec<Vec3> = kept
             .iter()
             .map(|&i| Vec3::from_array(samples[i].wi))
@@ -679,7 +721,7 @@ impl GuideCache {
             ..SelectionReport::default()
         };
         self.global_selection = global;
-        self.selection.clear();
+        let mut fitted = Vec::with_capacity(cells);
         let mut sum = 0.0f64;
         let (mut var_fit, mut var_bsdf) = (0.0f64, 0.0f64);
         let prior = f64::from(fit.prior_samples) / (used.max(1) as f64);
@@ -705,8 +747,9 @@ impl GuideCache {
             };
             report.cells_off += u64::from(c == 0.0);
             sum += f64::from(c);
-            self.selection.push(c);
+            fitted.push(c);
         }
+        Arc::make_mut(&mut self.items).lane_selection = fitted;
         report.variance_ratio = if var_bsdf > 0.0 && var_bsdf.is_finite() {
             var_fit / var_bsdf
         } else {

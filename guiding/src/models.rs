@@ -16,7 +16,7 @@ use guiding_core::model::nasg::{
 use guiding_core::model::npm::{
     Npm, NpmProduct, NpmRadiance, NpmSmallProduct, NpmSmallRadiance, NPM_LOBES,
 };
-use guiding_core::model::wavefront::DfVertex;
+use guiding_core::model::wavefront::{DfTable, DfTableSums, DfVertex};
 use guiding_core::model::{GuidingModel, QueryPoint};
 use guiding_core::pdf1d::Interpolation;
 
@@ -75,6 +75,10 @@ pub(crate) struct BatchItems {
     pub(crate) vmf: Vec<VmfMixture<NPM_LOBES>>,
     pub(crate) nasg: Vec<NasgMixture<NASG_LOBES>>,
     pub(crate) df: Vec<DfVertex>,
+    /// Tabulated DF lanes of a [`crate::GuideCache`] ([`DfTable`]).
+    pub(crate) df_table: Vec<DfTable>,
+    /// The running sums of `df_table` (one per table).
+    pub(crate) df_sums: Vec<DfTableSums>,
     /// The constant selection probability (NPM, DF).
     pub(crate) selection: f32,
     /// Per-lane selection probabilities overriding `selection` (NPM, DF lanes of a
@@ -87,11 +91,17 @@ impl BatchItems {
         self.vmf.clear();
         self.nasg.clear();
         self.df.clear();
+        self.df_table.clear();
+        self.df_sums.clear();
         self.lane_selection.clear();
     }
 
     pub(crate) fn len(&self) -> usize {
-        self.vmf.len().max(self.nasg.len()).max(self.df.len())
+        self.vmf
+            .len()
+            .max(self.nasg.len())
+            .max(self.df.len())
+            .max(self.df_table.len())
     }
 
     /// Appends `other`'s lanes (same family; the selection constant is
@@ -100,6 +110,8 @@ impl BatchItems {
         self.vmf.extend_from_slice(&other.vmf);
         self.nasg.extend_from_slice(&other.nasg);
         self.df.extend_from_slice(&other.df);
+        self.df_table.extend_from_slice(&other.df_table);
+        self.df_sums.extend_from_slice(&other.df_sums);
         self.selection = other.selection;
     }
 
@@ -133,6 +145,20 @@ impl BatchItems {
         pick(&cells.vmf, &network.vmf, source, flag, &mut self.vmf);
         pick(&cells.nasg, &network.nasg, source, flag, &mut self.nasg);
         pick(&cells.df, &network.df, source, flag, &mut self.df);
+        pick(
+            &cells.df_table,
+            &network.df_table,
+            source,
+            flag,
+            &mut self.df_table,
+        );
+        pick(
+            &cells.df_sums,
+            &network.df_sums,
+            source,
+            flag,
+            &mut self.df_sums,
+        );
         self.selection = if cells.len() > 0 {
             cells.selection
         } else {
@@ -151,7 +177,8 @@ impl BatchItems {
         }
     }
 
-    /// Lane `i` as a [`Decoded`] value (`None` out of range).
+    /// Lane `i` as a [`Decoded`] value (`None` out of range, and for a
+    /// tabulated DF lane, which has no plain-value form).
     pub(crate) fn get(&self, i: usize) -> Option<Decoded> {
         let selection = self
             .lane_selection
@@ -215,6 +242,11 @@ pub(crate) trait Decode: GuidingModel {
                 pdf: guiding_core::math::INV_FOUR_PI,
             };
         }
+    }
+
+    /// DF tables of vertices ([`Df::tabulate_vertices`]).
+    fn tabulate_vertices_any(&self, params: &[f32], vertices: &[DfVertex], out: &mut [DfTable]) {
+        let _ = (params, vertices, out);
     }
 
     /// DF densities of many lanes, the conditional network batched.
@@ -313,6 +345,10 @@ impl<
         out: &mut [f32],
     ) {
         self.pdf_vertices(params, vertices, lanes, directions, out);
+    }
+
+    fn tabulate_vertices_any(&self, params: &[f32], vertices: &[DfVertex], out: &mut [DfTable]) {
+        self.tabulate_vertices(params, vertices, out);
     }
 }
 

@@ -39,11 +39,13 @@ const RES: u32 = 8;
 const OPTIONS: CacheOptions = CacheOptions {
     resolution: RES,
     cosine_product: false,
+    df_table: false,
 };
 /// [`OPTIONS`] with the cosine product per normal bin.
 const PRODUCT: CacheOptions = CacheOptions {
     resolution: RES,
     cosine_product: true,
+    df_table: false,
 };
 
 fn training() -> FieldConfig {
@@ -363,6 +365,133 @@ fn a_lookup_at_the_only_position_of_its_cell_is_the_network_decode_bit_for_bit()
     }
 }
 
+/// A cached batch shares the cache's lanes instead of copying them; changing
+/// its lanes in place (the cosine product) copies them in first and leaves
+/// the cache as it was, and `get` reads the shared lanes.
+#[test]
+fn a_cached_batch_shares_the_cells_and_copies_them_before_a_product() {
+    let field = npm(71);
+    let mut rng = Pcg32::new(72, 1);
+    let empty = field.build_cache(&[], &OPTIONS).unwrap();
+    let positions = one_position_per_cell(empty.resolution(), &mut rng);
+    let points = queries_at(&positions, &mut rng);
+    let cache = field.build_cache(&points, &OPTIONS).unwrap();
+    let queries = queries_at(&positions, &mut rng);
+    let normals: Vec<Vec3> = queries.iter().map(|q| Vec3::from_array(q.normal)).collect();
+    let jitter = vec![Vec3::splat(0.5); queries.len()];
+    let mut batch = DistributionBatch::new();
+    let mut missed = Vec::new();
+    cache
+        .decode_batch(&field, &queries, &jitter, &mut batch, &mut missed)
+        .unwrap();
+    assert!(missed.is_empty());
+    let (dirs, _) = probes();
+    for (i, q) in queries.iter().enumerate() {
+        let d = field.attach(batch.get(i).unwrap()).unwrap();
+        assert_eq!(
+            d.pdf(dirs[0]).to_bits(),
+            field.distribution(q).pdf(dirs[0]).to_bits(),
+            "lane {i}"
+        );
+    }
+    assert!(batch.get(queries.len()).is_none());
+    assert!(batch.apply_cosine_product(&normals));
+    assert_eq!(
+        fingerprints(&field, &batch),
+        network_product(&field, &queries, &normals)
+    );
+    // The cache's own lanes are untouched.
+    let (again, _, _) = cached(&cache, &field, &queries, &jitter);
+    assert_eq!(again, network(&field, &queries));
+}
+
+/// With [`CacheOptions::df_table`] a DF cell is a table: no plain-value
+/// lane, samples whose densities are the table's `pdf_decoded`, and at the
+/// row centres (directions with `ε₁ = (r + ½)/32` exactly) the network's
+/// density, bit for bit; a refresh tabulates again.
+#[test]
+fn tabulated_df_cells_sample_their_own_density_and_hold_the_network_at_row_centres() {
+    use guiding_core::factorised::{direction_from_square, square_from_direction};
+    let (_, config) = radiance_presets().remove(3);
+    let mut field = trained(config, 81);
+    let mut rng = Pcg32::new(82, 1);
+    let empty = field.build_cache(&[], &OPTIONS).unwrap();
+    let positions = one_position_per_cell(empty.resolution(), &mut rng);
+    let points = queries_at(&positions, &mut rng);
+    let options = CacheOptions {
+        df_table: true,
+        ..OPTIONS
+    };
+    let mut cache = field.build_cache(&points, &options).unwrap();
+    for round in 0..2 {
+        let queries = queries_at(&positions, &mut rng);
+        let jitter = vec![Vec3::splat(0.5); queries.len()];
+        let mut batch = DistributionBatch::new();
+        let mut missed = Vec::new();
+        cache
+            .decode_batch(&field, &queries, &jitter, &mut batch, &mut missed)
+            .unwrap();
+        assert!(missed.is_empty());
+        assert!(batch.get(0).is_none(), "a table lane has no plain value");
+        let n = queries.len();
+        let lanes: Vec<u32> = (0..n as u32).collect();
+        let us: Vec<Vec2> = (0..n).map(|_| rng.next_vec2()).collect();
+        let zero = DirectionSample {
+            direction: Vec3::ZERO,
+            pdf: 0.0,
+        };
+        let mut samples = vec![zero; n];
+        field
+            .sample_decoded(&batch, &lanes, &us, &mut samples)
+            .unwrap();
+        let dirs: Vec<Vec3> = samples.iter().map(|s| s.direction).collect();
+        let mut pdfs = vec![0.0; n];
+        field.pdf_decoded(&batch, &lanes, &dirs, &mut pdfs).unwrap();
+        for i in 0..n {
+            assert_eq!(
+                samples[i].pdf.to_bits(),
+                pdfs[i].to_bits(),
+                "round {round} lane {i}"
+            );
+        }
+        // Row centres against the network's batched decode at the same points.
+        let mut network = DistributionBatch::new();
+        field.decode_batch(&queries, &mut network);
+        // (Some row centres do not survive the warp's round trip exactly.)
+        let (mut centre, mut centre_lanes) = (Vec::new(), Vec::new());
+        for i in 0..n {
+            let e1 = ((i % 32) as f32 + 0.5) / 32.0;
+            let d = (0..64)
+                .map(|_| direction_from_square(Vec2::new(e1, rng.uniform(0.02, 0.98))))
+                .find(|&d| square_from_direction(d).x == e1);
+            if let Some(d) = d {
+                centre.push(d);
+                centre_lanes.push(i as u32);
+            }
+        }
+        assert!(centre.len() > n / 2, "{} of {n} row centres", centre.len());
+        let m = centre.len();
+        let (mut got, mut want) = (vec![0.0; m], vec![0.0; m]);
+        field
+            .pdf_decoded(&batch, &centre_lanes, &centre, &mut got)
+            .unwrap();
+        field
+            .pdf_decoded(&network, &centre_lanes, &centre, &mut want)
+            .unwrap();
+        for k in 0..m {
+            assert_eq!(
+                got[k].to_bits(),
+                want[k].to_bits(),
+                "round {round} lane {}",
+                centre_lanes[k]
+            );
+        }
+        // Train on and refresh: the tables follow the new parameters.
+        train_once(&mut field, &mut rng);
+        cache.refresh(&field).unwrap();
+    }
+}
+
 #[test]
 fn build_cache_refuses_product_targets_and_bad_resolutions() {
     let products = [
@@ -394,6 +523,7 @@ fn build_cache_refuses_product_targets_and_bad_resolutions() {
             let options = CacheOptions {
                 resolution,
                 cosine_product,
+                df_table: false,
             };
             assert!(
                 matches!(
@@ -407,6 +537,7 @@ fn build_cache_refuses_product_targets_and_bad_resolutions() {
             let options = CacheOptions {
                 resolution,
                 cosine_product,
+                df_table: false,
             };
             let cache = field.build_cache(&p, &options).unwrap();
             assert_eq!(cache.resolution(), res, "resolution {resolution}");

@@ -11,6 +11,8 @@ use guiding_core::lobe::DirectionSample;
 use guiding_core::mixture::nasg::{NasgMixture, NASG_RAW_PER_LOBE};
 use guiding_core::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
 use guiding_core::model::mixture_batch as mb;
+use guiding_core::model::wavefront::DfTable;
+use guiding_core::pdf1d::Interpolation;
 use guiding_core::sphere::square_to_uniform_sphere;
 use guiding_tests::rng::Pcg32;
 
@@ -241,4 +243,49 @@ fn a_length_mismatch_panics_with_the_lengths() {
     let mixtures = vmf_mixtures(2, &mut rng);
     let mut out = vec![0.0f32; 2];
     mb::vmf_pdf_batch(&mixtures, &[0, 1, 1], &[Vec3::Z; 3], &mut out);
+}
+
+/// Tables with smooth, spiky and one-hot logits, both interpolations.
+fn tables(n: usize, rng: &mut Pcg32) -> Vec<DfTable> {
+    (0..n)
+        .map(|i| {
+            let scale = [1.0, 8.0, 40.0][i % 3];
+            let marginal: [f32; 32] = std::array::from_fn(|_| scale * rng.uniform(-1.0, 1.0));
+            let conditional: [[f32; 16]; 32] =
+                std::array::from_fn(|_| std::array::from_fn(|_| scale * rng.uniform(-1.0, 1.0)));
+            let interpolation = if i % 2 == 0 {
+                Interpolation::Linear
+            } else {
+                Interpolation::Nearest
+            };
+            DfTable::from_logits(&marginal, &conditional, interpolation)
+        })
+        .collect()
+}
+
+#[test]
+fn batched_table_densities_and_samples_are_the_per_lane_ones_bit_for_bit() {
+    let mut rng = Pcg32::new(59, 5);
+    let tables = tables(23, &mut rng);
+    let sums: Vec<_> = tables.iter().map(DfTable::running_sums).collect();
+    for n in [0, 1, 7, 8, 9, 100, 1000] {
+        let c = case(n, tables.len(), &mut rng);
+        let mut out = vec![-1.0f32; n];
+        mb::table_pdf_batch(&tables, &c.lanes, &c.dirs, &mut out);
+        let mut samples = vec![EMPTY; n];
+        mb::table_sample_batch(&tables, &sums, &c.lanes, &c.us, &mut samples);
+        for i in 0..n {
+            let t = &tables[c.lanes[i] as usize];
+            assert_eq!(
+                out[i].to_bits(),
+                t.pdf(c.dirs[i]).to_bits(),
+                "n {n} lane {i}"
+            );
+            assert_eq!(
+                sample_bits(&samples[i]),
+                sample_bits(&t.sample(c.us[i])),
+                "n {n} sample {i}"
+            );
+        }
+    }
 }

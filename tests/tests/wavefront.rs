@@ -495,6 +495,66 @@ fn df_vertices_sample_and_evaluate_like_the_model() {
     }
 }
 
+/// A tabulated DF vertex keeps the marginal and holds, as row `r`, the
+/// conditional at the row centre `ε₁ = (r + ½)/32`: at directions whose
+/// square point has that `ε₁` exactly its density is the vertex's own, bit
+/// for bit; elsewhere in the row it is not (the table is piecewise constant
+/// in `ε₁`, the network continuous).
+#[test]
+fn tabulated_df_vertices_hold_the_conditional_at_the_row_centres() {
+    use guiding_core::factorised::{direction_from_square, square_from_direction};
+    use guiding_core::model::wavefront::DfTable;
+    let model = DfCompactRadiance::new(
+        guiding::config::compact_grid(LO, HI),
+        Target::Radiance,
+        Interpolation::Linear,
+    );
+    let params = random_params(model.param_count(), 0.3, 23);
+    let qs = queries(40, 9);
+    let mut vs = vec![DfVertex::ZERO; qs.len()];
+    model.decode_batch(&params, &qs, &mut vs);
+    let mut tables = vec![DfTable::ZERO; vs.len()];
+    model.tabulate_vertices(&params, &vs, &mut tables);
+    let mut rng = Pcg32::new(3, 9);
+    let (mut centred, mut off_centre_differs, mut off_centre) = (0, 0, 0);
+    for (l, (v, t)) in vs.iter().zip(&tables).enumerate() {
+        assert!(
+            same_bits(&t.marginal.values, &v.marginal.values),
+            "vertex {l}"
+        );
+        for r in 0..32 {
+            let e1 = (r as f32 + 0.5) / 32.0;
+            let mut network = [0.0f32];
+            // A direction whose square point keeps ε₁ exactly.
+            let d = (0..32)
+                .map(|_| direction_from_square(Vec2::new(e1, rng.uniform(0.02, 0.98))))
+                .find(|&d| square_from_direction(d).x == e1);
+            if let Some(d) = d {
+                model.pdf_vertices(&params, &vs, &[l as u32], &[d], &mut network);
+                assert_eq!(
+                    t.pdf(d).to_bits(),
+                    network[0].to_bits(),
+                    "vertex {l} row {r}"
+                );
+                centred += 1;
+            }
+            let d =
+                direction_from_square(Vec2::new((r as f32 + 0.1) / 32.0, rng.uniform(0.02, 0.98)));
+            model.pdf_vertices(&params, &vs, &[l as u32], &[d], &mut network);
+            off_centre += 1;
+            off_centre_differs += usize::from(t.pdf(d) != network[0]);
+        }
+    }
+    assert!(
+        centred > 40 * 32 / 2,
+        "only {centred} exact row-centre directions"
+    );
+    assert!(
+        off_centre_differs > off_centre / 2,
+        "the table matched the network off the row centres ({off_centre_differs} of {off_centre})"
+    );
+}
+
 /// The batched gradient (what `Field::update` trains with) is the sum of
 /// the per-sample gradients, invalid samples skipped alike.
 #[test]

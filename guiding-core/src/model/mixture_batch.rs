@@ -22,6 +22,7 @@
 //! Measured (`benches/distributions.rs`, one thread, this repository's
 //! 2-core AMD EPYC Zen 4): see the README's benchmark section.
 
+use crate::factorised::square_from_direction;
 use crate::lobe::nasg::{log_g_local, unit_direction};
 use crate::lobe::DirectionSample;
 use crate::math::{exp, exp_nonpositive, sqrt};
@@ -30,6 +31,7 @@ use crate::mixture::pairwise_sum;
 use crate::mixture::vmf::VmfMixture;
 use crate::model::nasg::NASG_LOBES;
 use crate::model::npm::NPM_LOBES;
+use crate::model::wavefront::{DfTable, DfTableSums};
 use glam::{Vec2, Vec3};
 
 /// (mixture, direction) pairs per block.
@@ -469,4 +471,96 @@ pub fn vmf_sample_portable(
     out: &mut [DirectionSample],
 ) {
     sample_blocks(mixtures, lanes, u, out);
+}
+
+/// Lanes a table batch fetches ahead.
+const AHEAD: usize = 8;
+
+/// Asks the CPU to fetch the cache line at `p` (a hint; no effect where the
+/// architecture has none).
+#[inline(always)]
+fn prefetch<T>(p: &T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: a prefetch never faults and reads nothing the program sees.
+    unsafe {
+        use core::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        _mm_prefetch::<_MM_HINT_T0>(core::ptr::from_ref(p).cast::<i8>());
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = p;
+}
+
+/// Fetches the first `lines` cache lines of `p`.
+#[inline(always)]
+fn prefetch_lines<T>(p: &T, lines: usize) {
+    let bytes = core::ptr::from_ref(p).cast::<u8>();
+    for k in 0..lines.min(core::mem::size_of::<T>().div_ceil(64)) {
+        // SAFETY: within the object (`k · 64 < size_of::<T>()`).
+        prefetch(unsafe { &*bytes.add(64 * k) });
+    }
+}
+
+/// `out[i] = tables[lanes[i]].pdf(directions[i])`, bit for bit: the square
+/// points first, then each lane's marginal and row fetched [`AHEAD`] lanes
+/// early (a guide cache's tables are megabytes: a lone lookup waits on
+/// memory).
+///
+/// # Panics
+/// If the slices differ in length or a lane is out of range.
+pub fn table_pdf_batch(tables: &[DfTable], lanes: &[u32], directions: &[Vec3], out: &mut [f32]) {
+    check_lengths(lanes.len(), directions.len(), out.len());
+    let n = lanes.len();
+    let eps: std::vec::Vec<Vec2> = directions
+        .iter()
+        .map(|&d| square_from_direction(d))
+        .collect();
+    for i in 0..n {
+        if i + AHEAD < n {
+            let t = &tables[lanes[i + AHEAD] as usize];
+            let e = eps[i + AHEAD];
+            prefetch_lines(&t.marginal, 3);
+            prefetch_lines(&t.conditionals[DfTable::row(e.x)], 2);
+        }
+        out[i] = tables[lanes[i] as usize].pdf_at_square(eps[i]);
+    }
+}
+
+/// `out[i] = tables[lanes[i]].sample(u[i])`, bit for bit, from the tables'
+/// running sums `sums[lanes[i]]` ([`DfTable::running_sums`]), in two passes
+/// (the marginals, then the rows), each fetching [`AHEAD`] lanes early.
+///
+/// # Panics
+/// If the slices differ in length (`sums` and `tables` too) or a lane is out
+/// of range.
+pub fn table_sample_batch(
+    tables: &[DfTable],
+    sums: &[DfTableSums],
+    lanes: &[u32],
+    u: &[Vec2],
+    out: &mut [DirectionSample],
+) {
+    check_lengths(lanes.len(), u.len(), out.len());
+    assert_eq!(tables.len(), sums.len(), "one set of sums per table");
+    let n = lanes.len();
+    let mut first = std::vec::Vec::with_capacity(n);
+    for i in 0..n {
+        if i + AHEAD < n {
+            let l = lanes[i + AHEAD] as usize;
+            prefetch_lines(&tables[l].marginal, 3);
+            prefetch_lines(&sums[l].marginal, 3);
+        }
+        let l = lanes[i] as usize;
+        first.push(tables[l].sample_first_with(&sums[l], u[i].x));
+    }
+    for i in 0..n {
+        if i + AHEAD < n {
+            let l = lanes[i + AHEAD] as usize;
+            let r = DfTable::row(first[i + AHEAD].0);
+            prefetch_lines(&tables[l].conditionals[r], 2);
+            prefetch_lines(&sums[l].rows[r], 2);
+        }
+        let (e1, p1) = first[i];
+        let l = lanes[i] as usize;
+        out[i] = tables[l].sample_second_with(&sums[l], e1, p1, u[i].y);
+    }
 }

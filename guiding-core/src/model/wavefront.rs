@@ -105,6 +105,11 @@ impl Default for DfVertex {
     }
 }
 
+/// A DF distribution tabulated per marginal bin ([`Df::tabulate_vertices`]).
+pub type DfTable = factorised::FactorisedTable<DF_MARGINAL_BINS, DF_CONDITIONAL_BINS>;
+/// A [`DfTable`]'s running sums (kept by the guide cache next to its tables).
+pub type DfTableSums = factorised::TableSums<DF_MARGINAL_BINS, DF_CONDITIONAL_BINS>;
+
 /// Encodes `queries` (at most `WAVEFRONT_CHUNK`) and runs the MLP at
 /// `offset` over them: `ys[b] = MLP(encode(queries[b]))`.
 fn infer_chunk<const IN: usize, const W: usize, const OUT: usize, const H: usize>(
@@ -912,6 +917,59 @@ impl<
         let eps = square_from_direction(direction);
         let conditional = self.conditional_at(params, v, eps.x);
         factorised::pdf(&v.marginal, &conditional, direction)
+    }
+
+    /// The frozen distribution of each vertex as a [`DfTable`]: its
+    /// marginal, and as row `r` the conditional at the row's centre
+    /// `ε₁ = (r + ½) / 32` (the conditional network batched over all
+    /// `32 · vertices.len()` pairs). A deviation from DF, whose conditional
+    /// is continuous in `ε₁`: the table holds it piecewise constant in `ε₁`
+    /// (the guide cache's tabulated DF lanes; sampling and pdf of a table
+    /// agree exactly, so estimators stay unbiased). A too short `params`
+    /// gives uniform tables.
+    ///
+    /// # Panics
+    /// If `vertices` and `out` differ in length.
+    pub fn tabulate_vertices(&self, params: &[f32], vertices: &[DfVertex], out: &mut [DfTable]) {
+        assert_eq!(vertices.len(), out.len(), "one table per vertex");
+        if !self.fits(params) {
+            let uniform = DfTable::from_logits(
+                &[0.0; DF_MARGINAL_BINS],
+                &[[0.0; DF_CONDITIONAL_BINS]; DF_MARGINAL_BINS],
+                self.interpolation(),
+            );
+            out.fill(uniform);
+            return;
+        }
+        for (o, v) in out.iter_mut().zip(vertices) {
+            o.marginal = v.marginal;
+        }
+        let pairs = vertices.len() * DF_MARGINAL_BINS;
+        let mut lanes = [0u32; WAVEFRONT_CHUNK];
+        let mut eps1 = [0.0f32; WAVEFRONT_CHUNK];
+        let mut ys = [[0.0f32; DF_CONDITIONAL_BINS]; WAVEFRONT_CHUNK];
+        let mut start = 0;
+        while start < pairs {
+            let m = (pairs - start).min(WAVEFRONT_CHUNK);
+            for b in 0..m {
+                let (v, r) = (
+                    (start + b) / DF_MARGINAL_BINS,
+                    (start + b) % DF_MARGINAL_BINS,
+                );
+                lanes[b] = v as u32;
+                eps1[b] = (r as f32 + 0.5) / DF_MARGINAL_BINS as f32;
+            }
+            self.conditional_chunk(params, vertices, &lanes[..m], &eps1[..m], &mut ys);
+            for (b, y) in ys[..m].iter().enumerate() {
+                let (v, r) = (
+                    (start + b) / DF_MARGINAL_BINS,
+                    (start + b) % DF_MARGINAL_BINS,
+                );
+                out[v].conditionals[r] =
+                    Pdf1d::from_logits(y, self.interpolation(), Boundary::Clamp);
+            }
+            start += m;
+        }
     }
 
     /// Conditional logits at `(vertex, ε₁)` pairs, batched: `ys[b] =

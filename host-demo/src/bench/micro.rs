@@ -398,8 +398,13 @@ fn guided_vertex(quick: bool) -> Result<Vec<MicroResult>, guiding::GuidingError>
                         unit: "ns (1 thread)",
                         ratio: ray.map(|r| ns_c / r),
                         note: format!(
-                            "× one ray; jittered lookup in a {N}-cell cache (resolution 64), \
+                            "× one ray; jittered lookup in a {N}-cell cache (resolution 64{}), \
                              {:.1}× faster than the batched decode",
+                            if matches!(rep, Representation::DfNearest | Representation::DfLinear) {
+                                ", tabulated DF cells"
+                            } else {
+                                ""
+                            },
                             ns / ns_c
                         ),
                     });

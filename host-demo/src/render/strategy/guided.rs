@@ -588,6 +588,7 @@ impl<'g> Guided<'g> {
                 let options = CacheOptions {
                     resolution: self.gopts.cache_resolution,
                     cosine_product: self.gopts.cosine_product,
+                    ..CacheOptions::default()
                 };
                 self.cache = Some(self.guide.build_cache(points, &options)?);
             }
