@@ -187,11 +187,13 @@ fn pdf_blocks<M: Blocked>(mixtures: &[M], lanes: &[u32], directions: &[Vec3], ou
     check_lengths(lanes.len(), directions.len(), out.len());
     let mut scratch = M::scratch();
     let mut unit = [Vec3::ZERO; PAIRS];
-    for ((l, d), o) in lanes
+    for (j, ((l, d), o)) in lanes
         .chunks(PAIRS)
         .zip(directions.chunks(PAIRS))
         .zip(out.chunks_mut(PAIRS))
+        .enumerate()
     {
+        prefetch_block(mixtures, lanes, j + 1);
         for (u, &d) in unit.iter_mut().zip(d) {
             *u = M::unit(d);
         }
@@ -218,11 +220,13 @@ fn sample_blocks<M: Blocked>(
     let mut scratch = M::scratch();
     let mut dirs = [Vec3::ZERO; PAIRS];
     let mut pdfs = [0.0f32; PAIRS];
-    for ((l, u), o) in lanes
+    for (j, ((l, u), o)) in lanes
         .chunks(PAIRS)
         .zip(u.chunks(PAIRS))
         .zip(out.chunks_mut(PAIRS))
+        .enumerate()
     {
+        prefetch_block(mixtures, lanes, j + 1);
         for ((d, &lane), &ub) in dirs.iter_mut().zip(l).zip(u) {
             *d = mixtures[lane as usize].direction(ub);
         }
@@ -232,6 +236,18 @@ fn sample_blocks<M: Blocked>(
                 direction: d,
                 pdf: p,
             };
+        }
+    }
+}
+
+/// Fetches the mixtures of block `j` (a guide cache's thousands of
+/// mixtures are megabytes; the block before waits on them otherwise).
+#[inline(always)]
+fn prefetch_block<M>(mixtures: &[M], lanes: &[u32], j: usize) {
+    let lines = core::mem::size_of::<M>().div_ceil(64);
+    for &l in lanes.iter().skip(j * PAIRS).take(PAIRS) {
+        if let Some(m) = mixtures.get(l as usize) {
+            prefetch_lines(m, lines);
         }
     }
 }
