@@ -517,7 +517,7 @@ fn prefetch_lines<T>(p: &T, lines: usize) {
 }
 
 /// `out[i] = tables[lanes[i]].pdf(directions[i])`, bit for bit: the square
-/// points first, then each lane's marginal and row fetched [`AHEAD`] lanes
+/// points first, then each lane's marginal and row fetched eight lanes
 /// early (a guide cache's tables are megabytes: a lone lookup waits on
 /// memory).
 ///
@@ -543,7 +543,7 @@ pub fn table_pdf_batch(tables: &[DfTable], lanes: &[u32], directions: &[Vec3], o
 
 /// `out[i] = tables[lanes[i]].sample(u[i])`, bit for bit, from the tables'
 /// running sums `sums[lanes[i]]` ([`DfTable::running_sums`]), in two passes
-/// (the marginals, then the rows), each fetching [`AHEAD`] lanes early.
+/// (the marginals, then the rows), each fetching eight lanes early.
 ///
 /// # Panics
 /// If the slices differ in length (`sums` and `tables` too) or a lane is out
