@@ -467,7 +467,10 @@ impl GuideCache {
         // The misses in `out`'s own lanes; the cells shared.
         if !missed.is_empty() {
             let mq: Vec<QueryPoint> = missed.iter().map(|&i| queries[i as usize]).collect();
-            decode_into(field, &mq, &mut out.items);
+            // Tabulated like the cells, so every lane of the batch is of one
+            // kind (a batch that mixes DF tables and DF vertices cannot be
+            // gathered into one buffer).
+            decode_cells(field, &mq, self.tabulate, &mut out.items);
             if self.product {
                 let normals: Vec<Vec3> = mq.iter().map(|q| Vec3::from_array(q.normal)).collect();
                 guiding_core::model::wavefront::cosine_product_batch(&mut out.items.vmf, &normals);

@@ -492,6 +492,70 @@ fn tabulated_df_cells_sample_their_own_density_and_hold_the_network_at_row_centr
     }
 }
 
+/// A tabulated DF cache's misses are tabulated too: a batch that mixes
+/// cells and misses is of one kind, so it can be copied out of the shared
+/// cells (`apply_cosine_product` does, and used to panic on DF tables mixed
+/// with network vertices) and samples its own density on every lane.
+#[test]
+fn tabulated_df_misses_are_tables_too() {
+    let (_, config) = radiance_presets().remove(3);
+    let field = trained(config, 91);
+    let mut rng = Pcg32::new(92, 1);
+    let options = CacheOptions {
+        df_table: true,
+        ..OPTIONS
+    };
+    // Cells only in the lower half of the box along x.
+    let low: Vec<Vec3> = (0..200)
+        .map(|_| {
+            let p = in_box(&mut rng);
+            Vec3::new(LO[0] + 0.25 * (p.x - LO[0]), p.y, p.z)
+        })
+        .collect();
+    let cache = field
+        .build_cache(&queries_at(&low, &mut rng), &options)
+        .unwrap();
+    let mut positions: Vec<Vec3> = low[..32].to_vec();
+    positions.extend((0..32).map(|_| {
+        let p = in_box(&mut rng);
+        Vec3::new(HI[0] - 0.1 * (HI[0] - p.x), p.y, p.z)
+    }));
+    let queries = queries_at(&positions, &mut rng);
+    let jitter = vec![Vec3::splat(0.5); queries.len()];
+    let mut batch = DistributionBatch::new();
+    let mut missed = Vec::new();
+    let lookup = cache
+        .decode_batch(&field, &queries, &jitter, &mut batch, &mut missed)
+        .unwrap();
+    assert!(lookup.hits >= 32 && lookup.misses > 0, "{lookup:?}");
+    let normals: Vec<Vec3> = queries.iter().map(|q| Vec3::from_array(q.normal)).collect();
+    assert!(
+        !batch.apply_cosine_product(&normals),
+        "DF has no cosine product"
+    );
+    let n = queries.len();
+    let lanes: Vec<u32> = (0..n as u32).collect();
+    let us: Vec<Vec2> = (0..n).map(|_| rng.next_vec2()).collect();
+    let zero = DirectionSample {
+        direction: Vec3::ZERO,
+        pdf: 0.0,
+    };
+    let mut samples = vec![zero; n];
+    field
+        .sample_decoded(&batch, &lanes, &us, &mut samples)
+        .unwrap();
+    let dirs: Vec<Vec3> = samples.iter().map(|s| s.direction).collect();
+    let mut pdfs = vec![0.0; n];
+    field.pdf_decoded(&batch, &lanes, &dirs, &mut pdfs).unwrap();
+    for i in 0..n {
+        assert!(
+            samples[i].pdf > 0.0 && samples[i].pdf.is_finite(),
+            "lane {i}"
+        );
+        assert_eq!(samples[i].pdf.to_bits(), pdfs[i].to_bits(), "lane {i}");
+    }
+}
+
 #[test]
 fn build_cache_refuses_product_targets_and_bad_resolutions() {
     let products = [
