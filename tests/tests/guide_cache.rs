@@ -409,6 +409,30 @@ fn a_cached_batch_shares_the_cells_and_copies_them_before_a_product() {
 /// lane, samples whose densities are the table's `pdf_decoded`, and at the
 /// row centres (directions with `ε₁ = (r + ½)/32` exactly) the network's
 /// density, bit for bit; a refresh tabulates again.
+/// One sample on every lane of `batch` and the batch's pdf of each sampled
+/// direction.
+fn sample_every_lane(
+    field: &GuidingField,
+    batch: &DistributionBatch,
+    n: usize,
+    rng: &mut Pcg32,
+) -> (Vec<DirectionSample>, Vec<f32>) {
+    let lanes: Vec<u32> = (0..n as u32).collect();
+    let us: Vec<Vec2> = (0..n).map(|_| rng.next_vec2()).collect();
+    let zero = DirectionSample {
+        direction: Vec3::ZERO,
+        pdf: 0.0,
+    };
+    let mut samples = vec![zero; n];
+    field
+        .sample_decoded(batch, &lanes, &us, &mut samples)
+        .unwrap();
+    let dirs: Vec<Vec3> = samples.iter().map(|s| s.direction).collect();
+    let mut pdfs = vec![0.0; n];
+    field.pdf_decoded(batch, &lanes, &dirs, &mut pdfs).unwrap();
+    (samples, pdfs)
+}
+
 #[test]
 fn tabulated_df_cells_sample_their_own_density_and_hold_the_network_at_row_centres() {
     use guiding_core::factorised::{direction_from_square, square_from_direction};
@@ -434,19 +458,7 @@ fn tabulated_df_cells_sample_their_own_density_and_hold_the_network_at_row_centr
         assert!(missed.is_empty());
         assert!(batch.get(0).is_none(), "a table lane has no plain value");
         let n = queries.len();
-        let lanes: Vec<u32> = (0..n as u32).collect();
-        let us: Vec<Vec2> = (0..n).map(|_| rng.next_vec2()).collect();
-        let zero = DirectionSample {
-            direction: Vec3::ZERO,
-            pdf: 0.0,
-        };
-        let mut samples = vec![zero; n];
-        field
-            .sample_decoded(&batch, &lanes, &us, &mut samples)
-            .unwrap();
-        let dirs: Vec<Vec3> = samples.iter().map(|s| s.direction).collect();
-        let mut pdfs = vec![0.0; n];
-        field.pdf_decoded(&batch, &lanes, &dirs, &mut pdfs).unwrap();
+        let (samples, pdfs) = sample_every_lane(&field, &batch, n, &mut rng);
         for i in 0..n {
             assert_eq!(
                 samples[i].pdf.to_bits(),
@@ -534,19 +546,7 @@ fn tabulated_df_misses_are_tables_too() {
         "DF has no cosine product"
     );
     let n = queries.len();
-    let lanes: Vec<u32> = (0..n as u32).collect();
-    let us: Vec<Vec2> = (0..n).map(|_| rng.next_vec2()).collect();
-    let zero = DirectionSample {
-        direction: Vec3::ZERO,
-        pdf: 0.0,
-    };
-    let mut samples = vec![zero; n];
-    field
-        .sample_decoded(&batch, &lanes, &us, &mut samples)
-        .unwrap();
-    let dirs: Vec<Vec3> = samples.iter().map(|s| s.direction).collect();
-    let mut pdfs = vec![0.0; n];
-    field.pdf_decoded(&batch, &lanes, &dirs, &mut pdfs).unwrap();
+    let (samples, pdfs) = sample_every_lane(&field, &batch, n, &mut rng);
     for i in 0..n {
         assert!(
             samples[i].pdf > 0.0 && samples[i].pdf.is_finite(),
