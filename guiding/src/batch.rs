@@ -163,18 +163,15 @@ impl DistributionBatch {
     /// of what is sampled). Returns `false` and changes nothing for NASG and
     /// DF (no closed-form product) or when the lengths differ.
     pub fn apply_cosine_product(&mut self, normals: &[Vec3]) -> bool {
-        let vmf_lanes = match &self.cells {
-            Some(cells) => !cells.vmf.is_empty() || !self.items.vmf.is_empty(),
-            None => !self.items.vmf.is_empty(),
-        };
-        if !vmf_lanes || self.len() != normals.len() {
+        // Checked before the shared cells are copied in: a NASG or DF batch
+        // needs no copy.
+        let has_vmf =
+            !self.items.vmf.is_empty() || self.cells.as_ref().is_some_and(|c| !c.vmf.is_empty());
+        if !has_vmf || self.len() != normals.len() {
             return false;
         }
         self.materialize();
         let vmf = &mut self.items.vmf;
-        if vmf.is_empty() || vmf.len() != normals.len() {
-            return false;
-        }
         guiding_core::model::wavefront::cosine_product_batch(vmf, normals);
         true
     }

@@ -405,10 +405,6 @@ fn a_cached_batch_shares_the_cells_and_copies_them_before_a_product() {
     assert_eq!(again, network(&field, &queries));
 }
 
-/// With [`CacheOptions::df_table`] a DF cell is a table: no plain-value
-/// lane, samples whose densities are the table's `pdf_decoded`, and at the
-/// row centres (directions with `ε₁ = (r + ½)/32` exactly) the network's
-/// density, bit for bit; a refresh tabulates again.
 /// One sample on every lane of `batch` and the batch's pdf of each sampled
 /// direction.
 fn sample_every_lane(
@@ -433,6 +429,10 @@ fn sample_every_lane(
     (samples, pdfs)
 }
 
+/// With [`CacheOptions::df_table`] a DF cell is a table: no plain-value
+/// lane, samples whose densities are the table's `pdf_decoded`, and at the
+/// row centres (directions with `ε₁ = (r + ½)/32` exactly) the network's
+/// density, bit for bit; a refresh tabulates again.
 #[test]
 fn tabulated_df_cells_sample_their_own_density_and_hold_the_network_at_row_centres() {
     use guiding_core::factorised::{direction_from_square, square_from_direction};
