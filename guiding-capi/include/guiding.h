@@ -114,6 +114,14 @@ typedef enum PgStatus {
      * message has its text. Please report it.
      */
     PG_PANIC = 8,
+    /**
+     * The field's Vulkan device is missing or failed: no Vulkan loader or
+     * matching device, the library built without its SPIR-V (`guiding-gpu`
+     * feature `shaders`), or a device failure mid-render (the message
+     * says which). A field created with `PG_DEVICE_FALLBACK_CPU` goes on on
+     * the CPU instead of failing mid-render.
+     */
+    PG_DEVICE_UNAVAILABLE = 9,
 } PgStatus;
 
 /**
@@ -151,6 +159,16 @@ typedef uint32_t PgTarget;
  * Model size code (`PG_SIZE_*`).
  */
 typedef uint32_t PgModelSize;
+
+/**
+ * Where a field's network runs (`PG_DEVICE_*`).
+ */
+typedef uint32_t PgDevice;
+
+/**
+ * What a field on a device does when the device fails (`PG_DEVICE_FAILURE_*`).
+ */
+typedef uint32_t PgDeviceFailure;
 
 /**
  * Everything needed to create a field. Fill it with
@@ -230,6 +248,17 @@ typedef struct PgFieldArgs {
      * Scene bounding box, upper corner, `> bounds_min` on every axis (must be set).
      */
     float bounds_max[3];
+    /**
+     * `PG_DEVICE_*`: where the network's inference and training run
+     * (default `PG_DEVICE_CPU`). `pg_field_new` returns
+     * `PG_DEVICE_UNAVAILABLE` when the device cannot be used.
+     */
+    PgDevice device;
+    /**
+     * `PG_DEVICE_FAILURE_*`: what a field on a device does when the device
+     * fails mid-render (default `PG_DEVICE_FAILURE_ERROR`).
+     */
+    PgDeviceFailure device_failure;
 } PgFieldArgs;
 
 /**
@@ -519,6 +548,32 @@ typedef struct PgPathVertex {
 #define PG_TARGET_PRODUCT 1
 
 /**
+ * The CPU threads (default).
+ */
+#define PG_DEVICE_CPU 0
+
+/**
+ * A Vulkan device: a discrete GPU first, then an integrated one, then a
+ * CPU implementation (lavapipe); `GUIDING_VK_DEVICE` overrides the choice.
+ */
+#define PG_DEVICE_VULKAN 1
+
+/**
+ * A Vulkan GPU, never a CPU implementation.
+ */
+#define PG_DEVICE_VULKAN_GPU 2
+
+/**
+ * Every later call that needs the device returns `PG_DEVICE_UNAVAILABLE` (default).
+ */
+#define PG_DEVICE_FAILURE_ERROR 0
+
+/**
+ * Go on on the CPU with the weights the device trained.
+ */
+#define PG_DEVICE_FALLBACK_CPU 1
+
+/**
  * Tiny (2-level grid, MLP 2 × 16): tests and toy scenes.
  */
 #define PG_SIZE_SMALL 0
@@ -617,7 +672,9 @@ enum PgStatus pg_field_add_samples(struct PgField *field,
  * Adam steps), then clears the buffer. Does nothing once converged. If it
  * applied a step, distributions queried before are stale. Writes what it
  * did to `*report` unless `report` is NULL. Takes the field exclusively:
- * waits for running queries and blocks new ones until done.
+ * waits for running queries and blocks new ones until done. On a field
+ * whose device failed (`PG_DEVICE_FAILURE_ERROR`) it trains nothing and
+ * returns `PG_DEVICE_UNAVAILABLE`.
  *
  * # Safety
  * `field` must be NULL or a live handle; `report` NULL or writable.

@@ -6,10 +6,13 @@ use crate::ptr::{self, disjoint, region, times};
 use crate::status::{guard, guard_void, Failure, PgStatus};
 use crate::types::{
     as_query_points, as_training_samples, PgFieldArgs, PgFieldStats, PgQueryPoint,
-    PgRepresentation, PgTrainingSample, PgUpdateReport, PG_TARGET_PRODUCT, PG_TARGET_RADIANCE,
+    PgRepresentation, PgTrainingSample, PgUpdateReport, PG_DEVICE_CPU, PG_DEVICE_FAILURE_ERROR,
+    PG_DEVICE_FALLBACK_CPU, PG_DEVICE_VULKAN, PG_DEVICE_VULKAN_GPU, PG_TARGET_PRODUCT,
+    PG_TARGET_RADIANCE,
 };
 use guiding::{
-    DirectionSample, GuidingConfig, GuidingField, ModelSize, PlateauConfig, Representation, Target,
+    DeviceFailure, DeviceSelection, DirectionSample, GuidingConfig, GuidingField, ModelSize,
+    PlateauConfig, Representation, Target,
 };
 use guiding_core::glam::{Vec2, Vec3};
 use guiding_core::sample::UNIT_TOLERANCE;
@@ -84,7 +87,32 @@ fn args_of(config: &GuidingConfig, bounds: ([f32; 3], [f32; 3])) -> PgFieldArgs 
         plateau_min_relative_improvement: t.plateau.min_relative_improvement,
         bounds_min: bounds.0,
         bounds_max: bounds.1,
+        device: PG_DEVICE_CPU,
+        device_failure: PG_DEVICE_FAILURE_ERROR,
     }
+}
+
+/// The device and failure policy of `args` (`None`: the CPU).
+fn device_of(args: &PgFieldArgs) -> Result<Option<(DeviceSelection, DeviceFailure)>, Failure> {
+    let failure = match args.device_failure {
+        PG_DEVICE_FAILURE_ERROR => DeviceFailure::Error,
+        PG_DEVICE_FALLBACK_CPU => DeviceFailure::FallbackToCpu,
+        f => {
+            return Err(Failure::invalid(format!(
+                "device_failure {f} is not a PG_DEVICE_FAILURE_* code (0 or 1)"
+            )))
+        }
+    };
+    Ok(match args.device {
+        PG_DEVICE_CPU => None,
+        PG_DEVICE_VULKAN => Some((DeviceSelection::Auto, failure)),
+        PG_DEVICE_VULKAN_GPU => Some((DeviceSelection::Gpu, failure)),
+        d => {
+            return Err(Failure::invalid(format!(
+                "device {d} is not a PG_DEVICE_* code (0 to 2)"
+            )))
+        }
+    })
 }
 
 fn config_of(args: &PgFieldArgs) -> Result<GuidingConfig, Failure> {
@@ -223,7 +251,11 @@ pub unsafe extern "C" fn pg_field_new(
         *out = std::ptr::null_mut();
         let args = unsafe { ptr::as_ref(args, "args") }?;
         let config = config_of(args)?;
-        let field = GuidingField::new(config, args.bounds_min, args.bounds_max)?;
+        let device = device_of(args)?;
+        let mut field = GuidingField::new(config, args.bounds_min, args.bounds_max)?;
+        if let Some((selection, on_failure)) = device {
+            field.use_device(selection, on_failure)?;
+        }
         *out = PgField::into_raw(field);
         Ok(())
     })
@@ -292,7 +324,9 @@ pub unsafe extern "C" fn pg_field_add_samples(
 /// Adam steps), then clears the buffer. Does nothing once converged. If it
 /// applied a step, distributions queried before are stale. Writes what it
 /// did to `*report` unless `report` is NULL. Takes the field exclusively:
-/// waits for running queries and blocks new ones until done.
+/// waits for running queries and blocks new ones until done. On a field
+/// whose device failed (`PG_DEVICE_FAILURE_ERROR`) it trains nothing and
+/// returns `PG_DEVICE_UNAVAILABLE`.
 ///
 /// # Safety
 /// `field` must be NULL or a live handle; `report` NULL or writable.
@@ -308,7 +342,7 @@ pub unsafe extern "C" fn pg_field_update(
         } else {
             Some(unsafe { ptr::as_mut(report, "report") }?)
         };
-        let r = write(&field.inner)?.update();
+        let r = write(&field.inner)?.try_update()?;
         if let Some(out) = report {
             *out = r.into();
         }
@@ -337,7 +371,7 @@ pub unsafe extern "C" fn pg_field_update_proportional(
         } else {
             Some(unsafe { ptr::as_mut(report, "report") }?)
         };
-        let r = write(&field.inner)?.update_proportional(epochs);
+        let r = write(&field.inner)?.try_update_proportional(epochs)?;
         if let Some(out) = report {
             *out = r.into();
         }

@@ -36,6 +36,12 @@ pub enum PgStatus {
     /// An internal error (a Rust panic) was caught at the C boundary; the
     /// message has its text. Please report it.
     PG_PANIC = 8,
+    /// The field's Vulkan device is missing or failed: no Vulkan loader or
+    /// matching device, the library built without its SPIR-V (`guiding-gpu`
+    /// feature `shaders`), or a device failure mid-render (the message
+    /// says which). A field created with `PG_DEVICE_FALLBACK_CPU` goes on on
+    /// the CPU instead of failing mid-render.
+    PG_DEVICE_UNAVAILABLE = 9,
 }
 
 /// A failed call: its status and message.
@@ -72,6 +78,7 @@ impl From<GuidingError> for Failure {
             GuidingError::StaleDistribution { .. } => PgStatus::PG_STALE,
             GuidingError::Io { .. } => PgStatus::PG_IO,
             GuidingError::Format { .. } => PgStatus::PG_FORMAT,
+            GuidingError::Device(_) => PgStatus::PG_DEVICE_UNAVAILABLE,
         };
         Self::new(status, e.to_string())
     }

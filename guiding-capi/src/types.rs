@@ -29,6 +29,23 @@ pub const PG_TARGET_RADIANCE: PgTarget = 0;
 /// normal, ωo and roughness).
 pub const PG_TARGET_PRODUCT: PgTarget = 1;
 
+/// Where a field's network runs (`PG_DEVICE_*`).
+pub type PgDevice = u32;
+/// The CPU threads (default).
+pub const PG_DEVICE_CPU: PgDevice = 0;
+/// A Vulkan device: a discrete GPU first, then an integrated one, then a
+/// CPU implementation (lavapipe); `GUIDING_VK_DEVICE` overrides the choice.
+pub const PG_DEVICE_VULKAN: PgDevice = 1;
+/// A Vulkan GPU, never a CPU implementation.
+pub const PG_DEVICE_VULKAN_GPU: PgDevice = 2;
+
+/// What a field on a device does when the device fails (`PG_DEVICE_FAILURE_*`).
+pub type PgDeviceFailure = u32;
+/// Every later call that needs the device returns `PG_DEVICE_UNAVAILABLE` (default).
+pub const PG_DEVICE_FAILURE_ERROR: PgDeviceFailure = 0;
+/// Go on on the CPU with the weights the device trained.
+pub const PG_DEVICE_FALLBACK_CPU: PgDeviceFailure = 1;
+
 /// Model size code (`PG_SIZE_*`).
 pub type PgModelSize = u32;
 /// Tiny (2-level grid, MLP 2 × 16): tests and toy scenes.
@@ -88,6 +105,13 @@ pub struct PgFieldArgs {
     pub bounds_min: [f32; 3],
     /// Scene bounding box, upper corner, `> bounds_min` on every axis (must be set).
     pub bounds_max: [f32; 3],
+    /// `PG_DEVICE_*`: where the network's inference and training run
+    /// (default `PG_DEVICE_CPU`). `pg_field_new` returns
+    /// `PG_DEVICE_UNAVAILABLE` when the device cannot be used.
+    pub device: PgDevice,
+    /// `PG_DEVICE_FAILURE_*`: what a field on a device does when the device
+    /// fails mid-render (default `PG_DEVICE_FAILURE_ERROR`).
+    pub device_failure: PgDeviceFailure,
 }
 
 /// One training sample, identical in layout to `guiding_core`'s

@@ -520,6 +520,14 @@ fn invalid_arguments_are_refused_with_messages() {
                 },
                 "bounds",
             ),
+            (PgFieldArgs { device: 3, ..a }, "device 3"),
+            (
+                PgFieldArgs {
+                    device_failure: 2,
+                    ..a
+                },
+                "device_failure 2",
+            ),
         ];
         for (b, needle) in bad {
             let mut f = std::ptr::NonNull::<PgField>::dangling().as_ptr(); // not NULL: must be reset
@@ -1334,5 +1342,60 @@ fn proportional_update_takes_steps_by_buffer_size() {
             PG_NULL_POINTER
         );
         pg_field_release(field);
+    }
+}
+
+/// `args.device` picks the backend: the defaults are the CPU; a Vulkan
+/// device gives a field that trains and answers there (`PG_OK`), or, where
+/// there is no device or no SPIR-V in this build, `PG_DEVICE_UNAVAILABLE`
+/// with the reason and a NULL field; never a CPU field in its place.
+#[test]
+fn the_device_is_chosen_by_args_or_unavailable_with_a_reason() {
+    let a = args(PG_REPRESENTATION_NPM);
+    assert_eq!(a.device, PG_DEVICE_CPU);
+    assert_eq!(a.device_failure, PG_DEVICE_FAILURE_ERROR);
+    let b = PgFieldArgs {
+        device: PG_DEVICE_VULKAN,
+        ..a
+    };
+    let mut f = std::ptr::NonNull::<PgField>::dangling().as_ptr();
+    // SAFETY: valid pointers.
+    let s = unsafe { pg_field_new(&b, &mut f) };
+    let msg = last();
+    let available = guiding_gpu::shader_module()
+        .and_then(|_| guiding_gpu::GpuContext::new(guiding_gpu::DeviceSelection::Auto))
+        .is_ok();
+    if available {
+        assert_eq!(s, PG_OK, "{msg}");
+        assert!(!f.is_null());
+        // It trains on the device through the same calls.
+        let mut rng = Pcg32::new(5, 5);
+        let batch = samples(&mut rng, 512);
+        let mut report = std::mem::MaybeUninit::<PgUpdateReport>::uninit();
+        // SAFETY: valid pointers.
+        unsafe {
+            expect(
+                pg_field_add_samples(f, batch.as_ptr(), batch.len()),
+                PG_OK,
+                "pg_field_add_samples",
+                "",
+            );
+            expect(
+                pg_field_update(f, report.as_mut_ptr()),
+                PG_OK,
+                "pg_field_update",
+                "",
+            );
+            assert_eq!(report.assume_init().steps, 2);
+            pg_field_release(f);
+        }
+    } else {
+        assert!(
+            std::env::var("GUIDING_REQUIRE_VULKAN").map_or(true, |v| v != "1"),
+            "GUIDING_REQUIRE_VULKAN=1 but no device"
+        );
+        assert_eq!(s, PG_DEVICE_UNAVAILABLE, "{msg}");
+        assert!(f.is_null());
+        assert!(msg.starts_with("pg_field_new: Vulkan device:"), "{msg}");
     }
 }

@@ -399,3 +399,123 @@ pub fn df_decode_pdf_element(
         out[i] = table.pdf(unpack_direction(directions[i]));
     }
 }
+
+/// The first raw output of lane `i` of a lane kernel with `stride` outputs
+/// per row: `lanes[i] · stride`, or `raw.len()` (every slot then reads as
+/// 0) when `i` is past `lanes` or the row past `raw`.
+#[inline]
+fn lane_base(raw: &[f32], lanes: &[u32], stride: usize, i: usize) -> usize {
+    if i < lanes.len() && (lanes[i] as usize) < raw.len() / stride {
+        lanes[i] as usize * stride
+    } else {
+        raw.len()
+    }
+}
+
+/// The NPM mixture of lane `i` of a lane kernel: raw row `lanes[i]`
+/// ([`vmf_mixture_from_raw`]), multiplied by the clamped cosine of
+/// `normals[i]`'s `xyz` when its `w` is `> 0`
+/// ([`VmfMixture::product_with_clamped_cosine`], NPM §4.2: what
+/// `DistributionBatch::apply_cosine_product` does on the CPU).
+#[inline]
+fn vmf_lane_mixture(
+    raw: &[f32],
+    lanes: &[u32],
+    normals: &[[f32; 4]],
+    i: usize,
+) -> VmfMixture<NPM_LOBES> {
+    let mix = vmf_mixture_from_raw(raw, lane_base(raw, lanes, NPM_OUTPUTS, i));
+    if i < normals.len() && normals[i][3] > 0.0 {
+        let n = normals[i];
+        mix.product_with_clamped_cosine(Vec3::new(n[0], n[1], n[2]))
+    } else {
+        mix
+    }
+}
+
+/// Lane kernel: `out[i] = [ω, pdf]` sampled with `u[i]` from the NPM
+/// mixture of raw row `lanes[i]` (the raw outputs of a whole wavefront stay
+/// on the device; a call samples some of its lanes), with the cosine
+/// product where `normals[i].w > 0` (see [`vmf_lane_pdf_element`]).
+#[inline]
+pub fn vmf_lane_sample_element(
+    raw: &[f32],
+    lanes: &[u32],
+    normals: &[[f32; 4]],
+    u: &[[f32; 4]],
+    out: &mut [[f32; 4]],
+    i: usize,
+) {
+    if i < u.len() && i < out.len() {
+        let r = u[i];
+        let mix = vmf_lane_mixture(raw, lanes, normals, i);
+        out[i] = pack_sample(mix.sample(Vec2::new(r[0], r[1])));
+    }
+}
+
+/// Lane kernel: `out[i]` = density of `directions[i]` under the NPM
+/// mixture of raw row `lanes[i]`, times the clamped cosine of
+/// `normals[i].xyz` (renormalised, as the CPU's cosine product) where
+/// `normals[i].w > 0`.
+#[inline]
+pub fn vmf_lane_pdf_element(
+    raw: &[f32],
+    lanes: &[u32],
+    normals: &[[f32; 4]],
+    directions: &[[f32; 4]],
+    out: &mut [f32],
+    i: usize,
+) {
+    if i < directions.len() && i < out.len() {
+        let mix = vmf_lane_mixture(raw, lanes, normals, i);
+        out[i] = mix.pdf(unpack_direction(directions[i]));
+    }
+}
+
+/// Lane kernel: `out[i] = [ω, pdf]` sampled with `u[i]` from the NASG
+/// mixture of raw row `lanes[i]`. `normals` is not read (NASG has no
+/// closed-form cosine product); it keeps the lane kernels' bindings alike.
+#[inline]
+pub fn nasg_lane_sample_element(
+    raw: &[f32],
+    lanes: &[u32],
+    normals: &[[f32; 4]],
+    u: &[[f32; 4]],
+    out: &mut [[f32; 4]],
+    i: usize,
+) {
+    let _ = normals;
+    if i < u.len() && i < out.len() {
+        let r = u[i];
+        let mix = nasg_mixture_from_raw(raw, lane_base(raw, lanes, NASG_OUTPUTS, i));
+        out[i] = pack_sample(mix.sample(Vec2::new(r[0], r[1])));
+    }
+}
+
+/// Lane kernel: `out[i]` = density of `directions[i]` under the NASG
+/// mixture of raw row `lanes[i]` (`normals` unread, as
+/// [`nasg_lane_sample_element`]).
+#[inline]
+pub fn nasg_lane_pdf_element(
+    raw: &[f32],
+    lanes: &[u32],
+    normals: &[[f32; 4]],
+    directions: &[[f32; 4]],
+    out: &mut [f32],
+    i: usize,
+) {
+    let _ = normals;
+    if i < directions.len() && i < out.len() {
+        let mix = nasg_mixture_from_raw(raw, lane_base(raw, lanes, NASG_OUTPUTS, i));
+        out[i] = mix.pdf(unpack_direction(directions[i]));
+    }
+}
+
+/// Kernel: `out[i]` = the learned guide-selection probability of the NASG
+/// raw row `i` ([`nasg_mixture_from_raw`]'s `selection_probability`).
+#[inline]
+pub fn nasg_selection_element(raw: &[f32], out: &mut [f32], i: usize) {
+    if i < out.len() {
+        out[i] = nasg_mixture_from_raw(raw, i * NASG_OUTPUTS).selection_probability;
+    }
+}

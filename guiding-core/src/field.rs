@@ -80,7 +80,7 @@
 
 use crate::lobe::DirectionSample;
 use crate::model::{GuidingModel, QueryPoint};
-use crate::optim::{adam_ema_step, AdamConfig};
+use crate::optim::{adam_ema_step, step_clip_factor, AdamConfig};
 use crate::rng::{shuffle, Rng};
 use crate::sample::{Rejection, TrainingSample, REJECTION_KINDS};
 use core::fmt;
@@ -498,6 +498,16 @@ struct TrainState {
     clipped_steps: u64,
 }
 
+/// What one step of [`Field::run_update`] may use: the field without its
+/// sample buffer (which the minibatch borrows).
+struct StepView<'a, M> {
+    model: &'a M,
+    config: &'a FieldConfig,
+    threads: usize,
+    pool: Option<&'a rayon::ThreadPool>,
+    state: &'a mut TrainState,
+}
+
 /// The resumable training state of a [`Field`] ([`Field::state`],
 /// [`Field::from_state`]); what a save file stores.
 #[derive(Clone, Debug, PartialEq)]
@@ -516,14 +526,50 @@ pub struct FieldState {
     pub updates: u64,
 }
 
-/// Outcome of one training step.
-enum StepOutcome {
+/// Outcome of one training step, on whichever backend ran it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum StepOutcome {
+    /// Adam and the EMA were applied.
     Applied {
+        /// Mean loss of the batch.
         loss: f64,
+        /// Parameter elements Adam left untouched because their update
+        /// would not be finite (0 where the backend does not count them).
         element_skips: u64,
+        /// The gradient was scaled down to
+        /// [`FieldConfig::max_gradient_magnitude`].
         clipped: bool,
     },
+    /// The gradient or the loss was not finite; nothing changed.
     Skipped,
+}
+
+/// The arithmetic of one training step, run somewhere other than this
+/// field's CPU threads (a Vulkan device in crate `guiding`): the gradient
+/// of the mean loss over `batch`, the skip / clip decision
+/// ([`crate::optim::step_clip_factor`]), Adam with bias correction for step
+/// `step` (1-based) and the EMA, on the backend's own copy of the
+/// parameters.
+///
+/// [`Field::update_steps_on`] keeps everything else — validation and the
+/// buffer, the shuffles and minibatches, step counts, `max_steps`, the
+/// loss history and the plateau — so a field trains by the same loop
+/// whichever backend does the arithmetic.
+pub trait StepBackend {
+    /// Why a step could not run (the device failed).
+    type Error;
+
+    /// One step on `batch` (non-empty, every sample valid) with `config`'s
+    /// Adam, EMA and clip settings.
+    ///
+    /// # Errors
+    /// The backend failed; the field counts nothing for this step.
+    fn train_step(
+        &mut self,
+        batch: &[TrainingSample],
+        step: u32,
+        config: &FieldConfig,
+    ) -> Result<StepOutcome, Self::Error>;
 }
 
 /// A guiding model with its parameters, optimiser state and sample buffer:
@@ -641,24 +687,7 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
             updates,
         } = state;
         let mut field = Self::from_params(model, config, params)?;
-        let n = field.state.params.len();
-        for v in [&ema, &adam_m, &adam_v] {
-            let finite = crate::optim::all_finite(v);
-            if v.len() != n || !finite {
-                return Err(FieldError::InvalidParams {
-                    expected: n,
-                    got: v.len(),
-                    finite,
-                });
-            }
-        }
-        if adam_v.iter().any(|&x| x < 0.0) {
-            return Err(FieldError::InvalidParams {
-                expected: n,
-                got: n,
-                finite: false,
-            });
-        }
+        check_vectors(field.state.params.len(), &[&ema, &adam_m, &adam_v], &adam_v)?;
         field.state.ema = ema;
         field.state.adam_m = adam_m;
         field.state.adam_v = adam_v;
@@ -762,6 +791,37 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
     /// Adam's first and second moment estimates.
     pub fn adam_moments(&self) -> (&[f32], &[f32]) {
         (&self.state.adam_m, &self.state.adam_v)
+    }
+
+    /// The EMA weights, writable: a caller that trains on another backend
+    /// ([`Self::update_steps_on`]) brings the backend's weights back here so
+    /// that this field's queries use them.
+    pub fn ema_params_mut(&mut self) -> &mut [f32] {
+        &mut self.state.ema
+    }
+
+    /// Replaces the parameters, EMA and Adam moments (and the applied step
+    /// count) by `state`'s, e.g. those a device trained; counters, the loss
+    /// history and the buffer are kept. Checked as [`Self::from_state`].
+    ///
+    /// # Errors
+    /// A vector of the wrong length, a non-finite value or a negative
+    /// second moment; nothing is changed then.
+    pub fn restore_state(&mut self, state: FieldState) -> Result<(), FieldError> {
+        let all = [&state.params, &state.ema, &state.adam_m, &state.adam_v];
+        check_vectors(self.state.params.len(), &all, &state.adam_v)?;
+        self.state.params = state.params;
+        self.state.ema = state.ema;
+        self.state.adam_m = state.adam_m;
+        self.state.adam_v = state.adam_v;
+        self.state.steps = state.steps;
+        self.updates = state.updates;
+        Ok(())
+    }
+
+    /// Updates that trained so far (they seed the minibatch shuffles).
+    pub fn updates(&self) -> u64 {
+        self.updates
     }
 
     /// Adam steps applied so far.
@@ -902,6 +962,48 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
     /// [`FieldConfig::steps_per_update`] (at least one; see
     /// [`Self::proportional_steps`]).
     pub fn update_steps(&mut self, steps: u32) -> UpdateReport {
+        let result: Result<UpdateReport, core::convert::Infallible> =
+            self.run_update(steps, |field, batch| {
+                let (model, config, threads) = (field.model, field.config, field.threads);
+                let state = &mut *field.state;
+                Ok(match field.pool {
+                    Some(pool) => pool.install(|| train_step(model, config, threads, state, batch)),
+                    None => train_step(model, config, 1, state, batch),
+                })
+            });
+        match result {
+            Ok(report) => report,
+            Err(never) => match never {},
+        }
+    }
+
+    /// [`Self::update_steps`] with the arithmetic of each step on
+    /// `backend` (see [`StepBackend`]): the same validation, shuffles,
+    /// minibatches, counters, step limit and plateau. This field's own
+    /// parameters are not touched; the caller brings the backend's back
+    /// (e.g. into [`Self::ema_params_mut`]) when it needs them here.
+    ///
+    /// # Errors
+    /// The backend's first failure: the update ends there (the steps before
+    /// it count) and the buffer is cleared.
+    pub fn update_steps_on<B: StepBackend>(
+        &mut self,
+        steps: u32,
+        backend: &mut B,
+    ) -> Result<UpdateReport, B::Error> {
+        self.run_update(steps, |field, batch| {
+            let step = u32::try_from(field.state.steps + 1).unwrap_or(u32::MAX);
+            backend.train_step(batch, step, field.config)
+        })
+    }
+
+    /// The one training loop (see the [module docs](self#training)): `step`
+    /// runs the arithmetic of one minibatch.
+    fn run_update<E>(
+        &mut self,
+        steps: u32,
+        mut step: impl FnMut(&mut StepView<'_, M>, &[TrainingSample]) -> Result<StepOutcome, E>,
+    ) -> Result<UpdateReport, E> {
         let steps = steps.max(1);
         let mut report = UpdateReport {
             mean_loss: f64::NAN,
@@ -910,50 +1012,63 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
         if self.is_converged() {
             self.buffer.clear();
             report.converged = true;
-            return report;
+            return Ok(report);
         }
         let n = self.buffer.len();
         report.buffered_samples = n;
         if n == 0 {
-            return report;
+            return Ok(report);
         }
         let b = self.config.batch_size.min(n);
         report.batch_size = b;
         let mut rng = Rng::with_stream(self.config.seed, self.updates as u32);
         shuffle(&mut self.buffer, &mut rng);
+        let mut buffer = core::mem::take(&mut self.buffer);
         let mut pos = 0;
         let mut loss_sum = 0.0f64;
+        let mut failure = None;
         for _ in 0..steps {
             if self.state.steps.saturating_add(self.state.skipped_steps) >= self.config.max_steps {
                 break;
             }
             if pos + b > n {
-                shuffle(&mut self.buffer, &mut rng);
+                shuffle(&mut buffer, &mut rng);
                 pos = 0;
             }
-            let batch = &self.buffer[pos..pos + b];
+            let batch = &buffer[pos..pos + b];
             pos += b;
-            let (model, config, threads) = (&self.model, &self.config, self.threads);
-            let state = &mut self.state;
-            let outcome = match &self.pool {
-                Some(pool) => pool.install(|| train_step(model, config, threads, state, batch)),
-                None => train_step(model, config, 1, state, batch),
+            let mut view = StepView {
+                model: &self.model,
+                config: &self.config,
+                threads: self.threads,
+                pool: self.pool.as_deref(),
+                state: &mut self.state,
             };
-            match outcome {
-                StepOutcome::Applied {
+            match step(&mut view, batch) {
+                Ok(StepOutcome::Applied {
                     loss,
                     element_skips,
                     clipped,
-                } => {
+                }) => {
+                    self.state.steps += 1;
+                    self.state.clipped_steps += u64::from(clipped);
                     report.steps += 1;
                     report.clipped_steps += u32::from(clipped);
                     report.element_skips += element_skips;
                     loss_sum += loss;
                 }
-                StepOutcome::Skipped => report.skipped_steps += 1,
+                Ok(StepOutcome::Skipped) => {
+                    self.state.skipped_steps += 1;
+                    report.skipped_steps += 1;
+                }
+                Err(e) => {
+                    failure = Some(e);
+                    break;
+                }
             }
         }
-        self.buffer.clear();
+        buffer.clear();
+        self.buffer = buffer;
         self.updates += 1;
         if report.steps > 0 {
             let mean = loss_sum / f64::from(report.steps);
@@ -964,7 +1079,10 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
         if report.converged {
             self.release_training_memory();
         }
-        report
+        match failure {
+            Some(e) => Err(e),
+            None => Ok(report),
+        }
     }
 
     /// Plateau bookkeeping for one update's mean loss.
@@ -1050,6 +1168,30 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
             model.selection_probability(params, &queries[i])
         });
     }
+}
+
+/// Checks a training state's vectors against a model of `n` parameters:
+/// each of length `n` and finite, and the second Adam moment `adam_v` not
+/// negative.
+fn check_vectors(n: usize, vectors: &[&Vec<f32>], adam_v: &[f32]) -> Result<(), FieldError> {
+    for v in vectors {
+        let finite = crate::optim::all_finite(v);
+        if v.len() != n || !finite {
+            return Err(FieldError::InvalidParams {
+                expected: n,
+                got: v.len(),
+                finite,
+            });
+        }
+    }
+    if adam_v.iter().any(|&x| x < 0.0) {
+        return Err(FieldError::InvalidParams {
+            expected: n,
+            got: n,
+            finite: false,
+        });
+    }
+    Ok(())
 }
 
 /// Length of each of at most `parts` ranges covering `n` elements, a
@@ -1195,20 +1337,20 @@ fn train_step<M: GuidingModel + Send + Sync>(
             .map(scale)
             .reduce(|| (true, 0.0f32), |(a, x), (b, y)| (a & b, x.max(y)))
     };
-    if !finite || !loss.is_finite() {
+    let Some(factor) = step_clip_factor(
+        finite && loss.is_finite(),
+        max_abs,
+        config.max_gradient_magnitude,
+    ) else {
         state.grad.fill(0.0);
-        state.skipped_steps += 1;
         return StepOutcome::Skipped;
-    }
-    let clip = config.max_gradient_magnitude;
-    let clipped = max_abs > clip;
+    };
+    let clipped = factor < 1.0;
     if clipped {
         // Rare: one more serial pass.
-        let factor = clip / max_abs;
         for g in &mut state.grad {
             *g *= factor;
         }
-        state.clipped_steps += 1;
     }
 
     // Adam, EMA, and re-zeroing of the gradient, range by range.
@@ -1237,7 +1379,6 @@ fn train_step<M: GuidingModel + Send + Sync>(
             .map(|((((p, g), m), v), e)| apply(p, g, m, v, e))
             .sum()
     };
-    state.steps += 1;
     StepOutcome::Applied {
         loss,
         element_skips,

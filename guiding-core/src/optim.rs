@@ -262,6 +262,25 @@ pub fn all_finite(values: &[f32]) -> bool {
     ok
 }
 
+/// The skip / clip decision of a training step, shared by every backend
+/// (the CPU field and the Vulkan runtime): `None` skips the step (its mean
+/// gradient or loss is not finite: nothing may reach Adam, the moments or
+/// the EMA); otherwise the factor the mean gradient is scaled by, `1` or,
+/// when its largest magnitude `max_abs` exceeds `clip`, `clip / max_abs`
+/// (direction kept; see `guiding_core::field`'s training docs for why).
+#[inline]
+#[must_use]
+pub fn step_clip_factor(finite: bool, max_abs: f32, clip: f32) -> Option<f32> {
+    if !finite || !max_abs.is_finite() {
+        return None;
+    }
+    if max_abs > clip {
+        Some(clip / max_abs)
+    } else {
+        Some(1.0)
+    }
+}
+
 /// Weight of the new value in the debiased EMA at the 1-based step `step`
 /// (0 is treated as 1): `α_t = (1 − d) / (1 − dᵗ)`; `α₁ = 1`, `α_t → 1 − d`.
 #[inline]

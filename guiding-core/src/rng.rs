@@ -155,3 +155,90 @@ pub fn shuffle<T>(items: &mut [T], rng: &mut Rng) {
         items.swap(i, j);
     }
 }
+
+/// SplitMix64's finaliser (Steele et al. 2014): a bijection of `u64` that
+/// mixes every input bit into every output bit, for deriving seeds and
+/// streams from keys.
+#[cfg(not(target_arch = "spirv"))]
+#[inline]
+#[must_use]
+pub fn mix64(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// PCG32 (XSH RR 64/32, O'Neill 2014): the 64-bit-state generator of the
+/// CPU side — the renderer's per-path streams and the tests' reproducible
+/// draws (period 2⁶⁴ per stream, 2⁶³ streams). Not for shaders (64-bit
+/// integers need SPIR-V's optional `Int64`); they use [`Rng`].
+#[cfg(not(target_arch = "spirv"))]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Pcg32 {
+    state: u64,
+    inc: u64,
+}
+
+#[cfg(not(target_arch = "spirv"))]
+impl Pcg32 {
+    /// The generator for `seed` on stream `stream` (O'Neill's
+    /// `pcg32_srandom_r`).
+    #[must_use]
+    pub fn new(seed: u64, stream: u64) -> Self {
+        let mut rng = Self {
+            state: 0,
+            inc: (stream << 1) | 1,
+        };
+        rng.next_u32();
+        rng.state = rng.state.wrapping_add(seed);
+        rng.next_u32();
+        rng
+    }
+
+    /// A generator keyed by `(seed, a, b)` (e.g. a render seed, a pixel and
+    /// a sample index): seed `s = mix64(seed ⊕ mix64(a ⊕ mix64(b)))` on
+    /// stream `mix64(s ⊕ 0xDA3E39CB94B95BDB)`, so nearby keys give
+    /// unrelated streams.
+    #[must_use]
+    pub fn from_keys(seed: u64, a: u64, b: u64) -> Self {
+        let s = mix64(seed ^ mix64(a ^ mix64(b)));
+        Self::new(s, mix64(s ^ 0xDA3E_39CB_94B9_5BDB))
+    }
+
+    /// Next 32 random bits.
+    #[inline]
+    pub fn next_u32(&mut self) -> u32 {
+        let old = self.state;
+        self.state = old
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(self.inc);
+        let xorshifted = (((old >> 18) ^ old) >> 27) as u32;
+        let rot = (old >> 59) as u32;
+        xorshifted.rotate_right(rot)
+    }
+
+    /// Uniform in `[0, 1)` with 24 random bits ([`unit_f32`]: every value
+    /// exactly representable).
+    #[inline]
+    pub fn next_f32(&mut self) -> f32 {
+        unit_f32(self.next_u32())
+    }
+
+    /// Uniform in `[0, 1)` with 53 random bits.
+    pub fn next_f64(&mut self) -> f64 {
+        let hi = u64::from(self.next_u32());
+        let lo = u64::from(self.next_u32());
+        (((hi << 32) | lo) >> 11) as f64 * (1.0 / 9_007_199_254_740_992.0)
+    }
+
+    /// Two uniforms in `[0, 1)`.
+    pub fn next_vec2(&mut self) -> glam::Vec2 {
+        glam::Vec2::new(self.next_f32(), self.next_f32())
+    }
+
+    /// Uniform in `[lo, hi)`.
+    pub fn uniform(&mut self, lo: f32, hi: f32) -> f32 {
+        lo + (hi - lo) * self.next_f32()
+    }
+}

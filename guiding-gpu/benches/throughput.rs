@@ -8,7 +8,10 @@
 //! inference + decode + sample (the `sample` kernel) in queries per second
 //! for a 1280 × 720 wavefront (one query per pixel), and training samples
 //! per second (`train_step`: per-sample gradients, block maxima, Adam + EMA)
-//! on a batch of 2¹⁴. Each figure is the median of 5 runs after one warm-up;
+//! on a batch of 2¹⁴. Then the two backends of one `guiding::GuidingField`
+//! (CPU threads with the batched kernels, and the Vulkan device) through
+//! the same wavefront calls ([`bench_field`]). Each figure is the median of
+//! 5 runs after one warm-up;
 //! GPU figures use wall time including upload and read-back (and, where
 //! the queue has timestamps, the device time is printed too). The CPU
 //! baseline runs the element kernels over `available_parallelism` threads.
@@ -237,6 +240,88 @@ fn bench_model<M: RawOutputs + bytemuck::Pod + Sync>(
     );
 }
 
+/// The embedding API's wavefront on both backends of one `GuidingField`:
+/// the CPU field (the batched SIMD kernels on the field's threads) against
+/// the same field moved to the device (`use_device_context`). Per wavefront
+/// of `nq` queries: `decode_batch`, every lane's selection probability,
+/// one `sample_decoded` and one `pdf_decoded` over all lanes (a guided
+/// vertex's work; the cosine product for NPM); training: `add_samples` +
+/// one `update` of one step on a batch of `nt`.
+fn bench_field(
+    ctx: &GpuContext,
+    name: &str,
+    config: guiding::GuidingConfig,
+    nq: usize,
+    nt: usize,
+    runs: usize,
+) {
+    use guiding::{DistributionBatch, GuidingField};
+    use guiding_core::glam::{Vec2, Vec3};
+    let config = config.with_training(
+        guiding::FieldConfig::DEFAULT
+            .with_batch_size(nt)
+            .with_steps_per_update(1)
+            .with_threads(0),
+    );
+    let q = queries(nq);
+    let normals: Vec<Vec3> = q.iter().map(|x| Vec3::from_array(x.normal)).collect();
+    let lanes: Vec<u32> = (0..nq as u32).collect();
+    let u: Vec<Vec2> = (0..nq)
+        .map(|i| Vec2::new((i % 97) as f32 / 97.0, (i % 89) as f32 / 89.0))
+        .collect();
+    let dirs: Vec<Vec3> = q.iter().map(|x| Vec3::from_array(x.wo)).collect();
+    let t = samples(nt);
+    let mut result = Vec::new();
+    for on_device in [false, true] {
+        let mut field = GuidingField::new(config, LO, HI).expect("field");
+        if on_device {
+            field
+                .use_device_context(ctx.clone(), guiding::DeviceFailure::Error)
+                .expect("device");
+        }
+        let mut batch = DistributionBatch::new();
+        let mut out = vec![
+            guiding::DirectionSample {
+                direction: Vec3::Z,
+                pdf: 0.0
+            };
+            nq
+        ];
+        let mut pdfs = vec![0.0f32; nq];
+        let query = median_s(runs, || {
+            field.try_decode_batch(&q, &mut batch).expect("decode");
+            batch.apply_cosine_product(&normals);
+            let mut c = 0.0f32;
+            for i in 0..nq {
+                c += batch.selection_probability(i);
+            }
+            std::hint::black_box(c);
+            field
+                .sample_decoded(&batch, &lanes, &u, &mut out)
+                .expect("sample");
+            field
+                .pdf_decoded(&batch, &lanes, &dirs, &mut pdfs)
+                .expect("pdf");
+        });
+        let train = median_s(runs, || {
+            field.add_samples(&t);
+            field.try_update().expect("update");
+        });
+        result.push((query, train));
+    }
+    let ((cq, ct), (gq, gt)) = (result[0], result[1]);
+    println!(
+        "{name} field: guided wavefront (decode + selection + sample + pdf) {:.3e} vertices/s \
+         device vs {:.3e} CPU backend ({:.2}x); training {:.3e} samples/s vs {:.3e} ({:.2}x)",
+        nq as f64 / gq,
+        nq as f64 / cq,
+        cq / gq,
+        nt as f64 / gt,
+        nt as f64 / ct,
+        ct / gt
+    );
+}
+
 fn main() {
     let quick = std::env::args().any(|a| a == "--quick");
     let ctx = match GpuContext::new(DeviceSelection::Auto) {
@@ -283,4 +368,16 @@ fn main() {
         nt,
         runs,
     );
+    // The backends of one field (a guided wavefront of 64 k vertices; 16 k quick).
+    let nf = if quick { 16 * 1024 } else { 64 * 1024 };
+    for (name, config) in [
+        (
+            "npm compact radiance",
+            guiding::GuidingConfig::npm_radiance(),
+        ),
+        ("nasg compact radiance", guiding::GuidingConfig::nasg()),
+        ("df-l compact radiance", guiding::GuidingConfig::df_linear()),
+    ] {
+        bench_field(&ctx, name, config, nf, nt, runs);
+    }
 }

@@ -14,8 +14,11 @@
 use crate::{Batch, BatchReport, GpuBuffer, GpuContext, GpuError, Kernel};
 use bytemuck::Pod;
 use guiding_core::batch::{AdamArgs, BatchArgs, MAX_ABS_BLOCK};
+pub use guiding_core::field::StepOutcome;
+use guiding_core::model::nasg::NASG_OUTPUTS;
+use guiding_core::model::npm::NPM_OUTPUTS;
 use guiding_core::model::QueryPoint;
-use guiding_core::optim::{ema_weight, AdamConfig, AdamStepFactors};
+use guiding_core::optim::{ema_weight, step_clip_factor, AdamConfig, AdamStepFactors};
 use guiding_core::sample::TrainingSample;
 use std::mem::size_of;
 
@@ -38,21 +41,6 @@ pub struct TrainOptions {
     pub ema_decay: f32,
     /// A step whose largest gradient magnitude exceeds this is scaled down to it.
     pub max_gradient_magnitude: f32,
-}
-
-/// What one training step did.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum StepOutcome {
-    /// Adam applied; `loss` is the mean sample loss, `clipped` whether the
-    /// gradient was scaled down.
-    Applied {
-        /// Mean loss of the batch.
-        loss: f32,
-        /// The gradient exceeded the clip magnitude.
-        clipped: bool,
-    },
-    /// The gradient or the loss was not finite; nothing changed.
-    Skipped,
 }
 
 /// A storage buffer that grows to the largest batch seen.
@@ -79,6 +67,11 @@ impl Scratch {
             .ok_or_else(|| GpuError::BadArgument("scratch buffer missing".into()))
     }
 
+    /// Grows to hold `data` and uploads it.
+    fn put<T: Pod>(&mut self, ctx: &GpuContext, data: &[T]) -> Result<(), GpuError> {
+        self.at_least(ctx, size_of_val(data) as u64)?.upload(data)
+    }
+
     fn get(&self) -> Result<&GpuBuffer, GpuError> {
         self.buffer
             .as_ref()
@@ -91,6 +84,20 @@ impl Scratch {
 enum QueryKernel {
     Sample,
     Pdf,
+}
+
+/// What a call with nothing to do reports.
+const NO_WORK: BatchReport = BatchReport {
+    dispatches: 0,
+    gpu_time_ns: None,
+};
+
+/// Push constants of a kernel over `count` elements.
+fn args_for(count: u32) -> BatchArgs {
+    BatchArgs {
+        count,
+        ..BatchArgs::default()
+    }
 }
 
 /// `a` then `b`: dispatch counts and device times added.
@@ -107,6 +114,12 @@ fn combine(a: BatchReport, b: BatchReport) -> BatchReport {
 /// Kernels of a model type plus the model-independent training kernels.
 struct Kernels {
     infer: Option<Kernel>,
+    /// Sample / pdf of lanes of resident raw outputs (NPM: `vmf_lane_*`,
+    /// NASG: `nasg_lane_*`); `None` for DF.
+    lane_sample: Option<Kernel>,
+    lane_pdf: Option<Kernel>,
+    /// NASG's learned selection probability of resident raw outputs.
+    selection: Option<Kernel>,
     sample: Kernel,
     pdf: Kernel,
     gradient: Kernel,
@@ -140,6 +153,8 @@ pub struct GpuModel {
     inputs: Scratch,
     outputs: Scratch,
     samples: Scratch,
+    lanes: Scratch,
+    normals: Scratch,
 }
 
 fn push<T: Pod>(value: &T) -> &[u8] {
@@ -183,6 +198,21 @@ impl GpuModel {
             } else {
                 None
             },
+            lane_sample: match entry.raw_outputs as usize {
+                NPM_OUTPUTS => Some(ctx.embedded_kernel("vmf_lane_sample", 5, b)?),
+                NASG_OUTPUTS => Some(ctx.embedded_kernel("nasg_lane_sample", 5, b)?),
+                _ => None,
+            },
+            lane_pdf: match entry.raw_outputs as usize {
+                NPM_OUTPUTS => Some(ctx.embedded_kernel("vmf_lane_pdf", 5, b)?),
+                NASG_OUTPUTS => Some(ctx.embedded_kernel("nasg_lane_pdf", 5, b)?),
+                _ => None,
+            },
+            selection: if entry.raw_outputs as usize == NASG_OUTPUTS {
+                Some(ctx.embedded_kernel("nasg_selection", 2, b)?)
+            } else {
+                None
+            },
             sample: ctx.embedded_kernel(&format!("{p}_sample"), 5, b)?,
             pdf: ctx.embedded_kernel(&format!("{p}_pdf"), 5, b)?,
             gradient: ctx.embedded_kernel(&format!("{p}_gradient"), 5, b)?,
@@ -206,6 +236,8 @@ impl GpuModel {
             inputs: Scratch::new(),
             outputs: Scratch::new(),
             samples: Scratch::new(),
+            lanes: Scratch::new(),
+            normals: Scratch::new(),
         })
     }
 
@@ -254,10 +286,7 @@ impl GpuModel {
             )));
         }
         let per = self.max_batch((r * 4).max(size_of::<QueryPoint>()));
-        let mut report = BatchReport {
-            dispatches: 0,
-            gpu_time_ns: None,
-        };
+        let mut report = NO_WORK;
         let mut start = 0;
         while start < queries.len() {
             let end = (start + per).min(queries.len());
@@ -290,20 +319,12 @@ impl GpuModel {
             )));
         }
         if queries.is_empty() {
-            return Ok(BatchReport {
-                dispatches: 0,
-                gpu_time_ns: None,
-            });
+            return Ok(NO_WORK);
         }
         let n = count_u32(queries.len(), "queries")?;
-        self.queries
-            .at_least(&self.ctx, size_of_val(queries) as u64)?
-            .upload(queries)?;
+        self.queries.put(&self.ctx, queries)?;
         self.outputs.at_least(&self.ctx, size_of_val(out) as u64)?;
-        let args = BatchArgs {
-            count: n,
-            ..BatchArgs::default()
-        };
+        let args = args_for(n);
         let mut batch = self.ctx.timed_batch()?;
         batch.dispatch(
             kernel,
@@ -389,10 +410,7 @@ impl GpuModel {
             .max(size_of::<O>());
         let per = (limit / widest).max(1);
         let (sq, si, so) = scratch;
-        let mut report = BatchReport {
-            dispatches: 0,
-            gpu_time_ns: None,
-        };
+        let mut report = NO_WORK;
         let mut start = 0;
         while start < queries.len() {
             let end = (start + per).min(queries.len());
@@ -422,21 +440,14 @@ impl GpuModel {
         out: &mut [O],
     ) -> Result<BatchReport, GpuError> {
         if queries.is_empty() {
-            return Ok(BatchReport {
-                dispatches: 0,
-                gpu_time_ns: None,
-            });
+            return Ok(NO_WORK);
         }
         let n = count_u32(queries.len(), "queries")?;
         let (sq, si, so) = scratch;
-        sq.at_least(ctx, size_of_val(queries) as u64)?
-            .upload(queries)?;
-        si.at_least(ctx, size_of_val(input) as u64)?.upload(input)?;
+        sq.put(ctx, queries)?;
+        si.put(ctx, input)?;
         so.at_least(ctx, size_of_val(out) as u64)?;
-        let args = BatchArgs {
-            count: n,
-            ..BatchArgs::default()
-        };
+        let args = args_for(n);
         let mut batch = ctx.timed_batch()?;
         batch.dispatch(
             kernel,
@@ -468,18 +479,13 @@ impl GpuModel {
                 partial: self.ctx.buffer(blocks as u64 * 4)?,
             });
         }
-        self.samples
-            .at_least(&self.ctx, size_of_val(samples) as u64)?
-            .upload(samples)?;
+        self.samples.put(&self.ctx, samples)?;
         self.losses.at_least(&self.ctx, u64::from(n) * 4)?;
         let t = self
             .train
             .as_ref()
             .ok_or_else(|| GpuError::BadArgument("training buffers missing".into()))?;
-        let args = BatchArgs {
-            count: n,
-            ..BatchArgs::default()
-        };
+        let args = args_for(n);
         let k = &self.kernels;
         let mut batch: Batch<'_> = self.ctx.batch()?;
         batch.dispatch(
@@ -495,10 +501,7 @@ impl GpuModel {
             n,
         )?;
         batch.barrier();
-        let max_args = BatchArgs {
-            count: pc,
-            ..BatchArgs::default()
-        };
+        let max_args = args_for(pc);
         batch.dispatch(
             &k.max_abs,
             &[&t.grad, &t.partial],
@@ -534,13 +537,29 @@ impl GpuModel {
         Ok((g, loss / samples.len() as f64))
     }
 
-    /// One training step on `samples`: per-sample gradients added on the
-    /// device, a skip if the sum or the loss is not finite, clipping of the
-    /// mean gradient to `max_gradient_magnitude`, then Adam and the EMA —
-    /// `Field`'s step, run by the kernels of `guiding_core::batch`.
+    /// One training step on `samples` as Adam step `self.steps() + 1`
+    /// ([`Self::train_step_at`]).
     pub fn train_step(
         &mut self,
         samples: &[TrainingSample],
+        options: &TrainOptions,
+    ) -> Result<StepOutcome, GpuError> {
+        let step = u32::try_from(self.steps + 1).unwrap_or(u32::MAX);
+        self.train_step_at(samples, step, options)
+    }
+
+    /// One training step on `samples`: per-sample gradients added on the
+    /// device, then the decision every backend shares
+    /// ([`guiding_core::optim::step_clip_factor`]: a skip if the sum or the
+    /// loss is not finite, else the clip factor of the mean gradient), then
+    /// Adam (bias correction of the 1-based `step`) and the EMA — the
+    /// arithmetic of `Field`'s step, run by the kernels of
+    /// `guiding_core::batch`. `element_skips` is not counted on the device
+    /// (reported as 0).
+    pub fn train_step_at(
+        &mut self,
+        samples: &[TrainingSample],
+        step: u32,
         options: &TrainOptions,
     ) -> Result<StepOutcome, GpuError> {
         let (loss_sum, partial) = self.accumulate(samples)?;
@@ -554,18 +573,13 @@ impl GpuModel {
         }
         let p = self.param_count;
         let pc = count_u32(p, "parameters")?;
-        if !finite {
+        // The mean gradient's largest magnitude, and the clip factor on it.
+        let Some(factor) = step_clip_factor(finite, max / n, options.max_gradient_magnitude) else {
             if let Some(t) = self.train.as_mut() {
                 t.grad.upload(&vec![0.0f32; p])?;
             }
             return Ok(StepOutcome::Skipped);
-        }
-        // The mean gradient's largest magnitude, and the clip factor on it.
-        let max_mean = max / n;
-        let clip = options.max_gradient_magnitude;
-        let clipped = max_mean > clip;
-        let factor = if clipped { clip / max_mean } else { 1.0 };
-        let step = u32::try_from(self.steps + 1).unwrap_or(u32::MAX);
+        };
         let adam_args = AdamArgs {
             count: pc,
             pad: [0; 3],
@@ -584,11 +598,195 @@ impl GpuModel {
             push(&adam_args),
             pc,
         )?;
-        self.steps += 1;
+        self.steps = u64::from(step);
         Ok(StepOutcome::Applied {
-            loss: loss as f32,
-            clipped,
+            loss,
+            element_skips: 0,
+            clipped: factor < 1.0,
         })
+    }
+
+    /// Raw network outputs (EMA weights) of every query into `raw`, which
+    /// stays on the device (grown to fit; reused when large enough) for
+    /// [`Self::sample_lanes`] / [`Self::pdf_lanes`]; for NASG also the
+    /// learned selection probability of every query into `selection`
+    /// (cleared first; left empty for NPM). One submission.
+    ///
+    /// # Errors
+    /// DF (no raw outputs), a batch over the device's storage-buffer range,
+    /// or a device failure.
+    pub fn infer_resident(
+        &mut self,
+        queries: &[QueryPoint],
+        raw: &mut Option<GpuBuffer>,
+        selection: &mut Vec<f32>,
+    ) -> Result<BatchReport, GpuError> {
+        selection.clear();
+        let r = self.entry.raw_outputs as usize;
+        let Some(kernel) = self.kernels.infer.as_ref() else {
+            return Err(GpuError::BadArgument(format!(
+                "{} has no raw outputs (its conditional network depends on the direction)",
+                self.entry.prefix
+            )));
+        };
+        if queries.is_empty() {
+            return Ok(NO_WORK);
+        }
+        let n = count_u32(queries.len(), "queries")?;
+        let bytes = (queries.len() * r * 4) as u64;
+        let limit = self.ctx.device_info().max_storage_buffer_range;
+        if bytes > limit {
+            return Err(GpuError::BadArgument(format!(
+                "{} queries need {bytes} bytes of raw outputs, over the device's \
+                 storage-buffer range of {limit}: decode fewer at a time",
+                queries.len()
+            )));
+        }
+        if raw.as_ref().is_none_or(|b| b.size() < bytes) {
+            *raw = None;
+            *raw = Some(
+                self.ctx
+                    .buffer(bytes.next_power_of_two().min(limit).max(bytes))?,
+            );
+        }
+        let out = raw
+            .as_ref()
+            .ok_or_else(|| GpuError::BadArgument("raw-output buffer missing".into()))?;
+        self.queries.put(&self.ctx, queries)?;
+        if self.kernels.selection.is_some() {
+            self.outputs.at_least(&self.ctx, u64::from(n) * 4)?;
+        }
+        let args = args_for(n);
+        let mut batch = self.ctx.timed_batch()?;
+        batch.dispatch(
+            kernel,
+            &[&self.model, &self.ema, self.queries.get()?, out],
+            push(&args),
+            n,
+        )?;
+        if let Some(sel) = self.kernels.selection.as_ref() {
+            batch.barrier();
+            batch.dispatch(sel, &[out, self.outputs.get()?], push(&args), n)?;
+        }
+        let report = batch.submit_and_wait()?;
+        if self.kernels.selection.is_some() {
+            selection.resize(queries.len(), 0.0);
+            self.outputs.get()?.download_into(selection)?;
+        }
+        Ok(report)
+    }
+
+    /// `out[i] = [ω, pdf]` sampled with `u[i] = [u₀, u₁, ·, ·]` from lane
+    /// `lanes[i]` of the resident raw outputs `raw`
+    /// ([`Self::infer_resident`]), times the clamped cosine of
+    /// `normals[i].xyz` where `normals[i].w > 0` (NPM; NASG reads no
+    /// normal). `normals` may be empty (no product).
+    ///
+    /// # Errors
+    /// DF, lengths that differ, or a device failure.
+    pub fn sample_lanes(
+        &mut self,
+        raw: &GpuBuffer,
+        lanes: &[u32],
+        normals: &[[f32; 4]],
+        u: &[[f32; 4]],
+        out: &mut [[f32; 4]],
+    ) -> Result<BatchReport, GpuError> {
+        self.lane_call(true, raw, lanes, normals, u, out)
+    }
+
+    /// `out[i]` = density of `directions[i] = [x, y, z, ·]` under lane
+    /// `lanes[i]` of `raw` (cosine product as [`Self::sample_lanes`]).
+    ///
+    /// # Errors
+    /// As [`Self::sample_lanes`].
+    pub fn pdf_lanes(
+        &mut self,
+        raw: &GpuBuffer,
+        lanes: &[u32],
+        normals: &[[f32; 4]],
+        directions: &[[f32; 4]],
+        out: &mut [f32],
+    ) -> Result<BatchReport, GpuError> {
+        self.lane_call(false, raw, lanes, normals, directions, out)
+    }
+
+    /// One dispatch of a lane kernel (`sample` or pdf).
+    fn lane_call<O: Pod>(
+        &mut self,
+        sample: bool,
+        raw: &GpuBuffer,
+        lanes: &[u32],
+        normals: &[[f32; 4]],
+        input: &[[f32; 4]],
+        out: &mut [O],
+    ) -> Result<BatchReport, GpuError> {
+        let what = if sample { "sample_lanes" } else { "pdf_lanes" };
+        let kernel = if sample {
+            self.kernels.lane_sample.as_ref()
+        } else {
+            self.kernels.lane_pdf.as_ref()
+        };
+        let Some(kernel) = kernel else {
+            return Err(GpuError::BadArgument(format!(
+                "{what}: {} has no raw outputs; use sample / pdf",
+                self.entry.prefix
+            )));
+        };
+        if input.len() != lanes.len()
+            || out.len() != lanes.len()
+            || !(normals.is_empty() || normals.len() == lanes.len())
+        {
+            return Err(GpuError::BadArgument(format!(
+                "{what}: {} lanes, {} normals, {} inputs, {} outputs",
+                lanes.len(),
+                normals.len(),
+                input.len(),
+                out.len()
+            )));
+        }
+        if lanes.is_empty() {
+            return Ok(NO_WORK);
+        }
+        let n = count_u32(lanes.len(), "lanes")?;
+        let widest = size_of_val(input).max(size_of_val(out)) as u64;
+        let limit = self.ctx.device_info().max_storage_buffer_range;
+        if widest > limit {
+            return Err(GpuError::BadArgument(format!(
+                "{what}: {} lanes exceed the device's storage-buffer range",
+                lanes.len()
+            )));
+        }
+        self.lanes.put(&self.ctx, lanes)?;
+        // No normals: zeros (w = 0, no product), so that a longer buffer's
+        // earlier contents are never read as this call's.
+        let zeros;
+        let normals = if normals.is_empty() {
+            zeros = vec![[0.0f32; 4]; lanes.len()];
+            &zeros[..]
+        } else {
+            normals
+        };
+        self.normals.put(&self.ctx, normals)?;
+        self.inputs.put(&self.ctx, input)?;
+        self.outputs.at_least(&self.ctx, size_of_val(out) as u64)?;
+        let args = args_for(n);
+        let mut batch = self.ctx.timed_batch()?;
+        batch.dispatch(
+            kernel,
+            &[
+                raw,
+                self.lanes.get()?,
+                self.normals.get()?,
+                self.inputs.get()?,
+                self.outputs.get()?,
+            ],
+            push(&args),
+            n,
+        )?;
+        let report = batch.submit_and_wait()?;
+        self.outputs.get()?.download_into(out)?;
+        Ok(report)
     }
 
     /// The current parameters.
@@ -599,6 +797,11 @@ impl GpuModel {
     /// The current EMA weights (what queries use).
     pub fn ema(&self) -> Result<Vec<f32>, GpuError> {
         self.ema.download()
+    }
+
+    /// The current EMA weights into `out` (at most the parameter count).
+    pub fn ema_into(&self, out: &mut [f32]) -> Result<(), GpuError> {
+        self.ema.download_into(out)
     }
 
     /// The Adam moments `(m, v)`.

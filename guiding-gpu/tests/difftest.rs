@@ -814,3 +814,157 @@ fn decode_kernels_match_the_cpu_on_ordinary_and_extreme_parameters() {
         );
     }
 }
+
+/// The lane kernels of a wavefront decoded on the device: the network's raw
+/// outputs stay resident ([`GpuModel::infer_resident`], checked against
+/// `infer`), NASG's selection probabilities come back, and lanes picked in
+/// any order are sampled / evaluated (NPM with the cosine product on every
+/// other lane) against the CPU lane kernels run on the same raw outputs.
+/// Sampled directions and pdfs are compared as in [`check_decode`]: where
+/// no CDF boundary intervenes, to `rel` plus the density's local condition.
+#[test]
+fn lane_kernels_match_the_cpu_on_resident_outputs() {
+    let Some(ctx) = context() else { return };
+    let npm = NpmCompactRadiance::new(
+        guiding::config::compact_grid(LO, HI),
+        guiding_core::loss::Target::Radiance,
+    );
+    let nasg = NasgSmallRadiance::small(LO, HI);
+    check_lanes(&ctx, &npm, "npm_compact_radiance", true);
+    check_lanes(&ctx, &nasg, "nasg_small_radiance", false);
+}
+
+fn check_lanes<M: RawOutputs + bytemuck::Pod>(
+    ctx: &GpuContext,
+    model: &M,
+    prefix: &'static str,
+    vmf: bool,
+) {
+    let params = parameters(model, 9);
+    let r = M::RAW_OUTPUTS;
+    let mut gpu = upload(ctx.clone(), model, prefix, r as u32, &params).expect("upload");
+    let n = 1500;
+    let q = queries(n, 31);
+    let mut raw_buf = None;
+    let mut selection = Vec::new();
+    gpu.infer_resident(&q, &mut raw_buf, &mut selection)
+        .expect("resident inference");
+    let raw_buf = raw_buf.expect("raw-output buffer");
+    let mut raw: Vec<f32> = raw_buf.download().expect("download");
+    raw.truncate(n * r);
+    let mut reference = vec![0.0f32; n * r];
+    gpu.infer(&q, &mut reference).expect("infer");
+    assert!(
+        raw == reference,
+        "{prefix}: resident outputs differ from infer's"
+    );
+    if vmf {
+        assert!(
+            selection.is_empty(),
+            "{prefix}: NPM has no learned selection"
+        );
+    } else {
+        assert_eq!(selection.len(), n);
+        for i in 0..n {
+            let c = batch::nasg_mixture_from_raw(&raw, i * r).selection_probability;
+            assert!(
+                (selection[i] - c).abs() <= 1e-5 * c.abs().max(1e-2),
+                "{prefix}: selection {i}: gpu {} cpu {c}",
+                selection[i]
+            );
+        }
+    }
+    // Lanes in reverse order, every third one twice; normals on every other.
+    let lanes: Vec<u32> = (0..n as u32)
+        .rev()
+        .flat_map(|l| if l % 3 == 0 { vec![l, l] } else { vec![l] })
+        .collect();
+    let m = lanes.len();
+    let normals: Vec<[f32; 4]> = lanes
+        .iter()
+        .enumerate()
+        .map(|(k, &l)| {
+            let nq = q[l as usize].normal;
+            [
+                nq[0],
+                nq[1],
+                nq[2],
+                if vmf && k % 2 == 0 { 1.0 } else { 0.0 },
+            ]
+        })
+        .collect();
+    let u = randoms(m, 37);
+    let d = directions(m, 41);
+    let mut s_gpu = vec![[0.0f32; 4]; m];
+    let mut p_gpu = vec![0.0f32; m];
+    gpu.sample_lanes(&raw_buf, &lanes, &normals, &u, &mut s_gpu)
+        .expect("sample lanes");
+    gpu.pdf_lanes(&raw_buf, &lanes, &normals, &d, &mut p_gpu)
+        .expect("pdf lanes");
+    let mut s_cpu = vec![[0.0f32; 4]; m];
+    let mut p_cpu = vec![0.0f32; m];
+    for k in 0..m {
+        if vmf {
+            batch::vmf_lane_sample_element(&raw, &lanes, &normals, &u, &mut s_cpu, k);
+            batch::vmf_lane_pdf_element(&raw, &lanes, &normals, &d, &mut p_cpu, k);
+        } else {
+            batch::nasg_lane_sample_element(&raw, &lanes, &normals, &u, &mut s_cpu, k);
+            batch::nasg_lane_pdf_element(&raw, &lanes, &normals, &d, &mut p_cpu, k);
+        }
+    }
+    let (mut differ, mut worst) = (0usize, 0.0f32);
+    for k in 0..m {
+        let density = |dir: Vec3| -> f32 {
+            let mut out = [0.0f32];
+            let one = [[dir.x, dir.y, dir.z, 0.0]];
+            let (l, nm) = ([lanes[k]], [normals[k]]);
+            if vmf {
+                batch::vmf_lane_pdf_element(&raw, &l, &nm, &one, &mut out, 0);
+            } else {
+                batch::nasg_lane_pdf_element(&raw, &l, &nm, &one, &mut out, 0);
+            }
+            out[0]
+        };
+        let (g, c) = (s_gpu[k], s_cpu[k]);
+        let (gd, cd) = (batch::unpack_direction(g), batch::unpack_direction(c));
+        assert!(
+            g.iter().all(|x| x.is_finite()) && g[3] > 0.0,
+            "{prefix}: GPU sample {k} {g:?}"
+        );
+        if (gd - cd).length() > 1e-4 {
+            assert!(density(gd) > 0.0, "{prefix}: GPU sample {k} at density 0");
+            differ += 1;
+        } else {
+            let bound = MIXTURE_PDF_REL * c[3].abs().max(1e-2)
+                + (density(gd) - density(cd)).abs()
+                + (c[3] - density(cd)).abs()
+                + local_sensitivity(&density, cd);
+            let err = (g[3] - c[3]).abs();
+            assert!(
+                err <= bound,
+                "{prefix}: sample {k} pdf gpu {} cpu {} (bound {bound:e})",
+                g[3],
+                c[3]
+            );
+            worst = worst.max(err / bound);
+        }
+        let dd = batch::unpack_direction(d[k]);
+        let bound = MIXTURE_PDF_REL * p_cpu[k].abs().max(1e-2) + local_sensitivity(&density, dd);
+        let err = (p_gpu[k] - p_cpu[k]).abs();
+        assert!(
+            p_gpu[k].is_finite() && err <= bound,
+            "{prefix}: pdf {k} gpu {} cpu {} (bound {bound:e})",
+            p_gpu[k],
+            p_cpu[k]
+        );
+        worst = worst.max(err / bound);
+    }
+    assert!(
+        differ * 100 < m,
+        "{prefix}: {differ} of {m} lane samples in another direction"
+    );
+    eprintln!(
+        "{prefix} lanes: {m} lanes of {n} resident rows, {differ} samples across a CDF \
+         boundary, the rest and every pdf within {worst:.3} of the bound"
+    );
+}

@@ -23,6 +23,7 @@
 //! after an [`GuidingField::update`] that changed the parameters is
 //! [`GuidingError::StaleDistribution`].
 
+use crate::device::{DeviceLanes, Family};
 use crate::error::GuidingError;
 use crate::field::{DecodedDistribution, GuidingField};
 use crate::models::{self, with_field, BatchItems, Decode};
@@ -30,7 +31,7 @@ use glam::{Vec2, Vec3};
 use guiding_core::lobe::DirectionSample;
 use guiding_core::model::mixture_batch;
 use guiding_core::model::{GuidingModel, QueryPoint};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, PoisonError};
 
 /// Decoded distributions of a batch of shading points (see the [module
 /// docs](self)). Reusable: decoding into it again keeps its allocations.
@@ -50,11 +51,28 @@ pub struct DistributionBatch {
     pub(crate) cells: Option<Arc<BatchItems>>,
     /// Each lane's source with `cells` (see there); also the cache's scratch.
     pub(crate) source: Vec<u32>,
+    /// Lanes decoded on the field's device ([`crate::device`]): the raw
+    /// outputs stay there; `items` then holds only the selection
+    /// probabilities.
+    pub(crate) device: Option<Arc<Mutex<DeviceLanes>>>,
+    /// Number of device lanes.
+    pub(crate) device_len: usize,
+    /// The decoded family of the device lanes.
+    pub(crate) device_family: Option<Family>,
+    /// Per device lane `[n, 1]` after [`Self::apply_cosine_product`] (NPM),
+    /// else empty.
+    pub(crate) device_normals: Vec<[f32; 4]>,
 }
 
 /// Marks a lane of a [`DistributionBatch`] that the network decoded (a guide
 /// cache's miss): the low bits index `items`.
 pub(crate) const CACHE_MISS: u32 = 1 << 31;
+
+/// Where the results of a device lane call go.
+enum DeviceOut<'a> {
+    Samples(&'a mut [DirectionSample]),
+    Pdfs(&'a mut [f32]),
+}
 
 impl DistributionBatch {
     /// An empty batch.
@@ -63,10 +81,25 @@ impl DistributionBatch {
         Self::default()
     }
 
+    /// Empty, stamped with `field`'s id and generation (the device
+    /// buffers are dropped).
+    pub(crate) fn reset(&mut self, field: &GuidingField) {
+        self.field_id = field.id;
+        self.generation = field.generation;
+        self.cells = None;
+        self.items.clear();
+        self.device = None;
+        self.device_len = 0;
+        self.device_family = None;
+        self.device_normals.clear();
+    }
+
     /// Number of decoded lanes (the length of the latest decode).
     #[must_use]
     pub fn len(&self) -> usize {
-        if self.cells.is_some() {
+        if self.device.is_some() {
+            self.device_len
+        } else if self.cells.is_some() {
             self.source.len()
         } else {
             self.items.len()
@@ -150,6 +183,14 @@ impl DistributionBatch {
         if i >= self.len() {
             return 0.0;
         }
+        if self.device.is_some() {
+            return self
+                .items
+                .lane_selection
+                .get(i)
+                .copied()
+                .unwrap_or(self.items.selection);
+        }
         let (items, k) = self.resolve(i);
         items.selection_probability(k)
     }
@@ -163,6 +204,16 @@ impl DistributionBatch {
     /// of what is sampled). Returns `false` and changes nothing for NASG and
     /// DF (no closed-form product) or when the lengths differ.
     pub fn apply_cosine_product(&mut self, normals: &[Vec3]) -> bool {
+        if self.device.is_some() {
+            // Device lanes: the lane kernels multiply (NPM only).
+            if self.device_family != Some(Family::Vmf) || self.device_len != normals.len() {
+                return false;
+            }
+            self.device_normals.clear();
+            self.device_normals
+                .extend(normals.iter().map(|n| [n.x, n.y, n.z, 1.0]));
+            return true;
+        }
         // Checked before the shared cells are copied in: a NASG or DF batch
         // needs no copy.
         let has_vmf =
@@ -177,10 +228,11 @@ impl DistributionBatch {
     }
 
     /// Lane `i` as a plain value, to [attach](GuidingField::attach) to its
-    /// field later (`None` out of range).
+    /// field later (`None` out of range, and for lanes decoded on a device,
+    /// which stay there).
     #[must_use]
     pub fn get(&self, i: usize) -> Option<DecodedDistribution> {
-        if i >= self.len() {
+        if i >= self.len() || self.device.is_some() {
             return None;
         }
         let (items, k) = self.resolve(i);
@@ -195,13 +247,179 @@ impl GuidingField {
     /// thread: grid encoding, the network over blocks of queries with the
     /// batched SIMD kernel, and the decoder (see [`crate::batch`]). Lane `i`
     /// of `out` is the distribution at `queries[i]`.
+    ///
+    /// On a field that runs on a device ([`GuidingField::use_device`]) the
+    /// network runs there and the lanes stay there (see [`crate::device`]);
+    /// a device failure leaves `out` empty (or, falling back, decodes on
+    /// the CPU) and [`Self::try_decode_batch`] returns it.
     pub fn decode_batch(&self, queries: &[QueryPoint], out: &mut DistributionBatch) {
-        out.field_id = self.id;
-        out.generation = self.generation;
-        out.cells = None;
+        // The error stays with the field: `device_error` and every later call.
+        let _ = self.try_decode_batch(queries, out);
+    }
+
+    /// [`Self::decode_batch`], returning a device failure.
+    ///
+    /// # Errors
+    /// [`GuidingError::Device`] when the field runs on a device that failed
+    /// (now or before) and does not fall back; `out` is empty then.
+    pub fn try_decode_batch(
+        &self,
+        queries: &[QueryPoint],
+        out: &mut DistributionBatch,
+    ) -> Result<(), GuidingError> {
+        if let Some(d) = &self.device {
+            if let Some(failure) = d.failure() {
+                if d.on_failure == crate::DeviceFailure::Error {
+                    out.reset(self);
+                    return Err(GuidingError::Device(failure));
+                }
+            }
+        }
+        let Some(d) = self.active_device() else {
+            self.decode_batch_cpu(queries, out);
+            return Ok(());
+        };
+        // The previous decode's device buffer is reused when nobody shares it.
+        let lanes = out
+            .device
+            .take()
+            .and_then(|a| Arc::try_unwrap(a).ok())
+            .map(|m| m.into_inner().unwrap_or_else(PoisonError::into_inner));
+        let mut lanes = lanes.unwrap_or(DeviceLanes {
+            raw: None,
+            queries: Vec::new(),
+        });
+        out.reset(self);
+        let mut selection = std::mem::take(&mut out.items.lane_selection);
+        match d.decode(queries, &mut lanes, &mut selection) {
+            Ok(()) => {
+                out.items.selection = with_field!(&self.inner, f => f
+                    .model()
+                    .selection_probability(f.ema_params(), &QueryPoint::default()));
+                out.items.lane_selection = selection;
+                out.device_len = queries.len();
+                out.device_family = Some(d.family);
+                out.device = Some(Arc::new(Mutex::new(lanes)));
+                Ok(())
+            }
+            Err(e) => {
+                let e = d.fail(e);
+                if d.on_failure == crate::DeviceFailure::Error {
+                    return Err(e);
+                }
+                self.decode_batch_cpu(queries, out);
+                Ok(())
+            }
+        }
+    }
+
+    /// [`Self::decode_batch`] on the CPU (the field's EMA weights: the
+    /// device's, copied back after each update, when it runs on one).
+    pub(crate) fn decode_batch_cpu(&self, queries: &[QueryPoint], out: &mut DistributionBatch) {
+        out.reset(self);
         with_field!(&self.inner, f => f
             .model()
             .decode_batch_into(f.ema_params(), queries, &mut out.items));
+    }
+
+    /// The device lanes `lanes` of `batch` decoded again on the CPU (the
+    /// fallback after a device failure), with the batch's cosine product.
+    fn device_lanes_on_cpu(&self, batch: &DistributionBatch, lanes: &[u32]) -> DistributionBatch {
+        let mut cpu = DistributionBatch::new();
+        let Some(device) = &batch.device else {
+            return cpu;
+        };
+        let queries: Vec<QueryPoint> = {
+            let d = device.lock().unwrap_or_else(PoisonError::into_inner);
+            lanes
+                .iter()
+                .map(|&l| d.queries.get(l as usize).copied().unwrap_or_default())
+                .collect()
+        };
+        self.decode_batch_cpu(&queries, &mut cpu);
+        if !batch.device_normals.is_empty() {
+            let normals: Vec<Vec3> = lanes
+                .iter()
+                .map(|&l| {
+                    let n = batch.device_normals[l as usize];
+                    Vec3::new(n[0], n[1], n[2])
+                })
+                .collect();
+            cpu.apply_cosine_product(&normals);
+        }
+        cpu
+    }
+
+    /// Samples or evaluates device lanes (`sample` chooses which; `inputs`
+    /// are the random pairs or directions as `[f32; 4]`), falling back to
+    /// the CPU when the device fails and the field asks for it.
+    fn device_lanes_call(
+        &self,
+        batch: &DistributionBatch,
+        lanes: &[u32],
+        inputs: &[[f32; 4]],
+        mut out: DeviceOut<'_>,
+    ) -> Result<(), GuidingError> {
+        let Some(device) = &batch.device else {
+            return Ok(());
+        };
+        let normals: Vec<[f32; 4]> = if batch.device_normals.is_empty() {
+            Vec::new()
+        } else {
+            lanes
+                .iter()
+                .map(|&l| batch.device_normals[l as usize])
+                .collect()
+        };
+        let failed = |e: GuidingError| -> Result<bool, GuidingError> {
+            match &self.device {
+                Some(d) if d.on_failure == crate::DeviceFailure::FallbackToCpu => Ok(true),
+                _ => Err(e),
+            }
+        };
+        let fallback = match self.active_device() {
+            None => failed(
+                self.device_error()
+                    .unwrap_or_else(|| GuidingError::Device("the device is gone".into())),
+            )?,
+            Some(d) => {
+                let lanes_ref = device.lock().unwrap_or_else(PoisonError::into_inner);
+                let r = match out {
+                    DeviceOut::Samples(ref mut o) => {
+                        let mut packed = vec![[0.0f32; 4]; lanes.len()];
+                        let r = d.sample(&lanes_ref, lanes, &normals, inputs, &mut packed);
+                        for (s, p) in o.iter_mut().zip(&packed) {
+                            *s = DirectionSample {
+                                direction: Vec3::new(p[0], p[1], p[2]),
+                                pdf: p[3],
+                            };
+                        }
+                        r
+                    }
+                    DeviceOut::Pdfs(ref mut o) => d.pdf(&lanes_ref, lanes, &normals, inputs, o),
+                };
+                match r {
+                    Ok(()) => false,
+                    Err(e) => failed(d.fail(e))?,
+                }
+            }
+        };
+        if fallback {
+            let cpu = self.device_lanes_on_cpu(batch, lanes);
+            let own: Vec<u32> = (0..lanes.len() as u32).collect();
+            match out {
+                DeviceOut::Samples(o) => {
+                    let u: Vec<Vec2> = inputs.iter().map(|v| Vec2::new(v[0], v[1])).collect();
+                    self.sample_decoded(&cpu, &own, &u, o)?;
+                }
+                DeviceOut::Pdfs(o) => {
+                    let dirs: Vec<Vec3> =
+                        inputs.iter().map(|v| Vec3::new(v[0], v[1], v[2])).collect();
+                    self.pdf_decoded(&cpu, &own, &dirs, o)?;
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Decodes raw network outputs computed elsewhere (a GPU running the
@@ -221,10 +439,7 @@ impl GuidingField {
         use guiding_core::model::nasg::NASG_OUTPUTS;
         use guiding_core::model::npm::NPM_OUTPUTS;
         use guiding_core::model::wavefront::{decode_nasg_batch, decode_vmf_batch};
-        out.items.clear();
-        out.cells = None;
-        out.field_id = self.id;
-        out.generation = self.generation;
+        out.reset(self);
         let r = models::raw_outputs(&self.inner);
         if r == 0 {
             return Err(GuidingError::InvalidConfig(
@@ -268,6 +483,13 @@ impl GuidingField {
     /// Checks that `batch` was decoded by this field at its current
     /// generation and that every lane index is in range.
     fn check_batch(&self, batch: &DistributionBatch, lanes: &[u32]) -> Result<(), GuidingError> {
+        if let Some(d) = &self.device {
+            if let Some(failure) = d.failure() {
+                if d.on_failure == crate::DeviceFailure::Error {
+                    return Err(GuidingError::Device(failure));
+                }
+            }
+        }
         if batch.field_id != self.id || batch.generation != self.generation {
             return Err(GuidingError::StaleDistribution {
                 field_id: batch.field_id,
@@ -313,6 +535,10 @@ impl GuidingField {
             });
         }
         self.check_batch(batch, lanes)?;
+        if batch.device.is_some() {
+            let packed: Vec<[f32; 4]> = u.iter().map(|v| [v.x, v.y, 0.0, 0.0]).collect();
+            return self.device_lanes_call(batch, lanes, &packed, DeviceOut::Samples(out));
+        }
         batch.route(lanes, u, out, |items, lanes, u, out| {
             if !items.vmf.is_empty() {
                 mixture_batch::vmf_sample_batch(&items.vmf, lanes, u, out);
@@ -353,6 +579,10 @@ impl GuidingField {
             });
         }
         self.check_batch(batch, lanes)?;
+        if batch.device.is_some() {
+            let packed: Vec<[f32; 4]> = directions.iter().map(|d| [d.x, d.y, d.z, 0.0]).collect();
+            return self.device_lanes_call(batch, lanes, &packed, DeviceOut::Pdfs(out));
+        }
         batch.route(lanes, directions, out, |items, lanes, directions, out| {
             if !items.vmf.is_empty() {
                 mixture_batch::vmf_pdf_batch(&items.vmf, lanes, directions, out);

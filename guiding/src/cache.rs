@@ -437,8 +437,7 @@ impl GuideCache {
         out: &mut DistributionBatch,
         missed: &mut Vec<u32>,
     ) -> Result<CacheLookup, GuidingError> {
-        out.items.clear();
-        out.cells = None;
+        out.reset(field);
         missed.clear();
         self.check(field)?;
         if jitter.len() != queries.len() {

@@ -42,6 +42,10 @@ pub enum GuidingError {
         /// That field's generation now.
         used_generation: u64,
     },
+    /// The field's Vulkan device is missing or failed (no loader or
+    /// device, SPIR-V not built, a Vulkan call failed).
+    #[error("Vulkan device: {0}")]
+    Device(String),
     /// Reading or writing a file failed.
     #[error("{path}: {source}")]
     Io {

@@ -2,6 +2,7 @@
 //! [`Distribution`], the decoded distribution at one shading point.
 
 use crate::config::GuidingConfig;
+use crate::device::{DeviceFailure, DeviceField, DeviceSelection, GpuContext};
 use crate::error::GuidingError;
 use crate::models::{self, with_field, AnyField, Decode, Decoded};
 use glam::{Vec2, Vec3};
@@ -62,6 +63,8 @@ pub struct GuidingField {
     pub(crate) id: u64,
     pub(crate) generation: u64,
     pub(crate) inner: AnyField,
+    /// The Vulkan backend, when the field runs there ([`Self::use_device`]).
+    pub(crate) device: Option<DeviceField>,
 }
 
 impl std::fmt::Debug for GuidingField {
@@ -71,6 +74,7 @@ impl std::fmt::Debug for GuidingField {
             .field("bounds", &self.bounds)
             .field("id", &self.id)
             .field("generation", &self.generation)
+            .field("device", &self.device_name())
             .field("stats", &self.stats())
             .finish()
     }
@@ -121,6 +125,7 @@ impl GuidingField {
             id: NEXT_FIELD_ID.fetch_add(1, Ordering::Relaxed),
             generation: 0,
             inner,
+            device: None,
         })
     }
 
@@ -172,13 +177,22 @@ impl GuidingField {
 
     /// Runs one iteration of training ([`GuidingConfig::training`]'s
     /// `steps_per_update` Adam steps) on the buffered samples, then clears
-    /// the buffer. Does nothing once converged.
+    /// the buffer. Does nothing once converged. On a device whose failure
+    /// is an error ([`DeviceFailure::Error`]) a failed update trains nothing
+    /// and [`Self::device_error`] says why; [`Self::try_update`] returns it.
     pub fn update(&mut self) -> UpdateReport {
-        let report = with_field!(&mut self.inner, f => f.update());
-        if report.steps > 0 {
-            self.generation += 1;
-        }
-        report
+        let steps = with_field!(&self.inner, f => f.config().steps_per_update);
+        self.train(steps).unwrap_or_else(|_| failed_report())
+    }
+
+    /// [`Self::update`], returning a device failure as an error.
+    ///
+    /// # Errors
+    /// [`GuidingError::Device`] when the field runs on a device that failed
+    /// (now or before) and falls back to nothing.
+    pub fn try_update(&mut self) -> Result<UpdateReport, GuidingError> {
+        let steps = with_field!(&self.inner, f => f.config().steps_per_update);
+        self.train(steps)
     }
 
     /// [`Self::update`] with as many Adam steps as `epochs` passes over the
@@ -187,14 +201,130 @@ impl GuidingField {
     /// steps_per_update)`): training proportional to what the render pass
     /// produced. The renderer's default between passes.
     pub fn update_proportional(&mut self, epochs: f32) -> UpdateReport {
-        let report = with_field!(&mut self.inner, f => {
-            let steps = f.proportional_steps(epochs);
-            f.update_steps(steps)
-        });
-        if report.steps > 0 {
-            self.generation += 1;
+        self.try_update_proportional(epochs)
+            .unwrap_or_else(|_| failed_report())
+    }
+
+    /// [`Self::update_proportional`], returning a device failure as an error.
+    ///
+    /// # Errors
+    /// As [`Self::try_update`].
+    pub fn try_update_proportional(&mut self, epochs: f32) -> Result<UpdateReport, GuidingError> {
+        let steps = with_field!(&self.inner, f => f.proportional_steps(epochs));
+        self.train(steps)
+    }
+
+    /// The one training path of both backends: `steps` steps of the field's
+    /// loop, their arithmetic on the CPU threads or on the device.
+    fn train(&mut self, steps: u32) -> Result<UpdateReport, GuidingError> {
+        self.settle_device()?;
+        let result = match &self.device {
+            Some(d) => with_field!(&mut self.inner, f => d.train(f, steps)).map_err(|e| d.fail(e)),
+            None => Ok(with_field!(&mut self.inner, f => f.update_steps(steps))),
+        };
+        match result {
+            Ok(report) => {
+                if report.steps > 0 {
+                    self.generation += 1;
+                }
+                Ok(report)
+            }
+            Err(e) => {
+                // Steps may have been applied on the device before it failed.
+                self.generation += 1;
+                self.settle_device()?;
+                Err(e)
+            }
         }
-        report
+    }
+
+    /// Runs the field's network on a Vulkan device from now on (see
+    /// [`crate::device`]): the current training state is uploaded, training
+    /// steps and the wavefront queries run there.
+    ///
+    /// # Errors
+    /// [`GuidingError::Device`]: no Vulkan loader or matching device, or
+    /// SPIR-V not built into this binary (`guiding-gpu`'s feature
+    /// `shaders`).
+    pub fn use_device(
+        &mut self,
+        selection: DeviceSelection,
+        on_failure: DeviceFailure,
+    ) -> Result<(), GuidingError> {
+        let ctx = GpuContext::new(selection).map_err(crate::device::device_error)?;
+        self.use_device_context(ctx, on_failure)
+    }
+
+    /// [`Self::use_device`] on an open device (several fields can share
+    /// one, and its compiled shader modules).
+    ///
+    /// # Errors
+    /// [`GuidingError::Device`]: SPIR-V not built, or the upload failed.
+    pub fn use_device_context(
+        &mut self,
+        ctx: GpuContext,
+        on_failure: DeviceFailure,
+    ) -> Result<(), GuidingError> {
+        let state = self.state();
+        let device = DeviceField::new(
+            ctx,
+            on_failure,
+            models::kernel_prefix(&self.inner),
+            models::raw_outputs(&self.inner),
+            &self.model_bytes(),
+            &state,
+        )?;
+        self.device = Some(device);
+        self.generation += 1;
+        Ok(())
+    }
+
+    /// The device the field runs on (`None` on the CPU, also after a
+    /// fallback).
+    pub fn device_name(&self) -> Option<String> {
+        self.device.as_ref().map(|d| d.name().to_string())
+    }
+
+    /// The device's failure, when the field runs on a device that failed
+    /// and does not fall back ([`DeviceFailure::Error`]).
+    pub fn device_error(&self) -> Option<GuidingError> {
+        let d = self.device.as_ref()?;
+        d.failure().map(GuidingError::Device)
+    }
+
+    /// Marks the field's device as failed with `message`, as a failed Vulkan
+    /// call would: for tests of the failure paths (a working device cannot
+    /// be made to fail on demand). Does nothing on the CPU.
+    #[doc(hidden)]
+    pub fn fail_device_for_tests(&self, message: &str) {
+        if let Some(d) = &self.device {
+            d.fail_with(message);
+        }
+    }
+
+    /// The active device: present and not failed.
+    pub(crate) fn active_device(&self) -> Option<&DeviceField> {
+        self.device.as_ref().filter(|d| d.failure().is_none())
+    }
+
+    /// After a device failure: the error ([`DeviceFailure::Error`]), or the
+    /// move to the CPU with the device's weights
+    /// ([`DeviceFailure::FallbackToCpu`]).
+    fn settle_device(&mut self) -> Result<(), GuidingError> {
+        let Some(d) = &self.device else {
+            return Ok(());
+        };
+        let Some(failure) = d.failure() else {
+            return Ok(());
+        };
+        if d.on_failure == DeviceFailure::Error {
+            return Err(GuidingError::Device(failure));
+        }
+        let state = self.state();
+        with_field!(&mut self.inner, f => f.restore_state(state))?;
+        self.device = None;
+        self.generation += 1;
+        Ok(())
     }
 
     /// Whether training is over (stopped, plateaued or at its step limit).
@@ -219,22 +349,44 @@ impl GuidingField {
     }
 
     /// [`Self::distribution`] for every query (batched decodes spread over
-    /// the field's worker pool); `out` is cleared first.
+    /// the field's worker pool, on the CPU with the device's weights when the
+    /// field runs on a device); `out` is cleared first.
     pub fn query_into<'f>(&'f self, queries: &[QueryPoint], out: &mut Vec<Distribution<'f>>) {
         out.clear();
-        let batches = self.decode_chunks(queries);
+        // Plain values: decoded on the CPU (device lanes stay on the device).
+        let batches = self.decode_chunks_cpu(queries);
         for b in &batches {
             out.extend((0..b.len()).filter_map(|i| b.get(i).and_then(|d| self.attach(d).ok())));
         }
     }
 
     /// Decodes `queries` in chunks of [`QUERY_CHUNK`], spread over the
-    /// field's pool (one chunk per task, results in query order).
+    /// field's pool (one chunk per task, results in query order), on the
+    /// CPU (with the device's weights when the field runs on a device).
+    ///
+    /// On a field that runs on a device the chunks are decoded there (see
+    /// [`Self::decode_batch`]).
     pub fn decode_chunks(&self, queries: &[QueryPoint]) -> Vec<crate::DistributionBatch> {
+        if self.device.is_some() {
+            return queries
+                .chunks(QUERY_CHUNK.max(1))
+                .map(|part| {
+                    let mut b = crate::DistributionBatch::new();
+                    self.decode_batch(part, &mut b);
+                    b
+                })
+                .collect();
+        }
+        self.decode_chunks_cpu(queries)
+    }
+
+    /// [`Self::decode_chunks`] on the CPU (with the device's weights when
+    /// the field runs on a device).
+    fn decode_chunks_cpu(&self, queries: &[QueryPoint]) -> Vec<crate::DistributionBatch> {
         use rayon::prelude::*;
         let decode = |part: &[QueryPoint]| {
             let mut b = crate::DistributionBatch::new();
-            self.decode_batch(part, &mut b);
+            self.decode_batch_cpu(part, &mut b);
             b
         };
         let pool = with_field!(&self.inner, f => f.pool());
@@ -406,9 +558,21 @@ impl GuidingField {
         })
     }
 
-    /// The resumable training state (for [`crate::file`]).
+    /// The resumable training state (for [`crate::file`]): the device's
+    /// when the field runs on one (also after a failure, while it still
+    /// answers); if it cannot be read, the weights the field copied back
+    /// (the EMA, as parameters too) with fresh Adam moments.
     pub(crate) fn state(&self) -> FieldState {
-        with_field!(&self.inner, f => f.state())
+        let Some(d) = &self.device else {
+            return with_field!(&self.inner, f => f.state());
+        };
+        with_field!(&self.inner, f => d.state(f).unwrap_or_else(|_| {
+            let mut s = f.state();
+            s.params = s.ema.clone();
+            s.adam_m.fill(0.0);
+            s.adam_v.fill(0.0);
+            s
+        }))
     }
 
     pub(crate) fn model_bytes(&self) -> Vec<u8> {
@@ -530,5 +694,13 @@ impl DecodedDistribution {
             generation,
             decoded,
         }
+    }
+}
+
+/// What an update that could not run reports (nothing trained).
+fn failed_report() -> UpdateReport {
+    UpdateReport {
+        mean_loss: f64::NAN,
+        ..UpdateReport::default()
     }
 }

@@ -9,13 +9,9 @@ use guiding_core::field::{Field, FieldState};
 use guiding_core::lobe::DirectionSample;
 use guiding_core::mixture::nasg::NasgMixture;
 use guiding_core::mixture::vmf::VmfMixture;
-use guiding_core::model::df::{Df, DfProduct, DfRadiance, DfSmallProduct, DfSmallRadiance};
-use guiding_core::model::nasg::{
-    Nasg, NasgProduct, NasgRadiance, NasgSmallProduct, NasgSmallRadiance, NASG_LOBES,
-};
-use guiding_core::model::npm::{
-    Npm, NpmProduct, NpmRadiance, NpmSmallProduct, NpmSmallRadiance, NPM_LOBES,
-};
+use guiding_core::model::df::Df;
+use guiding_core::model::nasg::{Nasg, NASG_LOBES};
+use guiding_core::model::npm::{Npm, NPM_LOBES};
 use guiding_core::model::wavefront::{DfTable, DfTableSums, DfVertex};
 use guiding_core::model::{GuidingModel, QueryPoint};
 use guiding_core::pdf1d::Interpolation;
@@ -352,11 +348,17 @@ impl<
     }
 }
 
+/// The field enum, its dispatch macro, constructors, prefixes and output
+/// counts, generated from the model table ([`guiding_core::for_each_model`]):
+/// one variant per row, named by the row's prefix.
 macro_rules! any_field {
-    ($($variant:ident($ty:ty)),* $(,)?) => {
-        /// One [`Field`] of any supported model type.
+    ($($model:path => $prefix:ident, $family:ident, $size:ident, $target:ident,
+       [$($entry:ident),*];)*) => {
+        /// One [`Field`] of any supported model type (a variant per row of
+        /// the model table, named by its prefix).
+        #[allow(non_camel_case_types)]
         pub(crate) enum AnyField {
-            $($variant(Field<$ty>),)*
+            $($prefix(Field<$model>),)*
         }
 
         /// Runs `$body` with `$f` bound to the inner `Field<M>` (by
@@ -364,194 +366,132 @@ macro_rules! any_field {
         macro_rules! with_field {
             ($value:expr, $f:ident => $body:expr) => {
                 match $value {
-                    $(crate::models::AnyField::$variant($f) => $body,)*
+                    $(crate::models::AnyField::$prefix($f) => $body,)*
                 }
             };
         }
         pub(crate) use with_field;
+
+        /// Builds the field of `config` over `[lo, hi]`, from `state` if
+        /// given (a loaded file) or from the model's deterministic
+        /// initialisation.
+        pub(crate) fn build(
+            config: &GuidingConfig,
+            lo: [f32; 3],
+            hi: [f32; 3],
+            state: Option<FieldState>,
+        ) -> Result<AnyField, GuidingError> {
+            fn make<M: GuidingModel + Send + Sync>(
+                model: M,
+                config: &GuidingConfig,
+                state: Option<FieldState>,
+            ) -> Result<Field<M>, GuidingError> {
+                Ok(match state {
+                    Some(state) => Field::from_state(model, config.training, state)?,
+                    None => Field::new(model, config.training)?,
+                })
+            }
+            let c = config.selection_probability;
+            let interp = if config.representation == Representation::DfLinear {
+                Interpolation::Linear
+            } else {
+                Interpolation::Nearest
+            };
+            let _ = (c, interp);
+            $(
+                if family_matches!($family, config.representation)
+                    && config.size == ModelSize::$size
+                    && config.target == Target::$target
+                {
+                    let model = construct!($family, $size, $target, $model, lo, hi, c, interp);
+                    return Ok(AnyField::$prefix(make(model, config, state)?));
+                }
+            )*
+            Err(GuidingError::InvalidConfig(format!(
+                "no model of {:?} size {:?} target {:?}",
+                config.representation, config.size, config.target
+            )))
+        }
+
+        /// The model's name in the table: its SPIR-V entry-point prefix
+        /// (crate `guiding-shaders`: `{prefix}_sample`, `_pdf`,
+        /// `_gradient`, `_infer`).
+        pub(crate) fn kernel_prefix(field: &AnyField) -> &'static str {
+            match field {
+                $(AnyField::$prefix(_) => stringify!($prefix),)*
+            }
+        }
+
+        /// Raw network outputs per query of the model (0 for DF, whose
+        /// conditional network depends on the direction).
+        pub(crate) fn raw_outputs(field: &AnyField) -> usize {
+            match field {
+                $(AnyField::$prefix(_) => raw_outputs_of!($family),)*
+            }
+        }
     };
 }
 
-any_field! {
-    NpmSmallRadiance(NpmSmallRadiance),
-    NpmSmallProduct(NpmSmallProduct),
-    NpmCompactRadiance(NpmCompactRadiance),
-    NpmCompactProduct(NpmCompactProduct),
-    NpmPaperRadiance(NpmRadiance),
-    NpmPaperProduct(NpmProduct),
-    NasgSmallRadiance(NasgSmallRadiance),
-    NasgSmallProduct(NasgSmallProduct),
-    NasgCompactRadiance(NasgCompactRadiance),
-    NasgCompactProduct(NasgCompactProduct),
-    NasgPaperRadiance(NasgRadiance),
-    NasgPaperProduct(NasgProduct),
-    DfSmallRadiance(DfSmallRadiance),
-    DfSmallProduct(DfSmallProduct),
-    DfCompactRadiance(DfCompactRadiance),
-    DfCompactProduct(DfCompactProduct),
-    DfPaperRadiance(DfRadiance),
-    DfPaperProduct(DfProduct),
-}
-
-/// Builds the field of `config` over `[lo, hi]`, from `state` if given
-/// (a loaded file) or from the model's deterministic initialisation.
-pub(crate) fn build(
-    config: &GuidingConfig,
-    lo: [f32; 3],
-    hi: [f32; 3],
-    state: Option<FieldState>,
-) -> Result<AnyField, GuidingError> {
-    fn make<M: GuidingModel + Send + Sync>(
-        model: M,
-        config: &GuidingConfig,
-        state: Option<FieldState>,
-    ) -> Result<Field<M>, GuidingError> {
-        Ok(match state {
-            Some(state) => Field::from_state(model, config.training, state)?,
-            None => Field::new(model, config.training)?,
-        })
-    }
-    let c = config.selection_probability;
-    let interp = if config.representation == Representation::DfLinear {
-        Interpolation::Linear
-    } else {
-        Interpolation::Nearest
+/// Whether a row's family is the configuration's representation.
+macro_rules! family_matches {
+    (npm, $rep:expr) => {
+        $rep == Representation::Npm
     };
-    use AnyField as A;
-    use ModelSize::{Compact, Paper, Small};
-    use Representation::{DfLinear, DfNearest, Nasg as NasgRep, Npm as NpmRep};
-    use Target::{Product, Radiance};
-    let s = state;
-    Ok(match (config.representation, config.size, config.target) {
-        (NpmRep, Small, Radiance) => A::NpmSmallRadiance(make(
-            NpmSmallRadiance::small(lo, hi).with_selection_probability(c),
-            config,
-            s,
-        )?),
-        (NpmRep, Small, Product) => A::NpmSmallProduct(make(
-            NpmSmallProduct::small(lo, hi).with_selection_probability(c),
-            config,
-            s,
-        )?),
-        (NpmRep, Compact, Radiance) => A::NpmCompactRadiance(make(
-            NpmCompactRadiance::new(compact_grid(lo, hi), Radiance).with_selection_probability(c),
-            config,
-            s,
-        )?),
-        (NpmRep, Compact, Product) => A::NpmCompactProduct(make(
-            NpmCompactProduct::new(compact_grid(lo, hi), Product).with_selection_probability(c),
-            config,
-            s,
-        )?),
-        (NpmRep, Paper, Radiance) => A::NpmPaperRadiance(make(
-            NpmRadiance::paper(lo, hi).with_selection_probability(c),
-            config,
-            s,
-        )?),
-        (NpmRep, Paper, Product) => A::NpmPaperProduct(make(
-            NpmProduct::paper(lo, hi).with_selection_probability(c),
-            config,
-            s,
-        )?),
-        (NasgRep, Small, Radiance) => {
-            A::NasgSmallRadiance(make(NasgSmallRadiance::small(lo, hi), config, s)?)
-        }
-        (NasgRep, Small, Product) => {
-            A::NasgSmallProduct(make(NasgSmallProduct::small(lo, hi), config, s)?)
-        }
-        (NasgRep, Compact, Radiance) => A::NasgCompactRadiance(make(
-            NasgCompactRadiance::new(compact_grid(lo, hi), Radiance),
-            config,
-            s,
-        )?),
-        (NasgRep, Compact, Product) => A::NasgCompactProduct(make(
-            NasgCompactProduct::new(compact_grid(lo, hi), Product),
-            config,
-            s,
-        )?),
-        (NasgRep, Paper, Radiance) => {
-            A::NasgPaperRadiance(make(NasgRadiance::paper(lo, hi), config, s)?)
-        }
-        (NasgRep, Paper, Product) => {
-            A::NasgPaperProduct(make(NasgProduct::paper(lo, hi), config, s)?)
-        }
-        (DfNearest | DfLinear, Small, Radiance) => A::DfSmallRadiance(make(
-            DfSmallRadiance::small(lo, hi, interp).with_selection_probability(c),
-            config,
-            s,
-        )?),
-        (DfNearest | DfLinear, Small, Product) => A::DfSmallProduct(make(
-            DfSmallProduct::small(lo, hi, interp).with_selection_probability(c),
-            config,
-            s,
-        )?),
-        (DfNearest | DfLinear, Compact, Radiance) => A::DfCompactRadiance(make(
-            DfCompactRadiance::new(compact_grid(lo, hi), Radiance, interp)
-                .with_selection_probability(c),
-            config,
-            s,
-        )?),
-        (DfNearest | DfLinear, Compact, Product) => A::DfCompactProduct(make(
-            DfCompactProduct::new(compact_grid(lo, hi), Product, interp)
-                .with_selection_probability(c),
-            config,
-            s,
-        )?),
-        (DfNearest | DfLinear, Paper, Radiance) => A::DfPaperRadiance(make(
-            DfRadiance::paper(lo, hi, interp).with_selection_probability(c),
-            config,
-            s,
-        )?),
-        (DfNearest | DfLinear, Paper, Product) => A::DfPaperProduct(make(
-            DfProduct::paper(lo, hi, interp).with_selection_probability(c),
-            config,
-            s,
-        )?),
-    })
+    (nasg, $rep:expr) => {
+        $rep == Representation::Nasg
+    };
+    (df, $rep:expr) => {
+        matches!($rep, Representation::DfNearest | Representation::DfLinear)
+    };
 }
 
-/// The model's bytes (`repr(C)` Pod): its grid box, layer offsets and
-/// constants, stored in save files to detect a file written for another
-/// model layout.
-/// The SPIR-V entry-point prefix of the model type (crate
-/// `guiding-shaders`: `{prefix}_sample`, `_pdf`, `_gradient`, `_infer`).
-pub(crate) fn kernel_prefix(field: &AnyField) -> &'static str {
-    match field {
-        AnyField::NpmSmallRadiance(_) => "npm_small_radiance",
-        AnyField::NpmSmallProduct(_) => "npm_small_product",
-        AnyField::NpmCompactRadiance(_) => "npm_compact_radiance",
-        AnyField::NpmCompactProduct(_) => "npm_compact_product",
-        AnyField::NpmPaperRadiance(_) => "npm_paper_radiance",
-        AnyField::NpmPaperProduct(_) => "npm_paper_product",
-        AnyField::NasgSmallRadiance(_) => "nasg_small_radiance",
-        AnyField::NasgSmallProduct(_) => "nasg_small_product",
-        AnyField::NasgCompactRadiance(_) => "nasg_compact_radiance",
-        AnyField::NasgCompactProduct(_) => "nasg_compact_product",
-        AnyField::NasgPaperRadiance(_) => "nasg_paper_radiance",
-        AnyField::NasgPaperProduct(_) => "nasg_paper_product",
-        AnyField::DfSmallRadiance(_) => "df_small_radiance",
-        AnyField::DfSmallProduct(_) => "df_small_product",
-        AnyField::DfCompactRadiance(_) => "df_compact_radiance",
-        AnyField::DfCompactProduct(_) => "df_compact_product",
-        AnyField::DfPaperRadiance(_) => "df_paper_radiance",
-        AnyField::DfPaperProduct(_) => "df_paper_product",
-    }
-}
-
-/// Raw network outputs per query of the model (0 for DF, whose conditional
-/// network depends on the direction).
-pub(crate) fn raw_outputs(field: &AnyField) -> usize {
-    use guiding_core::model::nasg::NASG_OUTPUTS;
-    use guiding_core::model::npm::NPM_OUTPUTS;
-    let prefix = kernel_prefix(field);
-    if prefix.starts_with("npm") {
-        NPM_OUTPUTS
-    } else if prefix.starts_with("nasg") {
-        NASG_OUTPUTS
-    } else {
+/// Raw outputs per query of a family.
+macro_rules! raw_outputs_of {
+    (npm) => {
+        guiding_core::model::npm::NPM_OUTPUTS
+    };
+    (nasg) => {
+        guiding_core::model::nasg::NASG_OUTPUTS
+    };
+    (df) => {
         0
-    }
+    };
 }
+
+/// The preset value of a row's type: the size's constructor (the compact
+/// grid for `Compact`), NPM's and DF's constant selection probability
+/// `$c`, DF's interpolation `$interp`.
+macro_rules! construct {
+    (npm, Small, $t:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
+        <$m>::small($lo, $hi).with_selection_probability($c)
+    };
+    (npm, Compact, $t:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
+        <$m>::new(compact_grid($lo, $hi), Target::$t).with_selection_probability($c)
+    };
+    (npm, Paper, $t:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
+        <$m>::paper($lo, $hi).with_selection_probability($c)
+    };
+    (nasg, Small, $t:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
+        <$m>::small($lo, $hi)
+    };
+    (nasg, Compact, $t:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
+        <$m>::new(compact_grid($lo, $hi), Target::$t)
+    };
+    (nasg, Paper, $t:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
+        <$m>::paper($lo, $hi)
+    };
+    (df, Small, $t:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
+        <$m>::small($lo, $hi, $i).with_selection_probability($c)
+    };
+    (df, Compact, $t:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
+        <$m>::new(compact_grid($lo, $hi), Target::$t, $i).with_selection_probability($c)
+    };
+    (df, Paper, $t:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
+        <$m>::paper($lo, $hi, $i).with_selection_probability($c)
+    };
+}
+
+guiding_core::for_each_model!(any_field);
 
 /// The distribution decoded from raw outputs computed elsewhere (a GPU
 /// running [`guiding_core::model::RawOutputs::write_raw`]); `None` for DF.
@@ -569,6 +509,9 @@ pub(crate) fn decode_raw(field: &AnyField, raw: &[f32]) -> Option<Decoded> {
     }
 }
 
+/// The model's bytes (`repr(C)` Pod): its grid box, layer offsets and
+/// constants, stored in save files to detect a file written for another
+/// model layout.
 pub(crate) fn model_bytes(field: &AnyField) -> Vec<u8> {
     with_field!(field, f => bytemuck::bytes_of(f.model()).to_vec())
 }

@@ -79,9 +79,13 @@ pub enum Error {
     /// The benchmark suite could not run (bad arguments, a failed child render, I/O).
     #[error("bench: {0}")]
     Bench(String),
-    /// `--device gpu`: no usable Vulkan device, shaders not built, or a GPU failure.
+    /// `--device gpu`: an invalid device selection.
     #[error("GPU: {0}")]
     Gpu(#[from] guiding_gpu::GpuError),
+    /// The guide failed: no usable Vulkan device, shaders not built, or a device failure
+    /// mid-render.
+    #[error("guide: {0}")]
+    Guiding(#[from] guiding::GuidingError),
 }
 
 fn problems_text(list: &[String]) -> String {

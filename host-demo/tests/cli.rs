@@ -362,3 +362,48 @@ fn stats_report_skipped_product_inputs_when_all_diffuse() {
     assert_eq!(p["ran"], true, "{p}");
     assert_eq!(p["all_materials_diffuse"], false, "{p}");
 }
+
+/// `--device gpu` renders every guide with the guide on the Vulkan device, and `--stats`
+/// reports the device and its own training (steps, loss, samples used and rejected counted
+/// by the field's loop). Skipped without a device or SPIR-V, unless
+/// `GUIDING_REQUIRE_VULKAN=1`.
+#[test]
+fn gpu_renders_of_every_guide_report_the_devices_training() {
+    let available = guiding_gpu::shader_module()
+        .and_then(|_| guiding_gpu::GpuContext::new(guiding_gpu::DeviceSelection::Auto));
+    if let Err(e) = available {
+        let required = std::env::var("GUIDING_REQUIRE_VULKAN").is_ok_and(|v| v == "1");
+        assert!(!required, "GUIDING_REQUIRE_VULKAN=1 but: {e}");
+        eprintln!("skipped: {e}");
+        return;
+    }
+    let dir = scratch("gpu");
+    for guide in ["npm", "nasg", "df-n", "df-l"] {
+        let stats = dir.join(format!("{guide}.json"));
+        run_ok(
+            bin()
+                .args(["render", "builtin:cornell-box", "--integrator", "guided"])
+                .args(["--guide", guide, "--device", "gpu", "--model-size", "small"])
+                .args(["--spp", "8", "--width", "24", "--out"])
+                .arg(dir.join(format!("{guide}.exr")))
+                .arg("--stats")
+                .arg(&stats),
+        );
+        let s = read_json(&stats);
+        assert!(s["device"].is_string(), "{guide}: no device in {s:#}");
+        let training = &s["stages"]["training"];
+        assert!(
+            training["steps"].as_u64().is_some_and(|n| n > 0),
+            "{guide}: no training step on the device: {training:#}"
+        );
+        assert!(training["last_loss"].is_number(), "{guide}: {training:#}");
+        assert!(
+            s["training_samples"]["recorded"]
+                .as_u64()
+                .is_some_and(|n| n > 0),
+            "{guide}: {s:#}"
+        );
+        assert!(s["training_samples"]["rejected"].is_u64(), "{guide}");
+        assert!(s["stages"]["guiding"]["guided_vertices"].as_u64() > Some(0));
+    }
+}

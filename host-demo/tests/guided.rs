@@ -73,7 +73,7 @@ fn guided(
         train_epochs: f32::MAX,
         ..GuidedOptions::default()
     };
-    render_guided(scene, o, &gopts, &mut g)
+    render_guided(scene, o, &gopts, &mut g).expect("guided render")
 }
 
 /// The small NPM radiance guide of the time-budget tests.
@@ -311,7 +311,7 @@ fn door_ratio(seed: u64) -> (f64, f64) {
         ..GuidedOptions::default()
     };
     let o = opts(IntegratorKind::PtNee, DOOR_TRAIN_SPP, w, h, 1000 + seed, 0);
-    let (_, st) = render_guided(&scene, &o, &train, &mut g);
+    let (_, st) = render_guided(&scene, &o, &train, &mut g).expect("guided render");
     eprintln!("training render:\n{st}");
     assert_eq!(st.training_passes, DOOR_TRAIN_SPP);
     let frozen = GuidedOptions {
@@ -319,7 +319,7 @@ fn door_ratio(seed: u64) -> (f64, f64) {
         ..train
     };
     let o = opts(IntegratorKind::PtNee, DOOR_SPP, w, h, 6 + 10 * seed, 0);
-    let (guided, st) = render_guided(&scene, &o, &frozen, &mut g);
+    let (guided, st) = render_guided(&scene, &o, &frozen, &mut g).expect("guided render");
     assert_eq!(st.samples_recorded, 0);
     let pt_nee = render(
         &scene,
@@ -429,7 +429,7 @@ fn efficiency_trial_decides_once_and_keeps_the_image_unbiased() {
         training_probe: false,
         ..GuidedOptions::default()
     };
-    let (img, st) = render_guided(&scene, &o, &gopts, &mut g);
+    let (img, st) = render_guided(&scene, &o, &gopts, &mut g).expect("guided render");
     eprintln!("{st}");
     let trial = st.trial.as_ref().expect("the trial ran");
     let verdict = trial
@@ -447,7 +447,7 @@ fn efficiency_trial_decides_once_and_keeps_the_image_unbiased() {
     // The same render with an spp budget: no trial.
     let mut g = small_npm();
     let o = opts(IntegratorKind::PtNee, 16, w, h, 5, 2);
-    let (_, st) = render_guided(&scene, &o, &gopts, &mut g);
+    let (_, st) = render_guided(&scene, &o, &gopts, &mut g).expect("guided render");
     assert!(st.trial.is_none());
 }
 
@@ -469,7 +469,7 @@ fn pass_weights_keep_the_image_unbiased() {
             weight_passes,
             ..GuidedOptions::default()
         };
-        render_guided(&scene, &o, &gopts, &mut g)
+        render_guided(&scene, &o, &gopts, &mut g).expect("guided render")
     };
     let (img, st) = run(true);
     eprintln!("{st}");
@@ -515,7 +515,7 @@ fn training_probe_abandons_training_and_keeps_the_image_unbiased() {
             probe_threshold,
             ..GuidedOptions::default()
         };
-        render_guided(&scene, &o, &gopts, &mut g)
+        render_guided(&scene, &o, &gopts, &mut g).expect("guided render")
     };
     let (img, st) = run(true, 0.0);
     eprintln!("{st}");
@@ -541,4 +541,57 @@ fn training_probe_abandons_training_and_keeps_the_image_unbiased() {
 
     let (_, st) = run(false, f64::INFINITY);
     assert!(st.probe.is_none());
+}
+
+/// A guide whose device fails ends the render with the device's error (never a render with
+/// untrained CPU weights); with `FallbackToCpu` the render completes on the CPU. Skipped
+/// without a Vulkan device or SPIR-V, unless `GUIDING_REQUIRE_VULKAN=1`.
+#[test]
+fn a_device_failure_ends_the_render_with_its_error() {
+    let ctx = match guiding_gpu::shader_module()
+        .and_then(|_| guiding_gpu::GpuContext::new(guiding_gpu::DeviceSelection::Auto))
+    {
+        Ok(ctx) => ctx,
+        Err(e) => {
+            let required = std::env::var("GUIDING_REQUIRE_VULKAN").is_ok_and(|v| v == "1");
+            assert!(!required, "GUIDING_REQUIRE_VULKAN=1 but: {e}");
+            eprintln!("skipped: {e}");
+            return;
+        }
+    };
+    let scene = load_builtin("cornell-box").expect("builtin");
+    let o = opts(IntegratorKind::PtNee, 4, 16, 16, 3, 2);
+    let config = FieldConfig::DEFAULT.with_batch_size(256).with_threads(2);
+    for policy in [
+        guiding::DeviceFailure::Error,
+        guiding::DeviceFailure::FallbackToCpu,
+    ] {
+        let mut g = build_guide(
+            GuideKind::Npm,
+            Target::Radiance,
+            ModelSize::Small,
+            scene.bounds(),
+            0.5,
+            config,
+        )
+        .expect("guide");
+        g.use_device_context(ctx.clone(), policy).expect("device");
+        g.fail_device_for_tests("injected");
+        let result = render_guided(&scene, &o, &GuidedOptions::default(), &mut g);
+        match policy {
+            guiding::DeviceFailure::Error => match result {
+                Err(guiding::GuidingError::Device(m)) => assert!(m.contains("injected"), "{m}"),
+                other => panic!("expected the device's error, got {:?}", other.map(|r| r.1)),
+            },
+            guiding::DeviceFailure::FallbackToCpu => {
+                let (img, st) = result.expect("the fallback renders on the CPU");
+                assert!(img.mean().iter().all(|m| m.is_finite() && *m > 0.0));
+                assert!(
+                    st.training_steps > 0,
+                    "trained on the CPU after the fallback"
+                );
+                assert!(g.device_name().is_none());
+            }
+        }
+    }
 }

@@ -742,7 +742,7 @@ fn thindielectric_reflects_its_series_fraction() {
         reflectance: Vec3::ONE,
         transmittance: Vec3::ONE,
     };
-    let mut rng = host_demo::math::Rng::new(3, 1, 4);
+    let mut rng = host_demo::math::Rng::from_keys(3, 1, 4);
     for wi in [
         Vec3::new(0.3, 0.0, 0.95).normalize(),
         Vec3::new(0.8, 0.1, -0.3).normalize(),
@@ -790,7 +790,7 @@ fn blendbsdf_weight_texture_and_expectation() {
         let want = (0.2 * (1.0 - w) + 0.8 * w) * 0.8 / std::f32::consts::PI;
         assert!((f.x - want).abs() < 1e-6, "{} vs {want}", f.x);
         // Stochastic selection picks b with probability w (binomial z-test).
-        let mut rng = host_demo::math::Rng::new(9, 9, 9);
+        let mut rng = host_demo::math::Rng::from_keys(9, 9, 9);
         let n = 20_000;
         let mut picked_b = 0;
         for _ in 0..n {

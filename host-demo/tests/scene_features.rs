@@ -687,7 +687,8 @@ fn guided_agrees_with_pt_nee(name: &str, sc: &Scene, seed: u64, field_seed: u32)
         config,
     )
     .expect("guide");
-    let (img, st) = render_guided(sc, &o, &GuidedOptions::default(), &mut g);
+    let (img, st) =
+        render_guided(sc, &o, &GuidedOptions::default(), &mut g).expect("guided render");
     assert!(img.all_finite());
     assert!(
         st.guided_vertices > 0 && st.training_steps > 0 && st.nee,

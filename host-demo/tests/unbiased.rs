@@ -33,10 +33,9 @@ mod common;
 use common::sidak;
 use guiding_core::field::FieldConfig;
 use guiding_core::loss::Target;
-use host_demo::render::strategy::gpu::GpuGuide;
 use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
 use host_demo::render::{render, Image, IntegratorKind, RenderOptions};
-use host_demo::render::{render_guided, render_guided_gpu, CacheMode, GuidedOptions, GuidedStats};
+use host_demo::render::{render_guided, CacheMode, GuidedOptions, GuidedStats};
 use host_demo::scene::builtin::load_builtin;
 use host_demo::scene::Scene;
 
@@ -226,15 +225,16 @@ fn guided_with(
         guide_pdf_scale,
         ..GuidedOptions::default()
     };
-    match gpu {
-        Some(ctx) => {
-            let mut d = GpuGuide::with_context(&g, ctx.clone()).expect("GPU guide");
-            render_guided_gpu(scene, &o, &gopts, &mut g, &mut d)
-                .expect("GPU render")
-                .0
-        }
-        None => render_guided(scene, &o, &gopts, &mut g).0,
+    if let Some(ctx) = gpu {
+        g.use_device_context(ctx.clone(), guiding::DeviceFailure::Error)
+            .expect("guide on the device");
     }
+    let (img, stats) = render_guided(scene, &o, &gopts, &mut g).expect("guided render");
+    if gpu.is_some() {
+        // The device's own training: the field's loop counted its steps.
+        assert!(stats.training_steps > 0, "no training step on the device");
+    }
+    img
 }
 
 #[test]
@@ -284,8 +284,8 @@ fn compare_blocks(
 
 /// `--device gpu` against `--device cpu`: the guided integrator with the
 /// guide's inference and training on Vulkan (lavapipe in CI) renders the
-/// same image in expectation, per block, as with the CPU field (both NPM
-/// and NASG, NEE on, independent seeds). Skipped (with a note) when the
+/// same image in expectation, per block, as with the CPU field (NPM, NASG,
+/// DF-N and DF-L, NEE on, independent seeds). Skipped (with a note) when the
 /// SPIR-V was not built or there is no Vulkan device, unless
 /// `GUIDING_REQUIRE_VULKAN=1`.
 #[test]
@@ -302,7 +302,12 @@ fn gpu_guide_agrees_with_the_cpu_guide_per_block() {
         }
     };
     let scene = load_builtin("cornell-box").expect("builtin");
-    let kinds = [("npm", GuideKind::Npm), ("nasg", GuideKind::Nasg)];
+    let kinds = [
+        ("npm", GuideKind::Npm),
+        ("nasg", GuideKind::Nasg),
+        ("df-n", GuideKind::DfN),
+        ("df-l", GuideKind::DfL),
+    ];
     let level = sidak(
         ALPHA,
         kinds.len() * (RES / BLOCK * RES / BLOCK) as usize * 3,
@@ -444,7 +449,7 @@ fn guided_cached(
         cache_resolution: resolution,
         ..GuidedOptions::default()
     };
-    render_guided(scene, &o, &gopts, &mut g)
+    render_guided(scene, &o, &gopts, &mut g).expect("guided render")
 }
 
 /// The guide cache keeps guided rendering unbiased: `guided npm` with a radiance-target guide
@@ -632,7 +637,7 @@ fn sharp_frozen_guides_agree_per_block() {
             train_epochs: f32::MAX,
             ..GuidedOptions::default()
         };
-        let (_, st) = render_guided(&scene, &train, &gtrain, &mut g);
+        let (_, st) = render_guided(&scene, &train, &gtrain, &mut g).expect("guided render");
         assert_eq!(st.training_passes, 64, "{name}: {st}");
         let k = sharpness(&scene, &g);
         let q = |f: f64| k[((k.len() - 1) as f64 * f).round() as usize];
@@ -659,7 +664,8 @@ fn sharp_frozen_guides_agree_per_block() {
         let guide = std::cell::RefCell::new(g);
         let stats = seed_statistics(|s| {
             let o = opts(IntegratorKind::PtNee, SPP, 5000 + 100 * i as u64 + s);
-            let (img, st) = render_guided(&scene, &o, &frozen, &mut guide.borrow_mut());
+            let (img, st) =
+                render_guided(&scene, &o, &frozen, &mut guide.borrow_mut()).expect("guided render");
             assert_eq!((st.training_passes, st.samples_recorded), (0, 0));
             img
         });

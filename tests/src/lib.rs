@@ -32,3 +32,27 @@ pub mod quadrature;
 pub fn total_chi2_tests() -> usize {
     cases::all_cases().len() + cases::factorised::STANDALONE_CHI2_TESTS
 }
+
+/// A query point uniform in the box `[lo, hi]`, with a uniform normal and
+/// `wo` on the sphere and a uniform roughness (the embedding and device
+/// tests' shading points).
+pub fn random_query_in(
+    rng: &mut Pcg32,
+    lo: [f32; 3],
+    hi: [f32; 3],
+) -> guiding_core::model::QueryPoint {
+    use guiding_core::sphere::square_to_uniform_sphere;
+    let n = square_to_uniform_sphere(rng.next_vec2());
+    let wo = square_to_uniform_sphere(rng.next_vec2());
+    guiding_core::model::QueryPoint {
+        position: [
+            rng.uniform(lo[0], hi[0]),
+            rng.uniform(lo[1], hi[1]),
+            rng.uniform(lo[2], hi[2]),
+        ],
+        roughness: rng.next_f32(),
+        normal: n.to_array(),
+        wo: wo.to_array(),
+        ..guiding_core::model::QueryPoint::default()
+    }
+}

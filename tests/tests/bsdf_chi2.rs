@@ -689,7 +689,7 @@ fn blendbsdf_sampling_matches_mixture_pdf() {
     }
     impl SphereDistribution for Blend {
         fn sample(&self, rng: &mut Pcg32) -> (Vec3, f32) {
-            let mut r = host_demo::math::Rng::new(u64::from(rng.next_u32()), 1, 2);
+            let mut r = host_demo::math::Rng::from_keys(u64::from(rng.next_u32()), 1, 2);
             for _ in 0..10_000 {
                 let (_, m, _, _) = self.scene.resolve_material(
                     self.id,

@@ -38,19 +38,7 @@ fn presets() -> Vec<GuidingConfig> {
 }
 
 fn random_query(rng: &mut Pcg32) -> QueryPoint {
-    let n = square_to_uniform_sphere(rng.next_vec2());
-    let wo = square_to_uniform_sphere(rng.next_vec2());
-    QueryPoint {
-        position: [
-            rng.uniform(LO[0], HI[0]),
-            rng.uniform(LO[1], HI[1]),
-            rng.uniform(LO[2], HI[2]),
-        ],
-        roughness: rng.next_f32(),
-        normal: n.to_array(),
-        wo: wo.to_array(),
-        ..QueryPoint::default()
-    }
+    guiding_tests::random_query_in(rng, LO, HI)
 }
 
 /// Light from a cone around +z (cos θ > 0.95) of radiance 10, 0.1 elsewhere.

@@ -11,6 +11,7 @@ pub mod df;
 pub mod mixture_batch;
 pub mod nasg;
 pub mod npm;
+pub mod table;
 #[cfg(feature = "std")]
 pub mod vmf_gradient;
 #[cfg(feature = "std")]

@@ -22,17 +22,6 @@
 
 use guiding_core::batch::{self, AdamArgs, BatchArgs};
 use guiding_core::gradient::GradientSink;
-use guiding_core::model::df::{
-    DfCompactProduct, DfCompactRadiance, DfProduct, DfRadiance, DfSmallProduct, DfSmallRadiance,
-};
-use guiding_core::model::nasg::{
-    NasgCompactProduct, NasgCompactRadiance, NasgProduct, NasgRadiance, NasgSmallProduct,
-    NasgSmallRadiance,
-};
-use guiding_core::model::npm::{
-    NpmCompactProduct, NpmCompactRadiance, NpmProduct, NpmRadiance, NpmSmallProduct,
-    NpmSmallRadiance,
-};
 use guiding_core::model::QueryPoint;
 use guiding_core::sample::TrainingSample;
 use spirv_std::glam::UVec3;
@@ -128,7 +117,7 @@ fn compare_exchange(slot: &mut u32, new: u32, current: u32) -> u32 {
 /// Entry points of one model type: `sample`, `pdf`, `gradient` (and
 /// `infer` for models with [`guiding_core::model::RawOutputs`]).
 macro_rules! model_kernels {
-    ($model:ty, $sample:ident, $pdf:ident, $gradient:ident $(, $infer:ident)?) => {
+    ($model:path, $sample:ident, $pdf:ident, $gradient:ident $(, $infer:ident)?) => {
         /// [`batch::sample_element`] of this model.
         #[spirv(compute(threads(64)))]
         pub fn $sample(
@@ -212,126 +201,16 @@ macro_rules! model_kernels {
     };
 }
 
-model_kernels!(
-    NpmSmallRadiance,
-    npm_small_radiance_sample,
-    npm_small_radiance_pdf,
-    npm_small_radiance_gradient,
-    npm_small_radiance_infer
-);
-model_kernels!(
-    NpmSmallProduct,
-    npm_small_product_sample,
-    npm_small_product_pdf,
-    npm_small_product_gradient,
-    npm_small_product_infer
-);
-model_kernels!(
-    NpmCompactRadiance,
-    npm_compact_radiance_sample,
-    npm_compact_radiance_pdf,
-    npm_compact_radiance_gradient,
-    npm_compact_radiance_infer
-);
-model_kernels!(
-    NpmCompactProduct,
-    npm_compact_product_sample,
-    npm_compact_product_pdf,
-    npm_compact_product_gradient,
-    npm_compact_product_infer
-);
-model_kernels!(
-    NpmRadiance,
-    npm_paper_radiance_sample,
-    npm_paper_radiance_pdf,
-    npm_paper_radiance_gradient,
-    npm_paper_radiance_infer
-);
-model_kernels!(
-    NpmProduct,
-    npm_paper_product_sample,
-    npm_paper_product_pdf,
-    npm_paper_product_gradient,
-    npm_paper_product_infer
-);
-model_kernels!(
-    NasgSmallRadiance,
-    nasg_small_radiance_sample,
-    nasg_small_radiance_pdf,
-    nasg_small_radiance_gradient,
-    nasg_small_radiance_infer
-);
-model_kernels!(
-    NasgSmallProduct,
-    nasg_small_product_sample,
-    nasg_small_product_pdf,
-    nasg_small_product_gradient,
-    nasg_small_product_infer
-);
-model_kernels!(
-    NasgCompactRadiance,
-    nasg_compact_radiance_sample,
-    nasg_compact_radiance_pdf,
-    nasg_compact_radiance_gradient,
-    nasg_compact_radiance_infer
-);
-model_kernels!(
-    NasgCompactProduct,
-    nasg_compact_product_sample,
-    nasg_compact_product_pdf,
-    nasg_compact_product_gradient,
-    nasg_compact_product_infer
-);
-model_kernels!(
-    NasgRadiance,
-    nasg_paper_radiance_sample,
-    nasg_paper_radiance_pdf,
-    nasg_paper_radiance_gradient,
-    nasg_paper_radiance_infer
-);
-model_kernels!(
-    NasgProduct,
-    nasg_paper_product_sample,
-    nasg_paper_product_pdf,
-    nasg_paper_product_gradient,
-    nasg_paper_product_infer
-);
-model_kernels!(
-    DfSmallRadiance,
-    df_small_radiance_sample,
-    df_small_radiance_pdf,
-    df_small_radiance_gradient
-);
-model_kernels!(
-    DfSmallProduct,
-    df_small_product_sample,
-    df_small_product_pdf,
-    df_small_product_gradient
-);
-model_kernels!(
-    DfCompactRadiance,
-    df_compact_radiance_sample,
-    df_compact_radiance_pdf,
-    df_compact_radiance_gradient
-);
-model_kernels!(
-    DfCompactProduct,
-    df_compact_product_sample,
-    df_compact_product_pdf,
-    df_compact_product_gradient
-);
-model_kernels!(
-    DfRadiance,
-    df_paper_radiance_sample,
-    df_paper_radiance_pdf,
-    df_paper_radiance_gradient
-);
-model_kernels!(
-    DfProduct,
-    df_paper_product_sample,
-    df_paper_product_pdf,
-    df_paper_product_gradient
-);
+/// Entry points of every row of the model table
+/// ([`guiding_core::for_each_model`]).
+macro_rules! table_kernels {
+    ($($model:path => $prefix:ident, $family:ident, $size:ident, $target:ident,
+       [$sample:ident, $pdf:ident, $gradient:ident $(, $infer:ident)?];)*) => {
+        $( model_kernels!($model, $sample, $pdf, $gradient $(, $infer)?); )*
+    };
+}
+
+guiding_core::for_each_model!(table_kernels);
 
 /// [`batch::max_abs_partial`]: one invocation per block of 256 gradient
 /// elements; `args.count` = parameter count.
@@ -442,6 +321,77 @@ pub fn df_decode_pdf(
     let i = element_index(id, groups);
     if i < args.count as usize {
         batch::df_decode_pdf_element(raw, args.code, directions, out, i);
+    }
+}
+
+/// Entry points of one mixture family on raw outputs resident on the
+/// device: a call samples / evaluates some lanes of a decoded wavefront.
+macro_rules! lane_kernels {
+    ($sample:ident, $pdf:ident, $sample_fn:path, $pdf_fn:path) => {
+        /// Sample of the lanes `lanes[i]` of resident raw outputs.
+        #[spirv(compute(threads(64)))]
+        pub fn $sample(
+            #[spirv(global_invocation_id)] id: UVec3,
+            #[spirv(num_workgroups)] groups: UVec3,
+            #[spirv(push_constant)] args: &BatchArgs,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] raw: &[f32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] lanes: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] normals: &[[f32; 4]],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] u: &[[f32; 4]],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] out: &mut [[f32; 4]],
+        ) {
+            let i = element_index(id, groups);
+            if i < args.count as usize {
+                $sample_fn(raw, lanes, normals, u, out, i);
+            }
+        }
+
+        /// Density of the lanes `lanes[i]` of resident raw outputs.
+        #[spirv(compute(threads(64)))]
+        pub fn $pdf(
+            #[spirv(global_invocation_id)] id: UVec3,
+            #[spirv(num_workgroups)] groups: UVec3,
+            #[spirv(push_constant)] args: &BatchArgs,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] raw: &[f32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] lanes: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] normals: &[[f32; 4]],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] directions: &[[f32; 4]],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] out: &mut [f32],
+        ) {
+            let i = element_index(id, groups);
+            if i < args.count as usize {
+                $pdf_fn(raw, lanes, normals, directions, out, i);
+            }
+        }
+    };
+}
+
+lane_kernels!(
+    vmf_lane_sample,
+    vmf_lane_pdf,
+    batch::vmf_lane_sample_element,
+    batch::vmf_lane_pdf_element
+);
+lane_kernels!(
+    nasg_lane_sample,
+    nasg_lane_pdf,
+    batch::nasg_lane_sample_element,
+    batch::nasg_lane_pdf_element
+);
+
+/// [`batch::nasg_selection_element`]: the learned selection probability of
+/// every resident NASG raw row.
+#[spirv(compute(threads(64)))]
+pub fn nasg_selection(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] args: &BatchArgs,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] raw: &[f32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] out: &mut [f32],
+) {
+    let i = element_index(id, groups);
+    if i < args.count as usize {
+        batch::nasg_selection_element(raw, out, i);
     }
 }
 

@@ -224,11 +224,17 @@ enum Cmd {
         /// NEE in the guided integrator (default: on when the scene has an emitter NEE can sample).
         #[arg(long, value_enum)]
         nee: Option<OnOff>,
-        /// Where the guide's network runs (`--integrator guided`, NPM / NASG): `cpu`, or `gpu`
-        /// (Vulkan: inference and training through the SPIR-V kernels of guiding-gpu; tracing
-        /// stays on the CPU). Needs a build with `--features guiding-gpu/shaders`.
+        /// Where the guide runs (`--integrator guided`, every guide): `cpu`, or `gpu` (Vulkan:
+        /// the network's inference, the guide's samples and pdfs and the arithmetic of its
+        /// training steps through the SPIR-V kernels of guiding-gpu; tracing stays on the CPU).
+        /// Needs a build with `--features guiding-gpu/shaders`. A device failure ends the
+        /// render with the error unless --fallback-to-cpu.
         #[arg(long, value_enum, default_value = "cpu")]
         device: DeviceArg,
+        /// With `--device gpu`: when the device fails mid-render, go on on the CPU with the
+        /// weights the device trained instead of ending the render with the error.
+        #[arg(long)]
+        fallback_to_cpu: bool,
         /// The Vulkan device of `--device gpu`: `auto` (discrete GPU first, then integrated,
         /// then lavapipe), `gpu` (never a CPU implementation), `cpu` (lavapipe), an index, or
         /// `name:TEXT`. The environment variable GUIDING_VK_DEVICE overrides `auto`.

@@ -4,7 +4,7 @@ use super::{CacheArg, Cmd, DeviceArg, GuideArg, Integrator, OnOff, SizeArg, Targ
 use guiding_core::field::{FieldConfig, PlateauConfig};
 use guiding_core::loss::Target;
 use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
-use host_demo::render::{render_guided, render_guided_gpu, CacheMode, GuidedOptions};
+use host_demo::render::{render_guided, CacheMode, GuidedOptions};
 use host_demo::render::{render_with_stats, RenderStats};
 use host_demo::render::{IntegratorKind, RenderOptions};
 use serde_json::json;
@@ -46,6 +46,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         training_probe,
         nee,
         device,
+        fallback_to_cpu,
         vk_device,
     } = cmd
     else {
@@ -222,14 +223,17 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
             selection_probability,
             config,
         )?;
-        let (img, stats) = if device == DeviceArg::Gpu {
-            let selection: guiding_gpu::DeviceSelection = vk_device.parse()?;
-            let mut gpu = host_demo::render::strategy::gpu::GpuGuide::new(&g, selection)?;
-            eprintln!("guide network on {}", gpu.device());
-            render_guided_gpu(&sc, &opts, &gopts, &mut g, &mut gpu)?
-        } else {
-            render_guided(&sc, &opts, &gopts, &mut g)
-        };
+        if device == DeviceArg::Gpu {
+            let selection: guiding::DeviceSelection = vk_device.parse()?;
+            let on_failure = if fallback_to_cpu {
+                guiding::DeviceFailure::FallbackToCpu
+            } else {
+                guiding::DeviceFailure::Error
+            };
+            g.use_device(selection, on_failure)?;
+            eprintln!("guide on {}", g.device_name().unwrap_or_default());
+        }
+        let (img, stats) = render_guided(&sc, &opts, &gopts, &mut g)?;
         guided_stats = Some((stats, target, gopts));
         img
     } else {
@@ -343,6 +347,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
             let product = matches!(target, Target::Product);
             doc["spp"] = json!(g.passes);
             doc["guide"] = json!(g.model);
+            doc["device"] = json!(g.device);
             doc["time_s"] = json!({
                 "wall": wall,
                 "tracing": trace - inference,

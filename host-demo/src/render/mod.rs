@@ -20,10 +20,8 @@ pub use strategy::guided::{CacheMode, GuidedOptions, GuidedStats, PassWeightStat
 pub use strategy::probe::{ProbeStats, ProbeVerdict};
 
 use crate::scene::Scene;
-use guiding::GuidingField;
-use guiding_gpu::GpuError;
+use guiding::{GuidingError, GuidingField};
 use strategy::bsdf::BsdfSampling;
-use strategy::gpu::GpuGuide;
 use strategy::guided::Guided;
 
 /// Renders `scene` with `pt` or `pt-nee` (`opts.integrator`).
@@ -44,42 +42,18 @@ pub fn render_with_stats(scene: &Scene, opts: &RenderOptions) -> (Image, RenderS
 
 /// Renders `scene` with guided path tracing, training `guide` online during the first
 /// `gopts.train_fraction` of the passes. `opts.integrator` is ignored (NEE follows
-/// `gopts.nee`).
+/// `gopts.nee`). The guide runs where it was put: on the CPU threads, or on a Vulkan device
+/// ([`GuidingField::use_device`], `--device gpu`), through the same calls.
+///
+/// # Errors
+/// The guide's device failed (only a guide on a device that does not fall back to the
+/// CPU): the render stops after the pass it happened in.
 pub fn render_guided(
     scene: &Scene,
     opts: &RenderOptions,
     gopts: &GuidedOptions,
     guide: &mut GuidingField,
-) -> (Image, GuidedStats) {
-    match render_guided_on(scene, opts, gopts, guide, None) {
-        Ok(r) => r,
-        Err(e) => unreachable!("a CPU guide reports no device error: {e}"),
-    }
-}
-
-/// [`render_guided`] with the guide's network inference and training on a
-/// Vulkan device (`--device gpu`; see [`strategy::gpu`]). `guide` supplies the
-/// configuration and the decoding; its own weights are not trained.
-///
-/// # Errors
-/// The first GPU failure; the render stops after the pass it happened in.
-pub fn render_guided_gpu(
-    scene: &Scene,
-    opts: &RenderOptions,
-    gopts: &GuidedOptions,
-    guide: &mut GuidingField,
-    gpu: &mut GpuGuide,
-) -> Result<(Image, GuidedStats), GpuError> {
-    render_guided_on(scene, opts, gopts, guide, Some(gpu))
-}
-
-fn render_guided_on(
-    scene: &Scene,
-    opts: &RenderOptions,
-    gopts: &GuidedOptions,
-    guide: &mut GuidingField,
-    gpu: Option<&mut GpuGuide>,
-) -> Result<(Image, GuidedStats), GpuError> {
+) -> Result<(Image, GuidedStats), GuidingError> {
     // The efficiency trial weighs time: only a time budget asks that question. Without NEE
     // its unguided arm is BSDF sampling alone, whose trial passes cost the image far more
     // than they can save on a scene with small emitters (see `GuidedOptions`).
@@ -90,7 +64,7 @@ fn render_guided_on(
             && scene.has_samplable_emitter(),
         ..*gopts
     };
-    let mut strategy = Guided::new(guide, gpu, &gopts);
+    let mut strategy = Guided::new(guide, &gopts);
     let (img, rs) =
         wavefront::render_passes(scene, opts, gopts.nee, gopts.train_fraction, &mut strategy)?;
     Ok((img, strategy.finish(&rs)))

@@ -149,7 +149,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
         for i in 0..count {
             let pix = start + i;
             let (x, y) = ((pix % width as usize) as f32, (pix / width as usize) as f32);
-            let mut rng = Rng::new(self.opts.seed, pix as u64, s as u64);
+            let mut rng = Rng::from_keys(self.opts.seed, pix as u64, s as u64);
             let (u, v) = (
                 (x + rng.next_f32()) / width as f32,
                 (y + rng.next_f32()) / height as f32,
@@ -294,7 +294,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
             let Some(es) = scene.sample_emitter(v.position[i], u0, u1, u2) else {
                 continue;
             };
-            let frame = Frame::new(v.ns[i]);
+            let frame = Frame::from_z(v.ns[i]);
             let (f, pdf_bsdf) = mat.eval(frame.to_local(v.wo[i]), frame.to_local(es.wo));
             if f.max_element() <= 0.0 {
                 continue;

@@ -160,7 +160,7 @@ pub enum Material {
         /// Normalisation of the specular lobe.
         variant: WardVariant,
         /// Roughness along the tangent (`x` of the local frame). Deviation: the renderer's
-        /// tangent is derived from the shading normal alone ([`crate::math::Frame::new`]),
+        /// tangent is derived from the shading normal alone ([`crate::math::Frame::from_z`]),
         /// Mitsuba 0.6 aligns it with `dpdu`; anisotropic lobes are oriented differently (the
         /// loader warns), isotropic ones are unaffected.
         alpha_u: f32,
@@ -1268,7 +1268,7 @@ impl Material {
                     let sin_a = (1.0 - cos_a * cos_a).max(0.0).sqrt();
                     let (sp, cp) = (2.0 * PI * u1).sin_cos();
                     let local = Vec3::new(sin_a * cp, sin_a * sp, cos_a);
-                    crate::math::Frame::new(reflect_z(wi)).to_world(local)
+                    crate::math::Frame::from_z(reflect_z(wi)).to_world(local)
                 } else {
                     sample_cosine_hemisphere(u1, u2)
                 };
@@ -1580,7 +1580,7 @@ mod tests {
     /// outside and (for the dielectric) from inside.
     #[test]
     fn sample_matches_eval() {
-        let mut rng = Rng::new(1, 2, 3);
+        let mut rng = Rng::from_keys(1, 2, 3);
         for wi in [
             Vec3::new(0.3, -0.2, 0.8).normalize(),
             Vec3::new(-0.6, 0.1, -0.5).normalize(),
@@ -1621,7 +1621,7 @@ mod tests {
                 if wi.z < 0.0 && m.one_sided() {
                     continue;
                 }
-                let mut rng = Rng::new(11, 0, 0);
+                let mut rng = Rng::from_keys(11, 0, 0);
                 let n = 400_000;
                 let (mut acc, mut accepted) = (0.0f64, 0usize);
                 for _ in 0..n {
@@ -1756,7 +1756,7 @@ mod tests {
                 specular: Vec3::ONE,
                 scale: 1.0,
             };
-            let mut rng = Rng::new(5, 6, 7);
+            let mut rng = Rng::from_keys(5, 6, 7);
             let count = 200_000;
             let mut acc = 0.0f64;
             for _ in 0..count {
@@ -1892,7 +1892,7 @@ mod tests {
             specular: Vec3::ONE,
         };
         let wi = Vec3::new(0.5, 0.0, 0.8).normalize();
-        let mut rng = Rng::new(7, 0, 0);
+        let mut rng = Rng::from_keys(7, 0, 0);
         let n = 400_000;
         let mut acc = 0.0f64;
         let mut accepted = 0usize;

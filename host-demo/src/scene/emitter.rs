@@ -331,7 +331,7 @@ mod tests {
     #[test]
     fn envmap_sampling_is_consistent() {
         let m = test_map();
-        let mut rng = Rng::new(3, 1, 4);
+        let mut rng = Rng::from_keys(3, 1, 4);
         let n = 200_000;
         let (mut int_pdf, mut is_est, mut uni_est) = (0.0f64, 0.0f64, 0.0f64);
         for _ in 0..n {

@@ -1137,6 +1137,6 @@ impl Scene {
 
     /// Shading frame at a hit.
     pub fn frame(hit: &SurfaceHit) -> Frame {
-        Frame::new(hit.ns)
+        Frame::from_z(hit.ns)
     }
 }

@@ -280,6 +280,8 @@ fn field_args(r: &mut ByteReader<'_>) -> Option<PgFieldArgs> {
         plateau_min_relative_improvement: 0.0,
         bounds_min: [0.0; 3],
         bounds_max: [0.0; 3],
+        device: 0,
+        device_failure: 0,
     };
     // SAFETY: a valid pointer to a local.
     let status = check(

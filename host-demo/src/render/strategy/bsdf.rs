@@ -60,7 +60,7 @@ impl VertexStrategy for BsdfSampling {
 #[inline]
 pub(crate) fn sample_bsdf(verts: &Vertices, i: usize, rng: &mut Rng, out: &mut Continuations) {
     let (u0, u1, u2) = (rng.next_f32(), rng.next_f32(), rng.next_f32());
-    let frame = Frame::new(verts.ns[i]);
+    let frame = Frame::from_z(verts.ns[i]);
     // The host's BSDFs take Mitsuba's argument names: their `wi` is the driver's `wo`.
     if let Some(bs) = verts.bsdf[i].sample(frame.to_local(verts.wo[i]), u0, u1, u2) {
         let wi = frame.to_world(bs.wo).normalize();

@@ -70,7 +70,6 @@ use crate::render::image::RenderStats;
 use crate::render::queues::{Continuations, LightSamples, Vertices};
 use crate::render::schedule::Pass;
 use crate::render::strategy::bsdf::sample_bsdf;
-use crate::render::strategy::gpu::GpuGuide;
 use crate::render::strategy::guide::describe;
 use crate::render::strategy::probe::{self, ProbeStats, ABANDON_RATIO, PROBE_GUIDED_PASSES};
 use crate::render::strategy::{CombinedImage, PassImage, PassSamples, Strategy, VertexStrategy};
@@ -83,7 +82,6 @@ use guiding::{
 };
 use guiding_core::model::QueryPoint;
 use guiding_core::sample::TrainingSample;
-use guiding_gpu::GpuError;
 use std::time::{Duration, Instant};
 
 /// When the guided integrator answers guide queries from a [`GuideCache`] (radiance-target
@@ -180,6 +178,8 @@ pub struct GuidedStats {
     pub nee: bool,
     /// The guide's description.
     pub model: String,
+    /// The Vulkan device the guide ran on (`--device gpu`), `None` on the CPU.
+    pub device: Option<String>,
     /// Passes rendered in total / with training.
     pub passes: u32,
     /// Passes whose vertices were recorded and trained on.
@@ -424,11 +424,10 @@ impl std::fmt::Display for GuidedStats {
     }
 }
 
-/// The guided strategy of one render: the guide (trained between passes on the CPU, or on
-/// the device with `--device gpu`) and the statistics.
+/// The guided strategy of one render: the guide (trained between passes, on the CPU or on
+/// its device with `--device gpu`: the same calls) and the statistics.
 pub struct Guided<'g> {
     guide: &'g mut GuidingField,
-    gpu: Option<&'g mut GpuGuide>,
     gopts: GuidedOptions,
     stats: GuidedStats,
     stopped: bool,
@@ -459,20 +458,17 @@ pub struct Guided<'g> {
 }
 
 impl<'g> Guided<'g> {
-    /// The strategy for `guide` (and its device copy with `--device gpu`).
-    pub fn new(
-        guide: &'g mut GuidingField,
-        gpu: Option<&'g mut GpuGuide>,
-        gopts: &GuidedOptions,
-    ) -> Self {
-        let model = match &gpu {
-            Some(d) => format!("{} on {}", describe(guide), d.device()),
+    /// The strategy for `guide` (on the CPU, or on its device with `--device gpu`).
+    pub fn new(guide: &'g mut GuidingField, gopts: &GuidedOptions) -> Self {
+        let device = guide.device_name();
+        let model = match &device {
+            Some(d) => format!("{} on {d}", describe(guide)),
             None => describe(guide),
         };
         let radiance = guide.config().target == guiding::Target::Radiance;
         let cache = match gopts.cache {
             CacheMode::Off => None,
-            _ if gpu.is_some() => Some("not used (the guide runs on the device)".to_string()),
+            _ if device.is_some() => Some("not used (the guide runs on the device)".to_string()),
             _ if !radiance => Some(
                 "not used (a product guide also depends on the outgoing direction, the normal \
                  and the roughness)"
@@ -488,13 +484,13 @@ impl<'g> Guided<'g> {
                 gopts.cache_resolution
             )),
         };
-        let use_cache = gopts.cache != CacheMode::Off && gpu.is_none() && radiance;
+        let use_cache = gopts.cache != CacheMode::Off && device.is_none() && radiance;
         Guided {
             guide,
-            gpu,
             gopts: *gopts,
             stats: GuidedStats {
                 model,
+                device: device.clone(),
                 last_loss: f64::NAN,
                 cache,
                 ..GuidedStats::default()
@@ -611,10 +607,7 @@ impl<'g> Guided<'g> {
         stats.wall = rs.wall;
         stats.rays = rs.rays;
         let fs = self.guide.stats();
-        stats.training_steps = match &self.gpu {
-            Some(d) => d.steps(),
-            None => fs.steps,
-        };
+        stats.training_steps = fs.steps;
         stats.rejected_samples = fs.rejected_samples.iter().sum();
         stats.overflowed_samples = fs.overflowed_samples;
         stats
@@ -634,7 +627,8 @@ pub struct WorkerReport {
     queries: u64,
     guided_vertices: u64,
     query_time: Duration,
-    gpu_error: Option<GpuError>,
+    /// The first failure of the guide's device in this pass (the render ends after it).
+    device_error: Option<GuidingError>,
     cache_hits: u64,
     /// The queries the cache missed (decoded by the network).
     missed_points: Vec<QueryPoint>,
@@ -647,8 +641,6 @@ const NONE: u32 = u32::MAX;
 /// of its batched calls.
 pub struct GuidedWorker<'g> {
     guide: &'g GuidingField,
-    /// `--device gpu`: the network runs there (raw outputs decoded here).
-    gpu: Option<&'g GpuGuide>,
     /// The guide cache of this pass, if any: it answers instead of the network.
     cache: Option<&'g GuideCache>,
     /// This pass runs with the guide off: every vertex samples its BSDF.
@@ -657,8 +649,6 @@ pub struct GuidedWorker<'g> {
     missed: Vec<u32>,
     gopts: GuidedOptions,
     report: WorkerReport,
-    /// Raw network outputs of the guidable vertices (GPU path).
-    raw: Vec<f32>,
     /// Per vertex: its index among the guidable vertices, or [`NONE`].
     guided_index: Vec<u32>,
     /// The guidable vertices' queries, decoded distributions and selection probabilities.
@@ -683,14 +673,12 @@ pub struct GuidedWorker<'g> {
 impl<'g> GuidedWorker<'g> {
     fn new(
         guide: &'g GuidingField,
-        gpu: Option<&'g GpuGuide>,
         cache: Option<&'g GuideCache>,
         gopts: GuidedOptions,
         off: bool,
     ) -> Self {
         Self {
             guide,
-            gpu,
             cache,
             off,
             jitter: Vec::new(),
@@ -700,11 +688,10 @@ impl<'g> GuidedWorker<'g> {
                 queries: 0,
                 guided_vertices: 0,
                 query_time: Duration::ZERO,
-                gpu_error: None,
+                device_error: None,
                 cache_hits: 0,
                 missed_points: Vec::new(),
             },
-            raw: Vec::new(),
             guided_index: Vec::new(),
             queries: Vec::new(),
             decoded: DistributionBatch::new(),
@@ -722,24 +709,26 @@ impl<'g> GuidedWorker<'g> {
         }
     }
 
+    /// Keeps the first failure of the pass (the render ends with it after the pass).
+    fn record_error(&mut self, e: GuidingError) {
+        self.report.device_error.get_or_insert(e);
+    }
+
     /// The guide pdfs of the queued `(guidable index, direction)` pairs, one batched call on
-    /// the decoded distributions (zeros where it failed: only a batch a device failure left
-    /// empty, and the render ends after the pass).
+    /// the decoded distributions (zeros where it failed: a device failure, and the render
+    /// ends with it after the pass).
     fn eval_queued_pdfs(&mut self) {
         let t0 = Instant::now();
         self.pdf_out.clear();
         self.pdf_out.resize(self.pdf_query.len(), 0.0);
-        if self
-            .guide
-            .pdf_decoded(
-                &self.decoded,
-                &self.pdf_query,
-                &self.pdf_dir,
-                &mut self.pdf_out,
-            )
-            .is_err()
-        {
+        if let Err(e) = self.guide.pdf_decoded(
+            &self.decoded,
+            &self.pdf_query,
+            &self.pdf_dir,
+            &mut self.pdf_out,
+        ) {
             self.pdf_out.fill(0.0);
+            self.record_error(e);
         }
         for p in &mut self.pdf_out {
             *p = if p.is_finite() { p.max(0.0) } else { 0.0 };
@@ -756,9 +745,8 @@ impl<'g> GuidedWorker<'g> {
 }
 
 impl VertexStrategy for GuidedWorker<'_> {
-    /// One batched decode of the guide at the bounce's guidable vertices; with `--device gpu`
-    /// the network runs there and its raw outputs go through the same decoders, and a device
-    /// or decode failure ends the render after the pass.
+    /// One batched decode of the guide at the bounce's guidable vertices (on the guide's
+    /// device with `--device gpu`, whose failure ends the render after the pass).
     fn prepare(&mut self, _: &Scene, verts: &Vertices, rng: &mut [Rng]) {
         self.guided_index.clear();
         self.queries.clear();
@@ -794,22 +782,8 @@ impl VertexStrategy for GuidedWorker<'_> {
         let t0 = Instant::now();
         let field = self.guide;
         let mut from_cache = self.cache.is_some();
-        match self.gpu {
-            Some(gpu) if self.report.gpu_error.is_none() => {
-                let decoded = gpu.infer(&self.queries, &mut self.raw).and_then(|()| {
-                    field
-                        .decode_raw_batch(&self.raw, &mut self.decoded)
-                        .map_err(|e| {
-                            GpuError::BadArgument(format!("decoding the device's outputs: {e}"))
-                        })
-                });
-                if let Err(e) = decoded {
-                    self.report.gpu_error = Some(e);
-                    self.decoded = DistributionBatch::new();
-                }
-            }
-            Some(_) => self.decoded = DistributionBatch::new(),
-            None => match self.cache {
+        {
+            match self.cache {
                 Some(cache) => {
                     let looked_up = cache.decode_batch(
                         field,
@@ -833,8 +807,12 @@ impl VertexStrategy for GuidedWorker<'_> {
                         }
                     }
                 }
-                None => field.decode_batch(&self.queries, &mut self.decoded),
-            },
+                None => {
+                    if let Err(e) = field.try_decode_batch(&self.queries, &mut self.decoded) {
+                        self.record_error(e);
+                    }
+                }
+            }
         }
         // A cache with the cosine product hands out multiplied lanes (stale-cache fallback
         // aside, which only a bug reaches).
@@ -918,20 +896,17 @@ impl VertexStrategy for GuidedWorker<'_> {
                 pdf: 0.0,
             },
         );
-        if self
-            .guide
-            .sample_decoded(
-                &self.decoded,
-                &self.sample_query,
-                &self.sample_u,
-                &mut self.sample_out,
-            )
-            .is_err()
-        {
+        if let Err(e) = self.guide.sample_decoded(
+            &self.decoded,
+            &self.sample_query,
+            &self.sample_u,
+            &mut self.sample_out,
+        ) {
             self.sample_out.fill(DirectionSample {
                 direction: Vec3::ZERO,
                 pdf: 0.0,
             });
+            self.record_error(e);
         }
         for (ds, &i) in self.sample_out.iter().zip(&self.sample_vertex) {
             if ds.direction.is_finite() && ds.pdf.is_finite() && ds.pdf > 0.0 {
@@ -952,7 +927,7 @@ impl VertexStrategy for GuidedWorker<'_> {
             if qi == NONE || wi == Vec3::ZERO || self.selection[qi as usize] <= 0.0 {
                 continue;
             }
-            let frame = Frame::new(verts.ns[i]);
+            let frame = Frame::from_z(verts.ns[i]);
             let (f, pdf_bsdf) = verts.bsdf[i].eval(frame.to_local(verts.wo[i]), frame.to_local(wi));
             let c = self.selection[qi as usize];
             let pdf = c * self.guide_pdf[i] * self.gopts.guide_pdf_scale + (1.0 - c) * pdf_bsdf;
@@ -973,16 +948,10 @@ impl<'g> Strategy for Guided<'g> {
     where
         Self: 'a;
     type Report = WorkerReport;
-    type Error = GpuError;
+    type Error = GuidingError;
 
     fn worker(&self) -> GuidedWorker<'_> {
-        GuidedWorker::new(
-            self.guide,
-            self.gpu.as_deref(),
-            self.cache.as_ref(),
-            self.gopts,
-            self.guide_off,
-        )
+        GuidedWorker::new(self.guide, self.cache.as_ref(), self.gopts, self.guide_off)
     }
 
     fn report(&self, worker: GuidedWorker<'_>) -> WorkerReport {
@@ -993,7 +962,7 @@ impl<'g> Strategy for Guided<'g> {
     /// that does not record stops training.
     fn begin_pass(&mut self, pass: &Pass) -> bool {
         // (Once stopped, by the schedule or the probe, the field counts as converged.)
-        let converged = !self.stopped && self.gpu.is_none() && self.guide.is_converged();
+        let converged = !self.stopped && self.guide.is_converged();
         if pass.train && converged && self.stats.converged_at_pass.is_none() {
             self.stats.converged_at_pass = Some(pass.index);
         }
@@ -1011,9 +980,6 @@ impl<'g> Strategy for Guided<'g> {
         }
         if !record && !self.stopped {
             self.guide.stop_training();
-            if let Some(d) = self.gpu.as_deref_mut() {
-                d.stop_training();
-            }
             self.stopped = true;
             if self.use_cache && !self.abandoned {
                 let samples = std::mem::take(&mut self.last_samples);
@@ -1135,7 +1101,7 @@ impl<'g> Strategy for Guided<'g> {
         recorded: bool,
         reports: Vec<WorkerReport>,
         pass_samples: PassSamples,
-    ) -> Result<(), GpuError> {
+    ) -> Result<(), GuidingError> {
         let PassSamples {
             samples,
             mis_radiance,
@@ -1143,7 +1109,7 @@ impl<'g> Strategy for Guided<'g> {
         let mut missed = Vec::new();
         let st = &mut self.stats;
         for r in reports {
-            if let Some(e) = r.gpu_error {
+            if let Some(e) = r.device_error {
                 return Err(e);
             }
             st.cache_hits += r.cache_hits;
@@ -1162,27 +1128,19 @@ impl<'g> Strategy for Guided<'g> {
         }
         if !samples.is_empty() {
             let t_train = Instant::now();
-            if let Some(d) = self.gpu.as_deref_mut() {
-                let steps_before = d.steps();
-                let rep = d.update(&samples)?;
-                if rep.steps > 0 {
-                    st.last_loss = rep.mean_loss;
-                }
-                if !recorded {
-                    st.training_steps_after_training += d.steps() - steps_before;
-                }
-            } else {
-                let steps_before = self.guide.stats().steps;
-                self.guide.add_samples(&samples);
-                // Adam steps proportional to the samples of this pass (capped).
-                let rep = self.guide.update_proportional(self.gopts.train_epochs);
-                if rep.steps > 0 {
-                    st.last_loss = rep.mean_loss;
-                    st.loss_history.push(rep.mean_loss);
-                }
-                if !recorded {
-                    st.training_steps_after_training += self.guide.stats().steps - steps_before;
-                }
+            let steps_before = self.guide.stats().steps;
+            self.guide.add_samples(&samples);
+            // Adam steps proportional to the samples of this pass (capped), on the CPU
+            // threads or on the guide's device: one training loop.
+            let rep = self
+                .guide
+                .try_update_proportional(self.gopts.train_epochs)?;
+            if rep.steps > 0 {
+                st.last_loss = rep.mean_loss;
+                st.loss_history.push(rep.mean_loss);
+            }
+            if !recorded {
+                st.training_steps_after_training += self.guide.stats().steps - steps_before;
             }
             st.training += t_train.elapsed();
         }

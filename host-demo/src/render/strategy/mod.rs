@@ -22,7 +22,6 @@ use crate::scene::Scene;
 use guiding_core::sample::TrainingSample;
 
 pub mod bsdf;
-pub mod gpu;
 pub mod guide;
 pub mod guided;
 pub mod probe;
