@@ -29,7 +29,7 @@ use crate::gradient::GradientSink;
 use crate::lobe::DirectionSample;
 use crate::mixture::nasg::{NasgMixture, NASG_RAW_PER_LOBE};
 use crate::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
-use crate::model::df::{DF_CONDITIONAL_BINS, DF_MARGINAL_BINS};
+use crate::model::df::{DfVertex, VertexModel, DF_CONDITIONAL_BINS, DF_MARGINAL_BINS};
 use crate::model::nasg::{NASG_LOBES, NASG_OUTPUTS, NASG_SELECTION_OUTPUT};
 use crate::model::npm::{NPM_LOBES, NPM_OUTPUTS};
 use crate::model::{GuidingModel, QueryPoint, RawOutputs};
@@ -517,5 +517,68 @@ pub fn nasg_lane_pdf_element(
 pub fn nasg_selection_element(raw: &[f32], out: &mut [f32], i: usize) {
     if i < out.len() {
         out[i] = nasg_mixture_from_raw(raw, i * NASG_OUTPUTS).selection_probability;
+    }
+}
+
+/// DF vertex kernel: `out[i]` = the [`DfVertex`] of `queries[i]` (grid,
+/// product inputs and the marginal network, once per shading point).
+#[inline]
+pub fn vertex_element<M: VertexModel>(
+    model: &M,
+    params: &[f32],
+    queries: &[QueryPoint],
+    out: &mut [DfVertex],
+    i: usize,
+) {
+    if i < queries.len() && i < out.len() {
+        out[i] = model.vertex_of(params, &queries[i]);
+    }
+}
+
+/// DF vertex lane kernel: `out[i] = [ω, pdf]` sampled with `u[i]` at the
+/// resident vertex `vertices[lanes[i]]` (the conditional network once, or
+/// twice where `ε₁` rounds into another bin); `[0, 0, 1, 0]` for a lane
+/// past `vertices`.
+#[inline]
+pub fn vertex_sample_element<M: VertexModel>(
+    model: &M,
+    params: &[f32],
+    vertices: &[DfVertex],
+    lanes: &[u32],
+    u: &[[f32; 4]],
+    out: &mut [[f32; 4]],
+    i: usize,
+) {
+    if i < lanes.len() && i < u.len() && i < out.len() {
+        let l = lanes[i] as usize;
+        out[i] = if l < vertices.len() {
+            let r = u[i];
+            pack_sample(model.sample_from_vertex(params, &vertices[l], Vec2::new(r[0], r[1])))
+        } else {
+            [0.0, 0.0, 1.0, 0.0]
+        };
+    }
+}
+
+/// DF vertex lane kernel: `out[i]` = the density of `directions[i]` at the
+/// resident vertex `vertices[lanes[i]]` (one conditional pass); 0 for a lane
+/// past `vertices`.
+#[inline]
+pub fn vertex_pdf_element<M: VertexModel>(
+    model: &M,
+    params: &[f32],
+    vertices: &[DfVertex],
+    lanes: &[u32],
+    directions: &[[f32; 4]],
+    out: &mut [f32],
+    i: usize,
+) {
+    if i < lanes.len() && i < directions.len() && i < out.len() {
+        let l = lanes[i] as usize;
+        out[i] = if l < vertices.len() {
+            model.pdf_from_vertex(params, &vertices[l], unpack_direction(directions[i]))
+        } else {
+            0.0
+        };
     }
 }

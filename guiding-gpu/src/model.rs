@@ -15,6 +15,7 @@ use crate::{Batch, BatchReport, GpuBuffer, GpuContext, GpuError, Kernel};
 use bytemuck::Pod;
 use guiding_core::batch::{AdamArgs, BatchArgs, MAX_ABS_BLOCK};
 pub use guiding_core::field::StepOutcome;
+use guiding_core::model::df::DfVertex;
 use guiding_core::model::nasg::NASG_OUTPUTS;
 use guiding_core::model::npm::NPM_OUTPUTS;
 use guiding_core::model::QueryPoint;
@@ -79,6 +80,19 @@ impl Scratch {
     }
 }
 
+/// The lane kernels on resident data.
+#[derive(Clone, Copy)]
+enum LaneKernel {
+    /// Mixture lanes of raw outputs: sample.
+    Sample,
+    /// Mixture lanes of raw outputs: pdf.
+    Pdf,
+    /// DF vertex lanes: sample.
+    VertexSample,
+    /// DF vertex lanes: pdf.
+    VertexPdf,
+}
+
 /// The per-query kernels with one input array.
 #[derive(Clone, Copy)]
 enum QueryKernel {
@@ -120,6 +134,10 @@ struct Kernels {
     lane_pdf: Option<Kernel>,
     /// NASG's learned selection probability of resident raw outputs.
     selection: Option<Kernel>,
+    /// DF: the vertex of each query, and sample / pdf of vertex lanes.
+    vertex: Option<Kernel>,
+    vertex_sample: Option<Kernel>,
+    vertex_pdf: Option<Kernel>,
     sample: Kernel,
     pdf: Kernel,
     gradient: Kernel,
@@ -210,6 +228,21 @@ impl GpuModel {
             },
             selection: if entry.raw_outputs as usize == NASG_OUTPUTS {
                 Some(ctx.embedded_kernel("nasg_selection", 2, b)?)
+            } else {
+                None
+            },
+            vertex: if entry.raw_outputs == 0 {
+                Some(ctx.embedded_kernel(&format!("{p}_vertex"), 4, b)?)
+            } else {
+                None
+            },
+            vertex_sample: if entry.raw_outputs == 0 {
+                Some(ctx.embedded_kernel(&format!("{p}_vertex_sample"), 6, b)?)
+            } else {
+                None
+            },
+            vertex_pdf: if entry.raw_outputs == 0 {
+                Some(ctx.embedded_kernel(&format!("{p}_vertex_pdf"), 6, b)?)
             } else {
                 None
             },
@@ -692,7 +725,7 @@ impl GpuModel {
         u: &[[f32; 4]],
         out: &mut [[f32; 4]],
     ) -> Result<BatchReport, GpuError> {
-        self.lane_call(true, raw, lanes, normals, u, out)
+        self.lane_call(LaneKernel::Sample, raw, lanes, normals, u, out)
     }
 
     /// `out[i]` = density of `directions[i] = [x, y, z, ·]` under lane
@@ -708,28 +741,117 @@ impl GpuModel {
         directions: &[[f32; 4]],
         out: &mut [f32],
     ) -> Result<BatchReport, GpuError> {
-        self.lane_call(false, raw, lanes, normals, directions, out)
+        self.lane_call(LaneKernel::Pdf, raw, lanes, normals, directions, out)
     }
 
-    /// One dispatch of a lane kernel (`sample` or pdf).
+    /// The DF vertex ([`guiding_core::model::df::DfVertex`]: base input and
+    /// marginal, with the EMA weights) of every query into `vertices`, which
+    /// stays on the device (grown to fit; reused when large enough) for
+    /// [`Self::sample_vertex_lanes`] / [`Self::pdf_vertex_lanes`].
+    ///
+    /// # Errors
+    /// A model without vertex kernels (NPM, NASG), a batch over the
+    /// storage-buffer range, or a device failure.
+    pub fn vertices_resident(
+        &mut self,
+        queries: &[QueryPoint],
+        vertices: &mut Option<GpuBuffer>,
+    ) -> Result<BatchReport, GpuError> {
+        let Some(kernel) = self.kernels.vertex.as_ref() else {
+            return Err(GpuError::BadArgument(format!(
+                "{} has no vertex kernels (only DF has): use infer_resident",
+                self.entry.prefix
+            )));
+        };
+        if queries.is_empty() {
+            return Ok(NO_WORK);
+        }
+        let n = count_u32(queries.len(), "queries")?;
+        let bytes = size_of_val(queries).max(queries.len() * size_of::<DfVertex>()) as u64;
+        let limit = self.ctx.device_info().max_storage_buffer_range;
+        if bytes > limit {
+            return Err(GpuError::BadArgument(format!(
+                "{} queries need {bytes} bytes of vertices, over the device's storage-buffer \
+                 range of {limit}: decode fewer at a time",
+                queries.len()
+            )));
+        }
+        let need = (queries.len() * size_of::<DfVertex>()) as u64;
+        if vertices.as_ref().is_none_or(|b| b.size() < need) {
+            *vertices = None;
+            *vertices = Some(
+                self.ctx
+                    .buffer(need.next_power_of_two().min(limit).max(need))?,
+            );
+        }
+        let out = vertices
+            .as_ref()
+            .ok_or_else(|| GpuError::BadArgument("vertex buffer missing".into()))?;
+        self.queries.put(&self.ctx, queries)?;
+        let mut batch = self.ctx.timed_batch()?;
+        batch.dispatch(
+            kernel,
+            &[&self.model, &self.ema, self.queries.get()?, out],
+            push(&args_for(n)),
+            n,
+        )?;
+        batch.submit_and_wait()
+    }
+
+    /// `out[i] = [ω, pdf]` sampled with `u[i]` at the resident DF vertex
+    /// `vertices[lanes[i]]` ([`Self::vertices_resident`]): the conditional
+    /// network per lane.
+    ///
+    /// # Errors
+    /// A model without vertex kernels, lengths that differ, or a device
+    /// failure.
+    pub fn sample_vertex_lanes(
+        &mut self,
+        vertices: &GpuBuffer,
+        lanes: &[u32],
+        u: &[[f32; 4]],
+        out: &mut [[f32; 4]],
+    ) -> Result<BatchReport, GpuError> {
+        self.lane_call(LaneKernel::VertexSample, vertices, lanes, &[], u, out)
+    }
+
+    /// `out[i]` = density of `directions[i]` at the resident DF vertex
+    /// `vertices[lanes[i]]`.
+    ///
+    /// # Errors
+    /// As [`Self::sample_vertex_lanes`].
+    pub fn pdf_vertex_lanes(
+        &mut self,
+        vertices: &GpuBuffer,
+        lanes: &[u32],
+        directions: &[[f32; 4]],
+        out: &mut [f32],
+    ) -> Result<BatchReport, GpuError> {
+        self.lane_call(LaneKernel::VertexPdf, vertices, lanes, &[], directions, out)
+    }
+
+    /// One dispatch of a lane kernel on `resident` (raw outputs, or DF
+    /// vertices after the model and its EMA weights).
     fn lane_call<O: Pod>(
         &mut self,
-        sample: bool,
-        raw: &GpuBuffer,
+        which: LaneKernel,
+        resident: &GpuBuffer,
         lanes: &[u32],
         normals: &[[f32; 4]],
         input: &[[f32; 4]],
         out: &mut [O],
     ) -> Result<BatchReport, GpuError> {
-        let what = if sample { "sample_lanes" } else { "pdf_lanes" };
-        let kernel = if sample {
-            self.kernels.lane_sample.as_ref()
-        } else {
-            self.kernels.lane_pdf.as_ref()
+        let (what, kernel) = match which {
+            LaneKernel::Sample => ("sample_lanes", self.kernels.lane_sample.as_ref()),
+            LaneKernel::Pdf => ("pdf_lanes", self.kernels.lane_pdf.as_ref()),
+            LaneKernel::VertexSample => {
+                ("sample_vertex_lanes", self.kernels.vertex_sample.as_ref())
+            }
+            LaneKernel::VertexPdf => ("pdf_vertex_lanes", self.kernels.vertex_pdf.as_ref()),
         };
         let Some(kernel) = kernel else {
             return Err(GpuError::BadArgument(format!(
-                "{what}: {} has no raw outputs; use sample / pdf",
+                "{what}: {} has no such kernel (raw-output lanes: NPM, NASG; vertex lanes: DF)",
                 self.entry.prefix
             )));
         };
@@ -758,32 +880,39 @@ impl GpuModel {
             )));
         }
         self.lanes.put(&self.ctx, lanes)?;
-        // No normals: zeros (w = 0, no product), so that a longer buffer's
-        // earlier contents are never read as this call's.
-        let zeros;
-        let normals = if normals.is_empty() {
-            zeros = vec![[0.0f32; 4]; lanes.len()];
-            &zeros[..]
-        } else {
-            normals
-        };
-        self.normals.put(&self.ctx, normals)?;
         self.inputs.put(&self.ctx, input)?;
         self.outputs.at_least(&self.ctx, size_of_val(out) as u64)?;
-        let args = args_for(n);
+        let vertex = matches!(which, LaneKernel::VertexSample | LaneKernel::VertexPdf);
+        if !vertex {
+            // No normals: zeros (w = 0, no product), so that a longer
+            // buffer's earlier contents are never read as this call's.
+            let zeros;
+            let normals = if normals.is_empty() {
+                zeros = vec![[0.0f32; 4]; lanes.len()];
+                &zeros[..]
+            } else {
+                normals
+            };
+            self.normals.put(&self.ctx, normals)?;
+        }
         let mut batch = self.ctx.timed_batch()?;
-        batch.dispatch(
-            kernel,
-            &[
-                raw,
-                self.lanes.get()?,
-                self.normals.get()?,
-                self.inputs.get()?,
-                self.outputs.get()?,
-            ],
-            push(&args),
-            n,
-        )?;
+        let tail = [self.lanes.get()?, self.inputs.get()?, self.outputs.get()?];
+        if vertex {
+            batch.dispatch(
+                kernel,
+                &[&self.model, &self.ema, resident, tail[0], tail[1], tail[2]],
+                push(&args_for(n)),
+                n,
+            )?;
+        } else {
+            let normals = self.normals.get()?;
+            batch.dispatch(
+                kernel,
+                &[resident, tail[0], normals, tail[1], tail[2]],
+                push(&args_for(n)),
+                n,
+            )?;
+        }
         let report = batch.submit_and_wait()?;
         self.outputs.get()?.download_into(out)?;
         Ok(report)

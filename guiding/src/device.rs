@@ -19,9 +19,10 @@
 //! (NASG's selection probabilities are read back); `sample_decoded` /
 //! `pdf_decoded` decode the lanes they need on the device (NPM with the
 //! cosine product when the batch has one) and read back only the samples
-//! and densities. DF runs its whole model per call (marginal and
-//! conditional networks per query; the renderer's queries are copied with
-//! the batch).
+//! and densities. DF splits as on the CPU: `decode_batch` keeps each
+//! query's vertex on the device (grid + product inputs and the marginal
+//! network's density), and each sample or pdf runs only the conditional
+//! network.
 //!
 //! A device failure is never hidden: with [`DeviceFailure::Error`] every
 //! later call of the field that needs the device returns
@@ -66,10 +67,10 @@ pub(crate) enum Family {
 
 /// The lanes of a batch decoded on the device.
 pub(crate) struct DeviceLanes {
-    /// Raw network outputs of every lane, on the device (NPM, NASG).
+    /// What stays on the device per lane: the raw network outputs (NPM,
+    /// NASG) or the DF vertices (base input and marginal density).
     pub(crate) raw: Option<GpuBuffer>,
-    /// The queries (DF runs its model on them per call; the CPU fallback
-    /// decodes them).
+    /// The queries (the CPU fallback decodes them again).
     pub(crate) queries: Vec<QueryPoint>,
 }
 
@@ -240,11 +241,12 @@ impl DeviceField {
         lanes.queries.clear();
         lanes.queries.extend_from_slice(queries);
         selection.clear();
-        if self.family == Family::Df {
-            return Ok(());
-        }
         let mut model = lock(&self.model);
-        model.infer_resident(queries, &mut lanes.raw, selection)?;
+        if self.family == Family::Df {
+            model.vertices_resident(queries, &mut lanes.raw)?;
+        } else {
+            model.infer_resident(queries, &mut lanes.raw, selection)?;
+        }
         Ok(())
     }
 
@@ -260,13 +262,13 @@ impl DeviceField {
         let mut model = lock(&self.model);
         match (&decoded.raw, self.family) {
             (Some(raw), Family::Vmf | Family::Nasg) => {
-                let normals = if normals.is_empty() { &[][..] } else { normals };
                 model.sample_lanes(raw, lanes, normals, u, out)?;
             }
-            _ => {
-                let queries = gather(&decoded.queries, lanes);
-                model.sample(&queries, u, out)?;
+            (Some(vertices), Family::Df) => {
+                model.sample_vertex_lanes(vertices, lanes, u, out)?;
             }
+            // An empty decode: no lanes.
+            (None, _) => {}
         }
         Ok(())
     }
@@ -285,21 +287,13 @@ impl DeviceField {
             (Some(raw), Family::Vmf | Family::Nasg) => {
                 model.pdf_lanes(raw, lanes, normals, directions, out)?;
             }
-            _ => {
-                let queries = gather(&decoded.queries, lanes);
-                model.pdf(&queries, directions, out)?;
+            (Some(vertices), Family::Df) => {
+                model.pdf_vertex_lanes(vertices, lanes, directions, out)?;
             }
+            (None, _) => {}
         }
         Ok(())
     }
-}
-
-/// `queries[lanes[k]]` for every `k` (lanes checked by the caller).
-fn gather(queries: &[QueryPoint], lanes: &[u32]) -> Vec<QueryPoint> {
-    lanes
-        .iter()
-        .map(|&l| queries.get(l as usize).copied().unwrap_or_default())
-        .collect()
 }
 
 /// A device error as the facade's error.

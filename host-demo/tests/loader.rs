@@ -6,6 +6,7 @@
 //! * The obvhs CWBVH closest hit equals a brute-force loop over all primitives on random rays.
 
 use glam::Vec3;
+use guiding_core::rng::Pcg32;
 use host_demo::scene::bsdf::Material;
 use host_demo::scene::load::xml;
 use host_demo::scene::Scene;
@@ -137,19 +138,14 @@ fn non_finite_transform_names_element_and_line() {
 // BVH against brute force
 // ---------------------------------------------------------------------------------------
 
-/// SplitMix64: a fixed-seed generator for the test rays (no dependency needed).
-struct Rng(u64);
+/// Uniform points in a box and directions on the sphere for the test rays, from the
+/// workspace's PCG32.
+trait TestRays {
+    fn in_box(&mut self, lo: Vec3, hi: Vec3) -> Vec3;
+    fn direction(&mut self) -> Vec3;
+}
 
-impl Rng {
-    fn next_f32(&mut self) -> f32 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^= z >> 31;
-        (z >> 40) as f32 / (1u64 << 24) as f32
-    }
-
+impl TestRays for Pcg32 {
     fn in_box(&mut self, lo: Vec3, hi: Vec3) -> Vec3 {
         lo + (hi - lo) * Vec3::new(self.next_f32(), self.next_f32(), self.next_f32())
     }
@@ -197,7 +193,7 @@ fn bvh_matches_brute_force_on_random_rays() {
         let (lo, hi) = sc.bounds();
         let diag = (hi - lo).length();
         let center = 0.5 * (lo + hi);
-        let mut rng = Rng(0x5EED_0000 + sc.prims.len() as u64);
+        let mut rng = Pcg32::new(0x5EED_0000 + sc.prims.len() as u64, 7);
         let (mut hits, mut ties) = (0usize, 0usize);
         for k in 0..RAYS {
             let (o, d) = if k % 10 == 4 {

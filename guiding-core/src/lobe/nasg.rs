@@ -244,9 +244,21 @@ pub(crate) fn log_g_local(vx: f32, vy: f32, vz: f32, lambda: f32, a: f32, epsilo
     } else {
         q.max(f32::MIN_POSITIVE)
     };
-    let err = if front { (1.0 - one_minus_q) - q } else { 0.0 };
-    // u ∈ [MIN_POSITIVE, 1] is normal: the raw logarithm needs no selects.
-    let ln_t = ln_normal(u, err / u);
+    #[cfg(not(target_arch = "spirv"))]
+    let ln_t = {
+        let err = if front { (1.0 - one_minus_q) - q } else { 0.0 };
+        // u ∈ [MIN_POSITIVE, 1] is normal: the raw logarithm needs no selects.
+        ln_normal(u, err / u)
+    };
+    // SPIR-V compilers may fold the compensation `(1 − (1 − q)) − q` to 0
+    // (see `math::ln_1p_series`): the axis side there is `ln_1p(−q)` by a
+    // series that nothing can cancel.
+    #[cfg(target_arch = "spirv")]
+    let ln_t = if front {
+        crate::math::ln_1p_series(-q)
+    } else {
+        ln_normal(u, 0.0)
+    };
     let b_minus_1 = epsilon + a * cos2_phi;
     2.0 * lambda * expm1_nonpositive((1.0 + b_minus_1) * ln_t) + b_minus_1 * ln_t
 }

@@ -105,6 +105,45 @@ pub const DF_CACHE_RAW_LIMIT: f32 = 1e15;
 /// Weight of the cache's relative L2 in the presets.
 pub const DF_CACHE_LOSS_WEIGHT: f32 = 1.0;
 
+/// Largest DF base input (`[grid | product inputs]`) a [`DfVertex`] holds:
+/// 64, the paper product model's `IN_M`.
+pub const DF_MAX_BASE: usize = 64;
+
+/// What a DF model keeps of one shading point after the batched decode: the
+/// network input `b = [grid | product inputs]` (the conditional network's
+/// input starts with it) and the marginal density of `ε₁`. Sampling and pdfs
+/// then run only the conditional network, once per direction.
+///
+/// `repr(C)`, [`Pod`], `4 · (64 + 32 + 2)` = 392 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DfVertex {
+    /// `b`, zero past the model's `IN_M`.
+    pub base: [f32; DF_MAX_BASE],
+    /// `p(ε₁)` at this point.
+    pub marginal: Pdf1d<DF_MARGINAL_BINS>,
+}
+
+// SAFETY: `repr(C)` struct of an `[f32; 64]` and a `Pod` `Pdf1d` (f32 values
+// and two u32 codes, align 4): no padding, every bit pattern valid.
+unsafe impl Zeroable for DfVertex {}
+// SAFETY: see above.
+unsafe impl Pod for DfVertex {}
+
+impl DfVertex {
+    /// All zeros (an invalid marginal; only a placeholder to overwrite).
+    pub const ZERO: Self = Self {
+        base: [0.0; DF_MAX_BASE],
+        marginal: Pdf1d::ZERO,
+    };
+}
+
+impl Default for DfVertex {
+    fn default() -> Self {
+        Self::ZERO
+    }
+}
+
 /// Where the radiance in the guide's training weight comes from.
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -492,6 +531,112 @@ impl<
         Pdf1d::from_logits(&logits, self.interpolation(), Boundary::Clamp)
     }
 
+    /// The base input held by `v` (its first `IN_M` values).
+    #[inline]
+    pub(crate) fn base_of(v: &DfVertex) -> [f32; IN_M] {
+        let mut b = [0.0f32; IN_M];
+        let mut i = 0;
+        while i < IN_M && i < DF_MAX_BASE {
+            b[i] = v.base[i];
+            i += 1;
+        }
+        b
+    }
+
+    /// The uniform marginal of a too short `params` (as [`Self::marginal`]).
+    pub(crate) fn uniform_marginal(&self) -> Pdf1d<DF_MARGINAL_BINS> {
+        Pdf1d::from_logits(
+            &[0.0; DF_MARGINAL_BINS],
+            self.interpolation(),
+            Boundary::Wrap,
+        )
+    }
+
+    /// The conditional density `p(ε₂ | ε₁)` at the vertex `v` (one
+    /// per-query conditional pass).
+    pub(crate) fn conditional_at(
+        &self,
+        params: &[f32],
+        v: &DfVertex,
+        eps1: f32,
+    ) -> Pdf1d<DF_CONDITIONAL_BINS> {
+        self.conditional_from(params, &Self::base_of(v), eps1)
+    }
+
+    /// What DF keeps of one shading point ([`DfVertex`]): the base input
+    /// `b` (zero past `IN_M`; `IN_M ≤ DF_MAX_BASE` for every model type)
+    /// and the marginal `p(ε₁)`; uniform for a too short `params`. The
+    /// per-query form of the CPU's batched decode, and the device's
+    /// per-vertex kernel.
+    #[must_use]
+    pub fn vertex(&self, params: &[f32], query: &QueryPoint) -> DfVertex {
+        let mut v = DfVertex::ZERO;
+        if !self.fits(params) {
+            v.marginal = self.uniform_marginal();
+            return v;
+        }
+        let b = self.base_input(params, query);
+        let mut i = 0;
+        while i < IN_M && i < DF_MAX_BASE {
+            v.base[i] = b[i];
+            i += 1;
+        }
+        v.marginal = self.marginal_from(params, &b);
+        v
+    }
+
+    /// [`GuidingModel::sample`] from a decoded vertex: the same draw and
+    /// pdf, without the grid and marginal passes.
+    #[must_use]
+    pub fn sample_vertex(&self, params: &[f32], v: &DfVertex, u: Vec2) -> DirectionSample {
+        if !self.fits(params) {
+            return DirectionSample {
+                direction: direction_from_square(u),
+                pdf: INV_FOUR_PI,
+            };
+        }
+        let (e1, p1) = factorised::sample_marginal(&v.marginal, u.x);
+        let conditional = self.conditional_at(params, v, e1);
+        self.finish_sample(params, v, e1, p1, &conditional, u.y)
+    }
+
+    /// The second half of a sample: `ε₂`, the direction, and its density as
+    /// [`Self::pdf_vertex`] evaluates it.
+    pub(crate) fn finish_sample(
+        &self,
+        params: &[f32],
+        v: &DfVertex,
+        e1: f32,
+        p1: f32,
+        conditional: &Pdf1d<DF_CONDITIONAL_BINS>,
+        uy: f32,
+    ) -> DirectionSample {
+        let (e2, p2) = factorised::sample_conditional(conditional, uy);
+        let direction = direction_from_square(Vec2::new(e1, e2));
+        let eps = square_from_direction(direction);
+        let p_cond = if eps.x == e1 {
+            conditional.pdf(eps.y)
+        } else {
+            self.conditional_at(params, v, eps.x).pdf(eps.y)
+        };
+        let mut pdf = v.marginal.pdf(eps.x) * p_cond * INV_FOUR_PI;
+        if pdf <= 0.0 || pdf.is_nan() {
+            pdf = p1 * p2 * INV_FOUR_PI;
+        }
+        DirectionSample { direction, pdf }
+    }
+
+    /// [`GuidingModel::pdf`] from a decoded vertex (one conditional pass).
+    #[must_use]
+    pub fn pdf_vertex(&self, params: &[f32], v: &DfVertex, direction: Vec3) -> f32 {
+        if !self.fits(params) {
+            return INV_FOUR_PI;
+        }
+        let eps = square_from_direction(direction);
+        let conditional = self.conditional_at(params, v, eps.x);
+        factorised::pdf(&v.marginal, &conditional, direction)
+    }
+
     /// The marginal density of `ε₁` at `query` (uniform for a too short
     /// `params`).
     #[must_use]
@@ -776,5 +921,43 @@ impl<
         }
         grid_backward(&self.grid, sample.position(), &d_base, 0, grad);
         loss
+    }
+}
+
+/// The per-vertex split of a DF model (the CPU's batched decode and the
+/// device's kernels): [`DfVertex`] once per shading point, then one
+/// conditional pass per sampled or evaluated direction.
+pub trait VertexModel: GuidingModel {
+    /// The vertex of `query` ([`Df::vertex`]).
+    fn vertex_of(&self, params: &[f32], query: &QueryPoint) -> DfVertex;
+    /// A sample from a vertex ([`Df::sample_vertex`]).
+    fn sample_from_vertex(&self, params: &[f32], v: &DfVertex, u: Vec2) -> DirectionSample;
+    /// A density from a vertex ([`Df::pdf_vertex`]).
+    fn pdf_from_vertex(&self, params: &[f32], v: &DfVertex, direction: Vec3) -> f32;
+}
+
+impl<
+        const IN_M: usize,
+        const IN_C: usize,
+        const IN_R: usize,
+        const WIDTH: usize,
+        const HIDDEN: usize,
+        const CACHE_WIDTH: usize,
+        const CACHE_HIDDEN: usize,
+    > VertexModel for Df<IN_M, IN_C, IN_R, WIDTH, HIDDEN, CACHE_WIDTH, CACHE_HIDDEN>
+{
+    #[inline]
+    fn vertex_of(&self, params: &[f32], query: &QueryPoint) -> DfVertex {
+        self.vertex(params, query)
+    }
+
+    #[inline]
+    fn sample_from_vertex(&self, params: &[f32], v: &DfVertex, u: Vec2) -> DirectionSample {
+        self.sample_vertex(params, v, u)
+    }
+
+    #[inline]
+    fn pdf_from_vertex(&self, params: &[f32], v: &DfVertex, direction: Vec3) -> f32 {
+        self.pdf_vertex(params, v, direction)
     }
 }

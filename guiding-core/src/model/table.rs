@@ -11,7 +11,9 @@
 /// Calls the macro `$callback` once with every model type, one row each:
 ///
 /// ```text
-/// path::to::Type => prefix, family, Size, Target, [sample, pdf, gradient(, infer)];
+/// path::to::Type => prefix, family, Size, Target, [sample, pdf, gradient, infer];       (npm, nasg)
+/// path::to::Type => prefix, family, Size, Target, [sample, pdf, gradient, vertex,
+///                                                  vertex_sample, vertex_pdf];           (df)
 /// ```
 ///
 /// - `prefix` names the type everywhere else (`npm_compact_radiance`): the
@@ -21,8 +23,9 @@
 ///   `Product`) are the facade's `ModelSize` / `Target` variants;
 /// - the bracket lists the type's SPIR-V entry points (rust-gpu names an
 ///   entry point after its function, and `macro_rules!` cannot paste
-///   identifiers): whole-model sample, pdf and per-sample gradient, and
-///   for the mixtures the raw-output inference.
+///   identifiers): whole-model sample, pdf and per-sample gradient; then
+///   for the mixtures the raw-output inference, for DF the per-vertex
+///   kernel and the vertex lanes' sample and pdf.
 ///
 /// ```
 /// macro_rules! count_rows {
@@ -47,12 +50,12 @@ macro_rules! for_each_model {
             $crate::model::nasg::NasgCompactProduct => nasg_compact_product, nasg, Compact, Product, [nasg_compact_product_sample, nasg_compact_product_pdf, nasg_compact_product_gradient, nasg_compact_product_infer];
             $crate::model::nasg::NasgRadiance => nasg_paper_radiance, nasg, Paper, Radiance, [nasg_paper_radiance_sample, nasg_paper_radiance_pdf, nasg_paper_radiance_gradient, nasg_paper_radiance_infer];
             $crate::model::nasg::NasgProduct => nasg_paper_product, nasg, Paper, Product, [nasg_paper_product_sample, nasg_paper_product_pdf, nasg_paper_product_gradient, nasg_paper_product_infer];
-            $crate::model::df::DfSmallRadiance => df_small_radiance, df, Small, Radiance, [df_small_radiance_sample, df_small_radiance_pdf, df_small_radiance_gradient];
-            $crate::model::df::DfSmallProduct => df_small_product, df, Small, Product, [df_small_product_sample, df_small_product_pdf, df_small_product_gradient];
-            $crate::model::df::DfCompactRadiance => df_compact_radiance, df, Compact, Radiance, [df_compact_radiance_sample, df_compact_radiance_pdf, df_compact_radiance_gradient];
-            $crate::model::df::DfCompactProduct => df_compact_product, df, Compact, Product, [df_compact_product_sample, df_compact_product_pdf, df_compact_product_gradient];
-            $crate::model::df::DfRadiance => df_paper_radiance, df, Paper, Radiance, [df_paper_radiance_sample, df_paper_radiance_pdf, df_paper_radiance_gradient];
-            $crate::model::df::DfProduct => df_paper_product, df, Paper, Product, [df_paper_product_sample, df_paper_product_pdf, df_paper_product_gradient];
+            $crate::model::df::DfSmallRadiance => df_small_radiance, df, Small, Radiance, [df_small_radiance_sample, df_small_radiance_pdf, df_small_radiance_gradient, df_small_radiance_vertex, df_small_radiance_vertex_sample, df_small_radiance_vertex_pdf];
+            $crate::model::df::DfSmallProduct => df_small_product, df, Small, Product, [df_small_product_sample, df_small_product_pdf, df_small_product_gradient, df_small_product_vertex, df_small_product_vertex_sample, df_small_product_vertex_pdf];
+            $crate::model::df::DfCompactRadiance => df_compact_radiance, df, Compact, Radiance, [df_compact_radiance_sample, df_compact_radiance_pdf, df_compact_radiance_gradient, df_compact_radiance_vertex, df_compact_radiance_vertex_sample, df_compact_radiance_vertex_pdf];
+            $crate::model::df::DfCompactProduct => df_compact_product, df, Compact, Product, [df_compact_product_sample, df_compact_product_pdf, df_compact_product_gradient, df_compact_product_vertex, df_compact_product_vertex_sample, df_compact_product_vertex_pdf];
+            $crate::model::df::DfRadiance => df_paper_radiance, df, Paper, Radiance, [df_paper_radiance_sample, df_paper_radiance_pdf, df_paper_radiance_gradient, df_paper_radiance_vertex, df_paper_radiance_vertex_sample, df_paper_radiance_vertex_pdf];
+            $crate::model::df::DfProduct => df_paper_product, df, Paper, Product, [df_paper_product_sample, df_paper_product_pdf, df_paper_product_gradient, df_paper_product_vertex, df_paper_product_vertex_sample, df_paper_product_vertex_pdf];
         }
     };
 }

@@ -48,7 +48,6 @@ use crate::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
 use crate::mlp::{Mlp, MlpContext};
 use crate::pdf1d::{Boundary, Pdf1d};
 use crate::sample::TrainingSample;
-use bytemuck::{Pod, Zeroable};
 use glam::{Vec2, Vec3};
 use std::vec;
 
@@ -66,44 +65,7 @@ pub const WAVEFRONT_CHUNK: usize = 64;
 /// leave L2).
 pub const TRAIN_CHUNK: usize = 128;
 
-/// Largest DF base input (`[grid | product inputs]`) a [`DfVertex`] holds:
-/// 64, the paper product model's `IN_M`.
-pub const DF_MAX_BASE: usize = 64;
-
-/// What a DF model keeps of one shading point after the batched decode: the
-/// network input `b = [grid | product inputs]` (the conditional network's
-/// input starts with it) and the marginal density of `ε₁`. Sampling and pdfs
-/// then run only the conditional network, once per direction.
-///
-/// `repr(C)`, [`Pod`], `4 · (64 + 32 + 2)` = 392 bytes.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct DfVertex {
-    /// `b`, zero past the model's `IN_M`.
-    pub base: [f32; DF_MAX_BASE],
-    /// `p(ε₁)` at this point.
-    pub marginal: Pdf1d<DF_MARGINAL_BINS>,
-}
-
-// SAFETY: `repr(C)` struct of an `[f32; 64]` and a `Pod` `Pdf1d` (f32 values
-// and two u32 codes, align 4): no padding, every bit pattern valid.
-unsafe impl Zeroable for DfVertex {}
-// SAFETY: see above.
-unsafe impl Pod for DfVertex {}
-
-impl DfVertex {
-    /// All zeros (an invalid marginal; only a placeholder to overwrite).
-    pub const ZERO: Self = Self {
-        base: [0.0; DF_MAX_BASE],
-        marginal: Pdf1d::ZERO,
-    };
-}
-
-impl Default for DfVertex {
-    fn default() -> Self {
-        Self::ZERO
-    }
-}
+pub use super::df::{DfVertex, DF_MAX_BASE};
 
 /// A DF distribution tabulated per marginal bin ([`Df::tabulate_vertices`]).
 pub type DfTable = factorised::FactorisedTable<DF_MARGINAL_BINS, DF_CONDITIONAL_BINS>;
@@ -799,23 +761,6 @@ impl<
 {
     const BASE_FITS: () = assert!(IN_M <= DF_MAX_BASE, "DfVertex holds at most 64 inputs");
 
-    /// The base input held by `v`.
-    #[inline]
-    fn base_of(v: &DfVertex) -> [f32; IN_M] {
-        let mut b = [0.0f32; IN_M];
-        b.copy_from_slice(&v.base[..IN_M]);
-        b
-    }
-
-    /// The uniform marginal of a too short `params` (as [`Self::marginal`]).
-    fn uniform_marginal(&self) -> Pdf1d<DF_MARGINAL_BINS> {
-        Pdf1d::from_logits(
-            &[0.0; DF_MARGINAL_BINS],
-            self.interpolation(),
-            Boundary::Wrap,
-        )
-    }
-
     /// The base input and marginal at every query (one batched marginal
     /// pass per chunk), written to `out`.
     ///
@@ -854,69 +799,6 @@ impl<
                 o.marginal = Pdf1d::from_logits(y, self.interpolation(), Boundary::Wrap);
             }
         }
-    }
-
-    /// The conditional density `p(ε₂ | ε₁)` at the vertex `v` (one
-    /// per-query conditional pass).
-    fn conditional_at(
-        &self,
-        params: &[f32],
-        v: &DfVertex,
-        eps1: f32,
-    ) -> Pdf1d<DF_CONDITIONAL_BINS> {
-        self.conditional_from(params, &Self::base_of(v), eps1)
-    }
-
-    /// [`GuidingModel::sample`] from a decoded vertex: the same draw and
-    /// pdf, without the grid and marginal passes.
-    #[must_use]
-    pub fn sample_vertex(&self, params: &[f32], v: &DfVertex, u: Vec2) -> DirectionSample {
-        if !self.fits(params) {
-            return DirectionSample {
-                direction: direction_from_square(u),
-                pdf: INV_FOUR_PI,
-            };
-        }
-        let (e1, p1) = factorised::sample_marginal(&v.marginal, u.x);
-        let conditional = self.conditional_at(params, v, e1);
-        self.finish_sample(params, v, e1, p1, &conditional, u.y)
-    }
-
-    /// The second half of a sample: `ε₂`, the direction, and its density as
-    /// [`Self::pdf_vertex`] evaluates it.
-    fn finish_sample(
-        &self,
-        params: &[f32],
-        v: &DfVertex,
-        e1: f32,
-        p1: f32,
-        conditional: &Pdf1d<DF_CONDITIONAL_BINS>,
-        uy: f32,
-    ) -> DirectionSample {
-        let (e2, p2) = factorised::sample_conditional(conditional, uy);
-        let direction = direction_from_square(Vec2::new(e1, e2));
-        let eps = square_from_direction(direction);
-        let p_cond = if eps.x == e1 {
-            conditional.pdf(eps.y)
-        } else {
-            self.conditional_at(params, v, eps.x).pdf(eps.y)
-        };
-        let mut pdf = v.marginal.pdf(eps.x) * p_cond * INV_FOUR_PI;
-        if pdf <= 0.0 || pdf.is_nan() {
-            pdf = p1 * p2 * INV_FOUR_PI;
-        }
-        DirectionSample { direction, pdf }
-    }
-
-    /// [`GuidingModel::pdf`] from a decoded vertex (one conditional pass).
-    #[must_use]
-    pub fn pdf_vertex(&self, params: &[f32], v: &DfVertex, direction: Vec3) -> f32 {
-        if !self.fits(params) {
-            return INV_FOUR_PI;
-        }
-        let eps = square_from_direction(direction);
-        let conditional = self.conditional_at(params, v, eps.x);
-        factorised::pdf(&v.marginal, &conditional, direction)
     }
 
     /// The frozen distribution of each vertex as a [`DfTable`]: its

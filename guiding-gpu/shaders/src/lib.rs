@@ -22,6 +22,7 @@
 
 use guiding_core::batch::{self, AdamArgs, BatchArgs};
 use guiding_core::gradient::GradientSink;
+use guiding_core::model::df::DfVertex;
 use guiding_core::model::QueryPoint;
 use guiding_core::sample::TrainingSample;
 use spirv_std::glam::UVec3;
@@ -205,8 +206,86 @@ macro_rules! model_kernels {
 /// ([`guiding_core::for_each_model`]).
 macro_rules! table_kernels {
     ($($model:path => $prefix:ident, $family:ident, $size:ident, $target:ident,
-       [$sample:ident, $pdf:ident, $gradient:ident $(, $infer:ident)?];)*) => {
-        $( model_kernels!($model, $sample, $pdf, $gradient $(, $infer)?); )*
+       [$($entry:ident),*];)*) => {
+        $( row_kernels!($family, $model, $($entry),*); )*
+    };
+}
+
+/// The entry points of one row, by family: the mixtures' `infer`, DF's
+/// per-vertex kernels.
+macro_rules! row_kernels {
+    (npm, $model:path, $sample:ident, $pdf:ident, $gradient:ident, $infer:ident) => {
+        model_kernels!($model, $sample, $pdf, $gradient, $infer);
+    };
+    (nasg, $model:path, $sample:ident, $pdf:ident, $gradient:ident, $infer:ident) => {
+        model_kernels!($model, $sample, $pdf, $gradient, $infer);
+    };
+    (df, $model:path, $sample:ident, $pdf:ident, $gradient:ident,
+     $vertex:ident, $vertex_sample:ident, $vertex_pdf:ident) => {
+        model_kernels!($model, $sample, $pdf, $gradient);
+        vertex_kernels!($model, $vertex, $vertex_sample, $vertex_pdf);
+    };
+}
+
+/// DF's per-vertex entry points: the vertex of each query (grid + marginal
+/// network), then the conditional per sampled / evaluated direction of a
+/// lane of the resident vertices.
+macro_rules! vertex_kernels {
+    ($model:path, $vertex:ident, $vertex_sample:ident, $vertex_pdf:ident) => {
+        /// [`batch::vertex_element`] of this model.
+        #[spirv(compute(threads(64)))]
+        pub fn $vertex(
+            #[spirv(global_invocation_id)] id: UVec3,
+            #[spirv(num_workgroups)] groups: UVec3,
+            #[spirv(push_constant)] args: &BatchArgs,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] model: &[$model],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] params: &[f32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] queries: &[QueryPoint],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] out: &mut [DfVertex],
+        ) {
+            let i = element_index(id, groups);
+            if i < args.count as usize {
+                batch::vertex_element(&model[0], params, queries, out, i);
+            }
+        }
+
+        /// [`batch::vertex_sample_element`] of this model.
+        #[spirv(compute(threads(64)))]
+        pub fn $vertex_sample(
+            #[spirv(global_invocation_id)] id: UVec3,
+            #[spirv(num_workgroups)] groups: UVec3,
+            #[spirv(push_constant)] args: &BatchArgs,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] model: &[$model],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] params: &[f32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] vertices: &[DfVertex],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] lanes: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] u: &[[f32; 4]],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] out: &mut [[f32; 4]],
+        ) {
+            let i = element_index(id, groups);
+            if i < args.count as usize {
+                batch::vertex_sample_element(&model[0], params, vertices, lanes, u, out, i);
+            }
+        }
+
+        /// [`batch::vertex_pdf_element`] of this model.
+        #[spirv(compute(threads(64)))]
+        pub fn $vertex_pdf(
+            #[spirv(global_invocation_id)] id: UVec3,
+            #[spirv(num_workgroups)] groups: UVec3,
+            #[spirv(push_constant)] args: &BatchArgs,
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] model: &[$model],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] params: &[f32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] vertices: &[DfVertex],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] lanes: &[u32],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] directions: &[[f32; 4]],
+            #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] out: &mut [f32],
+        ) {
+            let i = element_index(id, groups);
+            if i < args.count as usize {
+                batch::vertex_pdf_element(&model[0], params, vertices, lanes, directions, out, i);
+            }
+        }
     };
 }
 

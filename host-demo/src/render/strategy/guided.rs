@@ -718,9 +718,14 @@ impl<'g> GuidedWorker<'g> {
     /// the decoded distributions (zeros where it failed: a device failure, and the render
     /// ends with it after the pass).
     fn eval_queued_pdfs(&mut self) {
-        let t0 = Instant::now();
         self.pdf_out.clear();
         self.pdf_out.resize(self.pdf_query.len(), 0.0);
+        if self.pdf_query.is_empty() {
+            // Nothing to evaluate (also the case of a pass with the guide off, which decodes
+            // nothing).
+            return;
+        }
+        let t0 = Instant::now();
         if let Err(e) = self.guide.pdf_decoded(
             &self.decoded,
             &self.pdf_query,
@@ -782,35 +787,33 @@ impl VertexStrategy for GuidedWorker<'_> {
         let t0 = Instant::now();
         let field = self.guide;
         let mut from_cache = self.cache.is_some();
-        {
-            match self.cache {
-                Some(cache) => {
-                    let looked_up = cache.decode_batch(
-                        field,
-                        &self.queries,
-                        &self.jitter,
-                        &mut self.decoded,
-                        &mut self.missed,
-                    );
-                    match looked_up {
-                        Ok(l) => {
-                            self.report.cache_hits += l.hits;
-                            self.report
-                                .missed_points
-                                .extend(self.missed.iter().map(|&k| self.queries[k as usize]));
-                        }
-                        // A stale cache (a bug): the network answers every vertex.
-                        Err(_) => {
-                            field.decode_batch(&self.queries, &mut self.decoded);
-                            self.report.missed_points.extend_from_slice(&self.queries);
-                            from_cache = false;
-                        }
+        match self.cache {
+            Some(cache) => {
+                let looked_up = cache.decode_batch(
+                    field,
+                    &self.queries,
+                    &self.jitter,
+                    &mut self.decoded,
+                    &mut self.missed,
+                );
+                match looked_up {
+                    Ok(l) => {
+                        self.report.cache_hits += l.hits;
+                        self.report
+                            .missed_points
+                            .extend(self.missed.iter().map(|&k| self.queries[k as usize]));
+                    }
+                    // A stale cache (a bug): the network answers every vertex.
+                    Err(_) => {
+                        field.decode_batch(&self.queries, &mut self.decoded);
+                        self.report.missed_points.extend_from_slice(&self.queries);
+                        from_cache = false;
                     }
                 }
-                None => {
-                    if let Err(e) = field.try_decode_batch(&self.queries, &mut self.decoded) {
-                        self.record_error(e);
-                    }
+            }
+            None => {
+                if let Err(e) = field.try_decode_batch(&self.queries, &mut self.decoded) {
+                    self.record_error(e);
                 }
             }
         }
@@ -896,12 +899,17 @@ impl VertexStrategy for GuidedWorker<'_> {
                 pdf: 0.0,
             },
         );
-        if let Err(e) = self.guide.sample_decoded(
-            &self.decoded,
-            &self.sample_query,
-            &self.sample_u,
-            &mut self.sample_out,
-        ) {
+        let sampled = if self.sample_query.is_empty() {
+            Ok(())
+        } else {
+            self.guide.sample_decoded(
+                &self.decoded,
+                &self.sample_query,
+                &self.sample_u,
+                &mut self.sample_out,
+            )
+        };
+        if let Err(e) = sampled {
             self.sample_out.fill(DirectionSample {
                 direction: Vec3::ZERO,
                 pdf: 0.0,
