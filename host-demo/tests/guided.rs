@@ -8,6 +8,8 @@
 //! `Var(mean) = Σ_p Var(pixel_p) / P²`). By the CLT the difference is normal; 4.5σ gives a
 //! two-sided false-alarm rate of 7·10⁻⁶ per channel, ~10⁻⁴ for the 12 channel comparisons.
 
+mod common;
+
 use guiding_core::field::FieldConfig;
 use guiding_core::loss::Target;
 use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
@@ -548,16 +550,8 @@ fn training_probe_abandons_training_and_keeps_the_image_unbiased() {
 /// without a Vulkan device or SPIR-V, unless `GUIDING_REQUIRE_VULKAN=1`.
 #[test]
 fn a_device_failure_ends_the_render_with_its_error() {
-    let ctx = match guiding_gpu::shader_module()
-        .and_then(|_| guiding_gpu::GpuContext::new(guiding_gpu::DeviceSelection::Auto))
-    {
-        Ok(ctx) => ctx,
-        Err(e) => {
-            let required = std::env::var("GUIDING_REQUIRE_VULKAN").is_ok_and(|v| v == "1");
-            assert!(!required, "GUIDING_REQUIRE_VULKAN=1 but: {e}");
-            eprintln!("skipped: {e}");
-            return;
-        }
+    let Some(ctx) = common::vulkan_context() else {
+        return;
     };
     let scene = load_builtin("cornell-box").expect("builtin");
     let o = opts(IntegratorKind::PtNee, 4, 16, 16, 3, 2);
@@ -566,15 +560,7 @@ fn a_device_failure_ends_the_render_with_its_error() {
         guiding::DeviceFailure::Error,
         guiding::DeviceFailure::FallbackToCpu,
     ] {
-        let mut g = build_guide(
-            GuideKind::Npm,
-            Target::Radiance,
-            ModelSize::Small,
-            scene.bounds(),
-            0.5,
-            config,
-        )
-        .expect("guide");
+        let mut g = small_npm_radiance(&scene, config);
         g.use_device_context(ctx.clone(), policy).expect("device");
         g.fail_device_for_tests("injected");
         let result = render_guided(&scene, &o, &GuidedOptions::default(), &mut g);

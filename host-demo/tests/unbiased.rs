@@ -290,16 +290,8 @@ fn compare_blocks(
 /// `GUIDING_REQUIRE_VULKAN=1`.
 #[test]
 fn gpu_guide_agrees_with_the_cpu_guide_per_block() {
-    let required = std::env::var("GUIDING_REQUIRE_VULKAN").is_ok_and(|v| v == "1");
-    let ctx = match guiding_gpu::shader_module()
-        .and_then(|_| guiding_gpu::GpuContext::new(guiding_gpu::DeviceSelection::Auto))
-    {
-        Ok(ctx) => ctx,
-        Err(e) => {
-            assert!(!required, "GUIDING_REQUIRE_VULKAN=1 but: {e}");
-            eprintln!("skipped: {e}");
-            return;
-        }
+    let Some(ctx) = common::vulkan_context() else {
+        return;
     };
     let scene = load_builtin("cornell-box").expect("builtin");
     let kinds = [
