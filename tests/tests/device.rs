@@ -7,8 +7,8 @@
 //! Vulkan device exists, unless `GUIDING_REQUIRE_VULKAN=1` (CI).
 
 use guiding::{
-    DeviceFailure, DeviceSelection, DistributionBatch, FieldConfig, GpuContext, GuidingConfig,
-    GuidingError, GuidingField, ModelSize, QueryPoint, Representation, TrainingSample,
+    DeviceFailure, DistributionBatch, FieldConfig, GpuContext, GuidingConfig, GuidingError,
+    GuidingField, ModelSize, QueryPoint, Representation, TrainingSample,
 };
 use guiding_core::glam::{Vec2, Vec3};
 use guiding_core::math::INV_FOUR_PI;
@@ -20,16 +20,7 @@ const HI: [f32; 3] = [1.0, 2.0, 3.0];
 
 /// The device of the tests, or `None` (with the reason printed).
 fn context() -> Option<GpuContext> {
-    let opened = guiding_gpu::shader_module().and_then(|_| GpuContext::new(DeviceSelection::Auto));
-    match opened {
-        Ok(ctx) => Some(ctx),
-        Err(e) => {
-            let required = std::env::var("GUIDING_REQUIRE_VULKAN").is_ok_and(|v| v == "1");
-            assert!(!required, "GUIDING_REQUIRE_VULKAN=1 but: {e}");
-            eprintln!("skipped: {e}");
-            None
-        }
-    }
+    guiding_tests::vulkan_context()
 }
 
 fn config(base: GuidingConfig, seed: u32) -> GuidingConfig {

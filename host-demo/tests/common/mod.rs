@@ -57,19 +57,6 @@ pub fn number(s: &str) -> f64 {
     s.parse().unwrap_or_else(|_| panic!("not a number: {s}"))
 }
 
-/// A Vulkan context for the `--device gpu` tests, or `None` (with the reason printed) when
-/// this build has no SPIR-V or the machine no Vulkan device; with `GUIDING_REQUIRE_VULKAN=1`
-/// (CI) that is a failure instead of a skip.
-pub fn vulkan_context() -> Option<guiding_gpu::GpuContext> {
-    match guiding_gpu::shader_module()
-        .and_then(|_| guiding_gpu::GpuContext::new(guiding_gpu::DeviceSelection::Auto))
-    {
-        Ok(ctx) => Some(ctx),
-        Err(e) => {
-            let required = std::env::var("GUIDING_REQUIRE_VULKAN").is_ok_and(|v| v == "1");
-            assert!(!required, "GUIDING_REQUIRE_VULKAN=1 but: {e}");
-            eprintln!("skipped: {e}");
-            None
-        }
-    }
-}
+/// A Vulkan context for the `--device gpu` tests, or a skip: the workspace's one copy.
+#[allow(unused_imports)] // each test binary uses a subset
+pub use guiding_tests::vulkan_context;
