@@ -17,6 +17,13 @@
 //! 4. optionally [saves](GuidingField::save) the trained field and
 //!    [loads](GuidingField::load) it in a later run.
 //!
+//! The same field runs on a Vulkan device after
+//! [`GuidingField::use_device`]: the same calls, the network's inference,
+//! the wavefront's samples and pdfs and the arithmetic of the training steps
+//! there, one training loop for both backends, and a device failure that is
+//! an error (or a fallback to the CPU with the device's weights,
+//! [`DeviceFailure`]); see [`device`].
+//!
 //! ```
 //! use guiding::{GuidingConfig, GuidingField, ModelSize, PathRecorder, PathVertex, QueryPoint};
 //! use glam::{Vec2, Vec3};
