@@ -44,6 +44,25 @@ pub struct TrainOptions {
     pub max_gradient_magnitude: f32,
 }
 
+/// `slot`'s buffer, replaced by one of at least `bytes` (the next power of
+/// two, within the device's storage-buffer range) when it is missing or
+/// smaller: the growth of the scratch buffers and of the caller-owned
+/// resident ones ([`GpuModel::infer_resident`]).
+fn grow<'a>(
+    ctx: &GpuContext,
+    slot: &'a mut Option<GpuBuffer>,
+    bytes: u64,
+) -> Result<&'a mut GpuBuffer, GpuError> {
+    let bytes = bytes.max(16);
+    if slot.as_ref().is_none_or(|b| b.size() < bytes) {
+        *slot = None;
+        let limit = ctx.device_info().max_storage_buffer_range;
+        *slot = Some(ctx.buffer(bytes.next_power_of_two().min(limit).max(bytes))?);
+    }
+    slot.as_mut()
+        .ok_or_else(|| GpuError::BadArgument("buffer missing".into()))
+}
+
 /// A storage buffer that grows to the largest batch seen.
 struct Scratch {
     buffer: Option<GpuBuffer>,
@@ -55,17 +74,7 @@ impl Scratch {
     }
 
     fn at_least(&mut self, ctx: &GpuContext, bytes: u64) -> Result<&mut GpuBuffer, GpuError> {
-        let bytes = bytes.max(16);
-        let small = self.buffer.as_ref().is_none_or(|b| b.size() < bytes);
-        if small {
-            self.buffer = None;
-            let limit = ctx.device_info().max_storage_buffer_range;
-            let grown = bytes.next_power_of_two().min(limit).max(bytes);
-            self.buffer = Some(ctx.buffer(grown)?);
-        }
-        self.buffer
-            .as_mut()
-            .ok_or_else(|| GpuError::BadArgument("scratch buffer missing".into()))
+        grow(ctx, &mut self.buffer, bytes)
     }
 
     /// Grows to hold `data` and uploads it.
@@ -675,16 +684,7 @@ impl GpuModel {
                 queries.len()
             )));
         }
-        if raw.as_ref().is_none_or(|b| b.size() < bytes) {
-            *raw = None;
-            *raw = Some(
-                self.ctx
-                    .buffer(bytes.next_power_of_two().min(limit).max(bytes))?,
-            );
-        }
-        let out = raw
-            .as_ref()
-            .ok_or_else(|| GpuError::BadArgument("raw-output buffer missing".into()))?;
+        let out = &*grow(&self.ctx, raw, bytes)?;
         self.queries.put(&self.ctx, queries)?;
         if self.kernels.selection.is_some() {
             self.outputs.at_least(&self.ctx, u64::from(n) * 4)?;
@@ -777,16 +777,7 @@ impl GpuModel {
             )));
         }
         let need = (queries.len() * size_of::<DfVertex>()) as u64;
-        if vertices.as_ref().is_none_or(|b| b.size() < need) {
-            *vertices = None;
-            *vertices = Some(
-                self.ctx
-                    .buffer(need.next_power_of_two().min(limit).max(need))?,
-            );
-        }
-        let out = vertices
-            .as_ref()
-            .ok_or_else(|| GpuError::BadArgument("vertex buffer missing".into()))?;
+        let out = &*grow(&self.ctx, vertices, need)?;
         self.queries.put(&self.ctx, queries)?;
         let mut batch = self.ctx.timed_batch()?;
         batch.dispatch(

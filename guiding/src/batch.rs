@@ -267,13 +267,9 @@ impl GuidingField {
         queries: &[QueryPoint],
         out: &mut DistributionBatch,
     ) -> Result<(), GuidingError> {
-        if let Some(d) = &self.device {
-            if let Some(failure) = d.failure() {
-                if d.on_failure == crate::DeviceFailure::Error {
-                    out.reset(self);
-                    return Err(GuidingError::Device(failure));
-                }
-            }
+        if let Some(e) = self.device_refusal() {
+            out.reset(self);
+            return Err(e);
         }
         let Some(d) = self.active_device() else {
             self.decode_batch_cpu(queries, out);
@@ -483,12 +479,8 @@ impl GuidingField {
     /// Checks that `batch` was decoded by this field at its current
     /// generation and that every lane index is in range.
     fn check_batch(&self, batch: &DistributionBatch, lanes: &[u32]) -> Result<(), GuidingError> {
-        if let Some(d) = &self.device {
-            if let Some(failure) = d.failure() {
-                if d.on_failure == crate::DeviceFailure::Error {
-                    return Err(GuidingError::Device(failure));
-                }
-            }
+        if let Some(e) = self.device_refusal() {
+            return Err(e);
         }
         if batch.field_id != self.id || batch.generation != self.generation {
             return Err(GuidingError::StaleDistribution {

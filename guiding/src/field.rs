@@ -302,6 +302,16 @@ impl GuidingField {
         }
     }
 
+    /// The error every device-backed call returns once the device failed
+    /// and the field does not fall back ([`DeviceFailure::Error`]).
+    pub(crate) fn device_refusal(&self) -> Option<GuidingError> {
+        let d = self.device.as_ref()?;
+        if d.on_failure != DeviceFailure::Error {
+            return None;
+        }
+        d.failure().map(GuidingError::Device)
+    }
+
     /// The active device: present and not failed.
     pub(crate) fn active_device(&self) -> Option<&DeviceField> {
         self.device.as_ref().filter(|d| d.failure().is_none())
@@ -314,11 +324,11 @@ impl GuidingField {
         let Some(d) = &self.device else {
             return Ok(());
         };
-        let Some(failure) = d.failure() else {
+        if d.failure().is_none() {
             return Ok(());
-        };
-        if d.on_failure == DeviceFailure::Error {
-            return Err(GuidingError::Device(failure));
+        }
+        if let Some(e) = self.device_refusal() {
+            return Err(e);
         }
         let state = self.state();
         with_field!(&mut self.inner, f => f.restore_state(state))?;

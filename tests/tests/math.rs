@@ -314,51 +314,30 @@ fn ln_inline_is_within_two_ulp() {
     assert!((math::ln_inline(f32::MIN_POSITIVE) - (-87.336_55)).abs() < 1e-5);
 }
 
+/// `ln(1 + x)` within `max_ulps` of f64 over both sides of 0, and its special values.
+fn check_ln_1p(name: &str, f: fn(f32) -> f32, max_ulps: f64) {
+    let mut xs = sweep(-1.0 + f32::EPSILON / 2.0, -f32::from_bits(1), 12);
+    xs.extend(sweep(f32::from_bits(1), f32::MAX, 13));
+    check_ulps(name, &xs, f, f64::ln_1p, max_ulps, 0.0, 0.0);
+    assert_eq!(f(-1.0), f32::NEG_INFINITY, "{name}");
+    assert_eq!(f(f32::INFINITY), f32::INFINITY, "{name}");
+    assert!(f(-1.5).is_nan(), "{name}");
+    assert!(f(f32::NEG_INFINITY).is_nan(), "{name}");
+    assert!(f(f32::NAN).is_nan(), "{name}");
+    assert_eq!(f(0.0).to_bits(), 0.0f32.to_bits(), "{name}");
+    assert_eq!(f(-0.0).to_bits(), (-0.0f32).to_bits(), "{name}");
+    assert_eq!(f(1e-40), 1e-40, "{name}");
+}
+
 /// The SPIR-V `ln_1p` (no compensated sum for a shader compiler to fold).
 #[test]
 fn ln_1p_series_is_within_three_ulp() {
-    let mut xs = sweep(-1.0 + f32::EPSILON / 2.0, -f32::from_bits(1), 12);
-    xs.extend(sweep(f32::from_bits(1), f32::MAX, 13));
-    check_ulps(
-        "ln_1p_series",
-        &xs,
-        math::ln_1p_series,
-        f64::ln_1p,
-        3.0,
-        0.0,
-        0.0,
-    );
-    assert_eq!(math::ln_1p_series(-1.0), f32::NEG_INFINITY);
-    assert_eq!(math::ln_1p_series(f32::INFINITY), f32::INFINITY);
-    assert!(math::ln_1p_series(-1.5).is_nan());
-    assert!(math::ln_1p_series(f32::NEG_INFINITY).is_nan());
-    assert!(math::ln_1p_series(f32::NAN).is_nan());
-    assert_eq!(math::ln_1p_series(0.0).to_bits(), 0.0f32.to_bits());
-    assert_eq!(math::ln_1p_series(-0.0).to_bits(), (-0.0f32).to_bits());
-    assert_eq!(math::ln_1p_series(1e-40), 1e-40);
+    check_ln_1p("ln_1p_series", math::ln_1p_series, 3.0);
 }
 
 #[test]
 fn ln_1p_inline_is_within_two_ulp() {
-    let mut xs = sweep(-1.0 + f32::EPSILON / 2.0, -f32::from_bits(1), 12);
-    xs.extend(sweep(f32::from_bits(1), f32::MAX, 13));
-    check_ulps(
-        "ln_1p_inline",
-        &xs,
-        math::ln_1p_inline,
-        f64::ln_1p,
-        2.0,
-        0.0,
-        0.0,
-    );
-    assert_eq!(math::ln_1p_inline(-1.0), f32::NEG_INFINITY);
-    assert_eq!(math::ln_1p_inline(f32::INFINITY), f32::INFINITY);
-    assert!(math::ln_1p_inline(-1.5).is_nan());
-    assert!(math::ln_1p_inline(f32::NEG_INFINITY).is_nan());
-    assert!(math::ln_1p_inline(f32::NAN).is_nan());
-    assert_eq!(math::ln_1p_inline(0.0).to_bits(), 0.0f32.to_bits());
-    assert_eq!(math::ln_1p_inline(-0.0).to_bits(), (-0.0f32).to_bits());
-    assert_eq!(math::ln_1p_inline(1e-40), 1e-40);
+    check_ln_1p("ln_1p_inline", math::ln_1p_inline, 2.0);
 }
 
 #[test]
