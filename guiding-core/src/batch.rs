@@ -306,97 +306,112 @@ pub fn df_table_from_raw(
     FactorisedTable::from_logits(&marginal, &conditional, interpolation)
 }
 
-/// Decode kernel: `out[i] = [ω, pdf]` sampled with `u[i]` from
-/// [`vmf_mixture_from_raw`] of element `i` (32 raw values each).
-#[inline]
-pub fn vmf_decode_sample_element(raw: &[f32], u: &[[f32; 4]], out: &mut [[f32; 4]], i: usize) {
-    if i < u.len() && i < out.len() {
-        let r = u[i];
-        let mix = vmf_mixture_from_raw(raw, i * NPM_OUTPUTS);
-        out[i] = pack_sample(mix.sample(Vec2::new(r[0], r[1])));
+/// A directional distribution decoded from one row of raw network outputs:
+/// what the decode kernels ([`decode_sample_element`],
+/// [`decode_pdf_element`]) and the lane kernels ([`lane_sample_element`],
+/// [`lane_pdf_element`]) sample and evaluate, one implementation per
+/// representation, so that each kernel exists once.
+pub trait RawRowDistribution: Sized {
+    /// Raw outputs per row.
+    const STRIDE: usize;
+    /// The distribution of `raw[base .. base + STRIDE]` (missing slots read
+    /// as 0). `code` is the dispatch's variant code ([`BatchArgs::code`]):
+    /// DF's interpolation ([`Interpolation::from_code`]); the mixtures ignore
+    /// it.
+    fn from_raw_row(raw: &[f32], base: usize, code: u32) -> Self;
+    /// This distribution times the clamped cosine around `normal`,
+    /// renormalised (NPM §4.2). The default returns it unchanged: NASG and
+    /// DF have no closed-form product, and their callers never ask for one.
+    #[inline]
+    #[must_use]
+    fn with_clamped_cosine(self, normal: Vec3) -> Self {
+        let _ = normal;
+        self
     }
+    /// A direction and its density from `u ∈ [0,1)²`.
+    fn sample_direction(&self, u: Vec2) -> DirectionSample;
+    /// The density of `direction` (unit length).
+    fn density(&self, direction: Vec3) -> f32;
 }
 
-/// Decode kernel: `out[i]` = density of `directions[i]` under
-/// [`vmf_mixture_from_raw`] of element `i`.
-#[inline]
-pub fn vmf_decode_pdf_element(raw: &[f32], directions: &[[f32; 4]], out: &mut [f32], i: usize) {
-    if i < directions.len() && i < out.len() {
-        let mix = vmf_mixture_from_raw(raw, i * NPM_OUTPUTS);
-        out[i] = mix.pdf(unpack_direction(directions[i]));
-    }
+/// [`RawRowDistribution::sample_direction`] and
+/// [`RawRowDistribution::density`] of a type whose inherent `sample` and
+/// `pdf` are exactly those.
+macro_rules! sample_and_pdf_by_inherent_methods {
+    () => {
+        #[inline]
+        fn sample_direction(&self, u: Vec2) -> DirectionSample {
+            self.sample(u)
+        }
+        #[inline]
+        fn density(&self, direction: Vec3) -> f32 {
+            self.pdf(direction)
+        }
+    };
 }
 
-/// Decode kernel: `out[i] = [ω, pdf]` sampled with `u[i]` from
-/// [`nasg_mixture_from_raw`] of element `i` (49 raw values each).
-#[inline]
-pub fn nasg_decode_sample_element(raw: &[f32], u: &[[f32; 4]], out: &mut [[f32; 4]], i: usize) {
-    if i < u.len() && i < out.len() {
-        let r = u[i];
-        let mix = nasg_mixture_from_raw(raw, i * NASG_OUTPUTS);
-        out[i] = pack_sample(mix.sample(Vec2::new(r[0], r[1])));
+impl RawRowDistribution for VmfMixture<NPM_LOBES> {
+    const STRIDE: usize = NPM_OUTPUTS;
+    #[inline]
+    fn from_raw_row(raw: &[f32], base: usize, _code: u32) -> Self {
+        vmf_mixture_from_raw(raw, base)
     }
+    #[inline]
+    fn with_clamped_cosine(self, normal: Vec3) -> Self {
+        self.product_with_clamped_cosine(normal)
+    }
+    sample_and_pdf_by_inherent_methods!();
 }
 
-/// Decode kernel: `out[i]` = density of `directions[i]` under
-/// [`nasg_mixture_from_raw`] of element `i`.
-#[inline]
-pub fn nasg_decode_pdf_element(raw: &[f32], directions: &[[f32; 4]], out: &mut [f32], i: usize) {
-    if i < directions.len() && i < out.len() {
-        let mix = nasg_mixture_from_raw(raw, i * NASG_OUTPUTS);
-        out[i] = mix.pdf(unpack_direction(directions[i]));
+impl RawRowDistribution for NasgMixture<NASG_LOBES> {
+    const STRIDE: usize = NASG_OUTPUTS;
+    #[inline]
+    fn from_raw_row(raw: &[f32], base: usize, _code: u32) -> Self {
+        nasg_mixture_from_raw(raw, base)
     }
+    sample_and_pdf_by_inherent_methods!();
 }
 
-/// The interpolation of a DF decode kernel's code (0 nearest, else linear).
-#[inline]
-#[must_use]
-pub fn interpolation_from_code(code: u32) -> Interpolation {
-    if code == 0 {
-        Interpolation::Nearest
-    } else {
-        Interpolation::Linear
+impl RawRowDistribution for FactorisedTable<DF_MARGINAL_BINS, DF_CONDITIONAL_BINS> {
+    const STRIDE: usize = DF_TABLE_LOGITS;
+    #[inline]
+    fn from_raw_row(raw: &[f32], base: usize, code: u32) -> Self {
+        df_table_from_raw(raw, base, Interpolation::from_code(code))
     }
+    sample_and_pdf_by_inherent_methods!();
 }
 
-/// Decode kernel: `out[i] = [ω, pdf]` sampled with `u[i]` from
-/// [`df_table_from_raw`] of element `i` ([`DF_TABLE_LOGITS`] values each).
+/// Decode kernel: `out[i] = [ω, pdf]` sampled with `u[i]` from the
+/// distribution `D` of raw row `i` ([`RawRowDistribution::from_raw_row`]
+/// with the dispatch's `code`).
 #[inline]
-pub fn df_decode_sample_element(
+pub fn decode_sample_element<D: RawRowDistribution>(
     raw: &[f32],
-    interpolation: u32,
+    code: u32,
     u: &[[f32; 4]],
     out: &mut [[f32; 4]],
     i: usize,
 ) {
     if i < u.len() && i < out.len() {
         let r = u[i];
-        let table = df_table_from_raw(
-            raw,
-            i * DF_TABLE_LOGITS,
-            interpolation_from_code(interpolation),
-        );
-        out[i] = pack_sample(table.sample(Vec2::new(r[0], r[1])));
+        let d = D::from_raw_row(raw, i * D::STRIDE, code);
+        out[i] = pack_sample(d.sample_direction(Vec2::new(r[0], r[1])));
     }
 }
 
-/// Decode kernel: `out[i]` = density of `directions[i]` under
-/// [`df_table_from_raw`] of element `i`.
+/// Decode kernel: `out[i]` = density of `directions[i]` under the
+/// distribution `D` of raw row `i`.
 #[inline]
-pub fn df_decode_pdf_element(
+pub fn decode_pdf_element<D: RawRowDistribution>(
     raw: &[f32],
-    interpolation: u32,
+    code: u32,
     directions: &[[f32; 4]],
     out: &mut [f32],
     i: usize,
 ) {
     if i < directions.len() && i < out.len() {
-        let table = df_table_from_raw(
-            raw,
-            i * DF_TABLE_LOGITS,
-            interpolation_from_code(interpolation),
-        );
-        out[i] = table.pdf(unpack_direction(directions[i]));
+        let d = D::from_raw_row(raw, i * D::STRIDE, code);
+        out[i] = d.density(unpack_direction(directions[i]));
     }
 }
 
@@ -412,33 +427,32 @@ fn lane_base(raw: &[f32], lanes: &[u32], stride: usize, i: usize) -> usize {
     }
 }
 
-/// The NPM mixture of lane `i` of a lane kernel: raw row `lanes[i]`
-/// ([`vmf_mixture_from_raw`]), multiplied by the clamped cosine of
-/// `normals[i]`'s `xyz` when its `w` is `> 0`
-/// ([`VmfMixture::product_with_clamped_cosine`], NPM §4.2: what
+/// The distribution of lane `i` of a lane kernel: raw row `lanes[i]`,
+/// multiplied by the clamped cosine of `normals[i]`'s `xyz` where its `w` is
+/// `> 0` ([`RawRowDistribution::with_clamped_cosine`]: what
 /// `DistributionBatch::apply_cosine_product` does on the CPU).
 #[inline]
-fn vmf_lane_mixture(
+fn lane_distribution<D: RawRowDistribution>(
     raw: &[f32],
     lanes: &[u32],
     normals: &[[f32; 4]],
     i: usize,
-) -> VmfMixture<NPM_LOBES> {
-    let mix = vmf_mixture_from_raw(raw, lane_base(raw, lanes, NPM_OUTPUTS, i));
+) -> D {
+    let d = D::from_raw_row(raw, lane_base(raw, lanes, D::STRIDE, i), 0);
     if i < normals.len() && normals[i][3] > 0.0 {
         let n = normals[i];
-        mix.product_with_clamped_cosine(Vec3::new(n[0], n[1], n[2]))
+        d.with_clamped_cosine(Vec3::new(n[0], n[1], n[2]))
     } else {
-        mix
+        d
     }
 }
 
-/// Lane kernel: `out[i] = [ω, pdf]` sampled with `u[i]` from the NPM
-/// mixture of raw row `lanes[i]` (the raw outputs of a whole wavefront stay
-/// on the device; a call samples some of its lanes), with the cosine
-/// product where `normals[i].w > 0` (see [`vmf_lane_pdf_element`]).
+/// Lane kernel: `out[i] = [ω, pdf]` sampled with `u[i]` from the
+/// distribution `D` of raw row `lanes[i]` (the raw outputs of a whole
+/// wavefront stay on the device; a call samples some of its lanes), with
+/// the cosine product where `normals[i].w > 0` (see [`lane_pdf_element`]).
 #[inline]
-pub fn vmf_lane_sample_element(
+pub fn lane_sample_element<D: RawRowDistribution>(
     raw: &[f32],
     lanes: &[u32],
     normals: &[[f32; 4]],
@@ -448,17 +462,17 @@ pub fn vmf_lane_sample_element(
 ) {
     if i < u.len() && i < out.len() {
         let r = u[i];
-        let mix = vmf_lane_mixture(raw, lanes, normals, i);
-        out[i] = pack_sample(mix.sample(Vec2::new(r[0], r[1])));
+        let d = lane_distribution::<D>(raw, lanes, normals, i);
+        out[i] = pack_sample(d.sample_direction(Vec2::new(r[0], r[1])));
     }
 }
 
-/// Lane kernel: `out[i]` = density of `directions[i]` under the NPM
-/// mixture of raw row `lanes[i]`, times the clamped cosine of
+/// Lane kernel: `out[i]` = density of `directions[i]` under the
+/// distribution `D` of raw row `lanes[i]`, times the clamped cosine of
 /// `normals[i].xyz` (renormalised, as the CPU's cosine product) where
 /// `normals[i].w > 0`.
 #[inline]
-pub fn vmf_lane_pdf_element(
+pub fn lane_pdf_element<D: RawRowDistribution>(
     raw: &[f32],
     lanes: &[u32],
     normals: &[[f32; 4]],
@@ -467,47 +481,8 @@ pub fn vmf_lane_pdf_element(
     i: usize,
 ) {
     if i < directions.len() && i < out.len() {
-        let mix = vmf_lane_mixture(raw, lanes, normals, i);
-        out[i] = mix.pdf(unpack_direction(directions[i]));
-    }
-}
-
-/// Lane kernel: `out[i] = [ω, pdf]` sampled with `u[i]` from the NASG
-/// mixture of raw row `lanes[i]`. `normals` is not read (NASG has no
-/// closed-form cosine product); it keeps the lane kernels' bindings alike.
-#[inline]
-pub fn nasg_lane_sample_element(
-    raw: &[f32],
-    lanes: &[u32],
-    normals: &[[f32; 4]],
-    u: &[[f32; 4]],
-    out: &mut [[f32; 4]],
-    i: usize,
-) {
-    let _ = normals;
-    if i < u.len() && i < out.len() {
-        let r = u[i];
-        let mix = nasg_mixture_from_raw(raw, lane_base(raw, lanes, NASG_OUTPUTS, i));
-        out[i] = pack_sample(mix.sample(Vec2::new(r[0], r[1])));
-    }
-}
-
-/// Lane kernel: `out[i]` = density of `directions[i]` under the NASG
-/// mixture of raw row `lanes[i]` (`normals` unread, as
-/// [`nasg_lane_sample_element`]).
-#[inline]
-pub fn nasg_lane_pdf_element(
-    raw: &[f32],
-    lanes: &[u32],
-    normals: &[[f32; 4]],
-    directions: &[[f32; 4]],
-    out: &mut [f32],
-    i: usize,
-) {
-    let _ = normals;
-    if i < directions.len() && i < out.len() {
-        let mix = nasg_mixture_from_raw(raw, lane_base(raw, lanes, NASG_OUTPUTS, i));
-        out[i] = mix.pdf(unpack_direction(directions[i]));
+        let d = lane_distribution::<D>(raw, lanes, normals, i);
+        out[i] = d.density(unpack_direction(directions[i]));
     }
 }
 
@@ -531,7 +506,7 @@ pub fn vertex_element<M: VertexModel>(
     i: usize,
 ) {
     if i < queries.len() && i < out.len() {
-        out[i] = model.vertex_of(params, &queries[i]);
+        out[i] = model.vertex(params, &queries[i]);
     }
 }
 
@@ -553,7 +528,7 @@ pub fn vertex_sample_element<M: VertexModel>(
         let l = lanes[i] as usize;
         out[i] = if l < vertices.len() {
             let r = u[i];
-            pack_sample(model.sample_from_vertex(params, &vertices[l], Vec2::new(r[0], r[1])))
+            pack_sample(model.sample_vertex(params, &vertices[l], Vec2::new(r[0], r[1])))
         } else {
             [0.0, 0.0, 1.0, 0.0]
         };
@@ -576,7 +551,7 @@ pub fn vertex_pdf_element<M: VertexModel>(
     if i < lanes.len() && i < directions.len() && i < out.len() {
         let l = lanes[i] as usize;
         out[i] = if l < vertices.len() {
-            model.pdf_from_vertex(params, &vertices[l], unpack_direction(directions[i]))
+            model.pdf_vertex(params, &vertices[l], unpack_direction(directions[i]))
         } else {
             0.0
         };

@@ -143,7 +143,7 @@ pub fn exp(x: f32) -> f32 {
 /// loops: one scale factor `2ⁿ` (`n ∈ [−126, 0]` is always normal), no
 /// overflow select, and the polynomial by Estrin's scheme (depth 4 instead
 /// of 7).
-#[inline]
+#[inline(always)]
 #[must_use]
 pub fn exp_nonpositive(x: f32) -> f32 {
     const MIN_ARG: f32 = -87.336_55;
@@ -164,7 +164,7 @@ pub fn exp_nonpositive(x: f32) -> f32 {
 }
 
 /// `2^n` for an integer `n ∈ [−126, 127]`, built from the exponent bits.
-#[inline]
+#[inline(always)]
 fn pow2i(n: i32) -> f32 {
     f32::from_bits(((n + 127) as u32) << 23)
 }
@@ -176,7 +176,7 @@ fn pow2i(n: i32) -> f32 {
 /// `extra` added before the final roundings. No special values: zero,
 /// subnormal, infinite, negative or NaN `u` give garbage (the public
 /// functions select those).
-#[inline]
+#[inline(always)]
 pub(crate) fn ln_normal(u: f32, extra: f32) -> f32 {
     const SQRT_HALF_BITS: u32 = 0x3f35_04f3;
     // u = 2^k · m with m ∈ [√½, √2): subtracting the bits of √½ moves the
@@ -348,7 +348,7 @@ pub fn expm1_inline(x: f32) -> f32 {
 /// (`t^b − 1` with `t ≤ 1`), with fewer selects: `n ∈ [−25, 0]`, so only the
 /// `2ⁿ (e^r − 1) + (2ⁿ − 1)` reconstruction is needed. Positive arguments
 /// are read as `0`; NaN gives NaN.
-#[inline]
+#[inline(always)]
 #[must_use]
 pub fn expm1_nonpositive(x: f32) -> f32 {
     const MIN_ARG: f32 = -17.5;

@@ -16,6 +16,7 @@
 //! the queue has timestamps, the device time is printed too). The CPU
 //! baseline runs the element kernels over `available_parallelism` threads.
 
+use guiding_bench::timing::median_secs;
 use guiding_core::batch;
 use guiding_core::gradient::GradientSink;
 use guiding_core::loss::Target;
@@ -23,74 +24,20 @@ use guiding_core::model::nasg::NasgCompactRadiance;
 use guiding_core::model::npm::{NpmCompactRadiance, NpmRadiance};
 use guiding_core::model::{QueryPoint, RawOutputs};
 use guiding_core::optim::AdamConfig;
-use guiding_core::rng::Rng;
 use guiding_core::sample::TrainingSample;
 use guiding_gpu::{DeviceSelection, GpuContext, GpuModel, ModelEntryPoints, TrainOptions};
-use std::time::Instant;
 
-const LO: [f32; 3] = [-1.0, -1.0, -1.0];
-const HI: [f32; 3] = [1.0, 1.0, 1.0];
+const LO: [f32; 3] = guiding_bench::inputs::SCENE_BOX.0;
+const HI: [f32; 3] = guiding_bench::inputs::SCENE_BOX.1;
 
-fn unit(rng: &mut Rng) -> [f32; 3] {
-    loop {
-        let v = [
-            rng.next_symmetric_f32(),
-            rng.next_symmetric_f32(),
-            rng.next_symmetric_f32(),
-        ];
-        let l2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
-        if l2 > 1e-4 && l2 <= 1.0 {
-            let s = 1.0 / l2.sqrt();
-            return [v[0] * s, v[1] * s, v[2] * s];
-        }
-    }
-}
-
+/// `n` shading points (the inputs every benchmark of the workspace uses).
 fn queries(n: usize) -> Vec<QueryPoint> {
-    let mut rng = Rng::new(1);
-    (0..n)
-        .map(|_| {
-            let position = [
-                rng.next_symmetric_f32(),
-                rng.next_symmetric_f32(),
-                rng.next_symmetric_f32(),
-            ];
-            let roughness = rng.next_f32();
-            let normal = unit(&mut rng);
-            QueryPoint::new(position, normal, unit(&mut rng), roughness)
-        })
-        .collect()
+    guiding_bench::inputs::queries(1, n)
 }
 
+/// `n` valid training samples (as above).
 fn samples(n: usize) -> Vec<TrainingSample> {
-    let mut rng = Rng::new(2);
-    (0..n)
-        .map(|_| {
-            let position = [
-                rng.next_symmetric_f32(),
-                rng.next_symmetric_f32(),
-                rng.next_symmetric_f32(),
-            ];
-            let normal = unit(&mut rng);
-            let wo = unit(&mut rng);
-            let vertex = QueryPoint::new(position, normal, wo, 0.5);
-            TrainingSample::new(vertex, unit(&mut rng), [1.0, 0.8, 0.5], 0.3, 0.3, [0.3; 3])
-        })
-        .collect()
-}
-
-/// Median seconds of `runs` calls after one warm-up.
-fn median_s(runs: usize, mut f: impl FnMut()) -> f64 {
-    f();
-    let mut t: Vec<f64> = (0..runs)
-        .map(|_| {
-            let t0 = Instant::now();
-            f();
-            t0.elapsed().as_secs_f64()
-        })
-        .collect();
-    t.sort_by(f64::total_cmp);
-    t[t.len() / 2]
+    guiding_bench::inputs::training_samples(2, n)
 }
 
 /// `f(i)` for `i in 0..n` over the CPU's threads.
@@ -140,11 +87,11 @@ fn bench_model<M: RawOutputs + bytemuck::Pod + Sync>(
     // Inference: grid + MLP.
     let mut out = vec![0.0f32; nq * r];
     let mut device_ns = None;
-    let gpu_infer = median_s(runs, || {
+    let gpu_infer = median_secs(runs, || {
         device_ns = gpu.infer(&q, &mut out).expect("infer").gpu_time_ns;
     });
     let mut rows = vec![[0.0f32; 64]; nq];
-    let cpu_infer = median_s(runs, || {
+    let cpu_infer = median_secs(runs, || {
         cpu_parallel(&mut rows, |i, row| {
             model.write_raw(&params, &q[i], row, 0);
         });
@@ -155,10 +102,10 @@ fn bench_model<M: RawOutputs + bytemuck::Pod + Sync>(
         .map(|i| [(i % 97) as f32 / 97.0, (i % 89) as f32 / 89.0, 0.0, 0.0])
         .collect();
     let mut s_out = vec![[0.0f32; 4]; nq];
-    let gpu_sample = median_s(runs, || {
+    let gpu_sample = median_secs(runs, || {
         gpu.sample(&q, &u, &mut s_out).expect("sample");
     });
-    let cpu_sample = median_s(runs, || {
+    let cpu_sample = median_secs(runs, || {
         cpu_parallel(&mut s_out, |i, o| {
             let d = model.sample(
                 &params,
@@ -176,7 +123,7 @@ fn bench_model<M: RawOutputs + bytemuck::Pod + Sync>(
         ema_decay: 0.95,
         max_gradient_magnitude: 1e18,
     };
-    let gpu_train = median_s(runs, || {
+    let gpu_train = median_secs(runs, || {
         gpu.train_step(&t, &options).expect("train");
     });
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
@@ -191,7 +138,7 @@ fn bench_model<M: RawOutputs + bytemuck::Pod + Sync>(
         gradient_scale: 1.0 / nt as f32,
         ema_alpha: 0.05,
     };
-    let cpu_train = median_s(runs, || {
+    let cpu_train = median_secs(runs, || {
         let chunk = nt.div_ceil(threads);
         std::thread::scope(|s| {
             for (c, g) in grads.iter_mut().enumerate() {
@@ -288,7 +235,7 @@ fn bench_field(
             nq
         ];
         let mut pdfs = vec![0.0f32; nq];
-        let query = median_s(runs, || {
+        let query = median_secs(runs, || {
             field.try_decode_batch(&q, &mut batch).expect("decode");
             batch.apply_cosine_product(&normals);
             let mut c = 0.0f32;
@@ -303,7 +250,7 @@ fn bench_field(
                 .pdf_decoded(&batch, &lanes, &dirs, &mut pdfs)
                 .expect("pdf");
         });
-        let train = median_s(runs, || {
+        let train = median_secs(runs, || {
             field.add_samples(&t);
             field.try_update().expect("update");
         });

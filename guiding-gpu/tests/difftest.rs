@@ -1411,11 +1411,11 @@ fn check_lanes<M: RawOutputs + bytemuck::Pod>(
     let mut p_cpu = vec![0.0f32; m];
     for k in 0..m {
         if vmf {
-            batch::vmf_lane_sample_element(&raw, &lanes, &normals, &u, &mut s_cpu, k);
-            batch::vmf_lane_pdf_element(&raw, &lanes, &normals, &d, &mut p_cpu, k);
+            batch::lane_sample_element::<VmfMixture<8>>(&raw, &lanes, &normals, &u, &mut s_cpu, k);
+            batch::lane_pdf_element::<VmfMixture<8>>(&raw, &lanes, &normals, &d, &mut p_cpu, k);
         } else {
-            batch::nasg_lane_sample_element(&raw, &lanes, &normals, &u, &mut s_cpu, k);
-            batch::nasg_lane_pdf_element(&raw, &lanes, &normals, &d, &mut p_cpu, k);
+            batch::lane_sample_element::<NasgMixture<8>>(&raw, &lanes, &normals, &u, &mut s_cpu, k);
+            batch::lane_pdf_element::<NasgMixture<8>>(&raw, &lanes, &normals, &d, &mut p_cpu, k);
         }
     }
     let (mut differ, mut worst) = (0usize, 0.0f32);
@@ -1425,9 +1425,9 @@ fn check_lanes<M: RawOutputs + bytemuck::Pod>(
             let one = [[dir.x, dir.y, dir.z, 0.0]];
             let (l, nm) = ([lanes[k]], [normals[k]]);
             if vmf {
-                batch::vmf_lane_pdf_element(&raw, &l, &nm, &one, &mut out, 0);
+                batch::lane_pdf_element::<VmfMixture<8>>(&raw, &l, &nm, &one, &mut out, 0);
             } else {
-                batch::nasg_lane_pdf_element(&raw, &l, &nm, &one, &mut out, 0);
+                batch::lane_pdf_element::<NasgMixture<8>>(&raw, &l, &nm, &one, &mut out, 0);
             }
             out[0]
         };
@@ -1476,7 +1476,7 @@ fn check_lanes<M: RawOutputs + bytemuck::Pod>(
 }
 
 /// DF's per-vertex kernels: the vertices of a wavefront kept on the device
-/// ([`GpuModel::vertices_resident`]) against [`guiding_core::model::df::Df::vertex`]
+/// ([`GpuModel::vertices_resident`]) against [`guiding_core::model::df::VertexModel::vertex`]
 /// (base input to `1e-5 · max(|b|, 1)`, as the network outputs; the marginal
 /// density at 64 points to [`DF_PDF_REL`]), then sample / pdf of lanes picked
 /// in any order against the CPU's `sample_vertex` / `pdf_vertex` on the
@@ -1523,7 +1523,7 @@ fn df_vertex_kernels_match_the_cpu() {
         buf.download_into(&mut vertices).expect("download");
         let probes: Vec<f32> = (0..64).map(|k| (k as f32 + 0.37) / 64.0).collect();
         for (i, v) in vertices.iter().enumerate() {
-            let c = model.vertex_of(&params, &q[i]);
+            let c = model.vertex(&params, &q[i]);
             for (j, (&g, &b)) in v.base.iter().zip(&c.base).enumerate() {
                 assert!(
                     (g - b).abs() <= 1e-5 * b.abs().max(1.0),
@@ -1551,8 +1551,8 @@ fn df_vertex_kernels_match_the_cpu() {
         let (mut differ, mut worst) = (0usize, 0.0f32);
         for k in 0..m {
             let v = vertices[lanes[k] as usize];
-            let density = |dir: Vec3| model.pdf_from_vertex(&params, &v, dir);
-            let c = model.sample_from_vertex(&params, &v, Vec2::new(u[k][0], u[k][1]));
+            let density = |dir: Vec3| model.pdf_vertex(&params, &v, dir);
+            let c = model.sample_vertex(&params, &v, Vec2::new(u[k][0], u[k][1]));
             let g = s_gpu[k];
             let gd = batch::unpack_direction(g);
             assert!(

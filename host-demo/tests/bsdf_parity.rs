@@ -64,7 +64,7 @@ fn measure(sc: &Scene) -> ([f64; 3], [f64; 3]) {
         ..RenderOptions::default()
     };
     let img = render(sc, &o);
-    assert!(img.all_finite());
+    assert!(img.all_finite_non_negative());
     let n = img.pixels.len() as f64;
     let (mut m, mut v) = ([0.0f64; 3], [0.0f64; 3]);
     for (p, pv) in img.pixels.iter().zip(&img.var_of_mean) {

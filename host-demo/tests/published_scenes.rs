@@ -119,7 +119,7 @@ fn mismatches(scenes: &[(&str, &str, &[&str], u32)], alter: impl Fn(&mut Scene))
                 ..RenderOptions::default()
             },
         );
-        assert!(img.all_finite(), "{dir}");
+        assert!(img.all_finite_non_negative(), "{dir}");
         let (m, se) = (img.mean(), img.mean_std_error());
         for c in 0..3 {
             let (m, se) = (m[c], se[c]);

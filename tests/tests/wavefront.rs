@@ -20,7 +20,7 @@ use guiding_core::glam::{Vec2, Vec3};
 use guiding_core::math::INV_FOUR_PI;
 use guiding_core::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
 use guiding_core::mlp::Mlp;
-use guiding_core::model::df::DfCompactRadiance;
+use guiding_core::model::df::{DfCompactRadiance, VertexModel};
 use guiding_core::model::nasg::NasgCompactProduct;
 use guiding_core::model::npm::{
     encode_inputs, encode_inputs_fast, NpmCompactProduct, NpmCompactRadiance, NPM_LOBES,

@@ -222,7 +222,7 @@ pub(crate) fn log_eval(lambda: f32, a: f32, epsilon: f32, ln_t: f32, cos2_phi: f
 ///   `e / (1 − q)`, i.e. `ln_1p(−q)`) or `ln max(q, f32::MIN_POSITIVE)`, by a
 ///   single logarithm of the selected argument;
 /// - `ln G = 2λ expm1(b ln t) + (b − 1) ln t`.
-#[inline]
+#[inline(always)]
 pub(crate) fn log_g_local(vx: f32, vy: f32, vz: f32, lambda: f32, a: f32, epsilon: f32) -> f32 {
     let sin2 = vx * vx + vy * vy;
     // cos²φ; rescued from underflow near the poles by an exact power-of-two

@@ -563,45 +563,8 @@ impl<
         self.conditional_from(params, &Self::base_of(v), eps1)
     }
 
-    /// What DF keeps of one shading point ([`DfVertex`]): the base input
-    /// `b` (zero past `IN_M`; `IN_M ≤ DF_MAX_BASE` for every model type)
-    /// and the marginal `p(ε₁)`; uniform for a too short `params`. The
-    /// per-query form of the CPU's batched decode, and the device's
-    /// per-vertex kernel.
-    #[must_use]
-    pub fn vertex(&self, params: &[f32], query: &QueryPoint) -> DfVertex {
-        let mut v = DfVertex::ZERO;
-        if !self.fits(params) {
-            v.marginal = self.uniform_marginal();
-            return v;
-        }
-        let b = self.base_input(params, query);
-        let mut i = 0;
-        while i < IN_M && i < DF_MAX_BASE {
-            v.base[i] = b[i];
-            i += 1;
-        }
-        v.marginal = self.marginal_from(params, &b);
-        v
-    }
-
-    /// [`GuidingModel::sample`] from a decoded vertex: the same draw and
-    /// pdf, without the grid and marginal passes.
-    #[must_use]
-    pub fn sample_vertex(&self, params: &[f32], v: &DfVertex, u: Vec2) -> DirectionSample {
-        if !self.fits(params) {
-            return DirectionSample {
-                direction: direction_from_square(u),
-                pdf: INV_FOUR_PI,
-            };
-        }
-        let (e1, p1) = factorised::sample_marginal(&v.marginal, u.x);
-        let conditional = self.conditional_at(params, v, e1);
-        self.finish_sample(params, v, e1, p1, &conditional, u.y)
-    }
-
     /// The second half of a sample: `ε₂`, the direction, and its density as
-    /// [`Self::pdf_vertex`] evaluates it.
+    /// [`VertexModel::pdf_vertex`] evaluates it.
     pub(crate) fn finish_sample(
         &self,
         params: &[f32],
@@ -624,17 +587,6 @@ impl<
             pdf = p1 * p2 * INV_FOUR_PI;
         }
         DirectionSample { direction, pdf }
-    }
-
-    /// [`GuidingModel::pdf`] from a decoded vertex (one conditional pass).
-    #[must_use]
-    pub fn pdf_vertex(&self, params: &[f32], v: &DfVertex, direction: Vec3) -> f32 {
-        if !self.fits(params) {
-            return INV_FOUR_PI;
-        }
-        let eps = square_from_direction(direction);
-        let conditional = self.conditional_at(params, v, eps.x);
-        factorised::pdf(&v.marginal, &conditional, direction)
     }
 
     /// The marginal density of `ε₁` at `query` (uniform for a too short
@@ -928,12 +880,17 @@ impl<
 /// device's kernels): [`DfVertex`] once per shading point, then one
 /// conditional pass per sampled or evaluated direction.
 pub trait VertexModel: GuidingModel {
-    /// The vertex of `query` ([`Df::vertex`]).
-    fn vertex_of(&self, params: &[f32], query: &QueryPoint) -> DfVertex;
-    /// A sample from a vertex ([`Df::sample_vertex`]).
-    fn sample_from_vertex(&self, params: &[f32], v: &DfVertex, u: Vec2) -> DirectionSample;
-    /// A density from a vertex ([`Df::pdf_vertex`]).
-    fn pdf_from_vertex(&self, params: &[f32], v: &DfVertex, direction: Vec3) -> f32;
+    /// What DF keeps of one shading point ([`DfVertex`]): the base input
+    /// `b` (zero past `IN_M`; `IN_M ≤ DF_MAX_BASE` for every model type)
+    /// and the marginal `p(ε₁)`; uniform for a too short `params`. The
+    /// per-query form of the CPU's batched decode, and the device's
+    /// per-vertex kernel.
+    fn vertex(&self, params: &[f32], query: &QueryPoint) -> DfVertex;
+    /// [`GuidingModel::sample`] from a decoded vertex: the same draw and
+    /// pdf, without the grid and marginal passes.
+    fn sample_vertex(&self, params: &[f32], v: &DfVertex, u: Vec2) -> DirectionSample;
+    /// [`GuidingModel::pdf`] from a decoded vertex (one conditional pass).
+    fn pdf_vertex(&self, params: &[f32], v: &DfVertex, direction: Vec3) -> f32;
 }
 
 impl<
@@ -946,18 +903,40 @@ impl<
         const CACHE_HIDDEN: usize,
     > VertexModel for Df<IN_M, IN_C, IN_R, WIDTH, HIDDEN, CACHE_WIDTH, CACHE_HIDDEN>
 {
-    #[inline]
-    fn vertex_of(&self, params: &[f32], query: &QueryPoint) -> DfVertex {
-        self.vertex(params, query)
+    fn vertex(&self, params: &[f32], query: &QueryPoint) -> DfVertex {
+        let mut v = DfVertex::ZERO;
+        if !self.fits(params) {
+            v.marginal = self.uniform_marginal();
+            return v;
+        }
+        let b = self.base_input(params, query);
+        let mut i = 0;
+        while i < IN_M && i < DF_MAX_BASE {
+            v.base[i] = b[i];
+            i += 1;
+        }
+        v.marginal = self.marginal_from(params, &b);
+        v
     }
 
-    #[inline]
-    fn sample_from_vertex(&self, params: &[f32], v: &DfVertex, u: Vec2) -> DirectionSample {
-        self.sample_vertex(params, v, u)
+    fn sample_vertex(&self, params: &[f32], v: &DfVertex, u: Vec2) -> DirectionSample {
+        if !self.fits(params) {
+            return DirectionSample {
+                direction: direction_from_square(u),
+                pdf: INV_FOUR_PI,
+            };
+        }
+        let (e1, p1) = factorised::sample_marginal(&v.marginal, u.x);
+        let conditional = self.conditional_at(params, v, e1);
+        self.finish_sample(params, v, e1, p1, &conditional, u.y)
     }
 
-    #[inline]
-    fn pdf_from_vertex(&self, params: &[f32], v: &DfVertex, direction: Vec3) -> f32 {
-        self.pdf_vertex(params, v, direction)
+    fn pdf_vertex(&self, params: &[f32], v: &DfVertex, direction: Vec3) -> f32 {
+        if !self.fits(params) {
+            return INV_FOUR_PI;
+        }
+        let eps = square_from_direction(direction);
+        let conditional = self.conditional_at(params, v, eps.x);
+        factorised::pdf(&v.marginal, &conditional, direction)
     }
 }

@@ -877,7 +877,7 @@ impl<
         );
     }
 
-    /// [`Self::sample_vertex`] for `out[b]` = a sample of vertex
+    /// [`VertexModel::sample_vertex`](super::df::VertexModel::sample_vertex) for `out[b]` = a sample of vertex
     /// `vertices[lanes[b]]` with `u[b]`, the conditional network batched
     /// over the lanes.
     ///
@@ -922,7 +922,7 @@ impl<
         }
     }
 
-    /// [`Self::pdf_vertex`] for `out[b]` = the density of `directions[b]` at
+    /// [`VertexModel::pdf_vertex`](super::df::VertexModel::pdf_vertex) for `out[b]` = the density of `directions[b]` at
     /// vertex `vertices[lanes[b]]`, the conditional network batched over the
     /// lanes.
     ///

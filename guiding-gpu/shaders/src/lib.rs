@@ -21,12 +21,24 @@
 #![allow(clippy::too_many_arguments)]
 
 use guiding_core::batch::{self, AdamArgs, BatchArgs};
+use guiding_core::factorised::FactorisedTable;
 use guiding_core::gradient::GradientSink;
-use guiding_core::model::df::DfVertex;
+use guiding_core::mixture::nasg::NasgMixture;
+use guiding_core::mixture::vmf::VmfMixture;
+use guiding_core::model::df::{DfVertex, DF_CONDITIONAL_BINS, DF_MARGINAL_BINS};
+use guiding_core::model::nasg::NASG_LOBES;
+use guiding_core::model::npm::NPM_LOBES;
 use guiding_core::model::QueryPoint;
 use guiding_core::sample::TrainingSample;
 use spirv_std::glam::UVec3;
 use spirv_std::spirv;
+
+/// NPM's raw row: 8 vMF lobes ([`batch::RawRowDistribution`]).
+type VmfRow = VmfMixture<NPM_LOBES>;
+/// NASG's raw row: 8 lobes and the selection logit.
+type NasgRow = NasgMixture<NASG_LOBES>;
+/// DF's decode row: marginal and conditional logits.
+type DfRow = FactorisedTable<DF_MARGINAL_BINS, DF_CONDITIONAL_BINS>;
 
 /// Invocations per workgroup of every entry point.
 pub const WORKGROUP_SIZE: u32 = 64;
@@ -321,9 +333,11 @@ pub fn adam(
     batch::adam_element(params, grad, m, v, ema, args, j);
 }
 
-/// Entry points of one decode family (raw network outputs → sample, pdf).
+/// Entry points of one decode family (raw network outputs → sample, pdf):
+/// [`batch::decode_sample_element`] / [`batch::decode_pdf_element`] of the
+/// distribution type; `args.code` is its variant code (DF's interpolation).
 macro_rules! decode_kernels {
-    ($sample:ident, $pdf:ident, $sample_fn:path, $pdf_fn:path) => {
+    ($distribution:ty, $sample:ident, $pdf:ident) => {
         /// Decode + sample of a batch of raw outputs.
         #[spirv(compute(threads(64)))]
         pub fn $sample(
@@ -336,7 +350,7 @@ macro_rules! decode_kernels {
         ) {
             let i = element_index(id, groups);
             if i < args.count as usize {
-                $sample_fn(raw, u, out, i);
+                batch::decode_sample_element::<$distribution>(raw, args.code, u, out, i);
             }
         }
 
@@ -352,61 +366,21 @@ macro_rules! decode_kernels {
         ) {
             let i = element_index(id, groups);
             if i < args.count as usize {
-                $pdf_fn(raw, directions, out, i);
+                batch::decode_pdf_element::<$distribution>(raw, args.code, directions, out, i);
             }
         }
     };
 }
 
-decode_kernels!(
-    vmf_decode_sample,
-    vmf_decode_pdf,
-    batch::vmf_decode_sample_element,
-    batch::vmf_decode_pdf_element
-);
-decode_kernels!(
-    nasg_decode_sample,
-    nasg_decode_pdf,
-    batch::nasg_decode_sample_element,
-    batch::nasg_decode_pdf_element
-);
-
-/// DF decode + sample; `args.code` is the interpolation code.
-#[spirv(compute(threads(64)))]
-pub fn df_decode_sample(
-    #[spirv(global_invocation_id)] id: UVec3,
-    #[spirv(num_workgroups)] groups: UVec3,
-    #[spirv(push_constant)] args: &BatchArgs,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] raw: &[f32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] u: &[[f32; 4]],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] out: &mut [[f32; 4]],
-) {
-    let i = element_index(id, groups);
-    if i < args.count as usize {
-        batch::df_decode_sample_element(raw, args.code, u, out, i);
-    }
-}
-
-/// DF decode + pdf; `args.code` is the interpolation code.
-#[spirv(compute(threads(64)))]
-pub fn df_decode_pdf(
-    #[spirv(global_invocation_id)] id: UVec3,
-    #[spirv(num_workgroups)] groups: UVec3,
-    #[spirv(push_constant)] args: &BatchArgs,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] raw: &[f32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] directions: &[[f32; 4]],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] out: &mut [f32],
-) {
-    let i = element_index(id, groups);
-    if i < args.count as usize {
-        batch::df_decode_pdf_element(raw, args.code, directions, out, i);
-    }
-}
+decode_kernels!(VmfRow, vmf_decode_sample, vmf_decode_pdf);
+decode_kernels!(NasgRow, nasg_decode_sample, nasg_decode_pdf);
+decode_kernels!(DfRow, df_decode_sample, df_decode_pdf);
 
 /// Entry points of one mixture family on raw outputs resident on the
-/// device: a call samples / evaluates some lanes of a decoded wavefront.
+/// device ([`batch::lane_sample_element`] / [`batch::lane_pdf_element`]): a
+/// call samples / evaluates some lanes of a decoded wavefront.
 macro_rules! lane_kernels {
-    ($sample:ident, $pdf:ident, $sample_fn:path, $pdf_fn:path) => {
+    ($distribution:ty, $sample:ident, $pdf:ident) => {
         /// Sample of the lanes `lanes[i]` of resident raw outputs.
         #[spirv(compute(threads(64)))]
         pub fn $sample(
@@ -421,7 +395,7 @@ macro_rules! lane_kernels {
         ) {
             let i = element_index(id, groups);
             if i < args.count as usize {
-                $sample_fn(raw, lanes, normals, u, out, i);
+                batch::lane_sample_element::<$distribution>(raw, lanes, normals, u, out, i);
             }
         }
 
@@ -439,24 +413,14 @@ macro_rules! lane_kernels {
         ) {
             let i = element_index(id, groups);
             if i < args.count as usize {
-                $pdf_fn(raw, lanes, normals, directions, out, i);
+                batch::lane_pdf_element::<$distribution>(raw, lanes, normals, directions, out, i);
             }
         }
     };
 }
 
-lane_kernels!(
-    vmf_lane_sample,
-    vmf_lane_pdf,
-    batch::vmf_lane_sample_element,
-    batch::vmf_lane_pdf_element
-);
-lane_kernels!(
-    nasg_lane_sample,
-    nasg_lane_pdf,
-    batch::nasg_lane_sample_element,
-    batch::nasg_lane_pdf_element
-);
+lane_kernels!(VmfRow, vmf_lane_sample, vmf_lane_pdf);
+lane_kernels!(NasgRow, nasg_lane_sample, nasg_lane_pdf);
 
 /// [`batch::nasg_selection_element`]: the learned selection probability of
 /// every resident NASG raw row.

@@ -58,7 +58,7 @@ impl Image {
     }
 
     /// True if every pixel value is finite and non-negative.
-    pub fn all_finite(&self) -> bool {
+    pub fn all_finite_non_negative(&self) -> bool {
         self.pixels
             .iter()
             .all(|p| p.iter().all(|c| c.is_finite() && *c >= 0.0))

@@ -3,30 +3,17 @@
 //! misses at the finer levels), spherical harmonics, one-blob, triangle-wave
 //! and frequency encodings.
 //!
-//! Run: `cargo bench -p guiding-core --bench encoding`. Each iteration
+//! Run: `cargo bench -p guiding-bench --bench encoding`. Each iteration
 //! encodes 4096 fixed pseudo-random queries; criterion reports time per query.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use guiding_bench::inputs::{unit_points, BATCH};
 use guiding_core::encoding::{
     frequency_encode, grid_backward, grid_forward, grid_init, one_blob_encode, sh_encode,
     triangle_wave_encode, GridConfig,
 };
 use guiding_core::glam::Vec3;
 use std::hint::black_box;
-
-const BATCH: usize = 4096;
-
-/// Deterministic points in `[0, 1)³` (a 32-bit LCG is plenty here).
-fn random_points(seed: u32) -> Vec<Vec3> {
-    let mut s = seed;
-    let mut next = move || {
-        s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-        (s >> 8) as f32 / 16_777_216.0
-    };
-    (0..BATCH)
-        .map(|_| Vec3::new(next(), next(), next()))
-        .collect()
-}
 
 fn bench<F: Fn(Vec3) -> f32>(c: &mut Criterion, name: &str, points: &[Vec3], f: F) {
     let mut group = c.benchmark_group("encoding");
@@ -44,7 +31,7 @@ fn bench<F: Fn(Vec3) -> f32>(c: &mut Criterion, name: &str, points: &[Vec3], f: 
 }
 
 fn encodings(c: &mut Criterion) {
-    let points = random_points(7);
+    let points = unit_points(7, BATCH);
     let cfg = GridConfig::npm([-1.0; 3], [1.0; 3]);
     let mut params = vec![0.0f32; cfg.param_count()];
     grid_init(&mut params, &cfg, 1);

@@ -13,30 +13,28 @@
 //! MLP part of inference (`2 · MACS` of the networks a `sample` runs, per
 //! query).
 //!
-//! Run: `cargo bench -p guiding-core --features std --bench field`
+//! Run: `cargo bench -p guiding-bench --bench field`
 //! (`-- field_inference` for one group; the summary always runs;
 //! `FIELD_BENCH_SUMMARY_ONLY=1` skips the Criterion groups).
 
 use criterion::{Criterion, Throughput};
+use guiding_bench::inputs::{self, directions, training_samples, unit_pairs, BATCH, SCENE_BOX};
+use guiding_bench::timing::median_secs;
 use guiding_core::field::{Field, FieldConfig};
 use guiding_core::glam::{Vec2, Vec3};
 use guiding_core::lobe::DirectionSample;
-use guiding_core::math::INV_FOUR_PI;
 use guiding_core::mlp::Mlp;
 use guiding_core::model::df::{DfRadiance, DF_CONDITIONAL_BINS, DF_MARGINAL_BINS};
 use guiding_core::model::nasg::{NasgProduct, NASG_OUTPUTS};
 use guiding_core::model::npm::{NpmRadiance, NPM_OUTPUTS};
 use guiding_core::model::{GuidingModel, QueryPoint};
 use guiding_core::pdf1d::Interpolation;
-use guiding_core::rng::Rng;
-use guiding_core::sample::TrainingSample;
-use guiding_core::sphere::square_to_uniform_sphere;
 use std::hint::black_box;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-const LO: [f32; 3] = [-1.0; 3];
-const HI: [f32; 3] = [1.0; 3];
-const QUERIES: usize = 4096;
+const LO: [f32; 3] = SCENE_BOX.0;
+const HI: [f32; 3] = SCENE_BOX.1;
+const QUERIES: usize = BATCH;
 const TRAIN_BATCH: usize = 1 << 14;
 
 /// Multiply–adds of the networks one `sample` call evaluates.
@@ -46,62 +44,14 @@ const NASG_MACS: usize = Mlp::<64, 128, NASG_OUTPUTS, 4>::MACS;
 const DF_MACS: usize =
     Mlp::<32, 64, DF_MARGINAL_BINS, 3>::MACS + Mlp::<44, 64, DF_CONDITIONAL_BINS, 3>::MACS;
 
-fn unit(rng: &mut Rng) -> Vec3 {
-    square_to_uniform_sphere(Vec2::new(rng.next_f32(), rng.next_f32()))
-}
-
-fn position(rng: &mut Rng) -> [f32; 3] {
-    core::array::from_fn(|_| 2.0 * rng.next_f32() - 1.0)
-}
-
+/// The queries of one pass, a random pair for each sample and a direction
+/// for each pdf.
 fn queries(seed: u32) -> (Vec<QueryPoint>, Vec<Vec2>, Vec<Vec3>) {
-    let mut rng = Rng::new(seed);
-    let mut qs = Vec::with_capacity(QUERIES);
-    let mut us = Vec::with_capacity(QUERIES);
-    let mut ds = Vec::with_capacity(QUERIES);
-    for _ in 0..QUERIES {
-        let n = unit(&mut rng);
-        let mut wo = unit(&mut rng);
-        if wo.dot(n) < 0.0 {
-            wo = -wo;
-        }
-        let p = position(&mut rng);
-        qs.push(QueryPoint::new(
-            p,
-            n.to_array(),
-            wo.to_array(),
-            rng.next_f32(),
-        ));
-        us.push(Vec2::new(rng.next_f32(), rng.next_f32()));
-        ds.push(unit(&mut rng));
-    }
-    (qs, us, ds)
-}
-
-/// Valid training samples with a smooth synthetic radiance.
-fn training_samples(seed: u32, n: usize) -> Vec<TrainingSample> {
-    let mut rng = Rng::new(seed);
-    (0..n)
-        .map(|_| {
-            let p = position(&mut rng);
-            let normal = unit(&mut rng);
-            let mut wo = unit(&mut rng);
-            if wo.dot(normal) < 0.0 {
-                wo = -wo;
-            }
-            let wi = unit(&mut rng);
-            let l = (1.0 + wi.x * p[0] + wi.y).max(0.0);
-            let cos = wi.dot(normal).abs();
-            TrainingSample::new(
-                QueryPoint::new(p, normal.to_array(), wo.to_array(), 0.5),
-                wi.to_array(),
-                [l; 3],
-                INV_FOUR_PI,
-                cos * core::f32::consts::FRAC_1_PI,
-                [0.3 * cos; 3],
-            )
-        })
-        .collect()
+    (
+        inputs::queries(seed, QUERIES),
+        unit_pairs(seed + 1, QUERIES),
+        directions(seed + 2, QUERIES),
+    )
 }
 
 fn field<M: GuidingModel + Send + Sync>(model: M, threads: usize) -> Field<M> {
@@ -178,20 +128,6 @@ fn bench_training<M: GuidingModel + Send + Sync>(c: &mut Criterion, name: &str, 
     group.finish();
 }
 
-/// Median wall-clock seconds of `runs` calls of `f`.
-fn median_seconds(runs: usize, mut f: impl FnMut()) -> f64 {
-    f();
-    let mut t: Vec<f64> = (0..runs)
-        .map(|_| {
-            let start = Instant::now();
-            f();
-            start.elapsed().as_secs_f64()
-        })
-        .collect();
-    t.sort_by(f64::total_cmp);
-    t[runs / 2]
-}
-
 fn summary_row<M: GuidingModel + Send + Sync>(name: &str, model: M, macs: usize) {
     let f = warm_field(model);
     let (qs, us, _) = queries(2);
@@ -202,13 +138,13 @@ fn summary_row<M: GuidingModel + Send + Sync>(name: &str, model: M, macs: usize)
         };
         QUERIES
     ];
-    let s = median_seconds(7, || f.sample_batch(black_box(&qs), &us, &mut out));
+    let s = median_secs(7, || f.sample_batch(black_box(&qs), &us, &mut out));
     let qps = QUERIES as f64 / s;
     let gflops = qps * (2 * macs) as f64 * 1e-9;
     let samples = training_samples(9, TRAIN_BATCH);
     let train_rate = |threads: usize| {
         let mut f = field(model, threads);
-        let t = median_seconds(3, || {
+        let t = median_secs(3, || {
             f.add_samples(&samples);
             f.update();
         });

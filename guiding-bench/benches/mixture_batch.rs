@@ -4,9 +4,11 @@
 //! `model::mixture_batch` (8 pairs per block, runtime dispatch), in the same
 //! run.
 //!
-//! Run: `cargo bench -p guiding-core --features std --bench mixture_batch`.
+//! Run: `cargo bench -p guiding-bench --bench mixture_batch`.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use guiding_bench::gradient::VmfGradientWorkload;
+use guiding_bench::inputs::{directions, raw_rows, unit_pairs, BATCH};
 use guiding_core::glam::{Vec2, Vec3};
 use guiding_core::lobe::DirectionSample;
 use guiding_core::mixture::nasg::{NasgMixture, NASG_RAW_PER_LOBE};
@@ -14,21 +16,11 @@ use guiding_core::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
 use guiding_core::model::mixture_batch::{
     nasg_pdf_batch, nasg_sample_batch, vmf_pdf_batch, vmf_sample_batch,
 };
-use guiding_core::sphere::square_to_uniform_sphere;
+use guiding_core::rng::Rng;
 use std::hint::black_box;
 
-const N: usize = 4096;
+const N: usize = BATCH;
 const MIXTURES: usize = 256;
-
-/// A 32-bit LCG: plenty for benchmark inputs.
-struct Lcg(u32);
-
-impl Lcg {
-    fn next(&mut self) -> f32 {
-        self.0 = self.0.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-        (self.0 >> 8) as f32 / 16_777_216.0
-    }
-}
 
 struct Inputs {
     lanes: Vec<u32>,
@@ -36,39 +28,19 @@ struct Inputs {
     us: Vec<Vec2>,
 }
 
-fn inputs(rng: &mut Lcg) -> Inputs {
-    Inputs {
-        lanes: (0..N)
-            .map(|_| (rng.next() * MIXTURES as f32) as u32 % MIXTURES as u32)
-            .collect(),
-        dirs: (0..N)
-            .map(|_| square_to_uniform_sphere(Vec2::new(rng.next(), rng.next())))
-            .collect(),
-        us: (0..N).map(|_| Vec2::new(rng.next(), rng.next())).collect(),
-    }
-}
-
 fn mixture_batch(c: &mut Criterion) {
-    let mut rng = Lcg(5);
-    let nasg: Vec<NasgMixture<8>> = (0..MIXTURES)
-        .map(|_| {
-            let mut raw = [[0.0f32; NASG_RAW_PER_LOBE]; 8];
-            for r in raw.iter_mut().flatten() {
-                *r = 4.0 * (rng.next() - 0.5);
-            }
-            NasgMixture::decode(&raw, 0.0)
-        })
+    let nasg: Vec<NasgMixture<8>> = (0..MIXTURES as u32)
+        .map(|m| NasgMixture::decode(&raw_rows::<8, NASG_RAW_PER_LOBE>(1000 + m, 0.0), 0.0))
         .collect();
-    let vmf: Vec<VmfMixture<8>> = (0..MIXTURES)
-        .map(|_| {
-            let mut raw = [[0.0f32; VMF_RAW_PER_LOBE]; 8];
-            for r in raw.iter_mut().flatten() {
-                *r = 4.0 * (rng.next() - 0.5);
-            }
-            VmfMixture::decode(&raw)
-        })
+    let vmf: Vec<VmfMixture<8>> = (0..MIXTURES as u32)
+        .map(|m| VmfMixture::decode(&raw_rows::<8, VMF_RAW_PER_LOBE>(2000 + m, 0.0)))
         .collect();
-    let inp = inputs(&mut rng);
+    let mut rng = Rng::new(5);
+    let inp = Inputs {
+        lanes: (0..N).map(|_| rng.next_u32() % MIXTURES as u32).collect(),
+        dirs: directions(7, N),
+        us: unit_pairs(9, N),
+    };
     let mut pdfs = vec![0.0f32; N];
     let empty = DirectionSample {
         direction: Vec3::ZERO,
@@ -114,5 +86,16 @@ fn mixture_batch(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, mixture_batch);
+/// NPM's loss gradient of 8 vMF lobes ([`VmfGradientWorkload`], also in
+/// `host-demo bench`): the per-sample reference against the batched kernel.
+fn vmf_gradient(c: &mut Criterion) {
+    let mut w = VmfGradientWorkload::new();
+    let mut group = c.benchmark_group("vmf_loss_gradient");
+    group.throughput(Throughput::Elements(w.len() as u64));
+    group.bench_function("per_sample", |b| b.iter(|| black_box(w.per_sample())));
+    group.bench_function("batch", |b| b.iter(|| w.batched()));
+    group.finish();
+}
+
+criterion_group!(benches, mixture_batch, vmf_gradient);
 criterion_main!(benches);
