@@ -23,62 +23,61 @@ use guiding_bench::timing::{best_secs_per_call, fma_peak, FmaPeak};
 use guiding_core::mlp::BatchKernel;
 use std::time::Duration;
 
-/// The summary table rows of one size: `(label, flop/s, queries/s)`.
-fn summary<const IN: usize, const WIDTH: usize, const OUT: usize, const HIDDEN: usize>(
-    w: &mut MlpWorkload<IN, WIDTH, OUT, HIDDEN>,
-    rows: &mut Vec<(String, f64, f64)>,
-) {
-    type W<const A: usize, const B: usize, const C: usize, const D: usize> =
-        MlpWorkload<A, B, C, D>;
-    for (what, flops_per_query) in [
-        ("infer", W::<IN, WIDTH, OUT, HIDDEN>::INFER_FLOPS),
-        ("forward+backward", W::<IN, WIDTH, OUT, HIDDEN>::TRAIN_FLOPS),
-    ] {
-        for kernel in W::<IN, WIDTH, OUT, HIDDEN>::kernels() {
-            let t = if what == "infer" {
-                best_secs_per_call(30, || w.infer(kernel))
-            } else {
-                best_secs_per_call(30, || w.train(kernel))
-            };
-            let qps = BATCH as f64 / t;
-            rows.push((
-                format!(
-                    "{:<18} {what:<17} {:<10}",
-                    W::<IN, WIDTH, OUT, HIDDEN>::name(),
-                    W::<IN, WIDTH, OUT, HIDDEN>::label(kernel)
-                ),
-                qps * flops_per_query as f64,
-                qps,
-            ));
-        }
-    }
+/// The two harnesses of this bench over one size's workload.
+trait Timed {
+    /// The summary table rows: `(label, flop/s, queries/s)`.
+    fn summary(&mut self, rows: &mut Vec<(String, f64, f64)>);
+    /// The criterion groups `mlp_infer/<size>` and `mlp_train/<size>`.
+    fn criterion_groups(&mut self, c: &mut Criterion);
 }
 
-fn criterion_groups<const IN: usize, const WIDTH: usize, const OUT: usize, const HIDDEN: usize>(
-    w: &mut MlpWorkload<IN, WIDTH, OUT, HIDDEN>,
-    c: &mut Criterion,
-) {
-    type W<const A: usize, const B: usize, const C: usize, const D: usize> =
-        MlpWorkload<A, B, C, D>;
-    for (group, flops) in [
-        ("mlp_infer", W::<IN, WIDTH, OUT, HIDDEN>::INFER_FLOPS),
-        ("mlp_train", W::<IN, WIDTH, OUT, HIDDEN>::TRAIN_FLOPS),
-    ] {
-        let mut g = c.benchmark_group(format!("{group}/{}", W::<IN, WIDTH, OUT, HIDDEN>::name()));
-        g.throughput(Throughput::Elements((flops * BATCH) as u64));
-        g.warm_up_time(Duration::from_millis(500));
-        g.measurement_time(Duration::from_secs(2));
-        g.sample_size(20);
-        for kernel in W::<IN, WIDTH, OUT, HIDDEN>::kernels() {
-            g.bench_function(W::<IN, WIDTH, OUT, HIDDEN>::label(kernel), |b| {
-                if group == "mlp_infer" {
-                    b.iter(|| w.infer(kernel));
-                } else {
-                    b.iter(|| w.train(kernel));
-                }
-            });
+impl<const IN: usize, const WIDTH: usize, const OUT: usize, const HIDDEN: usize> Timed
+    for MlpWorkload<IN, WIDTH, OUT, HIDDEN>
+{
+    fn summary(&mut self, rows: &mut Vec<(String, f64, f64)>) {
+        for (train, flops_per_query) in [(false, Self::INFER_FLOPS), (true, Self::TRAIN_FLOPS)] {
+            for kernel in Self::kernels() {
+                let t = best_secs_per_call(30, || {
+                    if train {
+                        self.train(kernel);
+                    } else {
+                        self.infer(kernel);
+                    }
+                });
+                let qps = BATCH as f64 / t;
+                let what = if train { "forward+backward" } else { "infer" };
+                rows.push((
+                    format!(
+                        "{:<18} {what:<17} {:<10}",
+                        Self::name(),
+                        Self::label(kernel)
+                    ),
+                    qps * flops_per_query as f64,
+                    qps,
+                ));
+            }
         }
-        g.finish();
+    }
+
+    fn criterion_groups(&mut self, c: &mut Criterion) {
+        for (train, flops) in [(false, Self::INFER_FLOPS), (true, Self::TRAIN_FLOPS)] {
+            let group = if train { "mlp_train" } else { "mlp_infer" };
+            let mut g = c.benchmark_group(format!("{group}/{}", Self::name()));
+            g.throughput(Throughput::Elements((flops * BATCH) as u64));
+            g.warm_up_time(Duration::from_millis(500));
+            g.measurement_time(Duration::from_secs(2));
+            g.sample_size(20);
+            for kernel in Self::kernels() {
+                g.bench_function(Self::label(kernel), |b| {
+                    if train {
+                        b.iter(|| self.train(kernel));
+                    } else {
+                        b.iter(|| self.infer(kernel));
+                    }
+                });
+            }
+            g.finish();
+        }
     }
 }
 
@@ -96,9 +95,9 @@ fn mlp(c: &mut Criterion) {
     if std::env::var("MLP_BENCH_SUMMARY").as_deref() != Ok("0") {
         let before = fma_peak(20);
         let mut rows = Vec::new();
-        summary(&mut a, &mut rows);
-        summary(&mut b, &mut rows);
-        summary(&mut p, &mut rows);
+        a.summary(&mut rows);
+        b.summary(&mut rows);
+        p.summary(&mut rows);
         let peak = better(before, fma_peak(20));
         match peak {
             Some(pk) => println!(
@@ -121,9 +120,9 @@ fn mlp(c: &mut Criterion) {
             );
         }
     }
-    criterion_groups(&mut a, c);
-    criterion_groups(&mut b, c);
-    criterion_groups(&mut p, c);
+    a.criterion_groups(c);
+    b.criterion_groups(c);
+    p.criterion_groups(c);
 }
 
 criterion_group!(benches, mlp);

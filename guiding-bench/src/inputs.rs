@@ -72,7 +72,7 @@ pub fn raw_rows<const K: usize, const R: usize>(seed: u32, offset_of_1: f32) -> 
 
 /// A shading point uniform in [`SCENE_BOX`], with a uniform normal, an
 /// outgoing direction in its hemisphere and a uniform roughness.
-pub fn query(rng: &mut Rng) -> QueryPoint {
+fn query(rng: &mut Rng) -> QueryPoint {
     let unit = |rng: &mut Rng| square_to_uniform_sphere(Vec2::new(rng.next_f32(), rng.next_f32()));
     let n = unit(rng);
     let mut wo = unit(rng);
@@ -84,14 +84,14 @@ pub fn query(rng: &mut Rng) -> QueryPoint {
     QueryPoint::new(p, n.to_array(), wo.to_array(), rng.next_f32())
 }
 
-/// `n` shading points ([`query`]).
+/// `n` shading points (`query`).
 #[must_use]
 pub fn queries(seed: u32, n: usize) -> Vec<QueryPoint> {
     let mut rng = Rng::new(seed);
     (0..n).map(|_| query(&mut rng)).collect()
 }
 
-/// `n` valid training samples: uniform incident directions at [`query`]
+/// `n` valid training samples: uniform incident directions at `query`
 /// points, with a smooth synthetic radiance `max(1 + ωᵢ·x p₀ + ωᵢ·y, 0)`
 /// (position-dependent, so the grid has something to learn), a uniform
 /// sampling pdf and a cosine BSDF.

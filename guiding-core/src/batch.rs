@@ -27,7 +27,7 @@
 use crate::factorised::FactorisedTable;
 use crate::gradient::GradientSink;
 use crate::lobe::DirectionSample;
-use crate::mixture::nasg::{NasgMixture, NASG_RAW_PER_LOBE};
+use crate::mixture::nasg::{decode_selection, NasgMixture, NASG_RAW_PER_LOBE};
 use crate::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
 use crate::model::df::{DfVertex, VertexModel, DF_CONDITIONAL_BINS, DF_MARGINAL_BINS};
 use crate::model::nasg::{NASG_LOBES, NASG_OUTPUTS, NASG_SELECTION_OUTPUT};
@@ -487,11 +487,14 @@ pub fn lane_pdf_element<D: RawRowDistribution>(
 }
 
 /// Kernel: `out[i]` = the learned guide-selection probability of the NASG
-/// raw row `i` ([`nasg_mixture_from_raw`]'s `selection_probability`).
+/// raw row `i`: [`decode_selection`] of its selection output alone (what
+/// [`nasg_mixture_from_raw`] stores, without decoding the lobes); a missing
+/// slot reads as 0.
 #[inline]
 pub fn nasg_selection_element(raw: &[f32], out: &mut [f32], i: usize) {
     if i < out.len() {
-        out[i] = nasg_mixture_from_raw(raw, i * NASG_OUTPUTS).selection_probability;
+        let s = i * NASG_OUTPUTS + NASG_SELECTION_OUTPUT;
+        out[i] = decode_selection(if s < raw.len() { raw[s] } else { 0.0 }).0;
     }
 }
 

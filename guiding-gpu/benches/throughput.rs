@@ -16,29 +16,19 @@
 //! the queue has timestamps, the device time is printed too). The CPU
 //! baseline runs the element kernels over `available_parallelism` threads.
 
+use guiding_bench::inputs::{queries, training_samples};
 use guiding_bench::timing::median_secs;
 use guiding_core::batch;
 use guiding_core::gradient::GradientSink;
 use guiding_core::loss::Target;
 use guiding_core::model::nasg::NasgCompactRadiance;
 use guiding_core::model::npm::{NpmCompactRadiance, NpmRadiance};
-use guiding_core::model::{QueryPoint, RawOutputs};
+use guiding_core::model::RawOutputs;
 use guiding_core::optim::AdamConfig;
-use guiding_core::sample::TrainingSample;
 use guiding_gpu::{DeviceSelection, GpuContext, GpuModel, ModelEntryPoints, TrainOptions};
 
 const LO: [f32; 3] = guiding_bench::inputs::SCENE_BOX.0;
 const HI: [f32; 3] = guiding_bench::inputs::SCENE_BOX.1;
-
-/// `n` shading points (the inputs every benchmark of the workspace uses).
-fn queries(n: usize) -> Vec<QueryPoint> {
-    guiding_bench::inputs::queries(1, n)
-}
-
-/// `n` valid training samples (as above).
-fn samples(n: usize) -> Vec<TrainingSample> {
-    guiding_bench::inputs::training_samples(2, n)
-}
 
 /// `f(i)` for `i in 0..n` over the CPU's threads.
 fn cpu_parallel<T: Send>(out: &mut [T], f: impl Fn(usize, &mut T) + Sync) {
@@ -81,7 +71,7 @@ fn bench_model<M: RawOutputs + bytemuck::Pod + Sync>(
         0,
     )
     .expect("upload");
-    let q = queries(nq);
+    let q = queries(1, nq);
     let r = M::RAW_OUTPUTS;
 
     // Inference: grid + MLP.
@@ -117,7 +107,7 @@ fn bench_model<M: RawOutputs + bytemuck::Pod + Sync>(
     });
 
     // Training.
-    let t = samples(nt);
+    let t = training_samples(2, nt);
     let options = TrainOptions {
         adam: AdamConfig::new(1e-3),
         ema_decay: 0.95,
@@ -210,14 +200,14 @@ fn bench_field(
             .with_steps_per_update(1)
             .with_threads(0),
     );
-    let q = queries(nq);
+    let q = queries(1, nq);
     let normals: Vec<Vec3> = q.iter().map(|x| Vec3::from_array(x.normal)).collect();
     let lanes: Vec<u32> = (0..nq as u32).collect();
     let u: Vec<Vec2> = (0..nq)
         .map(|i| Vec2::new((i % 97) as f32 / 97.0, (i % 89) as f32 / 89.0))
         .collect();
     let dirs: Vec<Vec3> = q.iter().map(|x| Vec3::from_array(x.wo)).collect();
-    let t = samples(nt);
+    let t = training_samples(2, nt);
     let mut result = Vec::new();
     for on_device in [false, true] {
         let mut field = GuidingField::new(config, LO, HI).expect("field");

@@ -675,16 +675,8 @@ impl GpuModel {
             return Ok(NO_WORK);
         }
         let n = count_u32(queries.len(), "queries")?;
-        let bytes = (queries.len() * r * 4) as u64;
-        let limit = self.ctx.device_info().max_storage_buffer_range;
-        if bytes > limit {
-            return Err(GpuError::BadArgument(format!(
-                "{} queries need {bytes} bytes of raw outputs, over the device's \
-                 storage-buffer range of {limit}: decode fewer at a time",
-                queries.len()
-            )));
-        }
-        let out = &*grow(&self.ctx, raw, bytes)?;
+        // Over the storage-buffer range: `GpuError::BufferTooLarge` from the allocation.
+        let out = &*grow(&self.ctx, raw, (queries.len() * r * 4) as u64)?;
         self.queries.put(&self.ctx, queries)?;
         if self.kernels.selection.is_some() {
             self.outputs.at_least(&self.ctx, u64::from(n) * 4)?;
@@ -767,17 +759,12 @@ impl GpuModel {
             return Ok(NO_WORK);
         }
         let n = count_u32(queries.len(), "queries")?;
-        let bytes = size_of_val(queries).max(queries.len() * size_of::<DfVertex>()) as u64;
-        let limit = self.ctx.device_info().max_storage_buffer_range;
-        if bytes > limit {
-            return Err(GpuError::BadArgument(format!(
-                "{} queries need {bytes} bytes of vertices, over the device's storage-buffer \
-                 range of {limit}: decode fewer at a time",
-                queries.len()
-            )));
-        }
-        let need = (queries.len() * size_of::<DfVertex>()) as u64;
-        let out = &*grow(&self.ctx, vertices, need)?;
+        // Over the storage-buffer range: `GpuError::BufferTooLarge` from the allocation.
+        let out = &*grow(
+            &self.ctx,
+            vertices,
+            (queries.len() * size_of::<DfVertex>()) as u64,
+        )?;
         self.queries.put(&self.ctx, queries)?;
         let mut batch = self.ctx.timed_batch()?;
         batch.dispatch(
@@ -862,14 +849,7 @@ impl GpuModel {
             return Ok(NO_WORK);
         }
         let n = count_u32(lanes.len(), "lanes")?;
-        let widest = size_of_val(input).max(size_of_val(out)) as u64;
-        let limit = self.ctx.device_info().max_storage_buffer_range;
-        if widest > limit {
-            return Err(GpuError::BadArgument(format!(
-                "{what}: {} lanes exceed the device's storage-buffer range",
-                lanes.len()
-            )));
-        }
+        // Over the storage-buffer range: `GpuError::BufferTooLarge` from the scratch buffers.
         self.lanes.put(&self.ctx, lanes)?;
         self.inputs.put(&self.ctx, input)?;
         self.outputs.at_least(&self.ctx, size_of_val(out) as u64)?;

@@ -16,7 +16,7 @@
 //!
 //! NPM and NASG keep the decoded mixture per lane, so sampling and pdfs run
 //! no network at all. DF keeps the network input and the marginal density
-//! ([`guiding_core::model::wavefront::DfVertex`]); each sample or pdf then
+//! ([`guiding_core::model::df::DfVertex`]); each sample or pdf then
 //! runs only the conditional network, batched over the lanes of the call.
 //!
 //! A batch remembers the field and generation it was decoded with; using it
@@ -505,6 +505,10 @@ impl GuidingField {
     /// for the rare direction whose `ε₁` rounds into another bin, as
     /// [`crate::Distribution::sample`]).
     ///
+    /// An empty `lanes` asks nothing of `batch` and returns `Ok` at once,
+    /// whatever the batch (a wavefront that guided no vertex need not have
+    /// decoded one).
+    ///
     /// # Errors
     /// [`GuidingError::LengthMismatch`] if the slices differ in length or a
     /// lane is out of range; [`GuidingError::StaleDistribution`] if `batch`
@@ -525,6 +529,9 @@ impl GuidingField {
                     out.len()
                 ),
             });
+        }
+        if lanes.is_empty() {
+            return Ok(());
         }
         self.check_batch(batch, lanes)?;
         if batch.device.is_some() {
@@ -551,6 +558,8 @@ impl GuidingField {
     /// of `batch`, into `out[k]`. DF runs its conditional network once per
     /// direction, batched over the call.
     ///
+    /// An empty `lanes` returns `Ok` at once, as in [`Self::sample_decoded`].
+    ///
     /// # Errors
     /// As [`Self::sample_decoded`].
     pub fn pdf_decoded(
@@ -569,6 +578,9 @@ impl GuidingField {
                     out.len()
                 ),
             });
+        }
+        if lanes.is_empty() {
+            return Ok(());
         }
         self.check_batch(batch, lanes)?;
         if batch.device.is_some() {

@@ -8,7 +8,7 @@ use crate::models::{self, with_field, AnyField, Decode, Decoded};
 use glam::{Vec2, Vec3};
 use guiding_core::field::{FieldState, UpdateReport};
 use guiding_core::lobe::DirectionSample;
-use guiding_core::model::wavefront::DfVertex;
+use guiding_core::model::df::DfVertex;
 use guiding_core::model::{GuidingModel, QueryPoint};
 use guiding_core::sample::{TrainingSample, REJECTION_KINDS};
 use std::sync::atomic::{AtomicU64, Ordering};

@@ -10,9 +10,10 @@ use guiding_core::lobe::DirectionSample;
 use guiding_core::mixture::nasg::NasgMixture;
 use guiding_core::mixture::vmf::VmfMixture;
 use guiding_core::model::df::Df;
+use guiding_core::model::df::DfVertex;
 use guiding_core::model::nasg::{Nasg, NASG_LOBES};
 use guiding_core::model::npm::{Npm, NPM_LOBES};
-use guiding_core::model::wavefront::{DfTable, DfTableSums, DfVertex};
+use guiding_core::model::wavefront::{DfTable, DfTableSums};
 use guiding_core::model::{GuidingModel, QueryPoint};
 use guiding_core::pdf1d::Interpolation;
 

@@ -20,13 +20,13 @@ use guiding_core::glam::{Vec2, Vec3};
 use guiding_core::math::INV_FOUR_PI;
 use guiding_core::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
 use guiding_core::mlp::Mlp;
-use guiding_core::model::df::{DfCompactRadiance, VertexModel};
+use guiding_core::model::df::{DfCompactRadiance, DfVertex, VertexModel};
 use guiding_core::model::nasg::NasgCompactProduct;
 use guiding_core::model::npm::{
     encode_inputs, encode_inputs_fast, NpmCompactProduct, NpmCompactRadiance, NPM_LOBES,
     NPM_OUTPUTS,
 };
-use guiding_core::model::wavefront::{decode_vmf_batch, decode_vmf_batch_portable, DfVertex};
+use guiding_core::model::wavefront::{decode_vmf_batch, decode_vmf_batch_portable};
 use guiding_core::model::GuidingModel;
 use guiding_core::pdf1d::Interpolation;
 use guiding_core::sample::TrainingSample;
@@ -340,6 +340,11 @@ fn batch_use_is_checked() -> Result<(), GuidingError> {
         field.sample_decoded(&batch, &[0, 1], &u, &mut out),
         Err(GuidingError::StaleDistribution { .. })
     ));
+    // An empty request reads nothing from the batch: answered, stale or not
+    // (a wavefront that guided no vertex decoded none).
+    assert!(field.sample_decoded(&batch, &[], &[], &mut []).is_ok());
+    assert!(field.pdf_decoded(&batch, &[], &[], &mut []).is_ok());
+    assert!(other.pdf_decoded(&batch, &[], &[], &mut []).is_ok());
     // get() gives values that attach only to a current field.
     let old = batch.get(3).expect("lane 3");
     assert!(field.attach(old).is_err());

@@ -30,7 +30,7 @@
 //! `HIDDEN · WIDTH` activations: 256 KiB for the paper NASG network, 4 × 128)
 //! and reuses them for every chunk of the batch.
 
-use super::df::{Df, DF_CONDITIONAL_BINS, DF_MARGINAL_BINS};
+use super::df::{Df, DfVertex, DF_CONDITIONAL_BINS, DF_MARGINAL_BINS, DF_MAX_BASE};
 use super::nasg::{Nasg, NASG_LOBES, NASG_OUTPUTS, NASG_SELECTION_OUTPUT};
 use super::npm::{
     all_finite, encode_inputs_fast, encode_inputs_traced, join_rows, split_rows, Npm, NPM_LOBES,
@@ -64,8 +64,6 @@ pub const WAVEFRONT_CHUNK: usize = 64;
 /// 128 → 895 k / 212 k / 456 k, 256 → 930 k / 197 k / 330 k (larger chunks
 /// leave L2).
 pub const TRAIN_CHUNK: usize = 128;
-
-pub use super::df::{DfVertex, DF_MAX_BASE};
 
 /// A DF distribution tabulated per marginal bin ([`Df::tabulate_vertices`]).
 pub type DfTable = factorised::FactorisedTable<DF_MARGINAL_BINS, DF_CONDITIONAL_BINS>;

@@ -720,11 +720,6 @@ impl<'g> GuidedWorker<'g> {
     fn eval_queued_pdfs(&mut self) {
         self.pdf_out.clear();
         self.pdf_out.resize(self.pdf_query.len(), 0.0);
-        if self.pdf_query.is_empty() {
-            // Nothing to evaluate (also the case of a pass with the guide off, which decodes
-            // nothing).
-            return;
-        }
         let t0 = Instant::now();
         if let Err(e) = self.guide.pdf_decoded(
             &self.decoded,
@@ -899,17 +894,12 @@ impl VertexStrategy for GuidedWorker<'_> {
                 pdf: 0.0,
             },
         );
-        let sampled = if self.sample_query.is_empty() {
-            Ok(())
-        } else {
-            self.guide.sample_decoded(
-                &self.decoded,
-                &self.sample_query,
-                &self.sample_u,
-                &mut self.sample_out,
-            )
-        };
-        if let Err(e) = sampled {
+        if let Err(e) = self.guide.sample_decoded(
+            &self.decoded,
+            &self.sample_query,
+            &self.sample_u,
+            &mut self.sample_out,
+        ) {
             self.sample_out.fill(DirectionSample {
                 direction: Vec3::ZERO,
                 pdf: 0.0,
