@@ -35,8 +35,17 @@ fn methods_and_budgets_parse() {
             "off"
         ]
     );
+    assert_eq!(
+        Method::parse("guided").unwrap().args,
+        ["--integrator", "guided"]
+    );
+    assert_eq!(
+        Method::parse("guided-notrial").unwrap().args,
+        ["--integrator", "guided", "--guide-trial", "off"]
+    );
     for bad in [
         "",
+        "guided-radiance",
         "npm",
         "npm-",
         "foo-radiance",

@@ -38,8 +38,10 @@ pub struct Method {
 }
 
 impl Method {
-    /// Parses `pt`, `pt-nee`, or `GUIDE-TARGET` with GUIDE in npm|nasg|df-n|df-l and TARGET in
-    /// radiance|product (e.g. `npm-product`), optionally followed by suffixes: `-nonee` (the
+    /// Parses `pt`, `pt-nee`, `guided` (the default guided command, `--integrator guided` with
+    /// the library's default guide and target), or `GUIDE-TARGET` with GUIDE in
+    /// npm|nasg|df-n|df-l and TARGET in radiance|product (e.g. `npm-product`), optionally
+    /// followed by suffixes: `-nonee` (the
     /// guided integrator without next-event estimation, the papers' setting, compared with
     /// `pt`), `-nocache` / `-frozen` (`--guide-cache off` / `frozen` instead of the default),
     /// `-notrial` (`--guide-trial off`: the guide stays on whether it pays or not), `-noweights`
@@ -71,6 +73,7 @@ impl Method {
         let mut args: Vec<&str> = match name {
             "pt" => vec!["--integrator", "pt"],
             "pt-nee" => vec!["--integrator", "pt-nee"],
+            "guided" => vec!["--integrator", "guided"],
             _ => {
                 let (guide, target) = name
                     .rsplit_once('-')
@@ -80,8 +83,8 @@ impl Method {
                     })
                     .ok_or_else(|| {
                         Error::Bench(format!(
-                            "unknown method '{name}': use pt, pt-nee or GUIDE-TARGET with GUIDE \
-                             npm|nasg|df-n|df-l and TARGET radiance|product"
+                            "unknown method '{name}': use pt, pt-nee, guided or GUIDE-TARGET with \
+                             GUIDE npm|nasg|df-n|df-l and TARGET radiance|product"
                         ))
                     })?;
                 vec![
