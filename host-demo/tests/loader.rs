@@ -503,3 +503,80 @@ fn every_problem_is_reported_in_one_run() {
         );
     }
 }
+
+/// The fuzz-found singular sensor (`fuzz/corpus/scene_parser/crash-singular-sensor`): the
+/// shared Cornell box with the `-1` of its camera's z axis written `-0`. The camera's linear
+/// part then maps every view direction into the x-y plane and the centre pixel's to zero (NaN
+/// after normalising): release rendered black, debug builds panicked in obvhs's ray
+/// constructor. It is refused, naming the file and the `<sensor>`'s line; a shear that makes
+/// the columns coplanar is refused too, while a scaled or mirrored camera loads.
+#[test]
+fn singular_sensor_transform_is_an_error() {
+    let dir = common::shared_scenes().join("cornell-box");
+    let text = std::fs::read_to_string(dir.join("scene.xml")).expect("shared scene");
+    let good = r#"<matrix value="-1 0 0 0 0 1 0 1 0 0 -1 6.8 0 0 0 1"/>"#;
+    assert!(text.contains(good), "the shared scene's sensor changed");
+    let singular = text.replace(
+        good,
+        r#"<matrix value="-1 0 0 0 0 1 0 1 0 0 -0 6.8 0 0 0 1"/>"#,
+    );
+    let e = load_err(&singular, &dir);
+    eprintln!("{e}");
+    assert_eq!(e.lines().count(), 1, "one problem: {e}");
+    assert!(
+        e.starts_with("t.xml:4:") && e.contains("sensor to_world is singular"),
+        "names the file and the <sensor> line: {e}"
+    );
+    // The corpus file is the same scene (with its meshes inlined for the fuzzer).
+    let corpus = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../fuzz/corpus/scene_parser/crash-singular-sensor");
+    let bytes = std::fs::read(&corpus).expect("corpus file");
+    let xml_part = String::from_utf8_lossy(&bytes);
+    let xml_part = xml_part.split('\0').next().unwrap_or("");
+    let e = load_err(xml_part, &dir);
+    assert!(e.contains("sensor to_world is singular"), "{e}");
+
+    let sensor = |m: &str| {
+        format!(
+            r#"<scene version="3.0.0"><sensor type="perspective"><float name="fov" value="40"/>
+<transform name="to_world"><matrix value="{m}"/></transform></sensor>
+<shape type="sphere"/></scene>"#
+        )
+    };
+    // Coplanar columns (z = x + y): refused.
+    let e = load_err(&sensor("1 0 1 0 0 1 1 0 0 0 0 5 0 0 0 1"), Path::new("."));
+    assert!(e.contains("singular"), "{e}");
+    // Scaled by 10⁻³ and mirrored: a valid camera.
+    let sc = load_ok(&sensor("-0.001 0 0 0 0 0.001 0 0 0 0 0.001 -5 0 0 0 1"));
+    let (o, d) = sc.camera.ray(0.5, 0.5);
+    assert!(o.is_finite() && (d.length() - 1.0).abs() < 1e-5);
+}
+
+/// Rays the BVH cannot traverse (NaN, infinite or zero directions, a NaN origin; subnormal
+/// components whose inverse overflows) never reach obvhs: they miss and count as occluded,
+/// and a subnormal component is traversed like a zero one.
+#[test]
+fn invalid_rays_miss() {
+    let sc = load_ok(
+        r#"<scene version="3.0.0"><sensor type="perspective"><float name="fov" value="40"/>
+<transform name="to_world"><lookat origin="0, 0, -5" target="0, 0, 0"/></transform></sensor>
+<shape type="sphere"/></scene>"#,
+    );
+    let o = Vec3::new(0.0, 0.0, -5.0);
+    for d in [
+        Vec3::ZERO,
+        Vec3::NAN,
+        Vec3::new(0.0, 0.0, f32::INFINITY),
+        Vec3::new(f32::NAN, 0.0, 1.0),
+    ] {
+        assert!(sc.intersect(o, d, 1e-4, f32::INFINITY).is_none(), "{d}");
+        assert!(sc.occluded(o, d, 1e-4, 10.0), "{d}");
+    }
+    assert!(sc.intersect(Vec3::NAN, Vec3::Z, 1e-4, 10.0).is_none());
+    let sub = Vec3::new(1e-40, -1e-42, 1.0);
+    let hit = sc
+        .intersect(o, sub, 1e-4, f32::INFINITY)
+        .expect("hits the sphere");
+    assert!((hit.t - 4.0).abs() < 1e-4, "{}", hit.t);
+    assert!(sc.occluded(o, sub, 1e-4, 10.0));
+}

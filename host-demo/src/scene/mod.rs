@@ -29,9 +29,26 @@ use std::time::Duration;
 /// component (`0 · ∞` in the inverse direction; found by the axis-aligned rays of the BVH
 /// brute-force test); the nudge moves the ray by at most 10⁻³⁰ per unit length, far below f32
 /// resolution, and the primitive tests still use `d` itself.
+///
+/// Components below 10⁻³⁰ in magnitude (subnormals included, whose inverse overflows to ∞) are
+/// nudged the same way, so the inverse direction obvhs computes is always finite.
 fn traversal_direction(d: Vec3) -> Vec3 {
-    let fix = |x: f32| if x == 0.0 { 1e-30f32.copysign(x) } else { x };
+    let fix = |x: f32| {
+        if x.abs() < 1e-30 {
+            1e-30f32.copysign(x)
+        } else {
+            x
+        }
+    };
     Vec3::new(fix(d.x), fix(d.y), fix(d.z))
+}
+
+/// True if `o + t d` is a ray the BVH can traverse: finite origin and a finite, non-zero
+/// direction (a camera or light sample of a degenerate configuration can give a NaN or zero
+/// direction; such a ray is treated as a miss rather than reaching obvhs, whose ray
+/// constructor asserts finite inverse directions in debug builds).
+fn traversable(o: Vec3, d: Vec3) -> bool {
+    o.is_finite() && d.is_finite() && d != Vec3::ZERO
 }
 
 /// A geometric primitive.
@@ -719,7 +736,11 @@ impl Scene {
     }
 
     /// Closest hit along the unit-direction ray `o + t d`, `t` in `(tmin, tmax)`.
+    /// A ray with a non-finite origin or a non-finite or zero direction misses everything.
     pub fn intersect(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<SurfaceHit> {
+        if !traversable(o, d) {
+            return None;
+        }
         let ray = Ray::new(o.into(), traversal_direction(d).into(), tmin, tmax);
         let mut hit = RayHit::none();
         let mut best = (0.0f32, 0.0f32);
@@ -983,7 +1004,12 @@ impl Scene {
 
     /// True if anything blocks the segment `o + t d`, `t` in `(tmin, tmax)` (masked-out
     /// parts of a `mask` BSDF do not block).
+    /// A ray with a non-finite origin or a non-finite or zero direction counts as blocked (it
+    /// is never traversed, and no light is transported along a direction that does not exist).
     pub fn occluded(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
+        if !traversable(o, d) {
+            return true;
+        }
         let ray = Ray::new(o.into(), traversal_direction(d).into(), tmin, tmax);
         !self.bvh.ray_traverse_miss(ray, |r, id| {
             match self.prims[id].intersect(o, d, r.tmin, r.tmax) {

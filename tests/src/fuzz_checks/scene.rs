@@ -50,8 +50,9 @@ fn finite_non_negative(v: glam::Vec3) -> bool {
 /// range, finite non-negative reflectance and emission, a finite GGX
 /// `α > 0` and IOR, light tables with positive finite area and monotone
 /// CDFs, a finite camera with positive finite field of view, positive image
-/// size and sample count (any `max_depth`). Then a few camera rays and light samples must not
-/// panic, and hits must be finite and inside the ray's interval.
+/// size and sample count (any `max_depth`). Then a few camera rays must be finite unit
+/// directions, they and light samples must not panic, and hits must be finite and inside the
+/// ray's interval.
 pub fn check_scene(what: &str, s: &Scene) {
     assert!(!s.prims.is_empty(), "{what}: no primitives");
     assert_eq!(s.prims.len(), s.prim_shape.len());
@@ -203,6 +204,11 @@ pub fn check_scene(what: &str, s: &Scene) {
 
     for (u, v) in [(0.5, 0.5), (0.0, 0.0), (1.0, 1.0), (0.25, 0.75)] {
         let (o, d) = c.ray(u, v);
+        // A singular sensor transform gives zero / NaN directions (the loader refuses it).
+        assert!(
+            o.is_finite() && d.is_finite() && (d.length() - 1.0).abs() < 1e-3,
+            "{what}: camera ray {o} {d} at ({u}, {v})"
+        );
         if let Some(h) = s.intersect(o, d, 1e-4, f32::INFINITY) {
             assert!(h.t > 1e-4 && h.t.is_finite(), "{what}: hit t = {}", h.t);
             assert!((h.shape as usize) < s.shapes.len());

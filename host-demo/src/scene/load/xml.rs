@@ -949,6 +949,12 @@ impl Ctx<'_> {
                 _ => self.ignore(p, "sensor property")?,
             }
         }
+        check_invertible(&to_world).map_err(|e| {
+            self.err(
+                n,
+                format!("sensor to_world is singular, the camera has no valid rays: {e}"),
+            )
+        })?;
         let fov = fov.ok_or_else(|| self.err(n, "perspective sensor needs a \"fov\" float"))?;
         if !(fov > 0.0 && fov < 180.0) {
             return Err(self.err(n, format!("fov {fov} must be in (0, 180) degrees")));
@@ -2226,6 +2232,33 @@ impl Ctx<'_> {
             emission,
             opacity,
         })
+    }
+}
+
+/// Checks that the linear part `A` of a camera's `to_world` is invertible, as Mitsuba needs
+/// (it inverts the sensor transform): a singular `A` maps the view directions of a plane or a
+/// line of pixels to the zero vector (no direction, NaN after normalising; obvhs's ray
+/// constructor asserts finite inverse directions in debug builds, release renders black).
+///
+/// The test is scale-invariant: `|det A| ≤ 10⁻⁶ ‖a₀‖ ‖a₁‖ ‖a₂‖` (Hadamard's inequality bounds
+/// `|det A|` by the product of the column norms, with equality for orthogonal columns), i.e. the
+/// columns span a parallelepiped of less than 10⁻⁶ of its box: a zero column, two parallel
+/// columns or three coplanar ones, whatever the scale of the camera.
+fn check_invertible(m: &Mat4) -> std::result::Result<(), String> {
+    let a = glam::Mat3::from_mat4(*m);
+    let det = a.determinant();
+    let box_volume = a.x_axis.length() * a.y_axis.length() * a.z_axis.length();
+    let ok = det.is_finite()
+        && box_volume.is_finite()
+        && det.abs() > 1e-6 * box_volume
+        && a.inverse().is_finite();
+    if ok {
+        Ok(())
+    } else {
+        Err(format!(
+            "its 3x3 part (columns {}, {}, {}) has determinant {det} (not invertible)",
+            a.x_axis, a.y_axis, a.z_axis
+        ))
     }
 }
 
