@@ -10,7 +10,9 @@
 //!   MAPE, and the speed-up over `pt` (`relMSE_pt / relMSE_method` at equal budget, as NPM's
 //!   Table 2), then the micro-benchmarks;
 //! * `<scene>.svg` / `<scene>.png`: relMSE against wall time, log-log, one curve per method;
-//! * `micro.csv`: the micro-benchmarks ([`micro`]).
+//! * `micro.csv`: the micro-benchmarks ([`micro`]);
+//! * with `--suite`, `suite.md` / `suite.csv`: per scene the ratio to `pt-nee` of the default
+//!   guided command and of the best guided method, and their geometric mean ([`suite`]).
 //!
 //! References: `--reference NAME=FILE.exr` (e.g. rendered by Mitsuba 3 from the same XML), or a
 //! long `pt-nee` render cached under `--cache` keyed by the scene file's bytes, the loaded scene's
@@ -20,6 +22,7 @@
 pub mod micro;
 pub mod plot;
 pub mod report;
+pub mod suite;
 
 use crate::error::{Error, Result};
 use crate::render::compare::{compare, Metrics};
@@ -184,6 +187,13 @@ pub struct BenchOptions {
     pub quick_micro: bool,
     /// Skip the micro-benchmarks.
     pub no_micro: bool,
+    /// Also write `suite.md` / `suite.csv` ([`suite::write`]).
+    pub suite: bool,
+    /// A scene whose reference or run fails is skipped with a note instead of ending the
+    /// benchmark (its runs are dropped).
+    pub keep_going: bool,
+    /// Notes for the reports (scenes that were not found, …); skipped scenes are added to them.
+    pub notes: Vec<String>,
 }
 
 /// One finished run (a row of `runs.csv`).
@@ -371,6 +381,64 @@ fn num(v: &serde_json::Value, path: &[&str]) -> f64 {
     v.as_f64().unwrap_or(0.0)
 }
 
+/// Runs every method × budget × seed of `scene` against its reference, appending to `records`.
+fn run_scene(
+    opts: &BenchOptions,
+    scene: &str,
+    pb: &ProgressBar,
+    records: &mut Vec<RunRecord>,
+) -> Result<()> {
+    let reference = read_exr(&reference_for(opts, scene, pb)?)?;
+    let slug = scene_slug(scene);
+    for budget in &opts.budgets {
+        // Seeds outside, methods inside: on a shared machine whose speed drifts over
+        // minutes, the methods of one seed run next to each other, so a slow spell falls on
+        // every method alike instead of on all seeds of one.
+        for seed in 0..opts.seeds {
+            for method in &opts.methods {
+                pb.set_message(format!("{slug} {} {:?} seed {seed}", method.name, budget));
+                let stem = opts.out.join("runs").join(format!(
+                    "{slug}-{}-{}{}-s{seed}",
+                    method.name,
+                    budget.kind(),
+                    budget.value()
+                ));
+                let exr = stem.with_extension("exr");
+                let json = stem.with_extension("json");
+                let mut args = vec![scene.to_string()];
+                args.extend(method.args.iter().cloned());
+                args.extend(budget.args());
+                for (k, v) in [
+                    ("--width", opts.width.to_string()),
+                    ("--seed", seed.to_string()),
+                    ("--threads", opts.threads.to_string()),
+                    ("--stats", json.display().to_string()),
+                    ("--out", exr.display().to_string()),
+                ] {
+                    args.push(k.into());
+                    args.push(v);
+                }
+                let stats = render(&args)?;
+                let metrics = compare(&read_exr(&exr)?, &reference)?;
+                records.push(RunRecord {
+                    scene: scene.to_string(),
+                    method: method.name.clone(),
+                    seed,
+                    budget: *budget,
+                    spp: num(&stats, &["spp"]) as u64,
+                    wall_s: num(&stats, &["time_s", "wall"]),
+                    tracing_s: num(&stats, &["time_s", "tracing"]),
+                    inference_s: num(&stats, &["time_s", "inference"]),
+                    training_s: num(&stats, &["time_s", "training"]),
+                    metrics,
+                });
+                pb.inc(1);
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Runs the whole matrix and writes the report; returns the runs.
 pub fn run(opts: &BenchOptions) -> Result<Vec<RunRecord>> {
     let io = |e: std::io::Error| Error::Bench(format!("{}: {e}", opts.out.display()));
@@ -384,55 +452,20 @@ pub fn run(opts: &BenchOptions) -> Result<Vec<RunRecord>> {
         .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     let mut records = Vec::with_capacity(total);
-    for scene in &opts.scenes {
-        let reference = read_exr(&reference_for(opts, scene, &pb)?)?;
-        let slug = scene_slug(scene);
-        for budget in &opts.budgets {
-            // Seeds outside, methods inside: on a shared machine whose speed drifts over
-            // minutes, the methods of one seed run next to each other, so a slow spell falls on
-            // every method alike instead of on all seeds of one.
-            for seed in 0..opts.seeds {
-                for method in &opts.methods {
-                    pb.set_message(format!("{slug} {} {:?} seed {seed}", method.name, budget));
-                    let stem = opts.out.join("runs").join(format!(
-                        "{slug}-{}-{}{}-s{seed}",
-                        method.name,
-                        budget.kind(),
-                        budget.value()
-                    ));
-                    let exr = stem.with_extension("exr");
-                    let json = stem.with_extension("json");
-                    let mut args = vec![scene.clone()];
-                    args.extend(method.args.iter().cloned());
-                    args.extend(budget.args());
-                    for (k, v) in [
-                        ("--width", opts.width.to_string()),
-                        ("--seed", seed.to_string()),
-                        ("--threads", opts.threads.to_string()),
-                        ("--stats", json.display().to_string()),
-                        ("--out", exr.display().to_string()),
-                    ] {
-                        args.push(k.into());
-                        args.push(v);
-                    }
-                    let stats = render(&args)?;
-                    let metrics = compare(&read_exr(&exr)?, &reference)?;
-                    records.push(RunRecord {
-                        scene: scene.clone(),
-                        method: method.name.clone(),
-                        seed,
-                        budget: *budget,
-                        spp: num(&stats, &["spp"]) as u64,
-                        wall_s: num(&stats, &["time_s", "wall"]),
-                        tracing_s: num(&stats, &["time_s", "tracing"]),
-                        inference_s: num(&stats, &["time_s", "inference"]),
-                        training_s: num(&stats, &["time_s", "training"]),
-                        metrics,
-                    });
-                    pb.inc(1);
-                }
+    let mut notes = opts.notes.clone();
+    let per_scene = opts.methods.len() * opts.budgets.len() * opts.seeds as usize;
+    for (i, scene) in opts.scenes.iter().enumerate() {
+        let before = records.len();
+        if let Err(e) = run_scene(opts, scene, &pb, &mut records) {
+            if !opts.keep_going {
+                return Err(e);
             }
+            records.truncate(before);
+            let note = format!("{scene} skipped: {e}");
+            pb.println(format!("bench: {note}"));
+            notes.push(note);
         }
+        pb.set_position(((i + 1) * per_scene) as u64);
     }
     pb.finish_and_clear();
     let micro = if opts.no_micro {
@@ -442,6 +475,9 @@ pub fn run(opts: &BenchOptions) -> Result<Vec<RunRecord>> {
         micro::run(opts.quick_micro).map_err(|e| Error::Bench(format!("micro-benchmarks: {e}")))?
     };
     report::write_all(opts, &records, &micro)?;
+    if opts.suite {
+        suite::write(opts, &records, &notes)?;
+    }
     for scene in &opts.scenes {
         plot::error_vs_time(&opts.out, scene, &records)?;
     }

@@ -9,7 +9,8 @@ use std::path::Path;
 /// Header of `runs.csv`.
 pub const RUNS_HEADER: &str = "scene,method,seed,budget_kind,budget,spp,wall_s,tracing_s,inference_s,training_s,relmse,relmse_untrimmed,mape";
 
-fn csv_field(s: &str) -> String {
+/// `s` as one CSV field (quoted when it holds a comma, a quote or a newline).
+pub(super) fn csv_field(s: &str) -> String {
     if s.contains([',', '"', '\n']) {
         format!("\"{}\"", s.replace('"', "\"\""))
     } else {
@@ -17,7 +18,8 @@ fn csv_field(s: &str) -> String {
     }
 }
 
-fn write(path: &Path, text: &str) -> Result<()> {
+/// Writes `text` to `path`, naming the path in the error.
+pub(super) fn write(path: &Path, text: &str) -> Result<()> {
     std::fs::write(path, text).map_err(|e| Error::Bench(format!("{}: {e}", path.display())))
 }
 
@@ -46,7 +48,8 @@ pub fn select<'a>(
         .collect()
 }
 
-fn budget_label(b: Budget) -> String {
+/// `30 s` or `64 spp`.
+pub(super) fn budget_label(b: Budget) -> String {
     match b {
         Budget::Seconds(s) => format!("{s} s"),
         Budget::Spp(n) => format!("{n} spp"),

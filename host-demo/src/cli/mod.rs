@@ -248,23 +248,36 @@ enum Cmd {
         /// Extra scenes (`builtin:NAME` or Mitsuba XML paths), added to the default set.
         scenes: Vec<String>,
         /// Small matrix (2 built-in scenes, 5 methods, 1 and 2 s, 2 seeds, 64 px wide, quick
-        /// micro-benchmarks): a couple of minutes.
+        /// micro-benchmarks): a couple of minutes. With --suite: the 2 built-in scenes,
+        /// pt-nee and guided, 1 s, 1 seed, 64 px (well under a minute).
         #[arg(long)]
         quick: bool,
+        /// The published-scene suite: every ../shared/scenes/*/scene.xml, builtin:door and
+        /// host-demo/tests/data/published/*/ (found at run time; what is missing is skipped
+        /// with a note); methods pt, pt-nee, guided, npm-radiance, npm-product, nasg-radiance,
+        /// df-l-radiance; 30 s, 3 seeds, 256 px; no micro-benchmarks; a scene that fails is
+        /// skipped with a note. Writes suite.md / suite.csv (per scene the ratio to pt-nee of
+        /// guided and of the best guided method, their geometric mean and the worst case)
+        /// besides the usual reports.
+        #[arg(long)]
+        suite: bool,
         /// Only the scenes given on the command line, not the default set.
         #[arg(long)]
         only: bool,
-        /// Methods, comma-separated: pt, pt-nee, GUIDE-TARGET (npm|nasg|df-n|df-l ×
-        /// radiance|product). Default: all ten.
+        /// Methods, comma-separated: pt, pt-nee, guided (the default guided command),
+        /// GUIDE-TARGET (npm|nasg|df-n|df-l × radiance|product), each optionally with suffixes
+        /// such as -notrial. Default: pt, pt-nee and the eight GUIDE-TARGET.
         #[arg(long, value_delimiter = ',')]
         methods: Option<Vec<String>>,
-        /// Budgets, comma-separated: seconds (`10`) or spp (`32spp`). Default 5,10,20,40,32spp.
+        /// Budgets, comma-separated: seconds (`10`) or spp (`32spp`). Default 5,10,20,40,32spp
+        /// (--suite: 30).
         #[arg(long, value_delimiter = ',')]
         budgets: Option<Vec<String>>,
-        /// Seeds per configuration (default 3).
+        /// Seeds per configuration (default 3; --quick 2, --suite --quick 1).
         #[arg(long)]
         seeds: Option<u32>,
-        /// Image width in pixels (default 320; height keeps the scene's aspect ratio).
+        /// Image width in pixels (default 320, --suite 256, --quick 64; height keeps the scene's
+        /// aspect ratio).
         #[arg(long)]
         width: Option<u32>,
         /// Render threads per run (0 = all cores).
