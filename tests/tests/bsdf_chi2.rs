@@ -16,9 +16,9 @@
 //! grid it passes).
 //!
 //! Cases: GGX and Beckmann rough conductors, dielectrics (both sides) and plastics, `phong`,
-//! `ward`, `blendbsdf`; negative controls (`harness-selftest/...`) plant wrong densities (a
-//! Beckmann sampler against the GGX pdf or α·1.1, Phong's `n + 1`, Ward's quadrant slip) that
-//! must be rejected.
+//! `ward`, `roughdiffuse`, `blendbsdf`; negative controls (`harness-selftest/...`) plant wrong
+//! densities (a Beckmann sampler against the GGX pdf or α·1.1, Phong's `n + 1`, Ward's quadrant
+//! slip) that must be rejected.
 //!
 //! Run with `cargo test --release -p guiding-tests --test bsdf_chi2` (about a minute).
 
@@ -153,6 +153,33 @@ fn cases() -> Vec<(String, Material, Vec3, bool)> {
     ];
     cases.extend(phong_ward_cases());
     cases.extend(beckmann_cases());
+    cases.extend(rough_diffuse_cases());
+    cases
+}
+
+/// Mitsuba 0.6 `roughdiffuse` (cosine-weighted sampling as in Mitsuba; the full and the fast
+/// Oren–Nayar model, α 0.3 and 1), from normal, oblique and grazing directions.
+/// `(name, material, wi, fine grid)`.
+fn rough_diffuse_cases() -> Vec<(String, Material, Vec3, bool)> {
+    let mut cases = Vec::new();
+    for (alpha, fast) in [(0.3f32, false), (1.0, false), (1.0, true)] {
+        for (wname, wi) in [
+            ("normal", Vec3::new(0.02, -0.01, 1.0).normalize()),
+            ("mid", Vec3::new(0.6, 0.0, 0.8)),
+            ("grazing", Vec3::new(0.95, 0.0, 0.2).normalize()),
+        ] {
+            cases.push((
+                format!("roughdiffuse a{alpha} fast {fast} {wname}"),
+                Material::RoughDiffuse {
+                    reflectance: Vec3::new(0.8, 0.5, 0.2),
+                    alpha,
+                    fast,
+                },
+                wi,
+                false,
+            ));
+        }
+    }
     cases
 }
 

@@ -917,6 +917,15 @@ impl Scene {
             Material::Diffuse { reflectance } => Material::Diffuse {
                 reflectance: tex(t.diffuse, reflectance),
             },
+            Material::RoughDiffuse {
+                reflectance,
+                alpha: a,
+                fast,
+            } => Material::RoughDiffuse {
+                reflectance: tex(t.diffuse, reflectance),
+                alpha: alpha(t.scalar, a),
+                fast,
+            },
             Material::Conductor { eta, k, specular } => Material::Conductor {
                 eta,
                 k,

@@ -80,6 +80,9 @@ pub fn check_scene(what: &str, s: &Scene) {
     for m in &s.materials {
         let ok = match *m {
             Material::Diffuse { reflectance } => finite_non_negative(reflectance),
+            Material::RoughDiffuse {
+                reflectance, alpha, ..
+            } => finite_non_negative(reflectance) && alpha.is_finite() && alpha >= 0.0,
             Material::RoughConductor {
                 alpha,
                 eta,

@@ -8,7 +8,8 @@
 //! `specular_reflectance`, 0.6's `ext_eta`), `dielectric`, `thindielectric`, `roughdielectric`,
 //! `plastic`, `roughplastic` (GGX or Beckmann microfacets, Beckmann by default as in Mitsuba;
 //! IORs as numbers or Mitsuba's names), Mitsuba 0.6's `phong` and
-//! `ward` (the three Ward variants, anisotropic alphas, textured reflectances), `twosided`,
+//! `ward` (the three Ward variants, anisotropic alphas, textured reflectances) and
+//! `roughdiffuse` (Oren–Nayar), `twosided`,
 //! `blendbsdf` and `mask`; textures `bitmap` and `checkerboard` (see [`crate::scene::texture`]) for the
 //! colour, alpha, weight and opacity parameters; shapes `obj`, `ply`, `serialized`, `sphere`,
 //! `rectangle`, `cube`, `disk` (to_world, flip_normals, face_normals for meshes), `shapegroup` +
@@ -429,7 +430,9 @@ impl Ctx<'_> {
 
     /// `<rgb value="r, g, b"/>`, `<rgb value="v"/>` or `<float value="v"/>` (linear), and the
     /// Mitsuba 0.6 spellings `<srgb value="#rrggbb"/>` / `<srgb value="r, g, b"/>` (sRGB-encoded,
-    /// decoded with the sRGB transfer function as Mitsuba 0.6's `Spectrum::fromSRGB` does) and
+    /// decoded with the sRGB transfer function as Mitsuba 0.6's `Spectrum::fromSRGB` does),
+    /// `<rgb value="#rrggbb"/>` (0.6: the bytes / 255 taken as linear RGB, as its scene
+    /// handler does: `fromLinearRGB`, no decoding) and
     /// `<spectrum value="v"/>` with a single value (grey) or three (RGB), and `<spectrum
     /// value="400:0.1, 500:0.5, ..."/>` (wavelength:value pairs, reduced to RGB as Mitsuba 3
     /// does, see [`crate::scene::spectrum`]) as a reflectance-like (bounded) spectrum.
@@ -450,7 +453,10 @@ impl Ctx<'_> {
             "rgb" | "float" | "srgb" | "spectrum" => {
                 let s = self.attr(n, "value")?;
                 let v = match s.trim().strip_prefix('#') {
-                    Some(hex) if tag == "srgb" => self.hex_color(n, hex)?,
+                    // Mitsuba 0.6's scene handler reads `#rrggbb` in both `<srgb>` and
+                    // `<rgb>` as bytes / 255; `<srgb>` then decodes them (`fromSRGB`, below),
+                    // `<rgb>` keeps them as linear values (`fromLinearRGB`).
+                    Some(hex) if matches!(tag, "srgb" | "rgb") => self.hex_color(n, hex)?,
                     _ if tag == "spectrum" && s.contains(':') => {
                         self.spectral_list(n, s, bounded)?
                     }
@@ -707,12 +713,17 @@ impl Ctx<'_> {
     }
 
     /// [`Ctx::top`], recording its error and going on with the next element (a failed
-    /// top-level BSDF leaves its id in `failed_bsdfs`).
+    /// top-level BSDF leaves its id, and the ids of the BSDFs nested in it that were not
+    /// registered before the error, in `failed_bsdfs`).
     fn top_or_record(&mut self, n: Node) {
         if let Err(e) = self.top(n) {
             if n.tag_name().name() == "bsdf" {
-                if let Some(id) = n.attribute("id") {
-                    self.failed_bsdfs.insert(id.to_string());
+                for b in n.descendants().filter(|d| d.tag_name().name() == "bsdf") {
+                    if let Some(id) = b.attribute("id") {
+                        if !self.bsdfs.contains_key(id) {
+                            self.failed_bsdfs.insert(id.to_string());
+                        }
+                    }
                 }
             }
             match e {
@@ -733,16 +744,10 @@ impl Ctx<'_> {
                 }
                 self.sensor = Some(self.sensor(n)?);
             }
-            "bsdf" => {
-                let id = self.attr(n, "id")?.to_string();
-                let idx = self.bsdf(n)?;
-                self.bsdfs.insert(id, idx);
-            }
-            "texture" => {
-                let id = self.attr(n, "id")?.to_string();
-                let def = self.texture_def(n)?;
-                self.tex_defs.insert(id, def);
-            }
+            // An anonymous top-level object is valid Mitsuba (0.6 and 3): it is built, and the
+            // ids of the objects nested in it are registered for later references (Mitsuba
+            // 0.6 files often wrap an `id`'d twosided in an anonymous `bumpmap`).
+            "bsdf" | "texture" => self.define(n)?,
             "shape" => self.shape(n)?,
             "emitter" => self.emitter(n)?,
             "include" => self.include(n)?,
@@ -1047,10 +1052,29 @@ impl Ctx<'_> {
                 iso
             }
         };
-        let Some(distribution) = Microfacet::parse(distribution) else {
+        // Mitsuba 0.6 compares the name lower-cased.
+        let name = distribution.to_ascii_lowercase();
+        let parsed = match name.as_str() {
+            // Mitsuba 0.6's Phong distribution (`as`: its anisotropic Ashikhmin–Shirley form)
+            // with the exponent `n = 2/α² − 2` it derives from alpha (Walter et al. 2007,
+            // section 5.2): Walter et al. chose that relation so that Phong's
+            // `(n+2)/(2π) cosⁿθ` approximates Beckmann's `exp(−tan²θ/α²)/(π α² cos⁴θ)` at the
+            // same alpha, and Mitsuba 0.6 uses Beckmann's masking for both. The renderer's
+            // microfacet BSDFs are sampled by visible normals, which Phong has no sampler
+            // for, so the Beckmann distribution at that alpha stands in for it.
+            "phong" | "as" => {
+                self.warn(
+                    n,
+                    format!("{ty}: distribution \"{distribution}\" (Mitsuba 0.6's Phong microfacets, exponent 2/alpha^2 - 2) is approximated by \"beckmann\" at the same alpha (Walter et al. 2007's equivalence)"),
+                );
+                Some(Microfacet::Beckmann)
+            }
+            other => Microfacet::parse(other),
+        };
+        let Some(distribution) = parsed else {
             return Err(self.err(
                 n,
-                format!("{ty} distribution \"{distribution}\" is not supported (only \"beckmann\" and \"ggx\")"),
+                format!("{ty} distribution \"{distribution}\" is not supported (\"beckmann\", \"ggx\", or \"phong\" approximated by \"beckmann\")"),
             ));
         };
         if !(alpha > 0.0 && alpha.is_finite()) {
@@ -1140,6 +1164,7 @@ impl Ctx<'_> {
                 "texture type (bitmap or checkerboard)",
                 "replaced by a constant 0.5 grey",
             )?;
+            self.register_nested_ids(n)?;
             let grey = Vec3::splat(0.5);
             return Ok(TexDef::Checker(Texture::Checkerboard {
                 color0: grey,
@@ -1280,6 +1305,41 @@ impl Ctx<'_> {
         true
     }
 
+    /// The children of a plugin the loader replaces (an unknown BSDF or texture type) that
+    /// Mitsuba would build and register by id: nested `<bsdf>`s whose subtree carries an `id`
+    /// are read (registering them and their own nested ids, see [`Ctx::bsdf`]), nested
+    /// `<texture>`s with an `id` are defined for later `<ref>`s (and those without one are
+    /// searched for nested ids the same way). Everything else of the replaced plugin is left
+    /// to its warning.
+    fn register_nested_ids(&mut self, n: Node) -> Result<()> {
+        for c in elements(n) {
+            if !c.descendants().any(|d| d.attribute("id").is_some()) {
+                continue;
+            }
+            self.define(c)?;
+        }
+        Ok(())
+    }
+
+    /// A `<bsdf>` (built, its id and its nested ids registered, see [`Ctx::bsdf`]) or a
+    /// `<texture>` (defined under its id, if it has one, for later `<ref>`s); other elements
+    /// are left alone.
+    fn define(&mut self, n: Node) -> Result<()> {
+        match n.tag_name().name() {
+            "bsdf" => {
+                self.bsdf(n)?;
+            }
+            "texture" => {
+                let def = self.texture_def(n)?;
+                if let Some(id) = n.attribute("id") {
+                    self.tex_defs.insert(id.to_string(), def);
+                }
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
     /// A nested `<bsdf>` or `<ref>` of a wrapper BSDF; `None` (with a warning, an error
     /// with `--strict`) for anything else.
     fn nested_bsdf(&mut self, p: Node, what: &str) -> Result<Option<u32>> {
@@ -1318,6 +1378,45 @@ impl Ctx<'_> {
                     }
                 }
                 Material::Diffuse { reflectance }
+            }
+            // Mitsuba 0.6 `roughdiffuse` (Oren–Nayar, see [`crate::scene::bsdf::oren_nayar`]):
+            // `reflectance` (or `diffuseReflectance`) and `alpha` constants or textures,
+            // `useFastApprox`; its defaults 0.5, 0.2 and false.
+            "roughdiffuse" => {
+                let (mut reflectance, mut alpha, mut fast) = (Vec3::splat(0.5), 0.2f32, false);
+                let mut conserve = true;
+                for p in elements(n) {
+                    match (p.tag_name().name(), self.name(p)?.as_ref()) {
+                        (_, "reflectance" | "diffuse_reflectance") => {
+                            let v = self.param(p)?;
+                            reflectance = Self::split(v, &mut tex.diffuse);
+                        }
+                        ("float", "alpha") => alpha = self.float(p)?,
+                        ("texture" | "ref", "alpha") => tex.scalar = Some(self.texture_param(p)?),
+                        ("boolean", "use_fast_approx") => fast = self.boolean(p)?,
+                        ("boolean", "ensure_energy_conservation") => conserve = self.boolean(p)?,
+                        _ => self.ignore(p, "roughdiffuse property")?,
+                    }
+                }
+                if !(alpha.is_finite() && alpha >= 0.0) {
+                    return Err(self.err(
+                        n,
+                        format!("roughdiffuse alpha {alpha} must be finite and >= 0"),
+                    ));
+                }
+                // Mitsuba 0.6's `ensureEnergyConservation(reflectance, 1)`: a reflectance
+                // above 1 in some channel is scaled by 0.99 / max.
+                let max = reflectance.max_element();
+                if conserve && tex.diffuse.is_none() && max > 1.0 {
+                    let scale = 0.99 / max;
+                    self.warn(n, format!("roughdiffuse: reflectance reaches {max} (> 1, not energy conserving); scaled by {scale} as Mitsuba 0.6 does"));
+                    reflectance *= scale;
+                }
+                Material::RoughDiffuse {
+                    reflectance,
+                    alpha,
+                    fast,
+                }
             }
             "conductor" | "roughconductor" => {
                 let (mut alpha, mut eta, mut k) = (0.1f32, Vec3::ZERO, Vec3::ONE);
@@ -1569,6 +1668,8 @@ impl Ctx<'_> {
                             if let Some(id) = p.attribute("id") {
                                 let def = self.texture_def(p)?;
                                 self.tex_defs.insert(id.to_string(), def);
+                            } else {
+                                self.register_nested_ids(p)?;
                             }
                         }
                         "ref" | "float" => {}
@@ -1678,6 +1779,7 @@ impl Ctx<'_> {
                     "bsdf type",
                     "rendered as a grey diffuse (reflectance 0.5)",
                 )?;
+                self.register_nested_ids(n)?;
                 Material::Diffuse {
                     reflectance: Vec3::splat(0.5),
                 }
