@@ -305,18 +305,7 @@ impl PassCombiner {
         let npix = self.width * self.height;
         let total: u32 = self.passes();
         let n = f64::from(total.max(1));
-        let mean: Vec<[f64; 3]> = (0..npix)
-            .map(|p| {
-                let mut s = [0.0; 3];
-                for g in &self.groups {
-                    let gs = g.sum(p);
-                    for ch in 0..3 {
-                        s[ch] += gs[ch];
-                    }
-                }
-                s.map(|x| x / n)
-            })
-            .collect();
+        let mean = self.plain_mean();
         let half = |p: usize| (p % self.width + p / self.width) % 2;
         let per_half = [0, 1].map(|h| self.half_variance(&mean, h, denominator));
         let variance: Vec<[f64; 2]> = (0..self.groups.len())
@@ -388,6 +377,64 @@ impl PassCombiner {
             groups,
             fell_back: !usable,
         }
+    }
+
+    /// The plain mean of all passes per pixel.
+    fn plain_mean(&self) -> Vec<[f64; 3]> {
+        let n = f64::from(self.passes().max(1));
+        (0..self.width * self.height)
+            .map(|p| {
+                let mut s = [0.0; 3];
+                for g in &self.groups {
+                    let gs = g.sum(p);
+                    for ch in 0..3 {
+                        s[ch] += gs[ch];
+                    }
+                }
+                s.map(|x| x / n)
+            })
+            .collect()
+    }
+
+    /// Per group (in order of first appearance: its id and the values), the per-pass relative
+    /// variance `V_g` estimated on each of [`crate::evidence::band_count`] bands of rows (both
+    /// checkerboard halves, each with its `denominator`'s weights): the paired band estimates
+    /// that [`crate::CostRatio::from_bands`] turns into a confidence interval. `NaN` for a
+    /// band without pixels.
+    pub fn band_variances(&self, denominator: Denominator) -> Vec<(u32, Vec<f64>)> {
+        let mean = self.plain_mean();
+        let bands = crate::evidence::band_count(self.height);
+        let w = self.width;
+        let mut acc = vec![vec![0.0f64; bands]; self.groups.len()];
+        let mut cells = vec![0usize; bands];
+        for h in 0..2 {
+            let weight = self.half_weights(&mean, h, denominator);
+            for p in (0..mean.len()).filter(|&p| (p % w + p / w) % 2 == h) {
+                let b = crate::evidence::band_of_row(p / w, self.height, bands);
+                cells[b] += 3;
+                for (a, g) in acc.iter_mut().zip(&self.groups) {
+                    let d = g.deviation(p, mean[p]);
+                    a[b] += d[0] * weight[p][0] + d[1] * weight[p][1] + d[2] * weight[p][2];
+                }
+            }
+        }
+        acc.into_iter()
+            .zip(&self.groups)
+            .map(|(a, g)| {
+                let v = a
+                    .iter()
+                    .zip(&cells)
+                    .map(|(x, &c)| {
+                        if c > 0 {
+                            x / (c as f64 * f64::from(g.passes))
+                        } else {
+                            f64::NAN
+                        }
+                    })
+                    .collect();
+                (g.id, v)
+            })
+            .collect()
     }
 
     /// `V_g` of every group estimated on half `h` (`NaN` for an empty half).

@@ -87,14 +87,29 @@ pub const fn compact_grid(bbox_min: [f32; 3], bbox_max: [f32; 3]) -> GridConfig 
     GridConfig::new(bbox_min, bbox_max, 4, 4, 2.0, 4)
 }
 
-/// Training defaults of the presets: Adam with learning rate `3·10⁻²`,
-/// batches of 8192 samples, 32 steps per [`crate::GuidingField::update`]
-/// (the settings host-demo's guided integrator is measured with), the other
-/// values of [`FieldConfig::DEFAULT`].
+/// Training defaults of the presets, the settings `host-demo`'s guided integrator takes its
+/// defaults from (and `host-demo bench` measures): Adam with learning rate `3·10⁻²` (NPM:
+/// [`NPM_LEARNING_RATE`]), batches of 8192 samples, at most 64 steps per
+/// [`crate::GuidingField::update`] (a [`crate::TrainingSchedule`] decides the steps of a render
+/// itself), the other values of [`FieldConfig::DEFAULT`].
+///
+/// 64 steps: a 320-px pass of `builtin:door` records ~480 k samples, of which 32 steps of 8192
+/// used 262 k; with 64 the door at 20 s gave relMSE 0.222 against 0.241 (3 seeds each, lower
+/// on every seed), the Cornell box 0.00174 against 0.00178.
 pub const PRESET_TRAINING: FieldConfig = FieldConfig::DEFAULT
     .with_learning_rate(3e-2)
     .with_batch_size(8192)
-    .with_steps_per_update(32);
+    .with_steps_per_update(64);
+
+/// NPM's learning rate in the presets: on `builtin:door` (64 spp, 32 steps per pass) learning
+/// rates 3e-2 / 1e-2 / 5e-3 / 2e-3 gave relMSE 0.234 / 0.209 / 0.198 / 0.242; NASG and DF keep
+/// 3e-2.
+pub const NPM_LEARNING_RATE: f32 = 5e-3;
+
+/// The presets' constant guide-selection probability (NPM, DF): on `builtin:door` (64 spp)
+/// c = 0.25 / 0.35 / 0.5 / 0.75 gave relMSE 0.246 / 0.254 / 0.282 / 0.479, and a
+/// per-cell fit ([`crate::GuideCache::fit_selection`]) replaces it where a cache exists.
+pub const PRESET_SELECTION_PROBABILITY: f32 = 0.3;
 
 /// Everything needed to build a [`crate::GuidingField`] except the scene
 /// bounds. Build one from a preset and adjust it with the `with_*` methods:
@@ -122,13 +137,23 @@ pub struct GuidingConfig {
 
 impl GuidingConfig {
     const fn preset(representation: Representation, target: Target) -> Self {
+        let training = match representation {
+            Representation::Npm => PRESET_TRAINING.with_learning_rate(NPM_LEARNING_RATE),
+            _ => PRESET_TRAINING,
+        };
         Self {
             representation,
             target,
             size: ModelSize::Compact,
-            selection_probability: 0.5,
-            training: PRESET_TRAINING,
+            selection_probability: PRESET_SELECTION_PROBABILITY,
+            training,
         }
+    }
+
+    /// The preset of `representation` and `target` (the named presets below are this).
+    #[must_use]
+    pub const fn for_representation(representation: Representation, target: Target) -> Self {
+        Self::preset(representation, target)
     }
 
     /// NPM learning incident radiance (the guide is multiplied by the BSDF

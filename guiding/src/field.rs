@@ -214,6 +214,20 @@ impl GuidingField {
         self.train(steps)
     }
 
+    /// Runs exactly `steps` Adam steps (at least one) on the buffered samples, then clears the
+    /// buffer: what a [`crate::TrainingSchedule`] decides ([`crate::TrainingSchedule::steps_due`]).
+    ///
+    /// # Errors
+    /// As [`Self::try_update`].
+    pub fn try_update_steps(&mut self, steps: u32) -> Result<UpdateReport, GuidingError> {
+        self.train(steps.max(1))
+    }
+
+    /// Valid training samples waiting for the next update.
+    pub fn buffered_samples(&self) -> usize {
+        with_field!(&self.inner, f => f.buffered())
+    }
+
     /// The one training path of both backends: `steps` steps of the field's
     /// loop, their arithmetic on the CPU threads or on the device.
     fn train(&mut self, steps: u32) -> Result<UpdateReport, GuidingError> {

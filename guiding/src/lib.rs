@@ -91,10 +91,12 @@ pub mod combine;
 pub mod config;
 pub mod device;
 pub mod error;
+pub mod evidence;
 pub mod field;
 pub mod file;
 mod models;
 pub mod recorder;
+pub mod schedule;
 pub mod trial;
 
 pub use batch::DistributionBatch;
@@ -103,6 +105,7 @@ pub use combine::{Combination, CombineOptions, Denominator, GroupWeight, PassCom
 pub use config::{GuidingConfig, ModelSize, Representation, Target};
 pub use device::{DeviceFailure, DeviceSelection, GpuContext};
 pub use error::GuidingError;
+pub use evidence::{CostRatio, Verdict};
 pub use field::{DecodedDistribution, Distribution, FieldStats, GuidingField, ModelExport};
 pub use guiding_core::field::{FieldConfig, FieldState, PlateauConfig, UpdateReport};
 pub use guiding_core::lobe::DirectionSample;
@@ -110,6 +113,7 @@ pub use guiding_core::model::QueryPoint;
 pub use guiding_core::optim::AdamConfig;
 pub use guiding_core::sample::{Rejection, TrainingSample};
 pub use recorder::{BatchRecorder, Continuation, PathRecorder, PathVertex};
+pub use schedule::{Budget, ScheduleOptions, ScheduleReport, StepRule, TrainingSchedule};
 pub use trial::{GuideTrial, TrialArm, TrialOptions, TrialVerdict};
 
 /// The README's code examples (`guiding-core` kernels and the embedding API),

@@ -25,7 +25,10 @@
 //!    noise;
 //! 3. the efficiency cost of an arm is `V_a · t_a` with `t_a` its mean seconds per pass: the
 //!    relMSE it reaches in one second is `V_a · t_a` (variance of a mean of `n = T / t_a`
-//!    passes). The guide is kept when `V_g · t_g ≤ V_u · t_u` ([`TrialVerdict::keep_guide`]).
+//!    passes). `V_a` is estimated per band of rows too, and the paired bands give a
+//!    confidence interval on the cost ratio `R = V_g t_g / (V_u t_u)` ([`crate::evidence`]).
+//!    The guide is switched off only when the whole interval lies above 1
+//!    ([`TrialVerdict::keep_guide`]); when it straddles 1 the guide stays on.
 //!
 //! This is the pixel-level counterpart of Müller et al.'s "is guiding worth it" question
 //! (*Practical Path Guiding*, 2017, spends a budget fraction on learning and decides nothing;
@@ -34,14 +37,15 @@
 //! are left out of both sums (and counted), so one NaN cannot decide.
 //!
 //! The decision is made once, from `K` passes per arm (default 4), or earlier from `k ≥ 2` each
-//! when the case is clear (cost ratio ≤ 1/2 or ≥ 2, [`TrialOptions::decisive_ratio`]): a trial
-//! pass of the losing arm adds its variance to the image, so a clear case should not pay for
-//! all of them (on `builtin:door` without NEE, 4 `pt` passes among 77 were about a quarter of the
-//! image's relMSE). The relative standard error
-//! of each `V_a` is about `√(2 / (3N(K − 1)))` for independent pixels (0.3 % at 320 × 240),
-//! far below the gaps that matter; heavy-tailed pixels (fireflies) widen it, and count against
-//! the arm that makes them, as they should.
+//! when the interval already excludes 1 ([`TrialOptions::early_verdict`]): a trial pass of the
+//! losing arm adds its variance to the image, so a clear case should not pay for all of them
+//! (on `builtin:door` without NEE, 4 `pt` passes among 77 were about a quarter of the image's
+//! relMSE). The relative standard error of each `V_a` is about `√(2 / (3N(K − 1)))` for
+//! independent pixels (0.3 % at 320 × 240); heavy-tailed pixels (fireflies) widen it, through
+//! the spread of the bands, and a verdict then waits (the old rule, the point estimate against
+//! 1, switched guides off by a coin flip on such scenes).
 
+use crate::evidence::{band_count, band_of_row, CostRatio, Verdict};
 use crate::GuidingError;
 
 /// The two estimators a [`GuideTrial`] compares.
@@ -68,10 +72,11 @@ pub struct TrialOptions {
     /// Passes per arm (`K` in the module docs), at least 2: the most the trial runs.
     pub passes_per_arm: u32,
     /// Early verdict: once both arms have the same number `k ≥ 2` of passes, the trial ends if
-    /// the cost ratio is at most this or at least its inverse (a clear case; every unguided
-    /// pass of a scene the guide wins costs the image variance, and the other way round). In
-    /// `[0, 1]`; 0 never ends early.
-    pub decisive_ratio: f64,
+    /// the cost ratio's interval excludes 1 (every unguided pass of a scene the guide wins
+    /// costs the image variance, and the other way round).
+    pub early_verdict: bool,
+    /// Normal quantile `z` of the cost ratio's interval ([`crate::evidence`]), > 0.
+    pub z: f64,
     /// `ε` of the relative variance's denominator `m² + ε`.
     pub epsilon: f64,
     /// Radius `r` of the box filter on the image before the trial (0: none).
@@ -82,7 +87,8 @@ impl Default for TrialOptions {
     fn default() -> Self {
         Self {
             passes_per_arm: 4,
-            decisive_ratio: 0.5,
+            early_verdict: true,
+            z: crate::evidence::Z,
             epsilon: 0.01,
             smoothing_radius: 2,
         }
@@ -92,8 +98,15 @@ impl Default for TrialOptions {
 /// What a finished [`GuideTrial`] measured and decided.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TrialVerdict {
-    /// `V_g · t_g ≤ V_u · t_u`: the guided estimator reaches a lower relMSE per second.
+    /// The guide stays on: the cost ratio's interval does not lie above 1 (it pays, or the
+    /// evidence does not say it does not).
     pub keep_guide: bool,
+    /// What the interval says ([`crate::evidence::CostRatio::verdict`]).
+    pub evidence: Verdict,
+    /// Lower end of the cost ratio's interval (`NaN` without one).
+    pub ratio_low: f64,
+    /// Upper end of the cost ratio's interval (`NaN` without one).
+    pub ratio_high: f64,
     /// Per-pass relative variance of the guided arm (`V_g`).
     pub guided_variance: f64,
     /// Per-pass relative variance of the unguided arm (`V_u`).
@@ -124,6 +137,8 @@ struct ArmSums {
 #[derive(Clone, Debug)]
 pub struct GuideTrial {
     options: TrialOptions,
+    width: usize,
+    height: usize,
     pixels: usize,
     /// `1 / (m̃² + ε)` per pixel and channel, from the smoothed image before the trial.
     weight: Vec<[f64; 3]>,
@@ -165,10 +180,10 @@ impl GuideTrial {
                 options.passes_per_arm
             )));
         }
-        if !(0.0..=1.0).contains(&options.decisive_ratio) {
+        if !(options.z.is_finite() && options.z > 0.0) {
             return Err(GuidingError::InvalidConfig(format!(
-                "the trial's decisive ratio must be in [0, 1], got {}",
-                options.decisive_ratio
+                "the trial's interval quantile z must be finite and positive, got {}",
+                options.z
             )));
         }
         if !(options.epsilon.is_finite() && options.epsilon > 0.0) {
@@ -190,6 +205,8 @@ impl GuideTrial {
             .collect();
         Ok(Self {
             options,
+            width,
+            height,
             pixels,
             weight,
             arms: [arm(), arm()],
@@ -267,8 +284,7 @@ impl GuideTrial {
         let (g, u) = (self.arms[0].passes, self.arms[1].passes);
         if g == u && g >= 2 {
             let v = self.estimate(g);
-            let d = self.options.decisive_ratio;
-            let clear = d > 0.0 && (v.cost_ratio <= d || v.cost_ratio * d >= 1.0);
+            let clear = self.options.early_verdict && v.evidence != Verdict::Undecided;
             if clear || g >= self.options.passes_per_arm {
                 self.decided = Some(v);
             }
@@ -281,32 +297,48 @@ impl GuideTrial {
         self.decided
     }
 
-    /// The verdict from `k ≥ 2` passes of each arm.
+    /// The verdict from `k ≥ 2` passes of each arm: per band of rows and arm the mean of
+    /// `s² · w` over the band's cells, the arms' `V` the mean over the bands, and the cost
+    /// ratio's interval from the paired bands ([`CostRatio::from_bands`]).
     fn estimate(&self, passes: u32) -> TrialVerdict {
         let k = f64::from(passes);
-        let mut var = [0.0f64; 2];
+        let bands = band_count(self.height);
+        let mut var = [vec![0.0f64; bands], vec![0.0f64; bands]];
+        let mut cells = vec![0u64; bands];
         let mut used = 0u64;
         for (p, w) in self.weight.iter().enumerate() {
             if self.bad[p] {
                 continue;
             }
             used += 1;
+            let b = band_of_row(p / self.width.max(1), self.height, bands);
+            cells[b] += 3;
             for (a, arm) in self.arms.iter().enumerate() {
                 for (ch, &w) in w.iter().enumerate() {
                     let (s, s2) = (arm.sum[p][ch], arm.sum2[p][ch]);
                     // Unbiased sample variance; rounding can make it a hair negative.
                     let s_var = ((s2 - s * s / k) / (k - 1.0)).max(0.0);
-                    var[a] += s_var * w;
+                    var[a][b] += s_var * w;
                 }
             }
         }
-        let cells = (3 * used).max(1) as f64;
-        let (vg, vu) = (var[0] / cells, var[1] / cells);
+        // Bands whose every pixel was left out carry no evidence.
+        let kept: Vec<usize> = (0..bands).filter(|&b| cells[b] > 0).collect();
+        let per_band =
+            |a: usize| -> Vec<f64> { kept.iter().map(|&b| var[a][b] / cells[b] as f64).collect() };
+        let (gb, ub) = (per_band(0), per_band(1));
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+        let (vg, vu) = (mean(&gb), mean(&ub));
         let (tg, tu) = (self.arms[0].seconds / k, self.arms[1].seconds / k);
         let (cg, cu) = (vg * tg, vu * tu);
         let cost_ratio = if cu > 0.0 { cg / cu } else { f64::NAN };
+        let interval = CostRatio::from_bands(&gb, &ub, tg, tu, self.options.z);
+        let evidence = interval.map_or(Verdict::Undecided, |c| c.verdict());
         TrialVerdict {
-            keep_guide: cg <= cu,
+            keep_guide: evidence != Verdict::DoesNotPay,
+            evidence,
+            ratio_low: interval.map_or(f64::NAN, |c| c.low),
+            ratio_high: interval.map_or(f64::NAN, |c| c.high),
             guided_variance: vg,
             unguided_variance: vu,
             guided_seconds: tg,

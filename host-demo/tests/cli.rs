@@ -218,8 +218,8 @@ fn render_and_compare_end_to_end() {
                 "0.5",
                 "--batch-size",
                 "256",
-                "--steps-per-pass",
-                "1",
+                "--training-share",
+                "0.25",
                 "--rr",
                 "--out",
             ])
@@ -234,6 +234,10 @@ fn render_and_compare_end_to_end() {
         .expect("training passes");
     assert!(spp >= 1 && train <= spp, "{s}");
     assert_eq!(s["stages"]["training"]["steps_after_stop"], 0);
+    // The library's schedule ran the training and reports its share of the training phase.
+    let sched = &s["stages"]["training"]["schedule"];
+    assert!(sched["updates"].as_u64() >= Some(1), "{s}");
+    assert_eq!(sched["steps"], s["stages"]["training"]["steps"], "{s}");
     assert_eq!(s["stages"]["russian_roulette"]["ran"], true);
     assert_eq!(s["stages"]["product_inputs"]["all_materials_diffuse"], true);
     // A time budget with NEE: the probe ran (its first training pass unguided) and the passes
@@ -300,9 +304,9 @@ fn stats_report_skipped_nee() {
         .contains("no emitter"));
 }
 
-/// With every material diffuse, the guided render's default target switches to radiance (the
-/// product adds nothing: the BSDF is the cosine) and the stats say the product inputs were
-/// skipped; `--target product` forces them, and a scene with a glossy material keeps them.
+/// The guided render's default target is radiance (the library's `npm_radiance` preset): the
+/// stats say the product inputs were skipped; `--target product` runs them and notes when
+/// every material is diffuse (the product then adds nothing: the BSDF is the cosine).
 #[test]
 fn stats_report_skipped_product_inputs_when_all_diffuse() {
     let dir = scratch("product");
@@ -328,7 +332,7 @@ fn stats_report_skipped_product_inputs_when_all_diffuse() {
                 "16",
                 "--batch-size",
                 "256",
-                "--steps-per-pass",
+                "--train-epochs",
                 "1",
             ])
             .args(target.map(|t| vec!["--target", t]).unwrap_or_default())
@@ -345,24 +349,25 @@ fn stats_report_skipped_product_inputs_when_all_diffuse() {
         )
     };
 
-    let (p, stderr) = run("builtin:cornell-box", None, "default");
+    let (p, _) = run("builtin:cornell-box", None, "default");
     assert_eq!(p["ran"], false, "{p}");
-    assert_eq!(p["skipped_all_diffuse"], true, "{p}");
     assert_eq!(p["all_materials_diffuse"], true, "{p}");
+    assert!(
+        p["reason"].as_str().expect("reason").contains("radiance"),
+        "{p}"
+    );
+
+    let (p, _) = run("builtin:cornell-box", Some("product"), "forced");
+    assert_eq!(p["ran"], true, "{p}");
     assert!(
         p["reason"].as_str().expect("reason").contains("diffuse"),
         "{p}"
     );
-    assert!(stderr.contains("every material is diffuse"), "{stderr}");
 
-    let (p, stderr) = run("builtin:cornell-box", Some("product"), "forced");
-    assert_eq!(p["ran"], true, "{p}");
-    assert_eq!(p["skipped_all_diffuse"], false, "{p}");
-    assert!(!stderr.contains("every material is diffuse"), "{stderr}");
-
-    let (p, _) = run(&glossy, None, "glossy");
+    let (p, _) = run(&glossy, Some("product"), "glossy");
     assert_eq!(p["ran"], true, "{p}");
     assert_eq!(p["all_materials_diffuse"], false, "{p}");
+    assert_eq!(p["reason"], "product target", "{p}");
 }
 
 /// `--device gpu` renders every guide with the guide on the Vulkan device, and `--stats`

@@ -18,6 +18,25 @@ use host_demo::render::{render_guided, GuidedOptions, GuidedStats};
 use host_demo::scene::builtin::load_builtin;
 use host_demo::scene::Scene;
 
+/// Reproducible training ([`guiding::StepRule::Epochs`]): the first `train_fraction` of the
+/// budget trains, `epochs` passes over each training pass's samples (capped by the field's
+/// `steps_per_update`).
+fn epochs(train_fraction: f64, epochs: f64) -> guiding::ScheduleOptions {
+    guiding::ScheduleOptions {
+        train_fraction,
+        steps: guiding::StepRule::Epochs(epochs),
+        ..guiding::ScheduleOptions::DEFAULT
+    }
+}
+
+/// The library's time-driven schedule with another training fraction.
+fn time_share(train_fraction: f64) -> guiding::ScheduleOptions {
+    guiding::ScheduleOptions {
+        train_fraction,
+        ..guiding::ScheduleOptions::DEFAULT
+    }
+}
+
 const Z: f64 = 4.5;
 
 fn res(n: u32) -> u32 {
@@ -71,8 +90,7 @@ fn guided(
     // training fraction of 0.3 (not the default's).
     let gopts = GuidedOptions {
         nee,
-        train_fraction: 0.3,
-        train_epochs: f32::MAX,
+        schedule: epochs(0.3, 1e6),
         ..GuidedOptions::default()
     };
     render_guided(scene, o, &gopts, &mut g).expect("guided render")
@@ -309,7 +327,7 @@ fn door_ratio(seed: u64) -> (f64, f64) {
     .expect("guide");
     let train = GuidedOptions {
         nee: true,
-        train_fraction: 1.0,
+        schedule: epochs(1.0, 1.0),
         ..GuidedOptions::default()
     };
     let o = opts(IntegratorKind::PtNee, DOOR_TRAIN_SPP, w, h, 1000 + seed, 0);
@@ -317,7 +335,7 @@ fn door_ratio(seed: u64) -> (f64, f64) {
     eprintln!("training render:\n{st}");
     assert_eq!(st.training_passes, DOOR_TRAIN_SPP);
     let frozen = GuidedOptions {
-        train_fraction: 0.0,
+        schedule: epochs(0.0, 1.0),
         ..train
     };
     let o = opts(IntegratorKind::PtNee, DOOR_SPP, w, h, 6 + 10 * seed, 0);
@@ -427,7 +445,7 @@ fn efficiency_trial_decides_once_and_keeps_the_image_unbiased() {
     // The training probe (tested in (g)) would often end training on this scene before the
     // trial.
     let gopts = GuidedOptions {
-        train_fraction: 0.3,
+        schedule: time_share(0.3),
         training_probe: false,
         ..GuidedOptions::default()
     };
@@ -445,6 +463,7 @@ fn efficiency_trial_decides_once_and_keeps_the_image_unbiased() {
     assert_eq!(trial.passes_guide_off, expected_off);
     assert!(verdict.guided_seconds > 0.0 && verdict.unguided_seconds > 0.0);
     assert!(verdict.cost_ratio.is_finite());
+    assert!(verdict.ratio_low <= verdict.cost_ratio && verdict.cost_ratio <= verdict.ratio_high);
     assert_same_mean("trial", &img, &reference);
     // The same render with an spp budget: no trial.
     let mut g = small_npm();
@@ -467,7 +486,7 @@ fn pass_weights_keep_the_image_unbiased() {
     let run = |weight_passes: bool| {
         let mut g = small_npm_radiance(&scene, config);
         let gopts = GuidedOptions {
-            train_fraction: 0.3,
+            schedule: time_share(0.3),
             weight_passes,
             ..GuidedOptions::default()
         };
@@ -495,53 +514,60 @@ fn pass_weights_keep_the_image_unbiased() {
 }
 
 /// (g) The training probe: the first training pass of a time-budget render with NEE runs with
-/// the guide off; before pass 4 the best guided training pass is compared with it. Forced to
-/// abandon (threshold 0), training ends there and every later pass runs with the guide off (no
-/// trial); forced to keep (threshold ∞), training runs its course and the trial follows. Both
-/// images stay unbiased (z-test against pt-nee as in (a)); with the probe off there is none.
+/// the guide off; once the guide has had `probe::MIN_STEPS` Adam steps, the next training pass
+/// is guided and, after it, compared with the unguided one. Forced to abandon, training ends
+/// there and every later pass runs with the guide off (no trial); forced to keep, training runs
+/// its course and the trial follows. Both images stay unbiased (z-test against pt-nee as in
+/// (a)); with the probe off there is none.
 #[test]
 fn training_probe_abandons_training_and_keeps_the_image_unbiased() {
     let scene = load_builtin("cornell-box").unwrap();
     let (w, h) = (res(32), res(32));
     let reference = render(&scene, &opts(IntegratorKind::PtNee, 256, w, h, 1, 0));
-    let config = FieldConfig::DEFAULT.with_threads(2).with_seed(5);
+    let config = FieldConfig::DEFAULT
+        .with_threads(2)
+        .with_seed(5)
+        .with_batch_size(1024);
     let o = RenderOptions {
         time_budget: Some(std::time::Duration::from_secs(3)),
         ..opts(IntegratorKind::PtNee, 1, w, h, 11, 2)
     };
-    let run = |training_probe: bool, probe_threshold: f64| {
+    let run = |training_probe: bool, probe_force: Option<bool>| {
         let mut g = small_npm_radiance(&scene, config);
         let gopts = GuidedOptions {
-            train_fraction: 0.3,
+            schedule: time_share(0.5),
             training_probe,
-            probe_threshold,
+            probe_force,
             ..GuidedOptions::default()
         };
         render_guided(&scene, &o, &gopts, &mut g).expect("guided render")
     };
-    let (img, st) = run(true, 0.0);
+    let (img, st) = run(true, Some(true));
     eprintln!("{st}");
     let probe = st.probe.expect("the probe ran");
-    let v = probe.verdict.expect("a verdict before pass 4");
-    assert_eq!(v.at_pass, 4);
-    assert!(v.abandoned && v.cost_ratio.is_finite() && v.cost_ratio > 0.0);
-    assert_eq!(st.training_passes, 4);
+    let v = probe.verdict.expect("a verdict after MIN_STEPS");
+    assert!(v.steps >= host_demo::render::strategy::probe::MIN_STEPS);
+    assert!(v.guided_pass >= 1 && v.at_pass > v.guided_pass, "{v:?}");
+    assert!(v.abandoned && v.ratio.ratio.is_finite() && v.ratio.ratio > 0.0);
+    assert!(v.ratio.low <= v.ratio.ratio && v.ratio.ratio <= v.ratio.high);
+    assert_eq!(st.training_passes, v.at_pass);
     assert!(st.trial.is_none());
-    // Pass 0 and every pass from 4 on; passes 1-3 were guided.
-    assert_eq!(probe.passes_guide_off, st.passes - 3);
+    // Pass 0 and every pass from the verdict on; the passes in between were guided.
+    assert_eq!(probe.passes_guide_off, st.passes - (v.at_pass - 1));
     assert_eq!(st.samples_recorded_after_training, 0);
     assert_same_mean("probe abandoned", &img, &reference);
 
-    let (img, st) = run(true, f64::INFINITY);
+    let (img, st) = run(true, Some(false));
     eprintln!("{st}");
     let probe = st.probe.expect("the probe ran");
-    assert!(!probe.verdict.expect("a verdict").abandoned);
+    let v = probe.verdict.expect("a verdict");
+    assert!(!v.abandoned);
     assert_eq!(probe.passes_guide_off, 1);
-    assert!(st.training_passes > 4);
+    assert!(st.training_passes > v.at_pass);
     assert!(st.trial.is_some());
     assert_same_mean("probe kept", &img, &reference);
 
-    let (_, st) = run(false, f64::INFINITY);
+    let (_, st) = run(false, None);
     assert!(st.probe.is_none());
 }
 

@@ -39,6 +39,15 @@ use host_demo::render::{render_guided, CacheMode, GuidedOptions, GuidedStats};
 use host_demo::scene::builtin::load_builtin;
 use host_demo::scene::Scene;
 
+/// Reproducible training for these seeded tests: one update per training pass of one epoch
+/// over its samples (capped by the field's `steps_per_update`), the library's training
+/// fraction. The time-driven default would make the trained guide, and so the seeds' outcome,
+/// change from run to run.
+const REPRODUCIBLE: guiding::ScheduleOptions = guiding::ScheduleOptions {
+    steps: guiding::StepRule::Epochs(1.0),
+    ..guiding::ScheduleOptions::DEFAULT
+};
+
 const SEEDS: u64 = 16;
 const RES: u32 = 16;
 const BLOCK: u32 = 4;
@@ -223,6 +232,7 @@ fn guided_with(
     let gopts = GuidedOptions {
         nee,
         guide_pdf_scale,
+        schedule: REPRODUCIBLE,
         ..GuidedOptions::default()
     };
     if let Some(ctx) = gpu {
@@ -439,6 +449,7 @@ fn guided_cached(
         nee: true,
         cache: mode,
         cache_resolution: resolution,
+        schedule: REPRODUCIBLE,
         ..GuidedOptions::default()
     };
     render_guided(scene, &o, &gopts, &mut g).expect("guided render")
@@ -625,8 +636,11 @@ fn sharp_frozen_guides_agree_per_block() {
         };
         let gtrain = GuidedOptions {
             nee: true,
-            train_fraction: 1.0,
-            train_epochs: f32::MAX,
+            schedule: guiding::ScheduleOptions {
+                train_fraction: 1.0,
+                steps: guiding::StepRule::Epochs(1e6),
+                ..guiding::ScheduleOptions::DEFAULT
+            },
             ..GuidedOptions::default()
         };
         let (_, st) = render_guided(&scene, &train, &gtrain, &mut g).expect("guided render");
@@ -650,7 +664,10 @@ fn sharp_frozen_guides_agree_per_block() {
         let (steps, generation) = (g.stats().steps, g.generation());
         let frozen = GuidedOptions {
             nee: true,
-            train_fraction: 0.0,
+            schedule: guiding::ScheduleOptions {
+                train_fraction: 0.0,
+                ..guiding::ScheduleOptions::DEFAULT
+            },
             ..GuidedOptions::default()
         };
         let guide = std::cell::RefCell::new(g);

@@ -142,43 +142,39 @@ enum Cmd {
         /// Guiding model (`--integrator guided`).
         #[arg(long, value_enum, default_value = "npm")]
         guide: GuideArg,
-        /// Guiding target (`--integrator guided`). Default: `product`, or `radiance` when
-        /// every material of the scene is diffuse (the product then adds nothing: the BSDF
-        /// is the cosine). Pass `--target product` to force the product anyway.
+        /// Guiding target (`--integrator guided`). Default: `radiance` (the library's
+        /// `npm_radiance` preset: the guide cache and the cosine product apply); `product`
+        /// learns `f · L · cos` per outgoing direction and never uses the cache.
         #[arg(long, value_enum)]
         target: Option<TargetArg>,
         /// Model size preset (`--integrator guided`).
         #[arg(long, value_enum, default_value = "demo")]
         model_size: SizeArg,
-        /// Fraction of the budget (spp passes or time) used for training, in [0, 1]. 0.2: at
-        /// 20 s (1 seed each) 0.15 against 0.3 gave relMSE 0.00103 / 0.00112 (Cornell box),
-        /// 0.00420 / 0.00475 (veach-mis) and 0.092 / 0.090 (builtin:door).
-        #[arg(long, default_value_t = 0.2)]
-        train_fraction: f32,
-        /// Guide-selection probability c in [0, 1] (NASG uses its learned value). 0.3: on
-        /// builtin:door (64 spp) c = 0.25 / 0.35 / 0.5 / 0.75 gave relMSE 0.246 / 0.254 / 0.282 /
-        /// 0.479.
-        #[arg(long, default_value_t = 0.3)]
-        selection_probability: f32,
-        /// Most Adam steps per training pass (the cap of --train-epochs). 64: a 320-px pass of
-        /// builtin:door records ~480 k samples, of which a cap of 32 steps of 8192 used 262 k; with
-        /// 64 (every sample once) the door at 20 s gave relMSE 0.222 against 0.241, 3 seeds each
-        /// (lower on every seed), and the Cornell box 0.00174 against 0.00178. Earlier: on
-        /// builtin:door 160x120 32 spp, 4 steps at lr 5e-3 gave 2.05x pt-nee's per-pixel variance,
-        /// 32 steps at lr 3e-2 1.22x.
-        #[arg(long, default_value_t = 64)]
-        steps_per_pass: u32,
-        /// Adam steps per training pass as passes (epochs) over the pass's samples, capped at
-        /// --steps-per-pass (1: on veach-mis, 128 spp, 1 / 4 epochs gave relMSE 0.0165 / 0.0160
-        /// with 2.8 / 9.3 s of training).
-        #[arg(long, default_value_t = 1.0)]
-        train_epochs: f32,
-        /// Training minibatch size.
-        #[arg(long, default_value_t = 8192)]
-        batch_size: usize,
-        /// Learning rate of the guide's Adam optimiser. Default 5e-3 for NPM (on builtin:door,
-        /// 64 spp, 32 steps per pass: lr 3e-2 / 1e-2 / 5e-3 / 2e-3 gave relMSE 0.234 / 0.209 /
-        /// 0.198 / 0.242), 3e-2 for NASG and DF.
+        /// Fraction of the budget (spp passes or time) in the training phase, in [0, 1].
+        /// Default: the library's `ScheduleOptions::DEFAULT` (0.2).
+        #[arg(long)]
+        train_fraction: Option<f32>,
+        /// Share of the training phase's wall clock given to Adam steps, in (0, 1). Default:
+        /// the library's (1/3; `guiding::schedule`).
+        #[arg(long)]
+        training_share: Option<f64>,
+        /// Reproducible training instead of the time share: one update per training pass
+        /// with this many epochs over its samples, at most --steps-per-update steps.
+        #[arg(long)]
+        train_epochs: Option<f64>,
+        /// Guide-selection probability c in [0, 1] (NASG uses its learned value). Default: the
+        /// library's preset (0.3; `guiding::config::PRESET_SELECTION_PROBABILITY`).
+        #[arg(long)]
+        selection_probability: Option<f32>,
+        /// Most Adam steps per update of --train-epochs (and of the library's plain
+        /// `update`). Default: the library's preset (64).
+        #[arg(long)]
+        steps_per_update: Option<u32>,
+        /// Training minibatch size. Default: the library's preset (8192).
+        #[arg(long)]
+        batch_size: Option<usize>,
+        /// Learning rate of the guide's Adam optimiser. Default: the library's preset (5e-3
+        /// for NPM, 3e-2 for NASG and DF; `guiding::config`).
         #[arg(long)]
         learning_rate: Option<f32>,
         /// Stop training when the mean loss has not improved by --plateau-margin (relative)

@@ -31,9 +31,10 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         target,
         model_size,
         train_fraction,
-        selection_probability,
-        steps_per_pass,
+        training_share,
         train_epochs,
+        selection_probability,
+        steps_per_update,
         batch_size,
         learning_rate,
         plateau_window,
@@ -61,33 +62,48 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         Some(t) if t.is_finite() && (0.0..=1e7).contains(&t) => Some(Duration::from_secs_f64(t)),
         Some(t) => return bad(format!("--time {t} is not a number of seconds in [0, 1e7]")),
     };
-    if !(0.0..=1.0).contains(&train_fraction) {
+    // Every default is the library's: what an embedder gets is what this measures.
+    let representation = match guide {
+        GuideArg::Npm => guiding::Representation::Npm,
+        GuideArg::Nasg => guiding::Representation::Nasg,
+        GuideArg::DfN => guiding::Representation::DfNearest,
+        GuideArg::DfL => guiding::Representation::DfLinear,
+    };
+    let preset = guiding::GuidingConfig::for_representation(representation, Target::Radiance);
+    let mut schedule = guiding::ScheduleOptions::DEFAULT;
+    if let Some(f) = train_fraction {
+        schedule.train_fraction = f64::from(f);
+    }
+    if let Some(s) = training_share {
+        schedule.steps = guiding::StepRule::TimeShare(s);
+    }
+    if let Some(e) = train_epochs {
+        schedule.steps = guiding::StepRule::Epochs(e);
+    }
+    if let Err(e) = schedule.validate() {
         return bad(format!(
-            "--train-fraction {train_fraction} is not in [0, 1]"
+            "--train-fraction / --training-share / --train-epochs: {e}"
         ));
     }
+    let selection_probability = selection_probability.unwrap_or(preset.selection_probability);
     if !(0.0..=1.0).contains(&selection_probability) {
         return bad(format!(
             "--selection-probability {selection_probability} is not in [0, 1]"
         ));
     }
-    if !(1..=10_000).contains(&steps_per_pass) {
+    let steps_per_update = steps_per_update.unwrap_or(preset.training.steps_per_update);
+    if !(1..=10_000).contains(&steps_per_update) {
         return bad(format!(
-            "--steps-per-pass {steps_per_pass} is not in [1, 10000]"
+            "--steps-per-update {steps_per_update} is not in [1, 10000]"
         ));
     }
+    let batch_size = batch_size.unwrap_or(preset.training.batch_size);
     if !(1..=1 << 20).contains(&batch_size) {
         return bad(format!("--batch-size {batch_size} is not in [1, 2^20]"));
     }
-    let learning_rate = learning_rate.unwrap_or(match guide {
-        GuideArg::Npm => 5e-3,
-        _ => 3e-2,
-    });
+    let learning_rate = learning_rate.unwrap_or(preset.training.adam.learning_rate);
     if !(learning_rate.is_finite() && learning_rate > 0.0) {
         return bad(format!("--learning-rate {learning_rate} must be > 0"));
-    }
-    if !(train_epochs.is_finite() && train_epochs > 0.0) {
-        return bad(format!("--train-epochs {train_epochs} must be > 0"));
     }
     if !(1..=guiding::cache::MAX_CACHE_RESOLUTION).contains(&guide_cache_resolution) {
         return bad(format!(
@@ -159,8 +175,6 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
     let mut guided_stats = None;
     let mut plain_stats = None;
     let all_diffuse = all_materials_diffuse(&sc);
-    // The default target was switched to radiance because every material is diffuse.
-    let mut target_auto_radiance = false;
     let img = if let Integrator::Guided = integrator {
         let gopts = GuidedOptions {
             nee: match nee {
@@ -168,7 +182,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
                 Some(OnOff::Off) => false,
                 None => sc.has_samplable_emitter(),
             },
-            train_fraction,
+            schedule,
             selection_probability,
             cache: match guide_cache {
                 CacheArg::Off => CacheMode::Off,
@@ -176,7 +190,6 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
                 CacheArg::Always => CacheMode::Always,
             },
             cache_resolution: guide_cache_resolution,
-            train_epochs,
             fit_selection: matches!(fit_selection, OnOff::On),
             efficiency_trial: matches!(guide_trial, OnOff::On),
             weight_passes: matches!(pass_weights, OnOff::On),
@@ -190,18 +203,8 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
             GuideArg::DfL => GuideKind::DfL,
         };
         let target = match target {
-            Some(TargetArg::Radiance) => Target::Radiance,
+            Some(TargetArg::Radiance) | None => Target::Radiance,
             Some(TargetArg::Product) => Target::Product,
-            None if all_diffuse => {
-                eprintln!(
-                    "note: every material is diffuse, so the product target adds nothing over \
-                     radiance (the BSDF is the cosine); guiding with --target radiance \
-                     (pass --target product to force the product)"
-                );
-                target_auto_radiance = true;
-                Target::Radiance
-            }
-            None => Target::Product,
         };
         let size = match model_size {
             SizeArg::Demo => ModelSize::Demo,
@@ -210,7 +213,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         };
         let config = FieldConfig::DEFAULT
             .with_batch_size(batch_size)
-            .with_steps_per_update(steps_per_pass)
+            .with_steps_per_update(steps_per_update)
             .with_learning_rate(learning_rate)
             .with_plateau(PlateauConfig::new(plateau_window, plateau_margin))
             .with_threads(threads)
@@ -377,11 +380,8 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
                 "product_inputs": {
                     "ran": product,
                     "all_materials_diffuse": all_diffuse,
-                    "skipped_all_diffuse": target_auto_radiance,
-                    "reason": if target_auto_radiance {
-                        "skipped: every material is diffuse (the BSDF is the cosine), so the default target switched to radiance; --target product forces it"
-                    } else if !product {
-                        "radiance target"
+                    "reason": if !product {
+                        "skipped: the radiance target (the default) reads no product inputs"
                     } else if all_diffuse {
                         "product target requested explicitly although every material is diffuse"
                     } else {
@@ -399,6 +399,14 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
                     "steps": g.training_steps,
                     "steps_after_stop": g.training_steps_after_training,
                     "last_loss": finite(g.last_loss),
+                    "schedule": {
+                        "updates": g.schedule.updates,
+                        "steps": g.schedule.steps,
+                        "seconds_per_step": finite(g.schedule.seconds_per_step),
+                        "training_seconds": g.schedule.trained_seconds,
+                        "training_phase_tracing_seconds": g.schedule.traced_seconds,
+                        "training_share": finite(g.schedule.training_share()),
+                    },
                 },
                 "russian_roulette": rr_stage,
                 "efficiency_trial": trial_json(g.trial.as_ref()),
@@ -443,6 +451,8 @@ fn trial_json(t: Option<&host_demo::render::TrialStats>) -> serde_json::Value {
             "finished": true,
             "passes": t.passes,
             "keep_guide": v.keep_guide,
+            "evidence": format!("{:?}", v.evidence),
+            "cost_ratio_interval": [finite(v.ratio_low), finite(v.ratio_high)],
             "guided_relmse_per_pass": finite(v.guided_variance),
             "unguided_relmse_per_pass": finite(v.unguided_variance),
             "guided_seconds_per_pass": v.guided_seconds,
@@ -466,11 +476,13 @@ fn probe_json(p: Option<&host_demo::render::ProbeStats>) -> serde_json::Value {
             "finished": true,
             "at_pass": v.at_pass,
             "abandoned": v.abandoned,
-            "guided_relmse_per_pass": finite(v.guided_variance),
-            "guided_seconds_per_pass": v.guided_seconds,
-            "unguided_relmse_per_pass": finite(v.unguided_variance),
-            "unguided_seconds_per_pass": v.unguided_seconds,
-            "cost_ratio": finite(v.cost_ratio),
+            "guided_pass": v.guided_pass,
+            "steps_before_guided_pass": v.steps,
+            "guided_relmse_per_pass": finite(v.ratio.guided_variance),
+            "unguided_relmse_per_pass": finite(v.ratio.unguided_variance),
+            "seconds_per_pass": v.seconds,
+            "cost_ratio": finite(v.ratio.ratio),
+            "cost_ratio_interval": [finite(v.ratio.low), finite(v.ratio.high)],
             "passes_guide_off": p.passes_guide_off,
         }),
     }

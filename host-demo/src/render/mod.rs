@@ -34,20 +34,20 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Image {
 /// The image is bit-identical for any thread count and block size.
 pub fn render_with_stats(scene: &Scene, opts: &RenderOptions) -> (Image, RenderStats) {
     let nee = opts.integrator == IntegratorKind::PtNee;
-    match wavefront::render_passes(scene, opts, nee, 0.0, &mut BsdfSampling) {
+    match wavefront::render_passes(scene, opts, nee, &mut BsdfSampling) {
         Ok(r) => r,
         Err(never) => match never {},
     }
 }
 
-/// Renders `scene` with guided path tracing, training `guide` online during the first
-/// `gopts.train_fraction` of the passes. `opts.integrator` is ignored (NEE follows
+/// Renders `scene` with guided path tracing, training `guide` online as the library's
+/// schedule (`gopts.schedule`) says. `opts.integrator` is ignored (NEE follows
 /// `gopts.nee`). The guide runs where it was put: on the CPU threads, or on a Vulkan device
 /// ([`GuidingField::use_device`], `--device gpu`), through the same calls.
 ///
 /// # Errors
 /// The guide's device failed (only a guide on a device that does not fall back to the
-/// CPU): the render stops after the pass it happened in.
+/// CPU): the render stops after the pass it happened in. Schedule options out of range.
 pub fn render_guided(
     scene: &Scene,
     opts: &RenderOptions,
@@ -64,8 +64,11 @@ pub fn render_guided(
             && scene.has_samplable_emitter(),
         ..*gopts
     };
-    let mut strategy = Guided::new(guide, &gopts);
-    let (img, rs) =
-        wavefront::render_passes(scene, opts, gopts.nee, gopts.train_fraction, &mut strategy)?;
+    let budget = match opts.time_budget {
+        Some(t) => guiding::Budget::Seconds(t.as_secs_f64()),
+        None => guiding::Budget::Spp(opts.spp),
+    };
+    let mut strategy = Guided::new(guide, &gopts, budget)?;
+    let (img, rs) = wavefront::render_passes(scene, opts, gopts.nee, &mut strategy)?;
     Ok((img, strategy.finish(&rs)))
 }

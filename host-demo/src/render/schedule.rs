@@ -1,8 +1,10 @@
 //! Pass scheduling: how many passes (one sample per pixel over the whole image) a render runs,
-//! which of them train the guide, and the progress bar.
+//! and the progress bar. Which passes train, and how, is the strategy's question (the guided
+//! strategy asks the library's [`guiding::TrainingSchedule`]); the strategy tells the schedule
+//! when training has ended ([`Schedule::training_ended`]) so the prediction below can leave
+//! the training passes out.
 //!
-//! * **spp budget** (`RenderOptions::time_budget == None`): exactly `spp` passes; the first
-//!   `round(train_fraction · spp)` train.
+//! * **spp budget** (`RenderOptions::time_budget == None`): exactly `spp` passes.
 //! * **time budget**: passes run while the budget lasts. A new pass starts only if the time
 //!   used so far plus the predicted pass time fits into the budget (so the render ends at or
 //!   slightly before the budget, not one pass after it); the first pass always runs. The
@@ -10,8 +12,6 @@
 //!   that): training passes also pay for the training itself, which would inflate the
 //!   prediction by `training time / passes` (about 15 ms a pass on the door at 20 s) and end
 //!   a guided render earlier than `pt-nee` for no reason.
-//!   Training passes are those that *start* before `train_fraction · budget` has elapsed; once
-//!   one pass starts after that point no later pass trains.
 //!
 //! The progress bar (indicatif, on stderr) counts passes (spp budget) or elapsed milliseconds
 //! (time budget); it is hidden when `RenderOptions::progress` is off or stderr is not a terminal.
@@ -29,8 +29,8 @@ pub const MAX_PASSES: u32 = 1 << 20;
 pub struct Pass {
     /// Pass index = sample index of every pixel (seeds the per-path RNG).
     pub index: u32,
-    /// The pass records training samples.
-    pub train: bool,
+    /// Wall time since the render started, when this pass starts.
+    pub elapsed: Duration,
 }
 
 /// Decides the passes of one render; see the [module docs](self).
@@ -38,7 +38,6 @@ pub struct Schedule {
     start: Instant,
     spp: u32,
     budget: Option<Duration>,
-    train_fraction: f64,
     done: u32,
     training_over: bool,
     /// Elapsed time and pass index when the first pass without training started.
@@ -61,14 +60,8 @@ fn predicted_pass(
 }
 
 impl Schedule {
-    /// Schedule for `opts` (spp or time budget) with `train_fraction` in `[0, 1]` (0 for
-    /// unguided renders; non-finite values count as 0).
-    pub fn new(opts: &RenderOptions, train_fraction: f32) -> Self {
-        let train_fraction = if train_fraction.is_finite() {
-            f64::from(train_fraction.clamp(0.0, 1.0))
-        } else {
-            0.0
-        };
+    /// Schedule for `opts` (spp or time budget).
+    pub fn new(opts: &RenderOptions) -> Self {
         let budget = opts.time_budget;
         let bar = (opts.progress && std::io::stderr().is_terminal()).then(|| {
             let (len, template) = match budget {
@@ -91,17 +84,11 @@ impl Schedule {
             start: Instant::now(),
             spp: opts.spp.max(1),
             budget,
-            train_fraction,
             done: 0,
             training_over: false,
             steady_since: None,
             bar,
         }
-    }
-
-    /// Number of training passes of an spp-budget render.
-    fn spp_train_passes(&self) -> u32 {
-        ((self.train_fraction * f64::from(self.spp)).round() as u32).min(self.spp)
     }
 
     /// The next pass, or `None` when the budget is used up. Call once per pass, after the
@@ -115,36 +102,37 @@ impl Schedule {
             }
         }
         let index = self.done;
-        let train = match self.budget {
-            None => {
-                if index >= self.spp {
-                    return None;
-                }
-                index < self.spp_train_passes()
+        match self.budget {
+            None if index >= self.spp => return None,
+            Some(_) if index >= MAX_PASSES => return None,
+            Some(budget)
+                if index > 0
+                    && elapsed + predicted_pass(elapsed, index, self.steady_since) > budget =>
+            {
+                return None
             }
-            Some(budget) => {
-                if index >= MAX_PASSES {
-                    return None;
-                }
-                if index > 0 && elapsed + predicted_pass(elapsed, index, self.steady_since) > budget
-                {
-                    return None;
-                }
-                let t = elapsed.as_secs_f64() < self.train_fraction * budget.as_secs_f64();
-                !self.training_over && t
-            }
-        };
-        if !train {
+            _ => {}
+        }
+        self.done += 1;
+        Some(Pass { index, elapsed })
+    }
+
+    /// Whether `pass` (just handed out) trains: the first one that does not ends training
+    /// for the prediction of the pass time.
+    pub fn training_ended(&mut self, pass: &Pass, trains: bool) {
+        if !trains {
             self.training_over = true;
             if self.steady_since.is_none() {
-                self.steady_since = Some((elapsed, index));
+                self.steady_since = Some((pass.elapsed, pass.index));
             }
         }
         if let Some(bar) = &self.bar {
-            bar.set_message(if train { "(training)" } else { "" });
+            bar.set_message(if trains && !self.training_over {
+                "(training)"
+            } else {
+                ""
+            });
         }
-        self.done += 1;
-        Some(Pass { index, train })
     }
 
     /// Passes handed out so far.
@@ -170,16 +158,14 @@ mod tests {
     use super::*;
 
     #[test]
-    fn spp_schedule_counts_and_trains_first_fraction() {
+    fn spp_schedule_counts_passes() {
         let opts = RenderOptions {
             spp: 10,
             ..RenderOptions::default()
         };
-        let mut s = Schedule::new(&opts, 0.3);
+        let mut s = Schedule::new(&opts);
         let passes: Vec<Pass> = std::iter::from_fn(|| s.next_pass()).collect();
         assert_eq!(passes.len(), 10);
-        assert_eq!(passes.iter().filter(|p| p.train).count(), 3);
-        assert!(passes[..3].iter().all(|p| p.train));
         assert_eq!(passes[9].index, 9);
     }
 
@@ -203,9 +189,8 @@ mod tests {
             time_budget: Some(Duration::ZERO),
             ..RenderOptions::default()
         };
-        let mut s = Schedule::new(&opts, 0.5);
-        let first = s.next_pass().expect("first pass always runs");
-        assert!(!first.train, "no training time in a zero budget");
+        let mut s = Schedule::new(&opts);
+        s.next_pass().expect("first pass always runs");
         std::thread::sleep(Duration::from_millis(1));
         assert_eq!(s.next_pass(), None);
     }

@@ -37,7 +37,7 @@ use crate::render::image::{accumulate, finish_image, Image, RenderStats};
 use crate::render::options::RenderOptions;
 use crate::render::queues::{Continuations, LightSamples, RayQueue, ShadowQueue, Vertices};
 use crate::render::schedule::Schedule;
-use crate::render::strategy::{PassImage, PassSamples, Strategy, VertexStrategy};
+use crate::render::strategy::{PassImage, PassSamples, Strategy, Traced, VertexStrategy};
 use crate::scene::emitter::EmitterSample;
 use crate::scene::Scene;
 use glam::Vec3;
@@ -136,8 +136,11 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
         }
     }
 
-    /// Traces sample `s` of pixels `[start, start + count)` into `self.radiance`.
-    fn trace_sample(&mut self, start: usize, count: usize, width: u32, height: u32, s: u32) {
+    /// Traces sample `s` of the pixels of image rows `rows` (in that order, each row left to
+    /// right) into `self.radiance`.
+    fn trace_sample(&mut self, rows: &[u32], width: u32, height: u32, s: u32) {
+        let w = width as usize;
+        let count = rows.len() * w;
         self.rays_in.clear();
         self.rng.clear();
         self.radiance.clear();
@@ -147,8 +150,8 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
         }
         let cam = &self.scene.camera;
         for i in 0..count {
-            let pix = start + i;
-            let (x, y) = ((pix % width as usize) as f32, (pix / width as usize) as f32);
+            let pix = rows[i / w] as usize * w + i % w;
+            let (x, y) = ((pix % w) as f32, (pix / w) as f32);
             let mut rng = Rng::from_keys(self.opts.seed, pix as u64, s as u64);
             let (u, v) = (
                 (x + rng.next_f32()) / width as f32,
@@ -392,35 +395,61 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
     }
 }
 
-/// What one thread did in a pass: its blocks' radiance and training samples, its rays and
-/// its strategy's report.
+/// What one thread did in a work item: its rows' radiance and training samples.
 type BlockResult = (Vec<Vec3>, Vec<TrainingSample>, Vec<[f32; 3]>);
 
+/// The rows of an image of `height` rows in van der Corput order (bit-reversed indices,
+/// skipping those `≥ height`): every run of consecutive entries is spread evenly over the
+/// image, so a training pass traced in pieces of consecutive entries updates the guide from
+/// paths all over the image, not from its top rows. A permutation: every row once.
+pub fn spread_rows(height: u32) -> Vec<u32> {
+    let bits = height.max(1).next_power_of_two().trailing_zeros();
+    (0..1u64 << bits)
+        .map(|i| {
+            if bits == 0 {
+                0
+            } else {
+                (i as u32).reverse_bits() >> (32 - bits)
+            }
+        })
+        .filter(|&r| r < height)
+        .collect()
+}
+
 /// Renders `scene` pass by pass with `strategy` (one sample per pixel over the whole image
-/// per pass, for the spp or time budget of `opts`, see [`crate::render::schedule`]);
-/// `train_fraction` of the passes are offered to the strategy for training.
+/// per pass, for the spp or time budget of `opts`, see [`crate::render::schedule`]).
 ///
-/// Pixel sums are accumulated in pass order and training samples handed over in block
-/// order, so the result is the same for any thread count.
+/// A pass the strategy records is traced in pieces ([`Strategy::paths_before_update`]: the
+/// library's schedule asks for an update every fraction of a second, whatever the pass time),
+/// each piece a set of rows spread over the image ([`spread_rows`]), and the strategy trains
+/// between pieces ([`Strategy::end_chunk`]). Every pixel still gets exactly one sample per
+/// pass, keyed by its pixel and pass index, so each pass stays an unbiased estimate whichever
+/// guide its pieces used.
+///
+/// Pixel sums are accumulated in pass order and training samples handed over in row order, so
+/// the result is the same for any thread count (given the same pieces: time-driven pieces vary
+/// from run to run, [`guiding::StepRule::Epochs`] gives whole passes).
 ///
 /// # Errors
-/// The first error of [`Strategy::end_pass`]; the render stops after that pass.
+/// The first error of [`Strategy::end_chunk`]; the render stops after that piece.
 pub fn render_passes<S: Strategy>(
     scene: &Scene,
     opts: &RenderOptions,
     nee: bool,
-    train_fraction: f32,
     strategy: &mut S,
 ) -> Result<(Image, RenderStats), S::Error> {
     let (width, height) = opts.resolution(scene);
     let npix = width as usize * height as usize;
     let threads = opts.thread_count();
     let block = npix.div_ceil(threads * 8).clamp(64, 4096);
-    let nblocks = npix.div_ceil(block);
+    let rows_per_item = (block / width as usize).max(1);
     let mut sum = vec![[0.0f64; 3]; npix];
     let mut sum2 = vec![[0.0f64; 3]; npix];
-    let mut sched = Schedule::new(opts, train_fraction);
-    // The current pass's pixel values, for a strategy that asks for them.
+    let mut sched = Schedule::new(opts);
+    let in_order: Vec<u32> = (0..height).collect();
+    let spread = spread_rows(height);
+    // The current pass's pixel values (row-major).
+    let mut pass_radiance = vec![Vec3::ZERO; npix];
     let mut pass_image: Vec<[f32; 3]> = Vec::new();
     let nee = nee && scene.has_samplable_emitter();
     let mut stats = RenderStats {
@@ -429,77 +458,96 @@ pub fn render_passes<S: Strategy>(
     };
     while let Some(pass) = sched.next_pass() {
         let record = strategy.begin_pass(&pass);
+        sched.training_ended(&pass, record);
         let wants_image = strategy.wants_pass_image(&pass);
-        let t_pass = Instant::now();
-        let next = AtomicUsize::new(0);
-        let results: Mutex<Vec<Option<BlockResult>>> =
-            Mutex::new((0..nblocks).map(|_| None).collect());
-        let reports = Mutex::new(Vec::new());
-        let rays = AtomicUsize::new(0);
-        let shared: &S = strategy;
-        std::thread::scope(|sc| {
-            for _ in 0..threads.min(nblocks) {
-                sc.spawn(|| {
-                    let mut w = Worker::new(scene, *opts, nee, shared.worker(), record);
-                    loop {
-                        let b = next.fetch_add(1, Ordering::Relaxed);
-                        if b >= nblocks {
-                            break;
+        let rows = if record { &spread } else { &in_order };
+        let mut pass_seconds = 0.0f64;
+        let mut done = 0usize;
+        while done < rows.len() {
+            let paths = if record {
+                strategy.paths_before_update(npix as u64)
+            } else {
+                npix as u64
+            };
+            let take = (paths.div_ceil(u64::from(width)) as usize).clamp(1, rows.len() - done);
+            let piece = &rows[done..done + take];
+            done += take;
+            let items: Vec<&[u32]> = piece.chunks(rows_per_item).collect();
+            let t_piece = Instant::now();
+            let next = AtomicUsize::new(0);
+            let results: Mutex<Vec<Option<BlockResult>>> =
+                Mutex::new((0..items.len()).map(|_| None).collect());
+            let reports = Mutex::new(Vec::new());
+            let rays = AtomicUsize::new(0);
+            let shared: &S = strategy;
+            std::thread::scope(|sc| {
+                for _ in 0..threads.min(items.len()) {
+                    sc.spawn(|| {
+                        let mut w = Worker::new(scene, *opts, nee, shared.worker(), record);
+                        loop {
+                            let b = next.fetch_add(1, Ordering::Relaxed);
+                            if b >= items.len() {
+                                break;
+                            }
+                            w.trace_sample(items[b], width, height, pass.index);
+                            let result = (
+                                std::mem::take(&mut w.radiance),
+                                std::mem::take(&mut w.samples),
+                                std::mem::take(&mut w.mis_radiance),
+                            );
+                            results.lock().unwrap_or_else(|e| e.into_inner())[b] = Some(result);
                         }
-                        let start = b * block;
-                        let count = block.min(npix - start);
-                        w.trace_sample(start, count, width, height, pass.index);
-                        let result = (
-                            std::mem::take(&mut w.radiance),
-                            std::mem::take(&mut w.samples),
-                            std::mem::take(&mut w.mis_radiance),
-                        );
-                        results.lock().unwrap_or_else(|e| e.into_inner())[b] = Some(result);
-                    }
-                    rays.fetch_add(w.rays as usize, Ordering::Relaxed);
-                    let report = shared.report(w.strategy);
-                    reports
-                        .lock()
-                        .unwrap_or_else(|e| e.into_inner())
-                        .push(report);
-                });
+                        rays.fetch_add(w.rays as usize, Ordering::Relaxed);
+                        let report = shared.report(w.strategy);
+                        reports
+                            .lock()
+                            .unwrap_or_else(|e| e.into_inner())
+                            .push(report);
+                    });
+                }
+            });
+            let piece_seconds = t_piece.elapsed();
+            pass_seconds += piece_seconds.as_secs_f64();
+            stats.trace += piece_seconds;
+            stats.rays += rays.into_inner() as u64;
+            let mut samples = PassSamples::default();
+            let results = results.into_inner().unwrap_or_else(|e| e.into_inner());
+            for (item, r) in items.iter().zip(results) {
+                let Some((rad, s, m)) = r else {
+                    continue;
+                };
+                let w = width as usize;
+                for (k, &row) in item.iter().enumerate() {
+                    let at = row as usize * w;
+                    pass_radiance[at..at + w].copy_from_slice(&rad[k * w..(k + 1) * w]);
+                }
+                samples.samples.extend(s);
+                samples.mis_radiance.extend(m);
             }
-        });
-        let pass_seconds = t_pass.elapsed();
-        stats.trace += pass_seconds;
-        stats.rays += rays.into_inner() as u64;
-        let mut samples = PassSamples::default();
-        let results = results.into_inner().unwrap_or_else(|e| e.into_inner());
+            let reports = reports.into_inner().unwrap_or_else(|e| e.into_inner());
+            let traced = Traced {
+                seconds: piece_seconds.as_secs_f64(),
+                paths: (take * width as usize) as u64,
+                pass_done: done == rows.len(),
+            };
+            strategy.end_chunk(&pass, record, reports, samples, traced)?;
+        }
         if wants_image {
             pass_image.clear();
-            for (rad, _, _) in results.iter().flatten() {
-                pass_image.extend(rad.iter().map(|v| v.to_array()));
-            }
-            if pass_image.len() == npix {
-                strategy.observe_pass_image(
-                    &pass,
-                    &PassImage {
-                        width,
-                        height,
-                        pixels: &pass_image,
-                        sum_before: &sum,
-                        passes_before: pass.index,
-                        seconds: pass_seconds.as_secs_f64(),
-                    },
-                );
-            }
+            pass_image.extend(pass_radiance.iter().map(|v| v.to_array()));
+            strategy.observe_pass_image(
+                &pass,
+                &PassImage {
+                    width,
+                    height,
+                    pixels: &pass_image,
+                    sum_before: &sum,
+                    passes_before: pass.index,
+                    seconds: pass_seconds,
+                },
+            );
         }
-        for (b, r) in results.into_iter().enumerate() {
-            let Some((rad, s, m)) = r else {
-                continue;
-            };
-            let start = b * block;
-            accumulate(&mut sum[start..], &mut sum2[start..], &rad);
-            samples.samples.extend(s);
-            samples.mis_radiance.extend(m);
-        }
-        let reports = reports.into_inner().unwrap_or_else(|e| e.into_inner());
-        strategy.end_pass(&pass, record, reports, samples)?;
+        accumulate(&mut sum, &mut sum2, &pass_radiance);
     }
     stats.passes = sched.passes();
     let mut image = finish_image(width, height, stats.passes, &sum, &sum2);
@@ -513,4 +561,24 @@ pub fn render_passes<S: Strategy>(
     stats.wall = sched.elapsed();
     sched.finish();
     Ok((image, stats))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::spread_rows;
+
+    #[test]
+    fn spread_rows_is_a_permutation_spread_over_the_image() {
+        for h in [1, 2, 3, 7, 64, 100, 455] {
+            let rows = spread_rows(h);
+            let mut sorted = rows.clone();
+            sorted.sort_unstable();
+            assert_eq!(sorted, (0..h).collect::<Vec<_>>(), "height {h}");
+        }
+        // The first 4 rows of 100 fall into 4 different quarters of the image.
+        let quarters: Vec<u32> = spread_rows(100)[..4].iter().map(|r| r / 25).collect();
+        let mut q = quarters.clone();
+        q.sort_unstable();
+        assert_eq!(q, [0, 1, 2, 3], "{quarters:?}");
+    }
 }

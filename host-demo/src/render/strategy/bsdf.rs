@@ -1,6 +1,6 @@
 //! BSDF sampling: the strategy of `pt` and `pt-nee`.
 
-use super::{PassSamples, Strategy, VertexStrategy};
+use super::{PassSamples, Strategy, Traced, VertexStrategy};
 use crate::math::{Frame, Rng};
 use crate::render::queues::{Continuations, LightSamples, Vertices};
 use crate::render::schedule::Pass;
@@ -26,12 +26,13 @@ impl Strategy for BsdfSampling {
         false
     }
 
-    fn end_pass(
+    fn end_chunk(
         &mut self,
         _: &Pass,
         _: bool,
         _: Vec<()>,
         _: PassSamples,
+        _: Traced,
     ) -> Result<(), Self::Error> {
         Ok(())
     }

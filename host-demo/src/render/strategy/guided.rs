@@ -18,19 +18,21 @@
 //!
 //! # Training
 //!
-//! During the first `train_fraction` of the passes (one pass = one sample per pixel over the
-//! whole image) the driver records every path, and each guidable vertex that continued its
-//! path becomes a [`TrainingSample`] through `guiding`'s recorder, whose propagation rule is
+//! The library's [`TrainingSchedule`] decides when: the passes that start in the first
+//! `train_fraction` of the budget record every path, and each guidable vertex that continued
+//! its path becomes a [`TrainingSample`] through `guiding`'s recorder, whose propagation rule is
 //! documented there: the training radiance of vertex `k` counts the emission found along its
 //! direction in full (with NEE, the MIS-weighted emission alone is only the BSDF share of the
 //! direct light) and everything scattered further down the path with its MIS weights.
 //! Directions that miss the scene give radiance 0 and are kept (DF's radiance cache must
-//! learn zeros). The samples are handed to [`GuidingField::add_samples`] in block order
-//! (deterministic), followed by one update with Adam steps proportional to the pass's samples
-//! ([`GuidingField::update_proportional`]). Training stops early when the loss has converged
-//! (a plateau); after the training passes [`GuidingField::stop_training`] is called and
-//! nothing is recorded any more. The training passes stay in the image (each is an unbiased
-//! estimate).
+//! learn zeros). A training pass is traced in pieces of rows spread over the image, as many
+//! paths as the schedule asks for (about a quarter of a second of tracing), and after each
+//! piece its samples go to [`GuidingField::add_samples`] in row order and the schedule says how
+//! many Adam steps are due ([`TrainingSchedule::steps_due`]: a third of the training phase's
+//! wall clock by default, however slow or fast a pass is). Training stops early when the loss
+//! has converged (a plateau); after the training phase [`GuidingField::stop_training`] is
+//! called and nothing is recorded any more. The training passes stay in the image (each is
+//! an unbiased estimate, whichever guides its pieces used).
 //!
 //! # Guide cache
 //!
@@ -71,14 +73,17 @@ use crate::render::queues::{Continuations, LightSamples, Vertices};
 use crate::render::schedule::Pass;
 use crate::render::strategy::bsdf::sample_bsdf;
 use crate::render::strategy::guide::describe;
-use crate::render::strategy::probe::{self, ProbeStats, ABANDON_RATIO, PROBE_GUIDED_PASSES};
-use crate::render::strategy::{CombinedImage, PassImage, PassSamples, Strategy, VertexStrategy};
+use crate::render::strategy::probe::{self, ProbeStats};
+use crate::render::strategy::{
+    CombinedImage, PassImage, PassSamples, Strategy, Traced, VertexStrategy,
+};
 use crate::scene::bsdf::Material;
 use crate::scene::Scene;
 use glam::{Vec2, Vec3};
 use guiding::{
     CacheOptions, CombineOptions, DirectionSample, DistributionBatch, GroupWeight, GuideCache,
-    GuideTrial, GuidingError, GuidingField, PassCombiner, TrialArm, TrialOptions, TrialVerdict,
+    GuideTrial, GuidingError, GuidingField, PassCombiner, ScheduleOptions, ScheduleReport,
+    TrainingSchedule, TrialArm, TrialOptions, TrialVerdict,
 };
 use guiding_core::model::QueryPoint;
 use guiding_core::sample::TrainingSample;
@@ -103,15 +108,13 @@ pub enum CacheMode {
 pub struct GuidedOptions {
     /// Next-event estimation on every emitter NEE can sample (pt-nee mode).
     pub nee: bool,
-    /// Fraction of the passes (samples per pixel) used for training, in `[0, 1]`.
-    pub train_fraction: f32,
+    /// When to train and how much: the library's schedule (training phase, time share of
+    /// training, update interval; [`guiding::StepRule::Epochs`] for reproducible training).
+    pub schedule: ScheduleOptions,
     /// Guide-selection probability `c` for NPM / DF (NASG learns its own), in `[0, 1]`.
     pub selection_probability: f32,
     /// Rough conductors with a GGX alpha below this are not guided (near-specular).
     pub min_alpha: f32,
-    /// Adam steps per training pass: this many passes over the pass's samples, capped at the
-    /// configuration's `steps_per_update` ([`GuidingField::update_proportional`]).
-    pub train_epochs: f32,
     /// Radiance-target vMF guides (NPM) are multiplied by the clamped cosine of the shading
     /// normal before sampling (Open PGL's `ApplyCosineProduct`).
     pub cosine_product: bool,
@@ -136,13 +139,13 @@ pub struct GuidedOptions {
     /// passes after training are one group each. Off: the plain mean of all passes.
     pub weight_passes: bool,
     /// With the efficiency trial on: the [training probe](super::probe) (the first training
-    /// pass unguided, and training abandoned after a few guided passes when they are clearly
-    /// less efficient than it).
+    /// pass unguided, and training abandoned once the guide has trained and its guided pass is
+    /// worse per pass even at no cost, with a confidence interval above 1).
     pub training_probe: bool,
-    /// Test hook, [`ABANDON_RATIO`] in every real render: the probe's threshold (0 forces an
-    /// abandonment, infinity forbids it).
+    /// Test hook, `None` in every real render: forces the probe's verdict (`Some(true)`
+    /// abandons, `Some(false)` keeps).
     #[doc(hidden)]
-    pub probe_threshold: f64,
+    pub probe_force: Option<bool>,
     /// Test hook, 1 in every real render: factor on the guide pdf inside the continuation's
     /// combined density (≠ 1 is a deliberate sample/pdf mismatch, a biased estimator; the
     /// power check of `tests/unbiased.rs` uses it).
@@ -154,18 +157,17 @@ impl Default for GuidedOptions {
     fn default() -> Self {
         Self {
             nee: true,
-            train_fraction: 0.2,
-            selection_probability: 0.3,
+            schedule: ScheduleOptions::DEFAULT,
+            selection_probability: guiding::config::PRESET_SELECTION_PROBABILITY,
             min_alpha: 0.05,
             cosine_product: true,
-            train_epochs: 1.0,
             cache: CacheMode::Always,
             cache_resolution: CacheOptions::default().resolution,
             fit_selection: true,
             efficiency_trial: true,
             weight_passes: true,
             training_probe: true,
-            probe_threshold: ABANDON_RATIO,
+            probe_force: None,
             guide_pdf_scale: 1.0,
         }
     }
@@ -241,6 +243,8 @@ pub struct GuidedStats {
     pub pass_weights: Option<PassWeightStats>,
     /// The training probe, if it was on.
     pub probe: Option<ProbeStats>,
+    /// What the library's training schedule did.
+    pub schedule: ScheduleReport,
 }
 
 /// What the inverse-variance combination of a guided render's passes did.
@@ -370,7 +374,8 @@ impl std::fmt::Display for GuidedStats {
                 Some(v) => writeln!(
                     f,
                     "efficiency trial: {} + {} passes; relMSE per pass x seconds per pass: \
-                     guided {:.3e} x {:.4} s, unguided {:.3e} x {:.4} s, ratio {:.3}: {}{}",
+                     guided {:.3e} x {:.4} s, unguided {:.3e} x {:.4} s, ratio {:.3} \
+                     [{:.3}, {:.3}]: {}{}",
                     v.passes_per_arm,
                     v.passes_per_arm,
                     v.guided_variance,
@@ -378,8 +383,12 @@ impl std::fmt::Display for GuidedStats {
                     v.unguided_variance,
                     v.unguided_seconds,
                     v.cost_ratio,
-                    if v.keep_guide {
+                    v.ratio_low,
+                    v.ratio_high,
+                    if v.evidence == guiding::Verdict::Pays {
                         "the guide pays, kept".to_string()
+                    } else if v.keep_guide {
+                        "the interval straddles 1: no evidence against the guide, kept".to_string()
                     } else {
                         format!(
                             "skipped: the guide does not pay, off for the remaining {} passes",
@@ -414,6 +423,18 @@ impl std::fmt::Display for GuidedStats {
                     .saturating_sub(self.training_passes)
             )?;
         }
+        let sr = &self.schedule;
+        writeln!(
+            f,
+            "training schedule: {} updates, {} steps of {:.2} ms; training {:.3} s of the \
+             training phase's {:.3} s ({:.1} % of its wall clock)",
+            sr.updates,
+            sr.steps,
+            1e3 * sr.seconds_per_step,
+            sr.trained_seconds,
+            sr.traced_seconds + sr.trained_seconds,
+            100.0 * sr.training_share()
+        )?;
         write!(
             f,
             "time: trace {:.3} s (wall; guide queries {:.3} thread-s of it), training {:.3} s",
@@ -450,16 +471,29 @@ pub struct Guided<'g> {
     /// The current pass's group in `combiner` (`None` when neither the weights nor the probe
     /// need it).
     pass_group: Option<u32>,
-    /// Tracing seconds of the training passes so far, indexed by pass (training passes are
-    /// the first ones; for the probe).
-    training_seconds: Vec<f64>,
+    /// Tracing seconds of the probe's unguided first pass.
+    unguided_seconds: Option<f64>,
+    /// The first training pass that started after the probe's [`probe::MIN_STEPS`], and the
+    /// steps before it.
+    probe_pass: Option<(u32, u64)>,
     /// The probe abandoned the guide: every pass from then on runs with it off.
     abandoned: bool,
+    /// The library's training schedule.
+    schedule: TrainingSchedule,
 }
 
 impl<'g> Guided<'g> {
-    /// The strategy for `guide` (on the CPU, or on its device with `--device gpu`).
-    pub fn new(guide: &'g mut GuidingField, gopts: &GuidedOptions) -> Self {
+    /// The strategy for `guide` (on the CPU, or on its device with `--device gpu`) in a
+    /// render of `budget`.
+    ///
+    /// # Errors
+    /// [`GuidingError::InvalidConfig`] for schedule options out of range.
+    pub fn new(
+        guide: &'g mut GuidingField,
+        gopts: &GuidedOptions,
+        budget: guiding::Budget,
+    ) -> Result<Self, GuidingError> {
+        let schedule = TrainingSchedule::new(gopts.schedule, budget)?;
         let device = guide.device_name();
         let model = match &device {
             Some(d) => format!("{} on {d}", describe(guide)),
@@ -485,7 +519,7 @@ impl<'g> Guided<'g> {
             )),
         };
         let use_cache = gopts.cache != CacheMode::Off && device.is_none() && radiance;
-        Guided {
+        Ok(Guided {
             guide,
             gopts: *gopts,
             stats: GuidedStats {
@@ -506,9 +540,11 @@ impl<'g> Guided<'g> {
             guide_off: false,
             combiner: None,
             pass_group: None,
-            training_seconds: Vec::new(),
+            unguided_seconds: None,
+            probe_pass: None,
             abandoned: false,
-        }
+            schedule,
+        })
     }
 
     /// Decides the current pass's trial arm and whether the guide is off (after
@@ -550,25 +586,25 @@ impl<'g> Guided<'g> {
         self.gopts.efficiency_trial && self.gopts.training_probe
     }
 
-    /// The probe's verdict before pass `at_pass`, from the combiner's variance estimates of the
-    /// unguided first pass and the guided training passes since.
+    /// The probe's verdict before pass `at_pass`, once a guided training pass traced after
+    /// [`probe::MIN_STEPS`] has finished: the combiner's per-band variances of that pass and of
+    /// the unguided first pass (denominators from the other checkerboard half).
     fn run_probe(&self, at_pass: u32) -> Option<probe::ProbeVerdict> {
-        let c = self
+        let (guided_pass, steps) = self.probe_pass.filter(|&(p, _)| p < at_pass)?;
+        let bands = self
             .combiner
             .as_ref()?
-            .combine_with(guiding::Denominator::OtherHalf);
-        let seconds = |pass: u32| self.training_seconds.get(pass as usize).copied();
-        let mut unguided = None;
-        let mut guided = Vec::new();
-        for g in &c.groups {
-            let v = g.mean_relative_variance();
-            match g.group {
-                GROUP_UNGUIDED => unguided = Some((v, seconds(0)?)),
-                GROUP_GUIDED => {}
-                pass => guided.push((v, seconds(pass)?)),
-            }
-        }
-        probe::decide(at_pass, unguided?, &guided, self.gopts.probe_threshold)
+            .band_variances(guiding::Denominator::OtherHalf);
+        let find = |id: u32| bands.iter().find(|(g, _)| *g == id).map(|(_, v)| v);
+        probe::decide(
+            at_pass,
+            guided_pass,
+            steps,
+            find(GROUP_UNGUIDED)?,
+            find(guided_pass)?,
+            self.unguided_seconds?,
+            self.gopts.probe_force,
+        )
     }
 
     /// Brings the cache to the field's current generation and adds the cells of `positions`
@@ -601,6 +637,7 @@ impl<'g> Guided<'g> {
             self.guide.stop_training();
         }
         let mut stats = self.stats;
+        stats.schedule = self.schedule.report();
         stats.nee = rs.nee;
         stats.passes = rs.passes;
         stats.trace = rs.trace;
@@ -956,27 +993,36 @@ impl<'g> Strategy for Guided<'g> {
         worker.report
     }
 
-    /// Records the training passes until the loss has converged (a plateau); the first pass
-    /// that does not record stops training.
+    /// Records the passes of the schedule's training phase until the loss has converged (a
+    /// plateau) or the probe ends training; the first pass that does not record stops
+    /// training.
     fn begin_pass(&mut self, pass: &Pass) -> bool {
+        let train = self
+            .schedule
+            .in_training_phase(pass.elapsed.as_secs_f64(), pass.index);
         // (Once stopped, by the schedule or the probe, the field counts as converged.)
         let converged = !self.stopped && self.guide.is_converged();
-        if pass.train && converged && self.stats.converged_at_pass.is_none() {
+        if train && converged && self.stats.converged_at_pass.is_none() {
             self.stats.converged_at_pass = Some(pass.index);
         }
-        let mut record = pass.train && !converged && !self.stopped;
-        if record && self.probe_on() && pass.index == 1 + PROBE_GUIDED_PASSES {
-            let verdict = self.run_probe(pass.index);
-            self.stats
-                .probe
-                .get_or_insert_with(ProbeStats::default)
-                .verdict = verdict;
-            if verdict.is_some_and(|v| v.abandoned) {
-                record = false;
-                self.abandoned = true;
+        let mut record = train && !converged && !self.stopped;
+        let probe_pending = self.stats.probe.is_some_and(|p| p.verdict.is_none());
+        if record && self.probe_on() && probe_pending {
+            if let Some(verdict) = self.run_probe(pass.index) {
+                if let Some(p) = self.stats.probe.as_mut() {
+                    p.verdict = Some(verdict);
+                }
+                if verdict.abandoned {
+                    record = false;
+                    self.abandoned = true;
+                }
+            } else if self.probe_pass.is_none() && self.guide.stats().steps >= probe::MIN_STEPS {
+                // This pass is the guided pass the probe will judge.
+                self.probe_pass = Some((pass.index, self.guide.stats().steps));
             }
         }
         if !record && !self.stopped {
+            self.schedule.end_training();
             self.guide.stop_training();
             self.stopped = true;
             if self.use_cache && !self.abandoned {
@@ -1001,13 +1047,19 @@ impl<'g> Strategy for Guided<'g> {
                 }
             }
         }
+        if record {
+            // The selection fit uses the samples of the last whole training pass.
+            self.last_samples.clear();
+            self.last_mis.clear();
+        }
         self.stats.training_passes += u32::from(record);
-        self.stats.passes_planned_for_training += u32::from(pass.train);
+        self.stats.passes_planned_for_training += u32::from(train);
         self.plan_trial_pass();
         let probe_pass = record && pass.index == 0 && self.probe_on();
         if probe_pass {
             // The probe's unguided pass (see the probe module).
             self.guide_off = true;
+            self.stats.probe = Some(ProbeStats::default());
         }
         if probe_pass || self.abandoned {
             self.stats
@@ -1026,6 +1078,10 @@ impl<'g> Strategy for Guided<'g> {
                 GROUP_GUIDED
             });
         record
+    }
+
+    fn paths_before_update(&self, pass_paths: u64) -> u64 {
+        self.schedule.paths_before_update(pass_paths)
     }
 
     fn wants_pass_image(&self, _: &Pass) -> bool {
@@ -1049,8 +1105,8 @@ impl<'g> Strategy for Guided<'g> {
     }
 
     fn observe_pass_image(&mut self, pass: &Pass, image: &PassImage<'_>) {
-        if !self.stopped && self.probe_on() && pass.index as usize == self.training_seconds.len() {
-            self.training_seconds.push(image.seconds);
+        if pass.index == 0 && self.guide_off && self.probe_on() {
+            self.unguided_seconds = Some(image.seconds);
         }
         if let Some(group) = self.pass_group {
             let (w, h) = (image.width as usize, image.height as usize);
@@ -1093,12 +1149,13 @@ impl<'g> Strategy for Guided<'g> {
         }
     }
 
-    fn end_pass(
+    fn end_chunk(
         &mut self,
         _: &Pass,
         recorded: bool,
         reports: Vec<WorkerReport>,
         pass_samples: PassSamples,
+        traced: Traced,
     ) -> Result<(), GuidingError> {
         let PassSamples {
             samples,
@@ -1124,18 +1181,29 @@ impl<'g> Strategy for Guided<'g> {
         if !recorded {
             st.samples_recorded_after_training += samples.len() as u64;
         }
+        let mut updated = false;
+        if recorded {
+            self.schedule.record_traced(traced.seconds, traced.paths);
+        }
         if !samples.is_empty() {
             let t_train = Instant::now();
             let steps_before = self.guide.stats().steps;
             self.guide.add_samples(&samples);
-            // Adam steps proportional to the samples of this pass (capped), on the CPU
-            // threads or on the guide's device: one training loop.
-            let rep = self
-                .guide
-                .try_update_proportional(self.gopts.train_epochs)?;
-            if rep.steps > 0 {
-                st.last_loss = rep.mean_loss;
-                st.loss_history.push(rep.mean_loss);
+            // The steps the library's schedule says are due, on the CPU threads or on the
+            // guide's device: one training loop.
+            let due = self
+                .schedule
+                .steps_due(self.guide.buffered_samples(), &self.guide.config().training);
+            if due > 0 {
+                let t_steps = Instant::now();
+                let rep = self.guide.try_update_steps(due)?;
+                self.schedule
+                    .record_update(rep.steps, t_steps.elapsed().as_secs_f64());
+                updated = rep.steps > 0;
+                if rep.steps > 0 {
+                    st.last_loss = rep.mean_loss;
+                    st.loss_history.push(rep.mean_loss);
+                }
             }
             if !recorded {
                 st.training_steps_after_training += self.guide.stats().steps - steps_before;
@@ -1144,14 +1212,16 @@ impl<'g> Strategy for Guided<'g> {
         }
         if self.use_cache {
             let result = if recorded {
-                let r = if self.gopts.cache == CacheMode::Always {
-                    self.update_cache(&query_points(&samples))
-                } else {
-                    Ok(())
-                };
-                // Kept (moved, not copied) for the selection fit when training stops.
-                self.last_samples = samples;
-                self.last_mis = mis_radiance;
+                // The cache follows every update (or is built at the first one).
+                let r =
+                    if self.gopts.cache == CacheMode::Always && (updated || self.cache.is_some()) {
+                        self.update_cache(&query_points(&samples))
+                    } else {
+                        Ok(())
+                    };
+                // Kept for the selection fit when training stops.
+                self.last_samples.extend_from_slice(&samples);
+                self.last_mis.extend_from_slice(&mis_radiance);
                 r
             } else if self.cache.is_some() && !missed.is_empty() {
                 self.update_cache(&missed)

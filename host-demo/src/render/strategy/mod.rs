@@ -12,7 +12,8 @@
 //! 3. [`VertexStrategy::sample`]: one continuation per vertex, with its weight and density.
 //!
 //! [`bsdf::BsdfSampling`] is `pt` and `pt-nee`; [`guided::Guided`] is path guiding (a one-sample
-//! MIS of guide and BSDF) with online training between passes ([`Strategy::end_pass`]).
+//! MIS of guide and BSDF) with online training between pieces of passes
+//! ([`Strategy::end_chunk`]).
 
 use crate::math::Rng;
 use crate::render::queues::{Continuations, LightSamples, Vertices};
@@ -84,8 +85,8 @@ pub trait Strategy: Sync {
         false
     }
 
-    /// The image of a pass it asked for ([`Strategy::wants_pass_image`]); called before
-    /// [`Strategy::end_pass`].
+    /// The image of a pass it asked for ([`Strategy::wants_pass_image`]); called after the
+    /// pass's last [`Strategy::end_chunk`].
     fn observe_pass_image(&mut self, _pass: &Pass, _image: &PassImage<'_>) {}
 
     /// At the end of the render: the strategy's own combination of the passes it observed
@@ -95,15 +96,35 @@ pub trait Strategy: Sync {
         None
     }
 
-    /// Called after each pass with the threads' reports and the pass's training samples
-    /// (block order, so deterministic). An error ends the render.
-    fn end_pass(
+    /// Paths to trace in a recorded pass before the next [`Strategy::end_chunk`] (the
+    /// driver rounds up to whole rows), given the paths of a whole pass; the default is the
+    /// whole pass.
+    fn paths_before_update(&self, pass_paths: u64) -> u64 {
+        pass_paths
+    }
+
+    /// Called after each piece of a pass (a whole pass unless the strategy asked for pieces,
+    /// [`Strategy::paths_before_update`]) with the threads' reports, the piece's training
+    /// samples (row order, so deterministic) and what was traced. An error ends the render.
+    fn end_chunk(
         &mut self,
         pass: &Pass,
         recorded: bool,
         reports: Vec<Self::Report>,
         samples: PassSamples,
+        traced: Traced,
     ) -> Result<(), Self::Error>;
+}
+
+/// What the driver traced in a piece of a pass.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Traced {
+    /// Wall seconds of the piece's tracing (recording included).
+    pub seconds: f64,
+    /// Paths (pixels) traced.
+    pub paths: u64,
+    /// The piece ended its pass.
+    pub pass_done: bool,
 }
 
 /// The per-thread, per-bounce half of a [`Strategy`].
