@@ -368,7 +368,7 @@ fn decimals(x: f64) -> usize {
 /// `0.42×`, or `–` for a missing or non-finite ratio.
 fn times(x: Option<f64>) -> String {
     match x.filter(|v| v.is_finite()) {
-        Some(v) => format!("{v:.prec$}×", prec = decimals(v).max(2)),
+        Some(v) => format!("{v:.prec$}×", prec = decimals(v)),
         None => "–".to_string(),
     }
 }
