@@ -571,6 +571,52 @@ fn training_probe_abandons_training_and_keeps_the_image_unbiased() {
     assert!(st.probe.is_none());
 }
 
+/// (h) A guide that truly does not pay is switched off: on the shared Cornell box (diffuse
+/// walls, one area light; BSDF sampling and NEE already sample it well) an NPM guide selected
+/// with probability 0.9 costs about twice `pt-nee` per second (measured 2.0, interval
+/// [1.8, 2.2], at 128 px and 8 s; with the default per-cell fit it is 1.2 [1.08, 1.36], also
+/// off): the trial's interval lies above 1 and the guide is off for every pass after it. The
+/// same rule keeps a guide whose interval straddles 1 (`tests/guide_trial.rs`) and one whose
+/// early passes looked bad (`probe::tests::early_bad_passes_are_not_judged`).
+#[test]
+fn a_guide_that_does_not_pay_on_the_cornell_box_is_switched_off() {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../shared/scenes/cornell-box/scene.xml"
+    );
+    if !std::path::Path::new(path).exists() {
+        eprintln!("skipped: {path} not found");
+        return;
+    }
+    let scene = host_demo::load_scene(path).expect("the shared Cornell box loads");
+    let config = FieldConfig::DEFAULT.with_threads(2).with_seed(8);
+    let mut g = build_guide(
+        GuideKind::Npm,
+        Target::Radiance,
+        ModelSize::Demo,
+        scene.bounds(),
+        0.9,
+        config,
+    )
+    .expect("guide");
+    let o = RenderOptions {
+        time_budget: Some(std::time::Duration::from_secs(8)),
+        ..opts(IntegratorKind::PtNee, 1, 128, 128, 3, 2)
+    };
+    let gopts = GuidedOptions {
+        selection_probability: 0.9,
+        fit_selection: false,
+        ..GuidedOptions::default()
+    };
+    let (_, st) = render_guided(&scene, &o, &gopts, &mut g).expect("guided render");
+    eprintln!("{st}");
+    let trial = st.trial.as_ref().expect("the trial ran");
+    let v = trial.verdict.expect("8 s finish the trial");
+    assert_eq!(v.evidence, guiding::Verdict::DoesNotPay, "{v:?}");
+    assert!(!v.keep_guide && v.ratio_low > 1.0);
+    assert!(trial.passes_guide_off > 0);
+}
+
 /// A guide whose device fails ends the render with the device's error (never a render with
 /// untrained CPU weights); with `FallbackToCpu` the render completes on the CPU. Skipped
 /// without a Vulkan device or SPIR-V, unless `GUIDING_REQUIRE_VULKAN=1`.

@@ -1016,7 +1016,7 @@ impl<'g> Strategy for Guided<'g> {
                     record = false;
                     self.abandoned = true;
                 }
-            } else if self.probe_pass.is_none() && self.guide.stats().steps >= probe::MIN_STEPS {
+            } else if probe::picks_pass(self.guide.stats().steps, self.probe_pass) {
                 // This pass is the guided pass the probe will judge.
                 self.probe_pass = Some((pass.index, self.guide.stats().steps));
             }

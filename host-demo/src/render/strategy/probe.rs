@@ -30,6 +30,13 @@ use guiding::{CostRatio, Verdict};
 /// Adam steps the guide must have had before the probe judges it (see the module docs).
 pub const MIN_STEPS: u64 = 256;
 
+/// Whether the probe may pick the pass about to start, with `steps` Adam steps behind it, as
+/// the guided pass it judges: the guide has had [`MIN_STEPS`] steps and no pass was picked yet.
+/// The verdict comes before the next training pass, once the picked one is in the image.
+pub fn picks_pass(steps: u64, picked: Option<(u32, u64)>) -> bool {
+    picked.is_none() && steps >= MIN_STEPS
+}
+
 /// What the probe measured and decided.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ProbeVerdict {
@@ -141,6 +148,47 @@ mod tests {
         // Forced by a test.
         let v = decide(9, 7, 300, &u, &[0.5, 0.6, 0.4, 0.5], 0.1, Some(true)).unwrap();
         assert!(v.abandoned);
+    }
+
+    /// A guide whose early passes look bad but which pays once trained is kept: the probe
+    /// judges only the pass after [`MIN_STEPS`]. The old rule (judge the first guided passes)
+    /// abandons the same guide: the negative control.
+    #[test]
+    fn early_bad_passes_are_not_judged() {
+        let unguided = [1.0, 1.1, 0.9, 1.0, 1.05, 0.95];
+        // Guided training passes: (steps before the pass, per-band variances). Three times
+        // worse for the first passes (an untrained guide), half as noisy once trained.
+        let passes: Vec<(u64, [f64; 6])> = vec![
+            (0, [0.0; 6]), // the unguided first pass
+            (40, [3.0, 3.3, 2.7, 3.0, 3.1, 2.9]),
+            (90, [3.1, 3.0, 2.8, 3.2, 3.0, 3.0]),
+            (150, [2.5, 2.6, 2.4, 2.5, 2.7, 2.3]),
+            (260, [0.5, 0.55, 0.45, 0.5, 0.52, 0.48]),
+            (380, [0.45, 0.5, 0.4, 0.46, 0.5, 0.44]),
+        ];
+        // The rule of `Guided::begin_pass`: pick, then judge before the next pass.
+        let run = |min_steps: u64| {
+            let mut picked: Option<(u32, u64)> = None;
+            for (at, &(steps, _)) in passes.iter().enumerate().skip(1) {
+                if let Some((p, s)) = picked {
+                    let v = decide(at as u32, p, s, &unguided, &passes[p as usize].1, 0.1, None);
+                    return v.expect("a verdict");
+                }
+                if picked.is_none() && steps >= min_steps {
+                    picked = Some((at as u32, steps));
+                }
+            }
+            unreachable!("the passes reach a verdict")
+        };
+        let v = run(MIN_STEPS);
+        assert!(picks_pass(MIN_STEPS, None) && !picks_pass(MIN_STEPS - 1, None));
+        assert!(!picks_pass(10 * MIN_STEPS, Some((4, 260))));
+        assert_eq!((v.guided_pass, v.at_pass), (4, 5));
+        assert!(!v.abandoned && v.ratio.high < 1.0, "{v:?}");
+        // Judging the first guided pass, as the old probe did: abandoned.
+        let old = run(0);
+        assert_eq!(old.guided_pass, 1);
+        assert!(old.abandoned, "{old:?}");
     }
 
     #[test]
