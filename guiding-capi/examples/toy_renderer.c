@@ -6,7 +6,7 @@
  *   cc -std=c99 -Wall -Wextra -Werror -pedantic -I guiding-capi/include \
  *      guiding-capi/examples/toy_renderer.c target/release/libguiding_capi.a \
  *      -lpthread -ldl -lm -o toy_renderer
- *   ./toy_renderer [scratch-file-path [npm|nasg|df_nearest|df_linear]]
+ *   ./toy_renderer [scratch-file-path [npm|nasg|df_nearest|df_linear [spp|time]]]
  *
  * Scene: shading points anywhere in the box [-1,1] x [-2,2] x [0,3]; the
  * incident radiance is 10 inside a small light cone around +z (cos theta >
@@ -14,9 +14,21 @@
  * radiance over the sphere is known: 10 * 2pi(1 - 0.95) + 0.1 * (4pi -
  * 2pi(1 - 0.95)).
  *
- * 1. Training: each iteration traces 4096 one-vertex paths with uniformly
- *    sampled directions, records them with a PgRecorder, flushes them into
- *    the field and runs one update (30 iterations).
+ * 1. Training, as the library's schedule (PgSchedule) says: a pass traces
+ *    4096 one-vertex paths with uniformly sampled directions, recorded with a
+ *    PgRecorder. Before each pass the renderer asks the schedule whether the
+ *    training phase goes on; it traces the pass in pieces of the size the
+ *    schedule asks for, and after each piece flushes its samples into the
+ *    field, reports the piece's time and paths, and lets
+ *    pg_field_train_scheduled run the Adam steps that are due.
+ *    - spp (the default, and what the tests run): a budget of 150 passes, of
+ *      which the first round(0.2 * 150) = 30 train (the estimates of step 2
+ *      stand for the other 120), with PG_STEP_RULE_EPOCHS at 4 epochs: one
+ *      update of clamp(ceil(4 * 4096 / 2048), 1, 8) = 8 steps per pass, the
+ *      same on every run;
+ *    - time: the library's default rule (a third of the training phase's
+ *      wall clock trains, updates every 0.25 s of tracing) over a budget of
+ *      2.5 s, of which the first 0.5 s train.
  * 2. Rendering: estimates the integral at 20000 random points with
  *    one-sample MIS between the guide (probability c, the field's selection
  *    probability) and uniform sampling, and with uniform sampling alone.
@@ -25,22 +37,31 @@
  *        sampled direction equals the pdf the sample came with;
  *    (b) the guided estimate is within 4 sigma of the exact integral and
  *        its variance is below half that of uniform sampling;
- *    (c) error paths: a NULL handle gives PG_NULL_POINTER and a message,
+ *    (c) training went as scheduled: the passes of the training phase, the
+ *        steps and updates of the schedule's report are the field's;
+ *    (d) error paths: a NULL handle gives PG_NULL_POINTER and a message,
  *        too large an n PG_SIZE_MISMATCH, distributions used after an
  *        update PG_STALE, a missing file PG_IO and a corrupt one PG_FORMAT;
  *        a saved and loaded field gives identical samples and pdfs.
  */
+/* clock_gettime (POSIX) under -std=c99. */
+#define _POSIX_C_SOURCE 199309L
+
 #include "guiding.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #define PI_F 3.14159265358979f
 #define INV_FOUR_PI_F (1.0f / (4.0f * PI_F))
-#define ITERATIONS 30
-#define PATHS_PER_ITERATION 4096
+#define PATHS_PER_PASS 4096
+/* The spp budget and the passes of its training phase (train_fraction 0.2). */
+#define BUDGET_SPP 150
+#define TRAINING_PASSES 30
+#define BUDGET_SECONDS 2.5
 #define ESTIMATES 20000
 #define BATCH 1000
 
@@ -131,12 +152,16 @@ static PgQueryPoint random_query(Rng *rng) {
 
 static float length3(const float v[3]) { return sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); }
 
-/* One training iteration: trace, record, flush, update. */
-static void train_iteration(PgField *field, PgRecorder *recorder, Rng *rng) {
-    int i;
-    size_t handed_over = 0;
-    PgUpdateReport report;
-    for (i = 0; i < PATHS_PER_ITERATION; i++) {
+static double now_seconds(void) {
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
+/* Traces n one-vertex paths with uniform directions, recorded in `recorder`. */
+static void trace_paths(PgRecorder *recorder, Rng *rng, uint64_t n) {
+    uint64_t i;
+    for (i = 0; i < n; i++) {
         PgQueryPoint q = random_query(rng);
         PgPathVertex v;
         float escaped[3];
@@ -154,8 +179,60 @@ static void train_iteration(PgField *field, PgRecorder *recorder, Rng *rng) {
         TRY(pg_recorder_add_escaped_radiance(recorder, escaped, 1.0f));
         TRY(pg_recorder_end_path(recorder, NULL));
     }
+}
+
+/* 1. The training phase as the schedule says: passes while it lasts, each
+ * traced in pieces, every piece flushed, reported and followed by the steps
+ * that are due. Returns the passes traced; adds the paths to *paths. */
+static uint32_t train(PgField *field, PgRecorder *recorder, PgSchedule *schedule, Rng *rng,
+                      uint64_t *paths) {
+    double start = now_seconds();
+    uint32_t pass;
+    uint64_t pieces = 0, updates = 0;
+    for (pass = 0;; pass++) {
+        bool training = false;
+        uint64_t done = 0;
+        TRY(pg_schedule_in_training_phase(schedule, now_seconds() - start, pass, &training));
+        if (!training) {
+            break;
+        }
+        while (done < PATHS_PER_PASS) {
+            uint64_t piece = 0;
+            size_t handed_over = 0;
+            double t0 = now_seconds();
+            PgUpdateReport report;
+            TRY(pg_schedule_paths_before_update(schedule, PATHS_PER_PASS, &piece));
+            CHECK(piece >= 1 && piece <= PATHS_PER_PASS, "piece of %llu paths",
+                  (unsigned long long)piece);
+            if (piece > PATHS_PER_PASS - done) {
+                piece = PATHS_PER_PASS - done;
+            }
+            trace_paths(recorder, rng, piece);
+            TRY(pg_recorder_flush_into(recorder, field, &handed_over));
+            CHECK(handed_over == piece, "%zu samples handed over for %llu paths", handed_over,
+                  (unsigned long long)piece);
+            TRY(pg_schedule_record_traced(schedule, now_seconds() - t0, piece));
+            TRY(pg_field_train_scheduled(field, schedule, &report));
+            CHECK(report.skipped_steps == 0, "update: %u steps, %u skipped", report.steps,
+                  report.skipped_steps);
+            updates += report.steps > 0;
+            done += piece;
+            pieces++;
+        }
+        *paths += done;
+    }
+    printf("training phase: %u passes in %llu pieces, %llu updates\n", pass,
+           (unsigned long long)pieces, (unsigned long long)updates);
+    return pass;
+}
+
+/* One fixed update outside the schedule: trace a pass, flush, pg_field_update. */
+static void trace_and_update(PgField *field, PgRecorder *recorder, Rng *rng) {
+    size_t handed_over = 0;
+    PgUpdateReport report;
+    trace_paths(recorder, rng, PATHS_PER_PASS);
     TRY(pg_recorder_flush_into(recorder, field, &handed_over));
-    CHECK(handed_over == PATHS_PER_ITERATION, "%zu samples handed over", handed_over);
+    CHECK(handed_over == PATHS_PER_PASS, "%zu samples handed over", handed_over);
     TRY(pg_field_update(field, &report));
     CHECK(report.steps > 0 && report.skipped_steps == 0, "update: %u steps, %u skipped",
           report.steps, report.skipped_steps);
@@ -240,14 +317,14 @@ static void render(PgField *field, PgDistributions *dists, Rng *rng, Moments *gu
 
 static int message_is_set(void) { return pg_last_error()[0] != '\0'; }
 
-/* (c) NULL handles and too large counts. */
+/* (d) NULL handles and too large counts. */
 static void check_argument_errors(PgField *field, PgDistributions *dists) {
     PgFieldStats stats;
     float out[4];
     size_t len = 0;
     CHECK(pg_field_update(NULL, NULL) == PG_NULL_POINTER, "update(NULL)");
     CHECK(message_is_set(), "no message after update(NULL)");
-    printf("(c) pg_field_update(NULL): \"%s\"\n", pg_last_error());
+    printf("(d) pg_field_update(NULL): \"%s\"\n", pg_last_error());
     CHECK(pg_field_stats(field, NULL) == PG_NULL_POINTER && message_is_set(), "stats(.., NULL)");
     CHECK(pg_field_stats(NULL, &stats) == PG_NULL_POINTER && message_is_set(), "stats(NULL, ..)");
     CHECK(pg_distributions_sample(NULL, 0, NULL, NULL, NULL) == PG_NULL_POINTER,
@@ -265,7 +342,7 @@ static void check_argument_errors(PgField *field, PgDistributions *dists) {
             CHECK(pg_distributions_selection_probability(dists, len + 1, big) ==
                       PG_SIZE_MISMATCH,
                   "n = len + 1");
-            printf("(c) n = len + 1: \"%s\"\n", pg_last_error());
+            printf("(d) n = len + 1: \"%s\"\n", pg_last_error());
             free(big);
         }
     }
@@ -277,22 +354,22 @@ static void check_argument_errors(PgField *field, PgDistributions *dists) {
     }
 }
 
-/* (c) Distributions decoded before an update are stale afterwards. */
+/* (d) Distributions decoded before an update are stale afterwards. */
 static void check_stale(PgField *field, PgRecorder *recorder, PgDistributions *dists, Rng *rng) {
     float uu[2] = {0.25f, 0.75f}, d[3], p;
     PgQueryPoint q = random_query(rng);
     TRY(pg_field_query(field, 1, &q, dists));
     TRY(pg_distributions_sample(dists, 1, uu, d, &p));
-    train_iteration(field, recorder, rng);
+    trace_and_update(field, recorder, rng);
     CHECK(pg_distributions_sample(dists, 1, uu, d, &p) == PG_STALE, "sample after update");
     CHECK(message_is_set(), "no message for PG_STALE");
-    printf("(c) after update: \"%s\"\n", pg_last_error());
+    printf("(d) after update: \"%s\"\n", pg_last_error());
     CHECK(pg_distributions_pdf(dists, 1, d, &p) == PG_STALE, "pdf after update");
     TRY(pg_field_query(field, 1, &q, dists));
     CHECK(pg_distributions_sample(dists, 1, uu, d, &p) == PG_OK, "sample after re-query");
 }
 
-/* (c) Save, load, identical answers; missing and corrupt files. */
+/* (d) Save, load, identical answers; missing and corrupt files. */
 static void check_save_load(PgField *field, const char *path, Rng *rng) {
     PgField *loaded = NULL;
     PgField *missing = NULL;
@@ -313,7 +390,7 @@ static void check_save_load(PgField *field, const char *path, Rng *rng) {
     TRY(pg_field_pdf(loaded, BATCH, queries, dirs_a, pdf_b));
     same = same && memcmp(pdf_a, pdf_b, sizeof pdf_a) == 0;
     CHECK(same, "the loaded field answers differently");
-    printf("(c) save + load: %d samples and pdfs %s\n", BATCH, same ? "identical" : "DIFFER");
+    printf("(d) save + load: %d samples and pdfs %s\n", BATCH, same ? "identical" : "DIFFER");
     pg_field_release(loaded);
 
     /* A corrupt file: flip one byte in the middle. */
@@ -330,7 +407,7 @@ static void check_save_load(PgField *field, const char *path, Rng *rng) {
         fputc(c ^ 0x10, f);
         fclose(f);
         CHECK(pg_field_load(path, &missing) == PG_FORMAT && missing == NULL, "corrupt file");
-        printf("(c) corrupt file: \"%s\"\n", pg_last_error());
+        printf("(d) corrupt file: \"%s\"\n", pg_last_error());
     }
     remove(path);
     CHECK(pg_field_load(path, &missing) == PG_IO && missing == NULL, "missing file");
@@ -355,23 +432,34 @@ static int representation_of(const char *name, PgRepresentation *out) {
 int main(int argc, char **argv) {
     const char *scratch = argc > 1 ? argv[1] : "toy_renderer.guide";
     const char *name = argc > 2 ? argv[2] : "npm";
+    const char *budget = argc > 3 ? argv[3] : "spp";
+    int by_time = strcmp(budget, "time") == 0;
     PgRepresentation representation;
     PgFieldArgs args;
+    PgScheduleArgs schedule_args;
     PgField *field = NULL;
     PgRecorder *recorder = NULL;
     PgDistributions *dists = NULL;
+    PgSchedule *schedule = NULL;
     PgFieldStats stats;
+    PgScheduleReport sr;
+    uint64_t paths = 0;
+    uint32_t passes;
     Moments guided = {0.0, 0.0, 0}, uniform = {0.0, 0.0, 0};
     Rng rng = rng_new(11, 1);
     double exact = radiance_integral();
     double mean_g, var_g, var_u, sigma;
-    int it, k;
+    int k;
 
     if (!representation_of(name, &representation)) {
         fprintf(stderr, "unknown representation %s (npm, nasg, df_nearest, df_linear)\n", name);
         return 2;
     }
-    printf("guiding %s, representation %s\n", pg_version(), name);
+    if (!by_time && strcmp(budget, "spp") != 0) {
+        fprintf(stderr, "unknown budget %s (spp, time)\n", budget);
+        return 2;
+    }
+    printf("guiding %s, representation %s, %s budget\n", pg_version(), name, budget);
     TRY(pg_field_args_set_defaults(&args, representation));
     args.size = PG_SIZE_SMALL;
     args.selection_probability = 0.7f;
@@ -387,11 +475,23 @@ int main(int argc, char **argv) {
     TRY(pg_field_new(&args, &field));
     TRY(pg_recorder_new(&recorder));
     TRY(pg_distributions_new(&dists));
+    /* The library's schedule with the render's budget. */
+    TRY(pg_schedule_args_set_defaults(&schedule_args));
+    if (by_time) {
+        schedule_args.budget_kind = PG_BUDGET_SECONDS;
+        schedule_args.budget = BUDGET_SECONDS;
+    } else {
+        schedule_args.budget_kind = PG_BUDGET_SPP;
+        schedule_args.budget = BUDGET_SPP;
+        schedule_args.step_rule = PG_STEP_RULE_EPOCHS;
+        schedule_args.step_value = 4.0;
+    }
+    TRY(pg_schedule_new(&schedule_args, &schedule));
 
     /* 1. Training. */
-    for (it = 0; it < ITERATIONS; it++) {
-        train_iteration(field, recorder, &rng);
-    }
+    passes = train(field, recorder, schedule, &rng, &paths);
+    TRY(pg_schedule_report(schedule, &sr));
+    pg_schedule_release(schedule);
     TRY(pg_field_stats(field, &stats));
     printf("trained: %llu steps, %llu samples accepted, %llu rejected, generation %llu, "
            "%llu parameters\n",
@@ -399,9 +499,29 @@ int main(int argc, char **argv) {
            (unsigned long long)(stats.rejected_samples[0] + stats.rejected_samples[1] +
                                 stats.rejected_samples[2] + stats.rejected_samples[3]),
            (unsigned long long)stats.generation, (unsigned long long)stats.param_count);
-    CHECK(stats.accepted_samples == (uint64_t)ITERATIONS * PATHS_PER_ITERATION, "accepted %llu",
-          (unsigned long long)stats.accepted_samples);
-    CHECK(stats.generation == ITERATIONS, "generation %llu", (unsigned long long)stats.generation);
+    printf("schedule: %llu updates, %llu steps of %.3f ms; tracing %.3f s, training %.3f s "
+           "(share %.2f)\n",
+           (unsigned long long)sr.updates, (unsigned long long)sr.steps,
+           1e3 * sr.seconds_per_step, sr.traced_seconds, sr.trained_seconds, sr.training_share);
+    /* (c) Training went as scheduled. */
+    CHECK(stats.accepted_samples == paths && paths == (uint64_t)passes * PATHS_PER_PASS,
+          "accepted %llu of %llu paths", (unsigned long long)stats.accepted_samples,
+          (unsigned long long)paths);
+    CHECK(sr.training_over == 1, "training phase not over");
+    CHECK(stats.steps == sr.steps, "field %llu steps, schedule %llu",
+          (unsigned long long)stats.steps, (unsigned long long)sr.steps);
+    CHECK(stats.generation == sr.updates, "generation %llu, %llu updates",
+          (unsigned long long)stats.generation, (unsigned long long)sr.updates);
+    if (by_time) {
+        CHECK(passes >= 1 && sr.updates >= 1, "%u passes, %llu updates", passes,
+              (unsigned long long)sr.updates);
+    } else {
+        /* The same training on every run: 30 passes, one update of 8 steps each. */
+        CHECK(passes == TRAINING_PASSES, "%u training passes", passes);
+        CHECK(sr.updates == TRAINING_PASSES && sr.steps == 8 * TRAINING_PASSES,
+              "%llu updates, %llu steps", (unsigned long long)sr.updates,
+              (unsigned long long)sr.steps);
+    }
 
     /* 2. Rendering, with check (a). */
     render(field, dists, &rng, &guided, &uniform);
@@ -418,7 +538,7 @@ int main(int argc, char **argv) {
     CHECK(fabs(mean_g - exact) < 4.0 * sigma, "guided estimate %.4f vs exact %.4f", mean_g, exact);
     CHECK(var_g < 0.5 * var_u, "guided variance %.3f vs uniform %.3f", var_g, var_u);
 
-    /* (c) Error paths. */
+    /* (d) Error paths. */
     check_argument_errors(field, dists);
     check_stale(field, recorder, dists, &rng);
     check_save_load(field, scratch, &rng);

@@ -24,10 +24,22 @@
  *   angle over `wi`. (Mitsuba names these the other way round: pass its `wi`
  *   as `wo`.)
  *
+ * Training loop
+ * - A render trains as the library's schedule says (PgSchedule, the Rust
+ *   guiding::TrainingSchedule): the first train_fraction of the budget
+ *   (seconds or spp) is the training phase, in which Adam steps get a share of
+ *   the wall clock (PG_STEP_RULE_TIME_SHARE, 1/3) or a fixed number of epochs
+ *   over what each pass recorded (PG_STEP_RULE_EPOCHS, reproducible). Before
+ *   each pass ask pg_schedule_in_training_phase; while it says true, trace the
+ *   pass in pieces of pg_schedule_paths_before_update paths, and after each
+ *   piece hand its samples to the field (pg_recorder_flush_into), report it
+ *   (pg_schedule_record_traced) and call pg_field_train_scheduled, which runs
+ *   the steps due (often none). examples/toy_renderer.c does this.
+ *
  * Ownership
  * - Each handle written to an out pointer (PgField, PgDistributions,
- *   PgRecorder) belongs to the caller, who releases it exactly once with its
- *   *_release function (NULL is a no-op). On failure the out pointer is set to
+ *   PgRecorder, PgSchedule) belongs to the caller, who releases it exactly once
+ *   with its *_release function (NULL is a no-op). On failure the out pointer is set to
  *   NULL. Using a handle after releasing it is undefined behaviour, as with
  *   free().
  * - A PgDistributions keeps its field alive: releasing the field first is
@@ -39,12 +51,15 @@
  * - PgField is internally synchronised by a read-write lock: queries
  *   (pg_field_query, _sample, _pdf, _selection_probability, _stats, _save, ...)
  *   may run from many threads at once; pg_field_add_samples, pg_field_update,
- *   pg_field_stop_training and pg_recorder_flush_into take the field
- *   exclusively (they wait for running queries and block new ones until done).
+ *   pg_field_train_scheduled, pg_field_stop_training and pg_recorder_flush_into
+ *   take the field exclusively (they wait for running queries and block new
+ *   ones until done).
  * - The reading pg_distributions_* functions may run from many threads on one
  *   PgDistributions; pg_field_query into it must not overlap any other use of
  *   it (use one per thread).
  * - PgRecorder is not synchronised: one per render thread.
+ * - PgSchedule is not synchronised: the render loop uses it (any thread, one
+ *   call at a time).
  * - A *_release must not overlap any other use of its handle.
  * - The field's own worker threads (PgFieldArgs.threads, 0 = all cores) run
  *   updates and batched queries; set threads = 1 when the renderer calls
@@ -146,6 +161,12 @@ typedef struct PgField PgField;
 typedef struct PgRecorder PgRecorder;
 
 /**
+ * A training schedule (opaque). Not synchronised: one render loop uses it. Create with
+ * `pg_schedule_new`, release with `pg_schedule_release`.
+ */
+typedef struct PgSchedule PgSchedule;
+
+/**
  * Directional representation code (`PG_REPRESENTATION_*`).
  */
 typedef uint32_t PgRepresentation;
@@ -173,9 +194,10 @@ typedef uint32_t PgDeviceFailure;
 /**
  * Everything needed to create a field. Fill it with
  * `pg_field_args_set_defaults`, then set at least the scene bounds (the
- * defaults are an empty box, which `pg_field_new` refuses). Training values
- * not listed here (Adam β₁/β₂/ε, gradient chunks and clip) keep the preset
- * values.
+ * defaults are an empty box, which `pg_field_new` refuses). The defaults
+ * are the library's presets (Rust `GuidingConfig::for_representation`).
+ * Training values not listed here (Adam β₁/β₂/ε, gradient chunks and clip)
+ * keep the preset values.
  */
 typedef struct PgFieldArgs {
     /**
@@ -192,11 +214,11 @@ typedef struct PgFieldArgs {
     PgModelSize size;
     /**
      * Probability of sampling the guide rather than the BSDF, in `[0, 1]`
-     * (NPM and DF; NASG learns its own). Default 0.5.
+     * (NPM and DF; NASG learns its own). Default 0.3.
      */
     float selection_probability;
     /**
-     * Adam learning rate, `> 0`. Default 0.03.
+     * Adam learning rate, `> 0`. Default 0.03 (NPM: 0.005).
      */
     float learning_rate;
     /**
@@ -204,7 +226,8 @@ typedef struct PgFieldArgs {
      */
     float ema_decay;
     /**
-     * Adam steps per `pg_field_update`, `≥ 1`. Default 32.
+     * Adam steps per `pg_field_update`, `≥ 1`, and the most steps of a
+     * `PG_STEP_RULE_EPOCHS` update in `pg_field_train_scheduled`. Default 64.
      */
     uint32_t steps_per_update;
     /**
@@ -516,6 +539,99 @@ typedef struct PgPathVertex {
 } PgPathVertex;
 
 /**
+ * The unit of a render's budget (`PG_BUDGET_*`).
+ */
+typedef uint32_t PgBudgetKind;
+
+/**
+ * How a schedule's updates choose their Adam steps (`PG_STEP_RULE_*`).
+ */
+typedef uint32_t PgStepRule;
+
+/**
+ * Everything needed to create a schedule. Fill it with `pg_schedule_args_set_defaults`, then
+ * set the budget (the default is `NaN` seconds, which `pg_schedule_new` refuses). The
+ * options are the Rust `ScheduleOptions`; see their docs for the measurements behind the
+ * defaults.
+ */
+typedef struct PgScheduleArgs {
+    /**
+     * `PG_BUDGET_*`: the unit of `budget` (default `PG_BUDGET_SECONDS`).
+     */
+    PgBudgetKind budget_kind;
+    /**
+     * `PG_STEP_RULE_*` (default `PG_STEP_RULE_TIME_SHARE`).
+     */
+    PgStepRule step_rule;
+    /**
+     * The render's budget in seconds or samples per pixel (must be set; default `NaN`).
+     */
+    double budget;
+    /**
+     * Fraction of the budget spent in the training phase, in `[0, 1]`. Default 0.2.
+     */
+    double train_fraction;
+    /**
+     * The training share in `(0, 1)` (`PG_STEP_RULE_TIME_SHARE`, default 1/3), or the epochs
+     * per update `> 0` (`PG_STEP_RULE_EPOCHS`).
+     */
+    double step_value;
+    /**
+     * Seconds of tracing between updates the schedule aims at, `> 0`. Default 0.25.
+     */
+    double update_interval;
+    /**
+     * Fraction of a pass traced before the first update, before anything was measured, in
+     * `(0, 1]`. Default 1/32.
+     */
+    double first_piece;
+    /**
+     * At most this many passes over the samples buffered since the last update per update,
+     * `> 0` (`PG_STEP_RULE_TIME_SHARE`). Default 4.
+     */
+    double max_epochs;
+} PgScheduleArgs;
+
+/**
+ * What a schedule did so far (`pg_schedule_report`).
+ */
+typedef struct PgScheduleReport {
+    /**
+     * Tracing seconds of the training phase (`pg_schedule_record_traced`).
+     */
+    double traced_seconds;
+    /**
+     * Seconds of Adam steps (measured by `pg_field_train_scheduled`).
+     */
+    double trained_seconds;
+    /**
+     * Adam steps.
+     */
+    uint64_t steps;
+    /**
+     * Updates (`pg_field_train_scheduled` calls that had steps due).
+     */
+    uint64_t updates;
+    /**
+     * Mean seconds per step (`NaN` before any).
+     */
+    double seconds_per_step;
+    /**
+     * Training's share of the training phase's wall clock, `trained / (traced + trained)`
+     * (`NaN` before anything was recorded).
+     */
+    double training_share;
+    /**
+     * 1 once the training phase is over, else 0.
+     */
+    uint32_t training_over;
+    /**
+     * Padding (0).
+     */
+    uint32_t pad;
+} PgScheduleReport;
+
+/**
  * Neural Parametric Mixtures (Dong et al. 2023): 8 vMF lobes.
  */
 #define PG_REPRESENTATION_NPM 0
@@ -588,6 +704,30 @@ typedef struct PgPathVertex {
  */
 #define PG_SIZE_PAPER 2
 
+/**
+ * Training gets the share `PgScheduleArgs.step_value` (in `(0, 1)`, default 1/3) of the
+ * training phase's wall clock, from measured step and tracing times (Rust
+ * `StepRule::TimeShare`); the steps depend on timing, so two renders train differently.
+ */
+#define PG_STEP_RULE_TIME_SHARE 0
+
+/**
+ * Reproducible training: one update per whole pass with `clamp(ceil(e · buffered /
+ * batch_size), 1, steps_per_update)` steps for `e = PgScheduleArgs.step_value` epochs
+ * (`> 0`), the same on every run (Rust `StepRule::Epochs`).
+ */
+#define PG_STEP_RULE_EPOCHS 1
+
+/**
+ * Wall-clock seconds: `PgScheduleArgs.budget` finite and `≥ 0`.
+ */
+#define PG_BUDGET_SECONDS 0
+
+/**
+ * Samples (passes) per pixel: `PgScheduleArgs.budget` a whole number in `[0, 2³² − 1]`.
+ */
+#define PG_BUDGET_SPP 1
+
 #ifdef __cplusplus
 extern "C" {
 #endif // __cplusplus
@@ -605,12 +745,15 @@ const char *pg_version(void);
 const char *pg_last_error(void);
 
 /**
- * Fills `args` with the defaults of a representation: the radiance-target
- * preset (target `PG_TARGET_RADIANCE`, size `PG_SIZE_COMPACT`, selection
- * probability 0.5, learning rate 0.03, batches of 8192, 32 steps per
- * update, EMA decay 0.95, all cores, seed 0, no step limit, no plateau
- * detection, at most 2^20 buffered samples) and an empty scene box, which
- * the caller must set.
+ * Fills `args` with the defaults of a representation, the library's preset
+ * (Rust `GuidingConfig::for_representation` with the radiance target, the
+ * defaults host-demo renders with): target `PG_TARGET_RADIANCE`, size
+ * `PG_SIZE_COMPACT`, selection probability 0.3
+ * (`guiding::config::PRESET_SELECTION_PROBABILITY`), learning rate 0.03
+ * (NPM: 0.005, `guiding::config::NPM_LEARNING_RATE`), batches of 8192, 64
+ * steps per update (`guiding::config::PRESET_TRAINING`), EMA decay 0.95, all
+ * cores, seed 0, no step limit, no plateau detection, at most 2^20 buffered
+ * samples; and an empty scene box, which the caller must set.
  *
  * Returns `PG_NULL_POINTER` if `args` is NULL, `PG_INVALID_ARGUMENT` (and
  * leaves `*args` unchanged) for an unknown representation.
@@ -669,7 +812,9 @@ enum PgStatus pg_field_add_samples(struct PgField *field,
 
 /**
  * Runs one training iteration on the buffered samples (`steps_per_update`
- * Adam steps), then clears the buffer. Does nothing once converged. If it
+ * Adam steps), then clears the buffer. Does nothing once converged. A
+ * render that should train as the library's schedule does calls
+ * `pg_field_train_scheduled` instead (see `PgSchedule`). If it
  * applied a step, distributions queried before are stale. Writes what it
  * did to `*report` unless `report` is NULL. Takes the field exclusively:
  * waits for running queries and blocks new ones until done. On a field
@@ -970,6 +1115,127 @@ enum PgStatus pg_recorder_clear_samples(struct PgRecorder *recorder);
 enum PgStatus pg_recorder_flush_into(struct PgRecorder *recorder,
                                      struct PgField *field,
                                      size_t *out_count);
+
+/**
+ * Fills `args` with the library's defaults (Rust `ScheduleOptions::DEFAULT`: training
+ * fraction 0.2, `PG_STEP_RULE_TIME_SHARE` with share 1/3, updates every 0.25 s of tracing, a
+ * first piece of 1/32 pass, at most 4 epochs per update) and a budget of `NaN` seconds, which
+ * the caller must set.
+ *
+ * Returns `PG_NULL_POINTER` if `args` is NULL.
+ *
+ * # Safety
+ * `args` must be NULL or point to writable memory for a `PgScheduleArgs`.
+ */
+enum PgStatus pg_schedule_args_set_defaults(struct PgScheduleArgs *args);
+
+/**
+ * Creates a schedule for a render of `args.budget` (see `PgScheduleArgs`) in `*out`.
+ *
+ * Returns `PG_INVALID_ARGUMENT` for an unknown code, a value out of its range, a time budget
+ * that is not finite and `≥ 0`, or an spp budget that is not a whole number in `[0, 2³² −
+ * 1]`. On failure `*out` is set to NULL.
+ *
+ * # Safety
+ * `args` must be NULL or point to a `PgScheduleArgs`; `out` NULL or writable.
+ */
+enum PgStatus pg_schedule_new(const struct PgScheduleArgs *args, struct PgSchedule **out);
+
+/**
+ * Releases a schedule (NULL: no-op).
+ *
+ * # Safety
+ * `schedule` must be NULL or a live handle that no other call is using.
+ */
+void pg_schedule_release(struct PgSchedule *schedule);
+
+/**
+ * Writes to `*out` whether work that starts now belongs to the training phase:
+ * `elapsed_seconds` since the render started below `train_fraction · budget` (time budget),
+ * or the sample index `pass_index` below `round(train_fraction · spp)` (spp budget). Once it
+ * has answered false (or `pg_schedule_end_training` was called) it always does. Ask it
+ * before each pass; record and train only while it says true.
+ *
+ * Returns `PG_INVALID_ARGUMENT` (and changes nothing) if `elapsed_seconds` is not finite and
+ * `≥ 0`.
+ *
+ * # Safety
+ * `schedule` must be NULL or a live handle; `out` NULL or writable.
+ */
+enum PgStatus pg_schedule_in_training_phase(struct PgSchedule *schedule,
+                                            double elapsed_seconds,
+                                            uint32_t pass_index,
+                                            bool *out);
+
+/**
+ * Ends the training phase now (the renderer's own verdict, e.g. the field converged): later
+ * `pg_schedule_in_training_phase` calls write false and `pg_field_train_scheduled` runs no
+ * steps.
+ *
+ * # Safety
+ * `schedule` must be NULL or a live handle.
+ */
+enum PgStatus pg_schedule_end_training(struct PgSchedule *schedule);
+
+/**
+ * Reports that the renderer traced `paths` paths (camera samples) in `seconds` of the
+ * training phase, recording included. The time share and the piece sizes are computed from
+ * these reports.
+ *
+ * Returns `PG_INVALID_ARGUMENT` (and records nothing) if `seconds` is not finite and `≥ 0`.
+ *
+ * # Safety
+ * `schedule` must be NULL or a live handle.
+ */
+enum PgStatus pg_schedule_record_traced(struct PgSchedule *schedule,
+                                        double seconds,
+                                        uint64_t paths);
+
+/**
+ * Writes to `*out` how many paths to trace (and record) before the next
+ * `pg_field_train_scheduled`, at most `pass_paths` (the paths of one pass, `≥ 1`) and at
+ * least 1: about `update_interval` seconds of tracing at the measured seconds per path, or
+ * `first_piece` of a pass before anything was measured; a whole pass with
+ * `PG_STEP_RULE_EPOCHS`. Trace a pass in pieces of this size, each an unbiased part of it
+ * (e.g. rows spread over the image).
+ *
+ * Returns `PG_INVALID_ARGUMENT` if `pass_paths` is 0.
+ *
+ * # Safety
+ * `schedule` must be NULL or a live handle; `out` NULL or writable.
+ */
+enum PgStatus pg_schedule_paths_before_update(const struct PgSchedule *schedule,
+                                              uint64_t pass_paths,
+                                              uint64_t *out);
+
+/**
+ * Writes what the schedule did so far to `*out`.
+ *
+ * # Safety
+ * `schedule` must be NULL or a live handle; `out` NULL or writable.
+ */
+enum PgStatus pg_schedule_report(const struct PgSchedule *schedule, struct PgScheduleReport *out);
+
+/**
+ * The update step of a scheduled render, to call after each traced piece has been handed to
+ * the field (`pg_field_add_samples` or `pg_recorder_flush_into`) and reported with
+ * `pg_schedule_record_traced`: runs the Adam steps the schedule says are due for the field's
+ * buffered samples and training settings (none once the training phase is over, nothing
+ * buffered, or, with `PG_STEP_RULE_TIME_SHARE`, training ahead of its share), times them and
+ * records them in the schedule. As Rust's `TrainingSchedule::steps_due`,
+ * `GuidingField::try_update_steps` and `TrainingSchedule::record_update`. If it applied a
+ * step, distributions queried before are stale. Writes what it did to `*report` unless
+ * `report` is NULL (`steps` 0 and `mean_loss` NaN when no step was due). Takes the field
+ * exclusively. On a field whose device failed (`PG_DEVICE_FAILURE_ERROR`) it trains nothing,
+ * records nothing and returns `PG_DEVICE_UNAVAILABLE`.
+ *
+ * # Safety
+ * `field` must be NULL or a live handle; `schedule` NULL or a live handle no other call is
+ * using; `report` NULL or writable.
+ */
+enum PgStatus pg_field_train_scheduled(struct PgField *field,
+                                       struct PgSchedule *schedule,
+                                       struct PgUpdateReport *report);
 
 #ifdef __cplusplus
 }  // extern "C"

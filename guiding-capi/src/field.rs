@@ -53,19 +53,15 @@ impl PgField {
     }
 }
 
-/// The radiance-target preset of a representation.
+/// The radiance-target preset of a representation: the library's defaults
+/// (`GuidingConfig::for_representation`).
 fn preset(code: PgRepresentation) -> Result<GuidingConfig, Failure> {
     let rep = Representation::from_code(code).ok_or_else(|| {
         Failure::invalid(format!(
             "representation {code} is not a PG_REPRESENTATION_* code (0 to 3)"
         ))
     })?;
-    Ok(match rep {
-        Representation::Npm => GuidingConfig::npm_radiance(),
-        Representation::Nasg => GuidingConfig::nasg(),
-        Representation::DfNearest => GuidingConfig::df_nearest(),
-        Representation::DfLinear => GuidingConfig::df_linear(),
-    })
+    Ok(GuidingConfig::for_representation(rep, Target::Radiance))
 }
 
 fn args_of(config: &GuidingConfig, bounds: ([f32; 3], [f32; 3])) -> PgFieldArgs {
@@ -201,12 +197,15 @@ pub(crate) fn write_samples(samples: &[DirectionSample], dirs: &mut [f32], pdfs:
     }
 }
 
-/// Fills `args` with the defaults of a representation: the radiance-target
-/// preset (target `PG_TARGET_RADIANCE`, size `PG_SIZE_COMPACT`, selection
-/// probability 0.5, learning rate 0.03, batches of 8192, 32 steps per
-/// update, EMA decay 0.95, all cores, seed 0, no step limit, no plateau
-/// detection, at most 2^20 buffered samples) and an empty scene box, which
-/// the caller must set.
+/// Fills `args` with the defaults of a representation, the library's preset
+/// (Rust `GuidingConfig::for_representation` with the radiance target, the
+/// defaults host-demo renders with): target `PG_TARGET_RADIANCE`, size
+/// `PG_SIZE_COMPACT`, selection probability 0.3
+/// (`guiding::config::PRESET_SELECTION_PROBABILITY`), learning rate 0.03
+/// (NPM: 0.005, `guiding::config::NPM_LEARNING_RATE`), batches of 8192, 64
+/// steps per update (`guiding::config::PRESET_TRAINING`), EMA decay 0.95, all
+/// cores, seed 0, no step limit, no plateau detection, at most 2^20 buffered
+/// samples; and an empty scene box, which the caller must set.
 ///
 /// Returns `PG_NULL_POINTER` if `args` is NULL, `PG_INVALID_ARGUMENT` (and
 /// leaves `*args` unchanged) for an unknown representation.
@@ -321,7 +320,9 @@ pub unsafe extern "C" fn pg_field_add_samples(
 }
 
 /// Runs one training iteration on the buffered samples (`steps_per_update`
-/// Adam steps), then clears the buffer. Does nothing once converged. If it
+/// Adam steps), then clears the buffer. Does nothing once converged. A
+/// render that should train as the library's schedule does calls
+/// `pg_field_train_scheduled` instead (see `PgSchedule`). If it
 /// applied a step, distributions queried before are stale. Writes what it
 /// did to `*report` unless `report` is NULL. Takes the field exclusively:
 /// waits for running queries and blocks new ones until done. On a field
@@ -337,11 +338,7 @@ pub unsafe extern "C" fn pg_field_update(
 ) -> PgStatus {
     guard("pg_field_update", || {
         let field = unsafe { ptr::as_ref(field, "field") }?;
-        let report = if report.is_null() {
-            None
-        } else {
-            Some(unsafe { ptr::as_mut(report, "report") }?)
-        };
+        let report = unsafe { ptr::as_mut_opt(report, "report") }?;
         let r = write(&field.inner)?.try_update()?;
         if let Some(out) = report {
             *out = r.into();
@@ -366,11 +363,7 @@ pub unsafe extern "C" fn pg_field_update_proportional(
 ) -> PgStatus {
     guard("pg_field_update_proportional", || {
         let field = unsafe { ptr::as_ref(field, "field") }?;
-        let report = if report.is_null() {
-            None
-        } else {
-            Some(unsafe { ptr::as_mut(report, "report") }?)
-        };
+        let report = unsafe { ptr::as_mut_opt(report, "report") }?;
         let r = write(&field.inner)?.try_update_proportional(epochs)?;
         if let Some(out) = report {
             *out = r.into();

@@ -19,10 +19,39 @@
 //! - No Rust panic crosses the boundary: each entry point catches it and
 //!   returns `PG_PANIC`.
 //!
+//! # The training loop
+//!
+//! A render trains its field as the library's schedule says (`PgSchedule`,
+//! the Rust `guiding::TrainingSchedule`, whose docs give the rule): the
+//! first `train_fraction` of the budget (seconds or samples per pixel) is
+//! the training phase, in which Adam steps get a share of the wall clock
+//! (`PG_STEP_RULE_TIME_SHARE`, 1/3) or a fixed number of epochs over what
+//! each pass recorded (`PG_STEP_RULE_EPOCHS`, reproducible).
+//!
+//! ```c
+//! for (pass = 0; ; pass++) {
+//!     bool training;
+//!     pg_schedule_in_training_phase(schedule, seconds_since_start, pass, &training);
+//!     if (!training) break;            /* render the rest with the frozen guide */
+//!     for (done = 0; done < pass_paths; done += piece) {
+//!         pg_schedule_paths_before_update(schedule, pass_paths, &piece);
+//!         piece = min(piece, pass_paths - done);
+//!         /* trace `piece` paths (an unbiased part of the pass), recording them */
+//!         pg_recorder_flush_into(recorder, field, NULL);
+//!         pg_schedule_record_traced(schedule, seconds_traced, piece);
+//!         pg_field_train_scheduled(field, schedule, &report); /* steps due, or none */
+//!     }
+//! }
+//! pg_schedule_report(schedule, &stats);
+//! ```
+//!
+//! `pg_field_update` (a fixed `steps_per_update` steps) and
+//! `pg_field_update_proportional` remain for renderers with their own rule.
+//!
 //! # Ownership
 //!
 //! - Each handle written to an `out` pointer (`PgField`, `PgDistributions`,
-//!   `PgRecorder`) belongs to the caller, who releases it exactly once with
+//!   `PgRecorder`, `PgSchedule`) belongs to the caller, who releases it exactly once with
 //!   its `*_release` function (NULL is a no-op). On failure the `out`
 //!   pointer is set to NULL. Using a handle after releasing it is undefined
 //!   behaviour, as with `free`.
@@ -36,13 +65,15 @@
 //! - `PgField` is internally synchronised by a read-write lock: queries
 //!   (`pg_field_query`, `_sample`, `_pdf`, `_selection_probability`,
 //!   `_stats`, `_save`, …) may run from many threads at once;
-//!   `pg_field_add_samples`, `pg_field_update`, `pg_field_stop_training` and
-//!   `pg_recorder_flush_into` take the field exclusively (they wait for
+//!   `pg_field_add_samples`, `pg_field_update`, `pg_field_train_scheduled`,
+//!   `pg_field_stop_training` and `pg_recorder_flush_into` take the field exclusively (they wait for
 //!   running queries and block new ones until they are done).
 //! - The reading `pg_distributions_*` functions may run from many threads on
 //!   one `PgDistributions`; `pg_field_query` into it must not overlap any
 //!   other use of it (use one per thread).
 //! - `PgRecorder` is not synchronised: one per render thread.
+//! - `PgSchedule` is not synchronised: the render loop's thread uses it (any
+//!   thread, one call at a time).
 //! - A `*_release` must not overlap any other use of its handle.
 //! - The field's own worker threads (`PgFieldArgs.threads`, 0 = all cores)
 //!   run updates and batched queries; set `threads = 1` when the renderer
@@ -64,11 +95,14 @@ pub mod distributions;
 
 pub mod recorder;
 
+pub mod schedule;
+
 mod ptr;
 
 pub use distributions::*;
 pub use field::*;
 pub use recorder::*;
+pub use schedule::*;
 pub use status::PgStatus;
 pub use types::*;
 
@@ -81,6 +115,7 @@ const _: () = {
     send_sync::<PgField>();
     send_sync::<PgDistributions>();
     send::<PgRecorder>();
+    send::<PgSchedule>();
 };
 
 /// The library version, `"MAJOR.MINOR.PATCH"` (static storage, never freed).

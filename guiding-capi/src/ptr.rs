@@ -59,6 +59,21 @@ pub(crate) unsafe fn as_mut<'a, T>(p: *mut T, what: &str) -> Result<&'a mut T, F
     Ok(unsafe { &mut *p })
 }
 
+/// `&mut *p` for an optional output: `None` when `p` is NULL.
+///
+/// # Safety
+/// As [`as_mut`] for a non-NULL `p`.
+pub(crate) unsafe fn as_mut_opt<'a, T>(
+    p: *mut T,
+    what: &str,
+) -> Result<Option<&'a mut T>, Failure> {
+    if p.is_null() {
+        return Ok(None);
+    }
+    // SAFETY: the caller's contract.
+    unsafe { as_mut(p, what) }.map(Some)
+}
+
 /// The `n` values at `p`; `p` may be NULL when `n == 0`.
 ///
 /// # Safety

@@ -183,11 +183,7 @@ pub unsafe extern "C" fn pg_recorder_flush_into(
     guard("pg_recorder_flush_into", || {
         let r = unsafe { ptr::as_mut(recorder, "recorder") }?;
         let field = unsafe { ptr::as_ref(field, "field") }?;
-        let out = if out_count.is_null() {
-            None
-        } else {
-            Some(unsafe { ptr::as_mut(out_count, "out_count") }?)
-        };
+        let out = unsafe { ptr::as_mut_opt(out_count, "out_count") }?;
         let n = r.inner.flush_into(&mut *write(&field.inner)?);
         if let Some(out) = out {
             *out = n;

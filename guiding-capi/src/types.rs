@@ -61,9 +61,10 @@ const _: () = assert!(PG_REJECTION_KINDS == REJECTION_KINDS);
 
 /// Everything needed to create a field. Fill it with
 /// `pg_field_args_set_defaults`, then set at least the scene bounds (the
-/// defaults are an empty box, which `pg_field_new` refuses). Training values
-/// not listed here (Adam β₁/β₂/ε, gradient chunks and clip) keep the preset
-/// values.
+/// defaults are an empty box, which `pg_field_new` refuses). The defaults
+/// are the library's presets (Rust `GuidingConfig::for_representation`).
+/// Training values not listed here (Adam β₁/β₂/ε, gradient chunks and clip)
+/// keep the preset values.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PgFieldArgs {
@@ -74,13 +75,14 @@ pub struct PgFieldArgs {
     /// `PG_SIZE_*` (default `PG_SIZE_COMPACT`).
     pub size: PgModelSize,
     /// Probability of sampling the guide rather than the BSDF, in `[0, 1]`
-    /// (NPM and DF; NASG learns its own). Default 0.5.
+    /// (NPM and DF; NASG learns its own). Default 0.3.
     pub selection_probability: f32,
-    /// Adam learning rate, `> 0`. Default 0.03.
+    /// Adam learning rate, `> 0`. Default 0.03 (NPM: 0.005).
     pub learning_rate: f32,
     /// Decay of the weight average used for queries, in `[0, 1)`. Default 0.95.
     pub ema_decay: f32,
-    /// Adam steps per `pg_field_update`, `≥ 1`. Default 32.
+    /// Adam steps per `pg_field_update`, `≥ 1`, and the most steps of a
+    /// `PG_STEP_RULE_EPOCHS` update in `pg_field_train_scheduled`. Default 64.
     pub steps_per_update: u32,
     /// Seed of the minibatch shuffles. Default 0.
     pub seed: u32,

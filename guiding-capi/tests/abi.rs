@@ -3,7 +3,10 @@
 //! arrays, release(NULL), double use, stale distributions, corrupt files,
 //! agreement with the Rust API, and concurrent queries during updates.
 
-use guiding::{GuidingConfig, GuidingField, ModelSize, PathRecorder, PathVertex};
+use guiding::{
+    Budget, GuidingConfig, GuidingField, ModelSize, PathRecorder, PathVertex, Representation,
+    ScheduleOptions, StepRule, Target, TrainingSchedule,
+};
 use guiding_capi::*;
 use guiding_core::glam::{Vec2, Vec3};
 use guiding_core::math::INV_FOUR_PI;
@@ -62,16 +65,14 @@ fn args(representation: PgRepresentation) -> PgFieldArgs {
     }
 }
 
-/// The Rust configuration `args(representation)` stands for.
+/// The Rust configuration `args(representation)` stands for: the library's
+/// preset of the representation (radiance target), small, batches of 256,
+/// 2 steps per update, one thread.
 fn rust_config(representation: PgRepresentation) -> GuidingConfig {
-    let base = match representation {
-        PG_REPRESENTATION_NPM => GuidingConfig::npm_radiance(),
-        PG_REPRESENTATION_NASG => GuidingConfig::nasg(),
-        PG_REPRESENTATION_DF_NEAREST => GuidingConfig::df_nearest(),
-        _ => GuidingConfig::df_linear(),
-    };
+    let rep = Representation::from_code(representation).unwrap();
+    let base = GuidingConfig::for_representation(rep, Target::Radiance);
     base.with_size(ModelSize::Small).with_training(
-        guiding::config::PRESET_TRAINING
+        base.training
             .with_batch_size(256)
             .with_steps_per_update(2)
             .with_threads(1),
@@ -1397,5 +1398,671 @@ fn the_device_is_chosen_by_args_or_unavailable_with_a_reason() {
         assert_eq!(s, PG_DEVICE_UNAVAILABLE, "{msg}");
         assert!(f.is_null());
         assert!(msg.starts_with("pg_field_new: Vulkan device:"), "{msg}");
+    }
+}
+
+/// `pg_field_args_set_defaults` is the library's preset of each
+/// representation (`GuidingConfig::for_representation`): NPM's learning rate
+/// is `NPM_LEARNING_RATE`, the others' `PRESET_TRAINING`'s; the selection
+/// probability and the steps per update are the presets'.
+#[test]
+fn field_defaults_are_the_library_presets() {
+    use guiding::config::{NPM_LEARNING_RATE, PRESET_SELECTION_PROBABILITY, PRESET_TRAINING};
+    for rep in Representation::ALL {
+        let mut a = std::mem::MaybeUninit::<PgFieldArgs>::uninit();
+        // SAFETY: set_defaults writes the whole struct.
+        let a = unsafe {
+            assert_eq!(
+                pg_field_args_set_defaults(a.as_mut_ptr(), rep as u32),
+                PG_OK
+            );
+            a.assume_init()
+        };
+        let c = GuidingConfig::for_representation(rep, Target::Radiance);
+        let t = &c.training;
+        assert_eq!(
+            (a.representation, a.target, a.size),
+            (rep as u32, PG_TARGET_RADIANCE, c.size as u32),
+            "{rep:?}"
+        );
+        assert_eq!(a.selection_probability, c.selection_probability, "{rep:?}");
+        assert_eq!(a.selection_probability, PRESET_SELECTION_PROBABILITY);
+        assert_eq!(a.learning_rate, t.adam.learning_rate, "{rep:?}");
+        let lr = if rep == Representation::Npm {
+            NPM_LEARNING_RATE
+        } else {
+            PRESET_TRAINING.adam.learning_rate
+        };
+        assert_eq!(a.learning_rate, lr, "{rep:?}");
+        assert_eq!(a.steps_per_update, t.steps_per_update, "{rep:?}");
+        assert_eq!(a.steps_per_update, PRESET_TRAINING.steps_per_update);
+        assert_eq!(
+            (a.batch_size, a.ema_decay, a.threads, a.seed),
+            (t.batch_size, t.ema_decay, t.threads, t.seed),
+            "{rep:?}"
+        );
+        assert_eq!(
+            (a.max_buffered_samples, a.max_steps),
+            (t.max_buffered_samples, t.max_steps)
+        );
+        assert_eq!(
+            (a.device, a.device_failure),
+            (PG_DEVICE_CPU, PG_DEVICE_FAILURE_ERROR)
+        );
+    }
+}
+
+fn schedule_args() -> PgScheduleArgs {
+    let mut a = std::mem::MaybeUninit::<PgScheduleArgs>::uninit();
+    // SAFETY: set_defaults writes the whole struct.
+    unsafe {
+        assert_eq!(pg_schedule_args_set_defaults(a.as_mut_ptr()), PG_OK);
+        a.assume_init()
+    }
+}
+
+fn new_schedule(a: &PgScheduleArgs) -> *mut PgSchedule {
+    let mut s = null_mut();
+    // SAFETY: valid pointers.
+    let status = unsafe { pg_schedule_new(a, &mut s) };
+    assert_eq!(status, PG_OK, "{}", last());
+    assert!(!s.is_null());
+    s
+}
+
+fn schedule_report(s: *const PgSchedule) -> PgScheduleReport {
+    let mut r = PgScheduleReport::default();
+    // SAFETY: valid pointers.
+    assert_eq!(unsafe { pg_schedule_report(s, &mut r) }, PG_OK);
+    r
+}
+
+/// The defaults are the library's `ScheduleOptions::DEFAULT`, with a budget
+/// that must be set (NaN seconds, refused).
+#[test]
+fn schedule_defaults_are_the_library_defaults() {
+    let a = schedule_args();
+    let d = ScheduleOptions::DEFAULT;
+    let StepRule::TimeShare(share) = d.steps else {
+        panic!("the library's default rule changed: {:?}", d.steps)
+    };
+    assert_eq!(
+        (a.step_rule, a.step_value),
+        (PG_STEP_RULE_TIME_SHARE, share)
+    );
+    assert_eq!(
+        (
+            a.train_fraction,
+            a.update_interval,
+            a.first_piece,
+            a.max_epochs
+        ),
+        (
+            d.train_fraction,
+            d.update_interval,
+            d.first_piece,
+            d.max_epochs
+        )
+    );
+    assert_eq!(a.budget_kind, PG_BUDGET_SECONDS);
+    assert!(a.budget.is_nan());
+    let mut s = std::ptr::NonNull::<PgSchedule>::dangling().as_ptr();
+    // SAFETY: valid pointers.
+    expect(
+        unsafe { pg_schedule_new(&a, &mut s) },
+        PG_INVALID_ARGUMENT,
+        "pg_schedule_new",
+        "time budget",
+    );
+    assert!(s.is_null());
+}
+
+#[test]
+fn schedule_calls_refuse_null_pointers() {
+    let a = PgScheduleArgs {
+        budget: 10.0,
+        ..schedule_args()
+    };
+    let field = new_field(&args(PG_REPRESENTATION_NPM));
+    let s = new_schedule(&a);
+    let (mut out_s, mut flag, mut n) = (null_mut(), false, 0u64);
+    let mut rep = PgScheduleReport::default();
+    let mut up = PgUpdateReport::default();
+    // SAFETY: every non-NULL pointer is valid; NULL ones are the point.
+    unsafe {
+        refuses_null!("args", pg_schedule_args_set_defaults(null_mut()));
+        refuses_null!("args", pg_schedule_new(null(), &mut out_s));
+        refuses_null!("out", pg_schedule_new(&a, null_mut()));
+        refuses_null!(
+            "schedule",
+            pg_schedule_in_training_phase(null_mut(), 0.0, 0, &mut flag)
+        );
+        refuses_null!("out", pg_schedule_in_training_phase(s, 0.0, 0, null_mut()));
+        refuses_null!("schedule", pg_schedule_end_training(null_mut()));
+        refuses_null!("schedule", pg_schedule_record_traced(null_mut(), 1.0, 1));
+        refuses_null!(
+            "schedule",
+            pg_schedule_paths_before_update(null(), 1, &mut n)
+        );
+        refuses_null!("out", pg_schedule_paths_before_update(s, 1, null_mut()));
+        refuses_null!("schedule", pg_schedule_report(null(), &mut rep));
+        refuses_null!("out", pg_schedule_report(s, null_mut()));
+        refuses_null!("field", pg_field_train_scheduled(null_mut(), s, &mut up));
+        refuses_null!(
+            "schedule",
+            pg_field_train_scheduled(field, null_mut(), &mut up)
+        );
+        // A failed constructor leaves NULL; the report is optional; NULL
+        // releases are no-ops.
+        assert!(out_s.is_null());
+        expect(
+            pg_field_train_scheduled(field, s, null_mut()),
+            PG_OK,
+            "pg_field_train_scheduled",
+            "",
+        );
+        pg_schedule_release(null_mut());
+        assert_eq!(last(), "");
+        // Nothing above changed the schedule.
+        let r = schedule_report(s);
+        assert_eq!((r.steps, r.updates, r.traced_seconds), (0, 0, 0.0));
+        pg_schedule_release(s);
+        pg_field_release(field);
+    }
+}
+
+#[test]
+fn schedule_arguments_out_of_range_are_refused() {
+    let a = PgScheduleArgs {
+        budget: 10.0,
+        ..schedule_args()
+    };
+    let epochs = PgScheduleArgs {
+        step_rule: PG_STEP_RULE_EPOCHS,
+        step_value: 1.0,
+        ..a
+    };
+    let spp = PgScheduleArgs {
+        budget_kind: PG_BUDGET_SPP,
+        budget: 16.0,
+        ..a
+    };
+    let bad: Vec<(PgScheduleArgs, &str)> = vec![
+        (PgScheduleArgs { step_rule: 2, ..a }, "step_rule 2"),
+        (
+            PgScheduleArgs {
+                budget_kind: 2,
+                ..a
+            },
+            "budget_kind 2",
+        ),
+        (
+            PgScheduleArgs {
+                train_fraction: 1.5,
+                ..a
+            },
+            "train_fraction",
+        ),
+        (
+            PgScheduleArgs {
+                train_fraction: f64::NAN,
+                ..a
+            },
+            "train_fraction",
+        ),
+        (
+            PgScheduleArgs {
+                step_value: 1.0,
+                ..a
+            },
+            "training share",
+        ),
+        (
+            PgScheduleArgs {
+                step_value: 0.0,
+                ..a
+            },
+            "training share",
+        ),
+        (
+            PgScheduleArgs {
+                step_value: 0.0,
+                ..epochs
+            },
+            "epochs",
+        ),
+        (
+            PgScheduleArgs {
+                step_value: f64::INFINITY,
+                ..epochs
+            },
+            "epochs",
+        ),
+        (
+            PgScheduleArgs {
+                update_interval: 0.0,
+                ..a
+            },
+            "update_interval",
+        ),
+        (
+            PgScheduleArgs {
+                first_piece: 0.0,
+                ..a
+            },
+            "first_piece",
+        ),
+        (
+            PgScheduleArgs {
+                first_piece: 1.5,
+                ..a
+            },
+            "first_piece",
+        ),
+        (
+            PgScheduleArgs {
+                max_epochs: f64::INFINITY,
+                ..a
+            },
+            "max_epochs",
+        ),
+        (PgScheduleArgs { budget: -1.0, ..a }, "time budget"),
+        (
+            PgScheduleArgs {
+                budget: f64::INFINITY,
+                ..a
+            },
+            "time budget",
+        ),
+        (PgScheduleArgs { budget: 1.5, ..spp }, "1.5 spp"),
+        (
+            PgScheduleArgs {
+                budget: -1.0,
+                ..spp
+            },
+            "-1 spp",
+        ),
+        (
+            PgScheduleArgs {
+                budget: f64::NAN,
+                ..spp
+            },
+            "nan spp",
+        ),
+        (
+            PgScheduleArgs {
+                budget: 4294967296.0,
+                ..spp
+            },
+            "4294967296 spp",
+        ),
+    ];
+    for (b, needle) in bad {
+        let mut s = std::ptr::NonNull::<PgSchedule>::dangling().as_ptr(); // must be reset
+                                                                          // SAFETY: valid pointers.
+        let status = unsafe { pg_schedule_new(&b, &mut s) };
+        let msg = last();
+        assert_eq!(status, PG_INVALID_ARGUMENT, "{b:?}: {msg}");
+        assert!(
+            msg.starts_with("pg_schedule_new: ") && msg.to_lowercase().contains(needle),
+            "{needle:?} not in {msg:?}"
+        );
+        assert!(s.is_null());
+    }
+    // The edges of the ranges are accepted.
+    for good in [
+        PgScheduleArgs {
+            train_fraction: 0.0,
+            budget: 0.0,
+            first_piece: 1.0,
+            ..a
+        },
+        PgScheduleArgs {
+            train_fraction: 1.0,
+            budget: 4294967295.0,
+            ..spp
+        },
+        PgScheduleArgs {
+            step_value: 1e-9,
+            ..epochs
+        },
+    ] {
+        let s = new_schedule(&good);
+        // SAFETY: a live handle.
+        unsafe { pg_schedule_release(s) };
+    }
+    // Per-call values: non-finite or negative times, a pass of 0 paths. They
+    // change nothing.
+    let s = new_schedule(&a);
+    let (mut flag, mut n) = (true, 7u64);
+    // SAFETY: valid pointers.
+    unsafe {
+        for bad in [f64::NAN, -1.0, f64::INFINITY] {
+            expect(
+                pg_schedule_in_training_phase(s, bad, 0, &mut flag),
+                PG_INVALID_ARGUMENT,
+                "pg_schedule_in_training_phase",
+                "elapsed_seconds",
+            );
+            expect(
+                pg_schedule_record_traced(s, bad, 10),
+                PG_INVALID_ARGUMENT,
+                "pg_schedule_record_traced",
+                "seconds",
+            );
+        }
+        expect(
+            pg_schedule_paths_before_update(s, 0, &mut n),
+            PG_INVALID_ARGUMENT,
+            "pg_schedule_paths_before_update",
+            "pass_paths is 0",
+        );
+        assert_eq!(n, 7, "out untouched on failure");
+        let r = schedule_report(s);
+        assert_eq!((r.traced_seconds, r.training_over), (0.0, 0));
+        expect(
+            pg_schedule_in_training_phase(s, 1.0, 0, &mut flag),
+            PG_OK,
+            "",
+            "",
+        );
+        assert!(flag, "1 s of 10 at a training fraction of 0.2");
+        // Misaligned args.
+        let mut raw = [0u64; 16];
+        let misaligned = raw
+            .as_mut_ptr()
+            .cast::<u8>()
+            .add(1)
+            .cast::<PgScheduleArgs>();
+        expect(
+            pg_schedule_args_set_defaults(misaligned),
+            PG_INVALID_ARGUMENT,
+            "pg_schedule_args_set_defaults",
+            "misaligned",
+        );
+        pg_schedule_release(s);
+    }
+}
+
+/// A scheduled training loop made of C ABI calls (`PG_STEP_RULE_EPOCHS`,
+/// deterministic) runs the steps of the Rust `TrainingSchedule` driving a
+/// `GuidingField` as host-demo does, on the same samples: the same steps and
+/// losses per update, the same report, the same field afterwards.
+#[test]
+fn scheduled_c_loop_equals_the_rust_schedule() {
+    let epochs = 2.0;
+    let (spp, fraction) = (10u32, 0.5);
+    let a = PgFieldArgs {
+        steps_per_update: 8,
+        ..args(PG_REPRESENTATION_NPM)
+    };
+    let config = rust_config(PG_REPRESENTATION_NPM);
+    let config = config.with_training(config.training.with_steps_per_update(8));
+    let sa = PgScheduleArgs {
+        step_rule: PG_STEP_RULE_EPOCHS,
+        step_value: epochs,
+        budget_kind: PG_BUDGET_SPP,
+        budget: f64::from(spp),
+        train_fraction: fraction,
+        ..schedule_args()
+    };
+    let options = ScheduleOptions {
+        steps: StepRule::Epochs(epochs),
+        train_fraction: fraction,
+        ..ScheduleOptions::DEFAULT
+    };
+    let field = new_field(&a);
+    let sched = new_schedule(&sa);
+    let mut rust = GuidingField::new(config, LO, HI).unwrap();
+    let mut rust_sched = TrainingSchedule::new(options, Budget::Spp(spp)).unwrap();
+    // Samples per pass: steps clamp(ceil(2 n / 256), 1, 8) = 1, 3, 6, 8, 8.
+    let per_pass = [100usize, 300, 700, 2000, 900, 50, 50];
+    let mut rng = Pcg32::new(41, 1);
+    let mut steps = Vec::new();
+    for (pass, &n) in per_pass.iter().enumerate() {
+        let pass = pass as u32;
+        let elapsed = 0.1 * f64::from(pass);
+        let mut training = false;
+        // SAFETY: live handles, valid pointers.
+        unsafe {
+            assert_eq!(
+                pg_schedule_in_training_phase(sched, elapsed, pass, &mut training),
+                PG_OK
+            );
+        }
+        assert_eq!(training, rust_sched.in_training_phase(elapsed, pass));
+        if !training {
+            continue;
+        }
+        let mut piece = 0u64;
+        // SAFETY: as above.
+        unsafe {
+            assert_eq!(
+                pg_schedule_paths_before_update(sched, n as u64, &mut piece),
+                PG_OK
+            );
+        }
+        assert_eq!(piece, n as u64, "the epoch rule traces whole passes");
+        assert_eq!(piece, rust_sched.paths_before_update(n as u64));
+        let s = samples(&mut rng, n);
+        let seconds = 1e-3 * n as f64;
+        let mut report = PgUpdateReport::default();
+        // SAFETY: as above.
+        unsafe {
+            assert_eq!(pg_field_add_samples(field, s.as_ptr(), n), PG_OK);
+            assert_eq!(pg_schedule_record_traced(sched, seconds, n as u64), PG_OK);
+            expect(
+                pg_field_train_scheduled(field, sched, &mut report),
+                PG_OK,
+                "pg_field_train_scheduled",
+                "",
+            );
+        }
+        // The Rust loop of host-demo's end_chunk.
+        let core: Vec<guiding::TrainingSample> = s.iter().map(|x| bytemuck::cast(*x)).collect();
+        rust_sched.record_traced(seconds, n as u64);
+        rust.add_samples(&core);
+        let due = rust_sched.steps_due(rust.buffered_samples(), &rust.config().training);
+        assert!(due > 0);
+        let r = rust.try_update_steps(due).unwrap();
+        rust_sched.record_update(r.steps, 1e-3);
+        assert_eq!(report.steps, r.steps, "pass {pass}");
+        assert_eq!(report.buffered_samples, n as u64);
+        assert_eq!(
+            report.mean_loss.to_bits(),
+            r.mean_loss.to_bits(),
+            "pass {pass}"
+        );
+        steps.push(report.steps);
+    }
+    assert_eq!(
+        steps,
+        [1, 3, 6, 8, 8],
+        "round(0.5 × 10) = 5 training passes"
+    );
+    // After the training phase: samples are taken, no step is due.
+    let s = samples(&mut rng, 500);
+    let mut report = PgUpdateReport::default();
+    // SAFETY: live handles, valid pointers.
+    unsafe {
+        assert_eq!(pg_field_add_samples(field, s.as_ptr(), s.len()), PG_OK);
+        assert_eq!(pg_field_train_scheduled(field, sched, &mut report), PG_OK);
+    }
+    assert_eq!(report.steps, 0);
+    assert_eq!((report.buffered_samples, report.batch_size), (500, 256));
+    assert!(report.mean_loss.is_nan());
+    // The reports agree (but for the seconds, measured on the C side).
+    let (c, r) = (schedule_report(sched), rust_sched.report());
+    assert_eq!((c.steps, c.updates), (r.steps, r.updates));
+    assert_eq!((c.steps, c.updates), (26, 5));
+    assert_eq!(c.traced_seconds, r.traced_seconds);
+    assert_eq!(c.training_over, 1);
+    assert!(c.trained_seconds > 0.0);
+    assert_eq!(c.seconds_per_step, c.trained_seconds / 26.0);
+    let share = c.trained_seconds / (c.traced_seconds + c.trained_seconds);
+    assert_eq!(c.training_share, share);
+    assert_eq!(stats(field).steps, rust.stats().steps);
+    // The same field: identical samples.
+    let q: Vec<_> = (0..16).map(|_| random_query(&mut rng)).collect();
+    let u: Vec<f32> = (0..32).map(|_| rng.next_f32()).collect();
+    let (mut dirs, mut pdfs) = ([0.0f32; 48], [0.0f32; 16]);
+    // SAFETY: arrays of the stated lengths.
+    unsafe {
+        assert_eq!(
+            pg_field_sample(
+                field,
+                16,
+                q.as_ptr(),
+                u.as_ptr(),
+                dirs.as_mut_ptr(),
+                pdfs.as_mut_ptr()
+            ),
+            PG_OK
+        );
+        pg_schedule_release(sched);
+        pg_field_release(field);
+    }
+    for i in 0..16 {
+        let s = rust
+            .distribution(&bytemuck::cast(q[i]))
+            .sample(Vec2::new(u[2 * i], u[2 * i + 1]));
+        assert_eq!(s.direction.to_array(), dirs[3 * i..3 * i + 3]);
+        assert_eq!(s.pdf, pdfs[i]);
+    }
+}
+
+/// The default time-share rule through the C ABI: pieces of 1/32 pass before
+/// anything is measured, then by the measured time per path; one calibrating
+/// step first; nothing due without samples or ahead of the share; the
+/// report's fields; `pg_schedule_end_training`.
+#[test]
+fn time_share_schedule_and_its_report() {
+    let field = new_field(&args(PG_REPRESENTATION_NASG));
+    let s = new_schedule(&PgScheduleArgs {
+        budget: 100.0,
+        ..schedule_args()
+    });
+    let r0 = schedule_report(s);
+    assert_eq!(
+        (r0.traced_seconds, r0.trained_seconds, r0.steps, r0.updates),
+        (0.0, 0.0, 0, 0)
+    );
+    assert!(r0.seconds_per_step.is_nan() && r0.training_share.is_nan());
+    assert_eq!((r0.training_over, r0.pad), (0, 0));
+    let mut rng = Pcg32::new(42, 1);
+    let (mut piece, mut flag) = (0u64, false);
+    let mut report = PgUpdateReport::default();
+    // SAFETY: live handles, valid pointers.
+    unsafe {
+        assert_eq!(pg_schedule_in_training_phase(s, 0.0, 0, &mut flag), PG_OK);
+        assert!(flag);
+        assert_eq!(
+            pg_schedule_paths_before_update(s, 64_000, &mut piece),
+            PG_OK
+        );
+        assert_eq!(piece, 2000, "1/32 of a pass");
+        // Nothing buffered: nothing due.
+        assert_eq!(pg_field_train_scheduled(field, s, &mut report), PG_OK);
+        assert_eq!((report.steps, report.buffered_samples), (0, 0));
+        assert_eq!(schedule_report(s).updates, 0);
+        // The first update calibrates: one step.
+        let batch = samples(&mut rng, 300);
+        assert_eq!(pg_field_add_samples(field, batch.as_ptr(), 300), PG_OK);
+        assert_eq!(pg_schedule_record_traced(s, 1e-9, 1000), PG_OK);
+        assert_eq!(pg_field_train_scheduled(field, s, &mut report), PG_OK);
+        assert_eq!((report.steps, report.buffered_samples), (1, 300));
+        assert!(report.mean_loss.is_finite());
+        let r = schedule_report(s);
+        assert_eq!((r.steps, r.updates, r.traced_seconds), (1, 1, 1e-9));
+        assert!(r.trained_seconds > 0.0 && r.seconds_per_step == r.trained_seconds);
+        assert_eq!(
+            r.training_share,
+            r.trained_seconds / (1e-9 + r.trained_seconds)
+        );
+        // Training is ahead of its share (a step took longer than half a
+        // nanosecond): nothing due, the samples stay buffered.
+        let batch = samples(&mut rng, 10);
+        assert_eq!(pg_field_add_samples(field, batch.as_ptr(), 10), PG_OK);
+        assert_eq!(pg_field_train_scheduled(field, s, &mut report), PG_OK);
+        assert_eq!((report.steps, report.buffered_samples), (0, 10));
+        assert_eq!(schedule_report(s).updates, 1);
+        // 10⁻¹² s per path: a whole pass before the next update.
+        assert_eq!(
+            pg_schedule_paths_before_update(s, 64_000, &mut piece),
+            PG_OK
+        );
+        assert_eq!(piece, 64_000);
+        // Much tracing later: steps are due, at most 4 epochs of the buffer
+        // (10 samples, batch 256: 1 step).
+        assert_eq!(pg_schedule_record_traced(s, 100.0, 10), PG_OK);
+        assert_eq!(pg_field_train_scheduled(field, s, &mut report), PG_OK);
+        assert_eq!((report.steps, report.buffered_samples), (1, 10));
+        // ~0.099 s per path: 0.25 s of tracing is 3 paths.
+        assert_eq!(
+            pg_schedule_paths_before_update(s, 64_000, &mut piece),
+            PG_OK
+        );
+        assert_eq!(piece, 3);
+        // The renderer ends training: nothing more is due, the phase is over.
+        assert_eq!(pg_schedule_end_training(s), PG_OK);
+        let batch = samples(&mut rng, 100);
+        assert_eq!(pg_field_add_samples(field, batch.as_ptr(), 100), PG_OK);
+        assert_eq!(pg_schedule_record_traced(s, 100.0, 10), PG_OK);
+        assert_eq!(pg_field_train_scheduled(field, s, &mut report), PG_OK);
+        assert_eq!(report.steps, 0);
+        assert_eq!(pg_schedule_in_training_phase(s, 0.0, 0, &mut flag), PG_OK);
+        assert!(!flag);
+        let r = schedule_report(s);
+        assert_eq!((r.steps, r.updates, r.training_over), (2, 2, 1));
+        assert_eq!(r.traced_seconds, 1e-9 + 100.0 + 100.0);
+        assert_eq!(stats(field).steps, 2);
+        pg_schedule_release(s);
+        pg_field_release(field);
+    }
+}
+
+/// A time budget's training phase ends by the clock, an spp budget's by the
+/// pass index (`round(train_fraction · spp)` passes).
+#[test]
+fn schedule_phases_of_time_and_spp_budgets() {
+    let mut flag = false;
+    let time = new_schedule(&PgScheduleArgs {
+        budget: 10.0,
+        ..schedule_args()
+    });
+    let spp = new_schedule(&PgScheduleArgs {
+        budget_kind: PG_BUDGET_SPP,
+        budget: 10.0,
+        ..schedule_args()
+    });
+    // SAFETY: live handles, valid pointers.
+    unsafe {
+        assert_eq!(
+            pg_schedule_in_training_phase(time, 1.9, 50, &mut flag),
+            PG_OK
+        );
+        assert!(flag);
+        assert_eq!(
+            pg_schedule_in_training_phase(time, 2.0, 51, &mut flag),
+            PG_OK
+        );
+        assert!(!flag);
+        assert_eq!(
+            pg_schedule_in_training_phase(time, 0.0, 0, &mut flag),
+            PG_OK
+        );
+        assert!(!flag, "once over, always over");
+        for pass in 0..2 {
+            assert_eq!(
+                pg_schedule_in_training_phase(spp, 1e6, pass, &mut flag),
+                PG_OK
+            );
+            assert!(flag, "pass {pass}");
+        }
+        assert_eq!(pg_schedule_in_training_phase(spp, 0.0, 2, &mut flag), PG_OK);
+        assert!(!flag);
+        assert_eq!(schedule_report(spp).training_over, 1);
+        pg_schedule_release(time);
+        pg_schedule_release(spp);
     }
 }
