@@ -27,8 +27,9 @@
 //!
 //! **Why one third.** The share is the trade between a better guide (training) and more
 //! samples (tracing) during the training phase. NASG (Huang et al. 2024) spends about a third
-//! of its GPU frame time training; on this project's CPU renderer a share of 1/3 is what the
-//! old per-pass rule spent on `builtin:door` (where it was tuned) while it starved slow scenes.
+//! of its GPU frame time training; host-demo's old per-pass rule spent about 40 % of the
+//! training phase on `builtin:door` at 20 s (1.5–1.8 s of training in its 4 s,
+//! `docs/bench-2026-12-04-batched/`), where it was tuned, and 1 % on the staircase above.
 //! Training outside the training phase is never done: the guide is frozen (and cached) for the
 //! rest of the render.
 //!

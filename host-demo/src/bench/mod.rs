@@ -288,8 +288,16 @@ pub fn scene_slug(scene: &str) -> String {
         .collect()
 }
 
+/// Environment variable naming another `host-demo` binary to render with (an A/B comparison
+/// of two builds through the same bench, tables and references: e.g. the binary of the
+/// commit before a change). By default the bench renders with its own binary.
+pub const EXE_VARIABLE: &str = "HOST_DEMO_BENCH_EXE";
+
 fn render(args: &[String]) -> Result<serde_json::Value> {
-    let exe = std::env::current_exe().map_err(|e| Error::Bench(format!("current_exe: {e}")))?;
+    let exe = match std::env::var_os(EXE_VARIABLE) {
+        Some(p) if !p.is_empty() => PathBuf::from(p),
+        _ => std::env::current_exe().map_err(|e| Error::Bench(format!("current_exe: {e}")))?,
+    };
     let stats = args
         .iter()
         .position(|a| a == "--stats")
