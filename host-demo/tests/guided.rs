@@ -524,10 +524,13 @@ fn training_probe_abandons_training_and_keeps_the_image_unbiased() {
     let scene = load_builtin("cornell-box").unwrap();
     let (w, h) = (res(32), res(32));
     let reference = render(&scene, &opts(IntegratorKind::PtNee, 256, w, h, 1, 0));
+    // 64 steps per training pass (the epoch rule, capped), so the probe's 256 steps come
+    // after the fourth training pass however loaded the machine is.
     let config = FieldConfig::DEFAULT
         .with_threads(2)
         .with_seed(5)
-        .with_batch_size(1024);
+        .with_batch_size(1024)
+        .with_steps_per_update(64);
     let o = RenderOptions {
         time_budget: Some(std::time::Duration::from_secs(3)),
         ..opts(IntegratorKind::PtNee, 1, w, h, 11, 2)
@@ -535,7 +538,7 @@ fn training_probe_abandons_training_and_keeps_the_image_unbiased() {
     let run = |training_probe: bool, probe_force: Option<bool>| {
         let mut g = small_npm_radiance(&scene, config);
         let gopts = GuidedOptions {
-            schedule: time_share(0.5),
+            schedule: epochs(0.5, 1e6),
             training_probe,
             probe_force,
             ..GuidedOptions::default()

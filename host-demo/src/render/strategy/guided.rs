@@ -473,6 +473,10 @@ pub struct Guided<'g> {
     pass_group: Option<u32>,
     /// Tracing seconds of the probe's unguided first pass.
     unguided_seconds: Option<f64>,
+    /// Wall seconds of guide queries in the current pass (thread-seconds over the threads of
+    /// each piece), and those of the probe's guided pass once it has finished.
+    pass_query_seconds: f64,
+    probe_query_seconds: Option<f64>,
     /// The first training pass that started after the probe's [`probe::MIN_STEPS`], and the
     /// steps before it.
     probe_pass: Option<(u32, u64)>,
@@ -541,6 +545,8 @@ impl<'g> Guided<'g> {
             combiner: None,
             pass_group: None,
             unguided_seconds: None,
+            pass_query_seconds: 0.0,
+            probe_query_seconds: None,
             probe_pass: None,
             abandoned: false,
             schedule,
@@ -596,13 +602,14 @@ impl<'g> Guided<'g> {
             .as_ref()?
             .band_variances(guiding::Denominator::OtherHalf);
         let find = |id: u32| bands.iter().find(|(g, _)| *g == id).map(|(_, v)| v);
+        let unguided = self.unguided_seconds?;
         probe::decide(
             at_pass,
             guided_pass,
             steps,
             find(GROUP_UNGUIDED)?,
             find(guided_pass)?,
-            self.unguided_seconds?,
+            (unguided, unguided + self.probe_query_seconds?),
             self.gopts.probe_force,
         )
     }
@@ -1047,6 +1054,7 @@ impl<'g> Strategy for Guided<'g> {
                 }
             }
         }
+        self.pass_query_seconds = 0.0;
         if record {
             // The selection fit uses the samples of the last whole training pass.
             self.last_samples.clear();
@@ -1108,6 +1116,9 @@ impl<'g> Strategy for Guided<'g> {
         if pass.index == 0 && self.guide_off && self.probe_on() {
             self.unguided_seconds = Some(image.seconds);
         }
+        if self.probe_pass.is_some_and(|(p, _)| p == pass.index) {
+            self.probe_query_seconds = Some(self.pass_query_seconds);
+        }
         if let Some(group) = self.pass_group {
             let (w, h) = (image.width as usize, image.height as usize);
             if self.combiner.is_none() {
@@ -1162,8 +1173,10 @@ impl<'g> Strategy for Guided<'g> {
             mis_radiance,
         } = pass_samples;
         let mut missed = Vec::new();
+        let threads = reports.len().max(1) as f64;
         let st = &mut self.stats;
         for r in reports {
+            self.pass_query_seconds += r.query_time.as_secs_f64() / threads;
             if let Some(e) = r.device_error {
                 return Err(e);
             }

@@ -12,13 +12,14 @@
 //!    then one whole guided training pass traced with the guide they produced;
 //! 3. compares that pass's per-pass relative variance with the unguided pass's, band by band
 //!    ([`guiding::PassCombiner::band_variances`], denominators from the other checkerboard
-//!    half), as a cost ratio with a confidence interval ([`guiding::CostRatio`]) **at equal
-//!    seconds per pass**: the guide's cost after training (guide cache, no recording, no
-//!    network per vertex) is not known during training, and the training pass's own time
-//!    (recording, network decodes) overstates it (the door room's guided training passes were
-//!    1.33x slower than the unguided one and 1.2x better per pass; the old probe abandoned a
-//!    guide that rendered 0.68x `pt-nee` when left on). So the probe asks only whether even a
-//!    free guide would lose;
+//!    half), as a cost ratio with a confidence interval ([`guiding::CostRatio`]) **at the cost
+//!    the guide will have after training**: the unguided pass's seconds plus the guided pass's
+//!    guide queries (wall seconds: thread-seconds over the threads). What a training pass pays
+//!    besides (recording its paths, the network for the cache's misses) goes away once
+//!    training stops and would count against the guide: the door room's guided training passes
+//!    were 1.33x slower than the unguided one and 1.2x better per pass, and the old probe,
+//!    which compared the training passes' own times, abandoned a guide that rendered 0.68x
+//!    `pt-nee` when left on;
 //! 4. ends training, with the guide off for the rest of the render, only when the whole
 //!    interval lies above 1; otherwise training goes on and the trial judges the real costs
 //!    later. The probe decides once.
@@ -46,16 +47,18 @@ pub struct ProbeVerdict {
     pub guided_pass: u32,
     /// Adam steps before that pass.
     pub steps: u64,
-    /// Seconds per pass of the unguided first pass (used for both arms).
-    pub seconds: f64,
-    /// The cost ratio at equal seconds and its interval.
+    /// Tracing seconds of the unguided first pass.
+    pub unguided_seconds: f64,
+    /// The guided pass's cost after training: `unguided_seconds` plus its guide queries.
+    pub guided_seconds: f64,
+    /// The cost ratio and its interval.
     pub ratio: CostRatio,
     /// The interval lay above 1: training ended and the guide is off.
     pub abandoned: bool,
 }
 
 /// The probe's verdict from the per-band variances of the unguided first pass and of the
-/// guided training pass, at the unguided pass's seconds; `None` when no interval can be formed
+/// guided training pass and their seconds per pass; `None` when no interval can be formed
 /// (a black image: no verdict, the guide stays on). `force` (tests only) overrides the
 /// evidence: `Some(true)` abandons, `Some(false)` keeps.
 pub fn decide(
@@ -64,21 +67,22 @@ pub fn decide(
     steps: u64,
     unguided_bands: &[f64],
     guided_bands: &[f64],
-    seconds: f64,
+    (unguided_seconds, guided_seconds): (f64, f64),
     force: Option<bool>,
 ) -> Option<ProbeVerdict> {
     let ratio = CostRatio::from_bands(
         guided_bands,
         unguided_bands,
-        seconds,
-        seconds,
+        guided_seconds,
+        unguided_seconds,
         guiding::evidence::Z,
     )?;
     Some(ProbeVerdict {
         at_pass,
         guided_pass,
         steps,
-        seconds,
+        unguided_seconds,
+        guided_seconds,
         ratio,
         abandoned: force.unwrap_or(ratio.verdict() == Verdict::DoesNotPay),
     })
@@ -105,16 +109,18 @@ impl std::fmt::Display for ProbeStats {
             Some(v) => write!(
                 f,
                 "training probe before pass {}: guided training pass {} (after {} steps) \
-                 against the unguided first pass, at equal {:.4} s per pass: {}: {}",
+                 against the unguided first pass, {:.4} s per pass after training against \
+                 {:.4} s: {}: {}",
                 v.at_pass,
                 v.guided_pass,
                 v.steps,
-                v.seconds,
+                v.guided_seconds,
+                v.unguided_seconds,
                 v.ratio,
                 if v.abandoned {
                     format!(
-                        "skipped: the guide loses even at no cost, training ended, the guide \
-                         is off ({} passes without it)",
+                        "skipped: the guide does not pay, training ended, the guide is off ({} \
+                         passes without it)",
                         self.passes_guide_off
                     )
                 } else {
@@ -137,16 +143,16 @@ mod tests {
     fn only_an_interval_above_one_abandons() {
         let u = [1.0, 1.2, 0.8, 1.0];
         // Clearly worse in every band: abandoned.
-        let v = decide(9, 7, 300, &u, &[2.0, 2.5, 1.5, 2.1], 0.1, None).unwrap();
+        let v = decide(9, 7, 300, &u, &[2.0, 2.5, 1.5, 2.1], (0.1, 0.1), None).unwrap();
         assert!(v.ratio.low > 1.0 && v.abandoned);
         // Worse on average, but one band carries it: the interval straddles 1, kept.
-        let v = decide(9, 7, 300, &u, &[0.9, 1.0, 0.7, 6.0], 0.1, None).unwrap();
+        let v = decide(9, 7, 300, &u, &[0.9, 1.0, 0.7, 6.0], (0.1, 0.1), None).unwrap();
         assert!(v.ratio.ratio > 1.0 && v.ratio.low < 1.0 && !v.abandoned);
         // Better: kept.
-        let v = decide(9, 7, 300, &u, &[0.5, 0.6, 0.4, 0.5], 0.1, None).unwrap();
+        let v = decide(9, 7, 300, &u, &[0.5, 0.6, 0.4, 0.5], (0.1, 0.1), None).unwrap();
         assert!(!v.abandoned);
         // Forced by a test.
-        let v = decide(9, 7, 300, &u, &[0.5, 0.6, 0.4, 0.5], 0.1, Some(true)).unwrap();
+        let v = decide(9, 7, 300, &u, &[0.5, 0.6, 0.4, 0.5], (0.1, 0.1), Some(true)).unwrap();
         assert!(v.abandoned);
     }
 
@@ -171,7 +177,15 @@ mod tests {
             let mut picked: Option<(u32, u64)> = None;
             for (at, &(steps, _)) in passes.iter().enumerate().skip(1) {
                 if let Some((p, s)) = picked {
-                    let v = decide(at as u32, p, s, &unguided, &passes[p as usize].1, 0.1, None);
+                    let v = decide(
+                        at as u32,
+                        p,
+                        s,
+                        &unguided,
+                        &passes[p as usize].1,
+                        (0.1, 0.1),
+                        None,
+                    );
                     return v.expect("a verdict");
                 }
                 if picked.is_none() && steps >= min_steps {
@@ -191,10 +205,21 @@ mod tests {
         assert!(old.abandoned, "{old:?}");
     }
 
+    /// The guide's cost after training counts: equal variances, but a guide whose queries take
+    /// half the unguided pass again does not pay.
+    #[test]
+    fn the_cost_after_training_counts() {
+        let u = [1.0, 1.2, 0.8, 1.0];
+        let v = decide(9, 7, 300, &u, &u, (0.1, 0.15), None).unwrap();
+        assert!((v.ratio.ratio - 1.5).abs() < 1e-12 && v.abandoned, "{v:?}");
+        let v = decide(9, 7, 300, &u, &u, (0.1, 0.1), None).unwrap();
+        assert!(!v.abandoned);
+    }
+
     #[test]
     fn unusable_values_give_no_verdict() {
-        assert!(decide(4, 2, 300, &[0.0, 0.0], &[1.0, 1.0], 1.0, None).is_none());
-        assert!(decide(4, 2, 300, &[1.0, 1.0], &[f64::NAN, 1.0], 1.0, None).is_none());
-        assert!(decide(4, 2, 300, &[1.0], &[1.0], 1.0, None).is_none());
+        assert!(decide(4, 2, 300, &[0.0, 0.0], &[1.0, 1.0], (1.0, 1.0), None).is_none());
+        assert!(decide(4, 2, 300, &[1.0, 1.0], &[f64::NAN, 1.0], (1.0, 1.0), None).is_none());
+        assert!(decide(4, 2, 300, &[1.0], &[1.0], (1.0, 1.0), None).is_none());
     }
 }
