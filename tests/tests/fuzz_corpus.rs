@@ -431,6 +431,29 @@ fn c_api_seeds() -> Vec<(String, Vec<u8>)> {
     }
     let rec = rec.bytes(&[16, 5, 1, 16, 6, 1, 16, 7]).update(0);
     out.push(("seed-recorder".into(), rec.0));
+    // A scheduled loop: an spp budget of 8 with the epoch rule (2 epochs,
+    // train fraction 0.5), the phase, a piece, samples, the traced time, the
+    // scheduled update and the report; then the end of training, an update
+    // that runs nothing, and the NULL sweep.
+    let sched = Calls::default()
+        .new_field(0, 0, false)
+        .bytes(&[19, 0, 3, 8])
+        .bytes(&((((0.5 * 16_777_216.0) as u32) << 8).to_le_bytes()))
+        .bytes(&[1, 3, 1])
+        .bytes(&[19, 3])
+        .unit(0.1)
+        .bytes(&[0, 1])
+        .bytes(&[19, 6])
+        .bytes(&8u32.to_le_bytes())
+        .bytes(&[0, 1])
+        .add_samples(0, 8)
+        .bytes(&[19, 5])
+        .unit(0.01)
+        .bytes(&8u32.to_le_bytes())
+        .bytes(&[20, 1, 19, 7, 19, 4])
+        .add_samples(0, 4)
+        .bytes(&[20, 1, 21]);
+    out.push(("seed-schedule".into(), sched.0));
     out
 }
 

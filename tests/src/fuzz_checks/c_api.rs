@@ -3,23 +3,27 @@
 //! a C renderer would make them.
 //!
 //! The interpreter keeps a few handle slots (fields, distributions, a
-//! recorder). A release clears its slot, so a handle is never used after it
+//! recorder, a training schedule). A release clears its slot, so a handle is never used after it
 //! is released or released twice: the header documents both as undefined
 //! behaviour (as with `free`), which no status code can report. Everything
 //! else is fair game: NULL handles and arrays, unknown codes, NaN and empty
 //! bounds, NaN and out-of-range random numbers and directions, counts larger
 //! than the distributions hold, arbitrary training samples and path
-//! vertices, and saved files with corrupted bytes.
+//! vertices, saved files with corrupted bytes, and schedules with any
+//! options, budgets, times and path counts driving `pg_field_train_scheduled`.
 //!
 //! Asserted after every call: the status is one of the `PgStatus` codes and
 //! never `PG_PANIC` (a panic caught at the boundary is a library bug);
 //! `pg_last_error()` is a non-empty string after a failure and `""` after a
 //! success; on success the outputs are valid (finite unit directions, finite
-//! densities, `> 0` for samples, selection probabilities in `[0, 1]`).
+//! densities, `> 0` for samples, selection probabilities in `[0, 1]`); a
+//! scheduled update runs what the schedule's report then counts.
 //!
 //! Inputs stay cheap: only `PG_SIZE_SMALL` models (other size codes are
 //! invalid ones), batches of at most 16 samples, at most 4 steps per update,
-//! at most 2 threads, at most 6 queries per call and [`MAX_OPS`] calls.
+//! at most 2 threads, at most 6 queries per call and [`MAX_OPS`] calls; a
+//! valid schedule allows at most 4 epochs per update, so a scheduled update
+//! runs at most 4 · 64 steps.
 
 use super::ByteReader;
 use guiding_capi::*;
@@ -238,6 +242,7 @@ struct State {
     /// Distributions held by each slot (from the latest query into it).
     held: [usize; SLOTS],
     recorder: *mut PgRecorder,
+    schedule: *mut PgSchedule,
     path: CString,
 }
 
@@ -252,6 +257,7 @@ impl Drop for State {
                 pg_distributions_release(d);
             }
             pg_recorder_release(self.recorder);
+            pg_schedule_release(self.schedule);
         }
         let path = std::path::PathBuf::from(self.path.to_str().unwrap_or_default());
         let _ = std::fs::remove_file(path);
@@ -357,6 +363,7 @@ pub fn c_api(data: &[u8]) {
         dists: [null_mut(); SLOTS],
         held: [0; SLOTS],
         recorder: null_mut(),
+        schedule: null_mut(),
         path: temp_path(),
     };
     for _ in 0..MAX_OPS {
@@ -380,7 +387,8 @@ pub fn c_api(data: &[u8]) {
         // SAFETY (all calls below): handles are NULL or live (slots are
         // cleared on release), arrays are locals of at least the stated
         // length or NULL.
-        match op % 20 {
+        // The slot and NULL-handle bits do not take part in the choice.
+        match (op & 0x3f) % 22 {
             0 | 1 => op_new_field(&mut r, &mut s, slot),
             2 => {
                 unsafe { pg_field_release(s.fields[slot]) };
@@ -453,6 +461,8 @@ pub fn c_api(data: &[u8]) {
                     s.dists[slot] = d;
                 }
             }
+            19 => op_schedule(&mut r, &mut s, null_handle),
+            20 => op_train_scheduled(&mut r, &s, field, null_handle),
             _ => null_sweep(),
         }
     }
@@ -847,8 +857,13 @@ fn null_sweep() {
     let q = [PgQueryPoint::default()];
     let sample = PgTrainingSample::default();
     let v = PgPathVertex::default();
+    let mut sched: *mut PgSchedule = std::ptr::dangling_mut();
+    let sa = schedule_defaults();
+    let mut report = PgScheduleReport::default();
+    let mut up = PgUpdateReport::default();
+    let mut paths = 0u64;
     unsafe {
-        let calls: [(PgStatus, &str); 32] = [
+        let calls: [(PgStatus, &str); 44] = [
             (pg_field_args_set_defaults(null_mut(), 0), "defaults"),
             (pg_field_new(null(), &mut f), "new"),
             (pg_field_new(null(), null_mut()), "new out"),
@@ -912,8 +927,39 @@ fn null_sweep() {
                 "s0",
             ),
             (pg_field_query(null(), 0, null(), null_mut()), "q0"),
+            (pg_schedule_args_set_defaults(null_mut()), "sched defaults"),
+            (pg_schedule_new(null(), &mut sched), "sched new"),
+            (pg_schedule_new(&sa, null_mut()), "sched new out"),
+            (
+                pg_schedule_in_training_phase(null_mut(), 0.0, 0, &mut b),
+                "phase",
+            ),
+            (
+                pg_schedule_in_training_phase(null_mut(), f64::NAN, 0, null_mut()),
+                "phase NaN",
+            ),
+            (pg_schedule_end_training(null_mut()), "end training"),
+            (pg_schedule_record_traced(null_mut(), -1.0, 1), "traced"),
+            (
+                pg_schedule_paths_before_update(null(), 0, &mut paths),
+                "paths",
+            ),
+            (pg_schedule_report(null(), &mut report), "report"),
+            (
+                pg_field_train_scheduled(null_mut(), null_mut(), &mut up),
+                "train",
+            ),
+            (
+                pg_field_train_scheduled(null_mut(), null_mut(), null_mut()),
+                "train no report",
+            ),
+            (pg_schedule_report(null(), null_mut()), "report out"),
         ];
         assert!(f.is_null(), "new/load leave *out NULL on failure");
+        assert!(
+            sched.is_null(),
+            "pg_schedule_new leaves *out NULL on failure"
+        );
         for (st, what) in calls {
             // Only the last call's message is kept: check the code here.
             assert_eq!(st, nul, "{what}");
@@ -922,6 +968,271 @@ fn null_sweep() {
         pg_field_release(null_mut());
         pg_distributions_release(null_mut());
         pg_recorder_release(null_mut());
+        pg_schedule_release(null_mut());
         check(PgStatus::PG_OK, "release NULL");
+    }
+}
+
+/// `pg_schedule_args_set_defaults`, checked against the library's defaults.
+fn schedule_defaults() -> PgScheduleArgs {
+    let mut a = std::mem::MaybeUninit::<PgScheduleArgs>::uninit();
+    // SAFETY: set_defaults writes the whole struct.
+    let a = unsafe {
+        assert_ok(
+            pg_schedule_args_set_defaults(a.as_mut_ptr()),
+            "schedule defaults",
+        );
+        a.assume_init()
+    };
+    let d = guiding::ScheduleOptions::DEFAULT;
+    assert_eq!(
+        (a.train_fraction, a.first_piece, a.max_epochs),
+        (d.train_fraction, d.first_piece, d.max_epochs)
+    );
+    assert!(a.budget.is_nan());
+    a
+}
+
+/// Schedule arguments from bytes: valid ones mostly, sometimes unknown
+/// codes and any values. `max_epochs` is 1 to 4 or an invalid value (NaN,
+/// 0, negative, ∞), so a scheduled update stays cheap.
+fn schedule_args(r: &mut ByteReader<'_>) -> PgScheduleArgs {
+    let mut a = schedule_defaults();
+    let flags = r.byte();
+    a.budget_kind = u32::from(flags & 1);
+    a.step_rule = u32::from((flags >> 1) & 1);
+    a.budget = if a.budget_kind == PG_BUDGET_SPP {
+        f64::from(r.byte() % 32)
+    } else {
+        f64::from(r.unit()) * 4.0
+    };
+    a.train_fraction = f64::from(r.unit());
+    a.step_value = if a.step_rule == PG_STEP_RULE_EPOCHS {
+        f64::from(1 + r.byte() % 4)
+    } else {
+        0.05 + 0.9 * f64::from(r.unit())
+    };
+    a.max_epochs = f64::from(1 + r.byte() % 4);
+    if flags & 4 != 0 {
+        // Any value where any value is allowed to be tried.
+        a.budget = f64::from(r.c_value()) * 64.0;
+        a.train_fraction = f64::from(r.c_value());
+        a.step_value = f64::from(r.c_value());
+        a.update_interval = f64::from(r.c_value());
+        a.first_piece = f64::from(r.c_value());
+    }
+    if flags & 8 != 0 {
+        a.max_epochs = [f64::NAN, 0.0, -1.0, f64::INFINITY][usize::from(r.byte() % 4)];
+    }
+    if flags & 16 != 0 {
+        a.budget_kind = 2 + u32::from(r.byte());
+    }
+    if flags & 32 != 0 {
+        a.step_rule = 2 + u32::from(r.byte());
+    }
+    a
+}
+
+/// Whether `pg_schedule_new` must accept `a` (the documented ranges).
+fn schedule_args_valid(a: &PgScheduleArgs) -> bool {
+    let budget = match a.budget_kind {
+        PG_BUDGET_SECONDS => a.budget.is_finite() && a.budget >= 0.0,
+        PG_BUDGET_SPP => {
+            a.budget >= 0.0 && a.budget <= f64::from(u32::MAX) && a.budget.fract() == 0.0
+        }
+        _ => false,
+    };
+    let steps = match a.step_rule {
+        PG_STEP_RULE_TIME_SHARE => a.step_value > 0.0 && a.step_value < 1.0,
+        PG_STEP_RULE_EPOCHS => a.step_value.is_finite() && a.step_value > 0.0,
+        _ => false,
+    };
+    budget
+        && steps
+        && (0.0..=1.0).contains(&a.train_fraction)
+        && a.update_interval.is_finite()
+        && a.update_interval > 0.0
+        && a.first_piece > 0.0
+        && a.first_piece <= 1.0
+        && a.max_epochs.is_finite()
+        && a.max_epochs > 0.0
+}
+
+/// The schedule's report, checked: counts and seconds add up.
+fn schedule_report(schedule: *mut PgSchedule) -> Option<PgScheduleReport> {
+    if schedule.is_null() {
+        return None;
+    }
+    let mut r = PgScheduleReport::default();
+    assert_ok(unsafe { pg_schedule_report(schedule, &mut r) }, "report");
+    assert!(r.traced_seconds >= 0.0 && r.trained_seconds >= 0.0, "{r:?}");
+    assert!(r.training_over <= 1 && r.pad == 0, "{r:?}");
+    if r.steps == 0 || r.trained_seconds == 0.0 {
+        assert!(r.seconds_per_step.is_nan(), "{r:?}");
+    } else {
+        assert!(r.seconds_per_step > 0.0, "{r:?}");
+    }
+    let share = r.training_share;
+    assert!(share.is_nan() || (0.0..=1.0).contains(&share), "{r:?}");
+    Some(r)
+}
+
+fn op_schedule(r: &mut ByteReader<'_>, s: &mut State, null_handle: bool) {
+    let sched = if null_handle { null_mut() } else { s.schedule };
+    let null = sched.is_null();
+    // SAFETY (all calls): the handle is NULL or live (the slot is cleared on
+    // release), outputs are locals or NULL.
+    match r.byte() % 8 {
+        0 | 1 => {
+            let a = schedule_args(r);
+            let null_out = r.byte() % 16 == 0;
+            let mut out: *mut PgSchedule = std::ptr::dangling_mut();
+            let out_ptr = if null_out {
+                null_mut()
+            } else {
+                &mut out as *mut *mut PgSchedule
+            };
+            let st = check(unsafe { pg_schedule_new(&a, out_ptr) }, "pg_schedule_new");
+            if null_out {
+                assert_eq!(st, PgStatus::PG_NULL_POINTER);
+                return;
+            }
+            let valid = schedule_args_valid(&a);
+            assert_eq!(st == PgStatus::PG_OK, valid, "{a:?}: {}", last_error());
+            if st == PgStatus::PG_OK {
+                assert!(!out.is_null());
+                unsafe { pg_schedule_release(s.schedule) };
+                s.schedule = out;
+                let rep = schedule_report(out).unwrap();
+                assert_eq!((rep.steps, rep.updates, rep.training_over), (0, 0, 0));
+            } else {
+                assert_eq!(st, PgStatus::PG_INVALID_ARGUMENT);
+                assert!(out.is_null(), "out not NULL on failure");
+            }
+        }
+        2 => {
+            unsafe { pg_schedule_release(s.schedule) };
+            check(PgStatus::PG_OK, "pg_schedule_release");
+            s.schedule = null_mut();
+        }
+        3 => {
+            let elapsed = f64::from(r.c_value()) * 4.0;
+            let pass = u32::from(r.byte());
+            let mut flag = false;
+            let out = if r.byte() % 16 == 0 {
+                null_mut()
+            } else {
+                &mut flag as *mut bool
+            };
+            let st = check(
+                unsafe { pg_schedule_in_training_phase(sched, elapsed, pass, out) },
+                "pg_schedule_in_training_phase",
+            );
+            expect_null(st, null || out.is_null());
+            if !null && !out.is_null() {
+                let valid = elapsed.is_finite() && elapsed >= 0.0;
+                assert_eq!(st == PgStatus::PG_OK, valid, "elapsed {elapsed}");
+            }
+            if st == PgStatus::PG_OK {
+                let over = schedule_report(sched).unwrap().training_over == 1;
+                assert_eq!(flag, !over);
+            }
+        }
+        4 => {
+            let st = check(
+                unsafe { pg_schedule_end_training(sched) },
+                "pg_schedule_end_training",
+            );
+            expect_null(st, null);
+            if st == PgStatus::PG_OK {
+                assert_eq!(schedule_report(sched).unwrap().training_over, 1);
+            }
+        }
+        5 => {
+            let seconds = f64::from(r.c_value());
+            let paths = u64::from(r.u32());
+            let before = schedule_report(sched);
+            let st = check(
+                unsafe { pg_schedule_record_traced(sched, seconds, paths) },
+                "pg_schedule_record_traced",
+            );
+            expect_null(st, null);
+            if let Some(before) = before {
+                let valid = seconds.is_finite() && seconds >= 0.0;
+                assert_eq!(st == PgStatus::PG_OK, valid, "seconds {seconds}");
+                let after = schedule_report(sched).unwrap();
+                let want = if valid {
+                    before.traced_seconds + seconds
+                } else {
+                    before.traced_seconds
+                };
+                assert_eq!(after.traced_seconds, want);
+            }
+        }
+        6 => {
+            let pass_paths = u64::from(r.u32() >> (r.byte() % 32));
+            let mut out = 0u64;
+            let out_ptr = if r.byte() % 16 == 0 {
+                null_mut()
+            } else {
+                &mut out as *mut u64
+            };
+            let st = check(
+                unsafe { pg_schedule_paths_before_update(sched, pass_paths, out_ptr) },
+                "pg_schedule_paths_before_update",
+            );
+            expect_null(st, null || out_ptr.is_null());
+            if !null && !out_ptr.is_null() {
+                assert_eq!(st == PgStatus::PG_OK, pass_paths > 0);
+            }
+            if st == PgStatus::PG_OK {
+                assert!((1..=pass_paths).contains(&out), "{out} of {pass_paths}");
+            }
+        }
+        _ => {
+            let mut rep = PgScheduleReport::default();
+            let st = check(
+                unsafe { pg_schedule_report(sched, &mut rep) },
+                "pg_schedule_report",
+            );
+            expect_null(st, null);
+            let _ = schedule_report(sched);
+        }
+    }
+}
+
+fn op_train_scheduled(r: &mut ByteReader<'_>, s: &State, field: *mut PgField, null_handle: bool) {
+    let sched = if null_handle { null_mut() } else { s.schedule };
+    let with_report = r.byte() % 4 != 0;
+    let mut report = PgUpdateReport::default();
+    let report_ptr = if with_report {
+        &mut report as *mut PgUpdateReport
+    } else {
+        null_mut()
+    };
+    let before = schedule_report(sched);
+    let st = check(
+        unsafe { pg_field_train_scheduled(field, sched, report_ptr) },
+        "pg_field_train_scheduled",
+    );
+    expect_null(st, field.is_null() || sched.is_null());
+    if st != PgStatus::PG_OK {
+        return;
+    }
+    let (before, after) = (before.unwrap(), schedule_report(sched).unwrap());
+    // Whatever ran was recorded; at most 4 epochs of at most 64 samples.
+    assert!(after.steps - before.steps <= 4 * 64, "{after:?}");
+    assert!(after.updates - before.updates <= 1);
+    if with_report {
+        assert_eq!(
+            u64::from(report.steps),
+            after.steps - before.steps,
+            "{report:?}"
+        );
+        assert!(report.buffered_samples <= 64, "{report:?}");
+        assert!(
+            report.mean_loss.is_finite() || report.steps == 0,
+            "{report:?}"
+        );
     }
 }
