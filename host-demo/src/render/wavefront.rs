@@ -20,8 +20,8 @@
 //!    shading normals and fills the next bounce's ray queue.
 //!
 //! When the strategy asks for it ([`Strategy::begin_pass`]), every hit, NEE contribution and
-//! continuation is recorded, and the paths' training samples go to [`Strategy::end_pass`] in
-//! block order.
+//! continuation is recorded, and the paths' training samples go to [`Strategy::end_chunk`] in
+//! row order after each piece of the pass (see [`render_passes`]).
 //!
 //! Depth follows Mitsuba: `max_depth = 1` only shows directly visible emission; a hit at
 //! bounce `b` (0 = camera hit) adds emission when `b < max_depth` and does NEE/continues when
