@@ -11,7 +11,7 @@
 //!    [`ScheduleOptions::train_fraction`] of the budget (seconds for a time budget, samples per
 //!    pixel for an spp budget) trains, the rest renders with the frozen guide;
 //! 2. **gives training a share of the wall clock during that phase**
-//!    ([`ScheduleOptions::training_share`]): after the renderer has traced for `T` seconds of
+//!    ([`StepRule::TimeShare`]): after the renderer has traced for `T` seconds of
 //!    the training phase and trained for `U`, the steps due now are
 //!    `⌊(s/(1 − s) · T − U) / c⌋` with `c` the measured seconds of one Adam step (a running
 //!    mean over the updates so far), so `U / (T + U) → s` whatever the pass time, the image size

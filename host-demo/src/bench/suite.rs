@@ -100,7 +100,7 @@ fn folders(roots: &[PathBuf], what: &str) -> std::result::Result<Vec<PathBuf>, S
 ///
 /// Shared scenes: every folder of the first existing `shared` root with a `scene.xml`
 /// ([`SHARED_SCENES`] are expected). Published scenes: every folder of the first existing
-/// `published` root with a scene XML ([`scene_xml`]).
+/// `published` root with a scene XML (`scene_xml`).
 pub fn scenes(shared: &[PathBuf], published: &[PathBuf]) -> (Vec<String>, Vec<String>) {
     let (mut found, mut notes) = (Vec::new(), Vec::new());
     match folders(shared, "shared scenes") {
