@@ -228,6 +228,27 @@ impl FieldConfig {
         Self { batch_size, ..self }
     }
 
+    /// Adam steps for `epochs` passes over `buffered` samples, capped:
+    /// `clamp(⌈epochs · buffered / batch_size⌉, 1, steps_per_update)`. A
+    /// non-finite or negative `epochs` reads as 1. The one rule behind
+    /// [`Field::proportional_steps`] and the embedding API's reproducible
+    /// training schedule.
+    #[must_use]
+    pub fn proportional_steps(&self, buffered: usize, epochs: f64) -> u32 {
+        let e = if epochs.is_finite() && epochs >= 0.0 {
+            epochs
+        } else {
+            1.0
+        };
+        let batches = (e * buffered as f64 / self.batch_size.max(1) as f64).ceil();
+        let cap = self.steps_per_update.max(1);
+        if batches >= f64::from(cap) {
+            cap
+        } else {
+            (batches as u32).max(1)
+        }
+    }
+
     /// `self` with another number of steps per update.
     #[must_use]
     pub const fn with_steps_per_update(self, steps_per_update: u32) -> Self {
@@ -944,18 +965,8 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
     /// reads as 1.
     #[must_use]
     pub fn proportional_steps(&self, epochs: f32) -> u32 {
-        let e = if epochs.is_finite() && epochs >= 0.0 {
-            f64::from(epochs)
-        } else {
-            1.0
-        };
-        let batches = (e * self.buffer.len() as f64 / self.config.batch_size.max(1) as f64).ceil();
-        let cap = self.config.steps_per_update.max(1);
-        if batches >= f64::from(cap) {
-            cap
-        } else {
-            (batches as u32).max(1)
-        }
+        self.config
+            .proportional_steps(self.buffer.len(), f64::from(epochs))
     }
 
     /// [`Self::update`] with `steps` Adam steps instead of

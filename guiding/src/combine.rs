@@ -404,32 +404,15 @@ impl PassCombiner {
     pub fn band_variances(&self, denominator: Denominator) -> Vec<(u32, Vec<f64>)> {
         let mean = self.plain_mean();
         let bands = crate::evidence::band_count(self.height);
-        let w = self.width;
-        let mut acc = vec![vec![0.0f64; bands]; self.groups.len()];
-        let mut cells = vec![0usize; bands];
-        for h in 0..2 {
-            let weight = self.half_weights(&mean, h, denominator);
-            for p in (0..mean.len()).filter(|&p| (p % w + p / w) % 2 == h) {
-                let b = crate::evidence::band_of_row(p / w, self.height, bands);
-                cells[b] += 3;
-                for (a, g) in acc.iter_mut().zip(&self.groups) {
-                    let d = g.deviation(p, mean[p]);
-                    a[b] += d[0] * weight[p][0] + d[1] * weight[p][1] + d[2] * weight[p][2];
-                }
-            }
-        }
-        acc.into_iter()
-            .zip(&self.groups)
-            .map(|(a, g)| {
-                let v = a
-                    .iter()
-                    .zip(&cells)
-                    .map(|(x, &c)| {
-                        if c > 0 {
-                            x / (c as f64 * f64::from(g.passes))
-                        } else {
-                            f64::NAN
-                        }
+        let halves = [0, 1].map(|h| self.weighted_deviations(&mean, h, denominator, bands));
+        self.groups
+            .iter()
+            .enumerate()
+            .map(|(gi, g)| {
+                let v = (0..bands)
+                    .map(|b| {
+                        let sum = halves[0].0[gi][b] + halves[1].0[gi][b];
+                        per_pass(sum, halves[0].1[b] + halves[1].1[b], g.passes)
                     })
                     .collect();
                 (g.id, v)
@@ -439,27 +422,36 @@ impl PassCombiner {
 
     /// `V_g` of every group estimated on half `h` (`NaN` for an empty half).
     fn half_variance(&self, mean: &[[f64; 3]], h: usize, denominator: Denominator) -> Vec<f64> {
-        let weight = self.half_weights(mean, h, denominator);
-        let w = self.width;
-        let mut acc = vec![0.0f64; self.groups.len()];
-        let mut cells = 0usize;
-        for p in (0..mean.len()).filter(|&p| (p % w + p / w) % 2 == h) {
-            cells += 3;
-            for (a, g) in acc.iter_mut().zip(&self.groups) {
-                let d = g.deviation(p, mean[p]);
-                *a += d[0] * weight[p][0] + d[1] * weight[p][1] + d[2] * weight[p][2];
-            }
-        }
+        let (acc, cells) = self.weighted_deviations(mean, h, denominator, 1);
         acc.iter()
             .zip(&self.groups)
-            .map(|(a, g)| {
-                if cells > 0 {
-                    a / (cells as f64 * f64::from(g.passes))
-                } else {
-                    f64::NAN
-                }
-            })
+            .map(|(a, g)| per_pass(a[0], cells[0], g.passes))
             .collect()
+    }
+
+    /// On half `h`, per group and band of rows (`bands` of them), the weighted deviations
+    /// `D / (m̃² + ε)` summed over the band's cells, and per band the cells (pixels × 3
+    /// channels).
+    fn weighted_deviations(
+        &self,
+        mean: &[[f64; 3]],
+        h: usize,
+        denominator: Denominator,
+        bands: usize,
+    ) -> (Vec<Vec<f64>>, Vec<usize>) {
+        let weight = self.half_weights(mean, h, denominator);
+        let w = self.width;
+        let mut acc = vec![vec![0.0f64; bands]; self.groups.len()];
+        let mut cells = vec![0usize; bands];
+        for p in (0..mean.len()).filter(|&p| (p % w + p / w) % 2 == h) {
+            let b = crate::evidence::band_of_row(p / w, self.height, bands);
+            cells[b] += 3;
+            for (a, g) in acc.iter_mut().zip(&self.groups) {
+                let d = g.deviation(p, mean[p]);
+                a[b] += d[0] * weight[p][0] + d[1] * weight[p][1] + d[2] * weight[p][2];
+            }
+        }
+        (acc, cells)
     }
 
     /// `1 / (m̃² + ε)` on half `h` (the box filter of `mean` over the pixels of that half, or
@@ -526,6 +518,16 @@ fn box_sum(width: usize, height: usize, src: &[[f64; 4]], r: usize) -> Vec<[f64;
         }
     }
     out
+}
+
+/// A group's per-pass relative variance from its weighted deviations summed over `cells`
+/// (`NaN` without cells).
+fn per_pass(sum: f64, cells: usize, passes: u32) -> f64 {
+    if cells > 0 {
+        sum / (cells as f64 * f64::from(passes))
+    } else {
+        f64::NAN
+    }
 }
 
 #[cfg(test)]

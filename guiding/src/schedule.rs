@@ -255,14 +255,11 @@ impl TrainingSchedule {
         if self.over || buffered == 0 {
             return 0;
         }
-        let batch = config.batch_size.max(1) as f64;
         let share = match self.options.steps {
-            StepRule::Epochs(e) => {
-                let steps = (e * buffered as f64 / batch).ceil();
-                return (steps.min(f64::from(config.steps_per_update.max(1))) as u32).max(1);
-            }
+            StepRule::Epochs(e) => return config.proportional_steps(buffered, e),
             StepRule::TimeShare(s) => s,
         };
+        let batch = config.batch_size.max(1) as f64;
         let allowance = share / (1.0 - share) * self.traced_seconds - self.trained_seconds;
         let by_time = match self.seconds_per_step() {
             Some(c) => (allowance / c).floor().max(0.0),

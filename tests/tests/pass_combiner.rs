@@ -482,3 +482,30 @@ fn other_half_denominators_tell_few_heavy_tailed_passes_apart() {
         "the self-normalised control should fall below {expected}: {r_self} ± {se_self}"
     );
 }
+
+/// The per-band variances (the evidence intervals' input) are the halves' variances cut into
+/// bands of rows: with 64 rows in 32 equal bands, the mean over the bands is the two halves'
+/// mean `V_g` (rounding aside), for either denominator, and every band is finite.
+#[test]
+fn band_variances_average_to_the_group_variance() {
+    let (w, h) = (20, 64);
+    let mut rng = Rng::new(77);
+    let groups = [(0, 1, Noise::Gauss(0.3)), (1, 5, Noise::Gauss(0.1))];
+    let (c, _) = render(w, h, 1.0, &groups, CombineOptions::default(), &mut rng);
+    for denominator in [Denominator::SameHalf, Denominator::OtherHalf] {
+        let whole = c.combine_with(denominator);
+        let bands = c.band_variances(denominator);
+        assert_eq!(bands.len(), whole.groups.len());
+        for ((id, v), g) in bands.iter().zip(&whole.groups) {
+            assert_eq!(*id, g.group);
+            assert_eq!(v.len(), 32);
+            assert!(v.iter().all(|x| x.is_finite() && *x > 0.0), "{v:?}");
+            let mean = v.iter().sum::<f64>() / v.len() as f64;
+            let expected = g.mean_relative_variance();
+            assert!(
+                (mean / expected - 1.0).abs() < 1e-12,
+                "group {id}: bands {mean}, halves {expected}"
+            );
+        }
+    }
+}

@@ -528,7 +528,6 @@ pub fn render_passes<S: Strategy>(
             let traced = Traced {
                 seconds: piece_seconds.as_secs_f64(),
                 paths: (take * width as usize) as u64,
-                pass_done: done == rows.len(),
             };
             strategy.end_chunk(&pass, record, reports, samples, traced)?;
         }

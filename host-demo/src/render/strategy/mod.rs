@@ -123,8 +123,6 @@ pub struct Traced {
     pub seconds: f64,
     /// Paths (pixels) traced.
     pub paths: u64,
-    /// The piece ended its pass.
-    pub pass_done: bool,
 }
 
 /// The per-thread, per-bounce half of a [`Strategy`].
