@@ -57,6 +57,9 @@ use std::sync::Arc;
 
 /// Marks an empty cell (and the end of a cell's lane chain).
 const EMPTY: u32 = u32::MAX;
+/// How many queries ahead [`GuideCache::decode_batch`] fetches index entries
+/// (enough lookups in flight to cover a memory access).
+const LOOKAHEAD: usize = 16;
 /// Octahedral normal bins per axis with [`CacheOptions::cosine_product`].
 const NORMAL_BINS: u32 = 8;
 /// Most cells along one axis (the index is `resolution³` `u32`s at most).
@@ -449,19 +452,41 @@ impl GuideCache {
         // (in `out`'s reused scratch: no allocation per call in steady state).
         let mut source = std::mem::take(&mut out.source);
         source.clear();
-        for (i, (q, &xi)) in queries.iter().zip(jitter).enumerate() {
+        // First the jittered cell of every query (`EMPTY` outside the grid),
+        // then the lookups, each fetching the index entry of the query
+        // `LOOKAHEAD` places on: the index spans a megabyte or more and a
+        // lone lookup waits on memory (perf on the Cornell box: most of
+        // this function's time was that wait).
+        source.extend(queries.iter().zip(jitter).map(|(q, &xi)| {
             let p = Vec3::from_array(q.position);
-            let bin = self.bin_of(Vec3::from_array(q.normal));
             let jittered = p + (xi - Vec3::splat(0.5)) * self.cell;
-            let lane = [jittered, p]
-                .into_iter()
-                .filter_map(|x| self.cell_of(x))
-                .map(|c| self.lane_of(c, bin))
-                .find(|&l| l != EMPTY);
-            source.push(lane.unwrap_or_else(|| {
+            self.cell_of(jittered).map_or(EMPTY, |c| c as u32)
+        }));
+        for i in 0..queries.len() {
+            if let Some(&ahead) = source.get(i + LOOKAHEAD) {
+                if let Some(entry) = self.index.get(ahead as usize) {
+                    guiding_core::model::mixture_batch::prefetch(entry);
+                }
+            }
+            let q = &queries[i];
+            let bin = self.bin_of(Vec3::from_array(q.normal));
+            let jittered_cell = source[i];
+            let mut lane = if jittered_cell == EMPTY {
+                EMPTY
+            } else {
+                self.lane_of(jittered_cell as usize, bin)
+            };
+            if lane == EMPTY {
+                lane = self
+                    .cell_of(Vec3::from_array(q.position))
+                    .map_or(EMPTY, |c| self.lane_of(c, bin));
+            }
+            source[i] = if lane == EMPTY {
                 missed.push(i as u32);
                 MISS | (missed.len() as u32 - 1)
-            }));
+            } else {
+                lane
+            };
         }
         // The misses in `out`'s own lanes; the cells shared.
         if !missed.is_empty() {

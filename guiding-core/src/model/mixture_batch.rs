@@ -493,9 +493,10 @@ pub fn vmf_sample_portable(
 const AHEAD: usize = 8;
 
 /// Asks the CPU to fetch the cache line at `p` (a hint; no effect where the
-/// architecture has none).
+/// architecture has none). Public for the embedding crate's guide cache,
+/// whose lookups wait on memory the same way.
 #[inline(always)]
-fn prefetch<T>(p: &T) {
+pub fn prefetch<T>(p: &T) {
     #[cfg(target_arch = "x86_64")]
     // SAFETY: a prefetch never faults and reads nothing the program sees.
     unsafe {
