@@ -554,6 +554,16 @@ pub struct SelectionFit {
     /// this many pseudo-samples of the global mean estimate (a cell without
     /// samples takes the global value; one with many keeps its own).
     pub prior_samples: u32,
+    /// The extra cost of a vertex that queries the guide (`c > 0`: the
+    /// guide's pdfs for MIS, and its sample) relative to one that does not
+    /// (`c = 0`), `κ ≥ 0`: the fit then minimises the cell's variance times
+    /// its cost, `V(c) · (1 + κ [c > 0])` (an estimator's efficiency is
+    /// `1 / (variance · time)`), so a cell turns the guide on only where it
+    /// lowers the variance by more than it adds to the time. `0` (the
+    /// default): the variance alone. A renderer measures `κ` as the guide
+    /// queries' share of its tracing time, `Q / (T − Q)`, over passes traced
+    /// with the cache.
+    pub guide_cost: f32,
 }
 
 impl Default for SelectionFit {
@@ -562,6 +572,7 @@ impl Default for SelectionFit {
             min: 0.0,
             max: 0.9,
             prior_samples: 32,
+            guide_cost: 0.0,
         }
     }
 }
@@ -654,6 +665,12 @@ impl GuideCache {
                 fit.min, fit.max
             )));
         }
+        if !(fit.guide_cost >= 0.0 && fit.guide_cost.is_finite()) {
+            return Err(GuidingError::InvalidConfig(format!(
+                "selection fit guide cost {} must be finite and >= 0",
+                fit.guide_cost
+            )));
+        }
         if let Some(m) = mis_radiance {
             if m.len() != samples.len() {
                 return Err(GuidingError::LengthMismatch {
@@ -729,19 +746,30 @@ impl GuideCache {
             count[lane] += 1;
             used += 1;
         }
-        // The smallest estimate (every candidate infinite, which needs a sample
-        // with both densities 0: the largest).
-        let argmin_index = |m: &[f64; CANDIDATES]| {
+        // The candidate of least variance times cost: `V(c) (1 + κ [c > 0])`
+        // with `V(c) = M̂(c) − mean`, ranked as `M̂(c) + κ [c > 0] (M̂(c) − mean)`
+        // (the same order; exactly `M̂(c)` without a cost). Every candidate
+        // infinite (a sample with both densities 0): the largest.
+        let kappa = f64::from(fit.guide_cost);
+        let argmin_index = |m: &[f64; CANDIDATES], mean: f64| {
+            let score = |j: usize| {
+                if kappa > 0.0 && candidate(j) > 0.0 {
+                    m[j] + kappa * (m[j] - mean)
+                } else {
+                    m[j]
+                }
+            };
             let mut best = 0;
             for j in 1..CANDIDATES {
-                if m[j] < m[best] {
+                if score(j) < score(best) {
                     best = j;
                 }
             }
             m[best].is_finite().then_some(best)
         };
-        let argmin = |m: &[f64; CANDIDATES]| argmin_index(m).map_or(fit.max, candidate);
-        let global = argmin(&total);
+        let first_total: f64 = first.iter().sum();
+        let mean_total = first_total * first_total / (used.max(1) as f64);
+        let global = argmin_index(&total, mean_total).map_or(fit.max, candidate);
         let mut report = SelectionReport {
             samples_used: used,
             global,
@@ -761,9 +789,15 @@ impl GuideCache {
                         *mj += prior * tj;
                     }
                 }
+                // The shrunk sums' mean term: `prior · used` pseudo-samples of the
+                // global sums.
+                let (n, f) = (
+                    f64::from(count[lane]) + prior * used as f64,
+                    first[lane] + prior * first_total,
+                );
                 // V(c) = M̂(c) − μ̂²/n per cell (its own samples, unshrunk); a cell
                 // with every candidate infinite makes the ratio NaN.
-                let j = argmin_index(&m);
+                let j = argmin_index(&m, f * f / n);
                 let mean_term = first[lane] * first[lane] / f64::from(count[lane]);
                 var_fit += j.map_or(f64::INFINITY, |j| moment[lane][j]) - mean_term;
                 var_bsdf += moment[lane][0] - mean_term;

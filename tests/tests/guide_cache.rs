@@ -1481,8 +1481,30 @@ fn expected_variance_ratio(
 
 /// The candidate minimising `moments` (the first of equal minima; `max`
 /// if every sum is infinite).
-fn argmin(fit: &SelectionFit, m: &[f64]) -> f32 {
-    let best = (0..m.len()).fold(0, |b, k| if m[k] < m[b] { k } else { b });
+/// `Σ F / p_s` over `samples` (the first moment of the fit's estimator).
+fn first_sum(
+    samples: &[(TrainingSample, f32)],
+    radiance: &dyn Fn(&TrainingSample) -> [f32; 3],
+) -> f64 {
+    samples
+        .iter()
+        .map(|(s, _)| integrand(s, radiance) / f64::from(s.sample_pdf))
+        .sum()
+}
+
+/// The candidate of least variance times cost, as `SelectionFit::guide_cost`'s docs say:
+/// `(M̂(c) − mean) (1 + κ [c > 0])`, ranked as `M̂(c) + κ [c > 0] (M̂(c) − mean)`; the
+/// first of equals; every candidate infinite: `max`.
+fn argmin(fit: &SelectionFit, m: &[f64], mean: f64) -> f32 {
+    let kappa = f64::from(fit.guide_cost);
+    let score = |k: usize| {
+        if kappa > 0.0 && candidate(fit, k) > 0.0 {
+            m[k] + kappa * (m[k] - mean)
+        } else {
+            m[k]
+        }
+    };
+    let best = (0..m.len()).fold(0, |b, k| if score(k) < score(b) { k } else { b });
     if m[best].is_finite() {
         candidate(fit, best)
     } else {
@@ -1564,7 +1586,8 @@ fn expected_fit(
         .copied()
         .collect();
     let total = moments(fit, &all, radiance);
-    let global = argmin(fit, &total);
+    let first_all = first_sum(&all, radiance);
+    let global = argmin(fit, &total, first_all * first_all / all.len() as f64);
     let weight = f64::from(fit.prior_samples) / all.len() as f64;
     let lanes = sets
         .iter()
@@ -1576,7 +1599,10 @@ fn expected_fit(
                     .zip(&total)
                     .map(|(m, t)| if weight > 0.0 { m + weight * t } else { *m })
                     .collect();
-                argmin(fit, &shrunk)
+                // The shrunk sums' mean term: `prior_samples` pseudo-samples of all.
+                let n = set.len() as f64 + weight * all.len() as f64;
+                let f = first_sum(set, radiance) + weight * first_all;
+                argmin(fit, &shrunk, f * f / n)
             }
             _ => global,
         })
@@ -1798,7 +1824,7 @@ fn fit_selection_is_the_argmin_of_the_shrunk_second_moment_per_lane() {
     // weight and the MIS radiance change the fit.
     let unshrunk = |k: usize| {
         let fit = SelectionFit::default();
-        argmin(&fit, &moments(&fit, sets[k].unwrap(), &training))
+        argmin(&fit, &moments(&fit, sets[k].unwrap(), &training), 0.0)
     };
     assert!(results.iter().any(|(w, _)| w[0] != w[2]));
     assert!(results.iter().any(|(w, _)| w[2] > 0.0 && w[2] < 0.8));
@@ -1813,6 +1839,40 @@ fn fit_selection_is_the_argmin_of_the_shrunk_second_moment_per_lane() {
     assert!(results
         .iter()
         .any(|(w, _)| w.iter().any(|&c| c != constant)));
+    // With a cost per guided vertex the fit is the argmin of variance times cost; the
+    // cost has teeth: more lanes turn the guide off than without it, and a prohibitive
+    // cost leaves it on only where the variance estimate is at or below 0 (lane A).
+    let fit0 = SelectionFit::default();
+    let (free, _) = expected_fit(&fit0, &sets, &training);
+    let mut off_by_cost = Vec::new();
+    for guide_cost in [0.5, 1e6] {
+        let fit = SelectionFit { guide_cost, ..fit0 };
+        let (want, global) = expected_fit(&fit, &sets, &training);
+        let report = cache.fit_selection(&field, &samples, None, &fit).unwrap();
+        eprintln!("guide cost {guide_cost}: want {want:?}, global {global}: {report:?}");
+        assert_eq!(report.global, global, "guide cost {guide_cost}");
+        let (got, _) = selections(&cache, &field, &queries);
+        assert_eq!(got[..5], want[..], "guide cost {guide_cost}");
+        off_by_cost.push(want.iter().filter(|&&c| c == 0.0).count());
+    }
+    let off_free = free.iter().filter(|&&c| c == 0.0).count();
+    assert!(
+        off_by_cost[0] >= off_free && off_by_cost[1] > off_free,
+        "{off_by_cost:?}"
+    );
+    for guide_cost in [-0.1, f32::NAN, f32::INFINITY] {
+        let fit = SelectionFit { guide_cost, ..fit0 };
+        let r = cache.fit_selection(&field, &samples, None, &fit);
+        assert!(matches!(r, Err(GuidingError::InvalidConfig(_))), "{r:?}");
+    }
+    // Back to the last fit of the loop above (results[5]) for what follows.
+    let last = SelectionFit {
+        prior_samples: 1000,
+        ..fit0
+    };
+    cache
+        .fit_selection(&field, &samples, Some(&mis), &last)
+        .unwrap();
     // A lane added after the fit takes the (latest) global value.
     let d = at(centre([1, 1, 1]), Vec3::Z, &mut rng);
     assert_eq!(cache.extend(&field, &[d]).unwrap(), 1);

@@ -419,6 +419,16 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
                     "hits": g.cache_hits,
                     "misses": g.cache_misses,
                 },
+                "selection_fit": g.selection_fit.map_or(serde_json::Value::Null, |r| json!({
+                    "guide_cost": g.guide_cost.map(f64::from).map(finite),
+                    "samples_used": r.samples_used,
+                    "cells_fitted": r.cells_fitted,
+                    "cells_off": r.cells_off,
+                    "cells_global": r.cells_global,
+                    "global": f64::from(r.global),
+                    "mean": f64::from(r.mean),
+                    "variance_ratio": finite(r.variance_ratio),
+                })),
             });
         }
         let text = format!("{doc:#}\n");

@@ -236,6 +236,9 @@ pub struct GuidedStats {
     pub cache_build: Duration,
     /// The per-cell selection-probability fit, if it ran.
     pub selection_fit: Option<guiding::SelectionReport>,
+    /// The guide's relative cost per vertex the selection fit weighed
+    /// ([`guiding::SelectionFit::guide_cost`]).
+    pub guide_cost: Option<f32>,
     /// The efficiency trial: `None` when it did not run (off, spp budget, or the render ended
     /// before training stopped), else its verdict if it finished.
     pub trial: Option<TrialStats>,
@@ -357,10 +360,12 @@ impl std::fmt::Display for GuidedStats {
         if let Some(r) = &self.selection_fit {
             writeln!(
                 f,
-                "selection probability: fitted per cell on {} samples: {} cells with samples \
-                 ({} with the guide off, c = 0), {} at the global {:.2}; mean {:.3}; estimated \
-                 vertex variance {:.3}x that of BSDF sampling alone",
+                "selection probability: fitted per cell on {} samples at a guide cost of {:.3} \
+                 per vertex: {} cells with samples ({} with the guide off, c = 0), {} at the \
+                 global {:.2}; mean {:.3}; estimated vertex variance {:.3}x that of BSDF \
+                 sampling alone",
                 r.samples_used,
+                self.guide_cost.unwrap_or(0.0),
                 r.cells_fitted,
                 r.cells_off,
                 r.cells_global,
@@ -477,6 +482,10 @@ pub struct Guided<'g> {
     /// each piece), and those of the probe's guided pass once it has finished.
     pass_query_seconds: f64,
     probe_query_seconds: Option<f64>,
+    /// Guide-query seconds (per thread) and tracing seconds of the training
+    /// chunks traced with the cache: the guide's cost for the selection fit.
+    cached_query_seconds: f64,
+    cached_traced_seconds: f64,
     /// The first training pass that started after the probe's [`probe::MIN_STEPS`], and the
     /// steps before it.
     probe_pass: Option<(u32, u64)>,
@@ -547,6 +556,8 @@ impl<'g> Guided<'g> {
             unguided_seconds: None,
             pass_query_seconds: 0.0,
             probe_query_seconds: None,
+            cached_query_seconds: 0.0,
+            cached_traced_seconds: 0.0,
             probe_pass: None,
             abandoned: false,
             schedule,
@@ -588,6 +599,18 @@ impl<'g> Guided<'g> {
 
     /// The training probe runs: the efficiency trial is on (time budget, NEE) and so is the
     /// probe.
+    /// The guide's relative cost per vertex for the selection fit,
+    /// `κ = Q / (T − Q)` over the training chunks traced with the cache (`Q`
+    /// their guide-query seconds, `T` their tracing seconds); 0 before any.
+    fn guide_cost(&self) -> f64 {
+        let (q, t) = (self.cached_query_seconds, self.cached_traced_seconds);
+        if q > 0.0 && t > q {
+            q / (t - q)
+        } else {
+            0.0
+        }
+    }
+
     fn probe_on(&self) -> bool {
         self.gopts.efficiency_trial && self.gopts.training_probe
     }
@@ -1041,11 +1064,16 @@ impl<'g> Strategy for Guided<'g> {
                     self.cache = None;
                 }
                 let nasg = self.guide.config().representation == guiding::Representation::Nasg;
+                let guide_cost = self.guide_cost() as f32;
                 if let (Some(cache), true, false) =
                     (self.cache.as_mut(), self.gopts.fit_selection, nasg)
                 {
                     let t0 = Instant::now();
-                    let fit = guiding::SelectionFit::default();
+                    let fit = guiding::SelectionFit {
+                        guide_cost,
+                        ..guiding::SelectionFit::default()
+                    };
+                    self.stats.guide_cost = Some(fit.guide_cost);
                     let mis = std::mem::take(&mut self.last_mis);
                     let mis = (mis.len() == samples.len()).then_some(mis.as_slice());
                     self.stats.selection_fit =
@@ -1174,6 +1202,13 @@ impl<'g> Strategy for Guided<'g> {
         } = pass_samples;
         let mut missed = Vec::new();
         let threads = reports.len().max(1) as f64;
+        if recorded && self.cache.is_some() && !self.guide_off {
+            self.cached_traced_seconds += traced.seconds;
+            self.cached_query_seconds += reports
+                .iter()
+                .map(|r| r.query_time.as_secs_f64() / threads)
+                .sum::<f64>();
+        }
         let st = &mut self.stats;
         for r in reports {
             self.pass_query_seconds += r.query_time.as_secs_f64() / threads;
