@@ -185,6 +185,11 @@ fn door_ray_ns(repeats: usize) -> Option<f64> {
     Some(secs * 1e9 / rays.len() as f64)
 }
 
+/// Points a real-scene-sized guide cache of the vertex micro-benchmark is
+/// built from (at the default resolution 64 they occupy about 58 000 of the
+/// 262 144 cells; the shared Cornell box's cache has 44 000 after 30 s).
+const LARGE_CACHE_POINTS: usize = 65_536;
+
 /// ns per guided vertex, all-in, as the wavefront integrator spends it:
 /// one batched decode of 4096 vertices (grid, network, decoder), the
 /// selection probability of each, one guide sample each and two pdfs each
@@ -286,6 +291,56 @@ fn guided_vertex(quick: bool) -> Result<Vec<MicroResult>, guiding::GuidingError>
                 } else {
                     None
                 };
+                // The same in a cache the size of a real scene's (tens of thousands of
+                // cells, megabytes: the lookups and lanes come from memory, not L2).
+                let large = if target == guiding::Target::Radiance && size == ModelSize::Compact {
+                    let options = guiding::CacheOptions {
+                        cosine_product: true,
+                        ..guiding::CacheOptions::default()
+                    };
+                    let points = guiding_bench::inputs::queries(41, LARGE_CACHE_POINTS);
+                    let cache = field.build_cache(&points, &options)?;
+                    // Queries at build points in a scattered order (an odd multiplier
+                    // permutes the power-of-two index range): every lookup hits a cell.
+                    let picks: Vec<QueryPoint> = (0..N)
+                        .map(|i| points[(i * 40_503 + 17) % LARGE_CACHE_POINTS])
+                        .collect();
+                    let jitter: Vec<Vec3> = unit_points(43, N);
+                    let mut missed = Vec::new();
+                    let secs = median_secs(repeats, || {
+                        let ok = cache
+                            .decode_batch(&field, &picks, &jitter, &mut batch, &mut missed)
+                            .is_ok();
+                        for (i, c) in sel.iter_mut().enumerate() {
+                            *c = batch.selection_probability(i);
+                        }
+                        let ok = ok
+                            && field
+                                .sample_decoded(&batch, &lanes, &us, &mut samples)
+                                .is_ok()
+                            && field.pdf_decoded(&batch, &lanes2, &dirs, &mut pdfs).is_ok();
+                        black_box((ok, &samples, &pdfs, &sel));
+                    });
+                    Some((cache.cells(), secs))
+                } else {
+                    None
+                };
+                if let Some((cells, secs)) = large {
+                    let ns_l = secs * 1e9 / N as f64;
+                    out.push(MicroResult {
+                        group: "vertex",
+                        name: format!(
+                            "{rep:?} {size:?} {target:?}: guided vertex (guide cache, {cells} cells)"
+                        ),
+                        value: ns_l,
+                        unit: "ns (1 thread)",
+                        ratio: ray.map(|r| ns_l / r),
+                        note: format!(
+                            "× one ray; {N} scattered lookups in a cache built from \
+                             {LARGE_CACHE_POINTS} points (a real scene's size)"
+                        ),
+                    });
+                }
                 let ns = batched * 1e9 / N as f64;
                 let ns_q = per_query * 1e9 / N as f64;
                 if let Some(c) = cached {
