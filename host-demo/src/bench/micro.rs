@@ -330,7 +330,7 @@ fn guided_vertex(quick: bool) -> Result<Vec<MicroResult>, guiding::GuidingError>
                     out.push(MicroResult {
                         group: "vertex",
                         name: format!(
-                            "{rep:?} {size:?} {target:?}: guided vertex (guide cache, {cells} cells)"
+                            "{rep:?} {size:?} {target:?}: guided vertex (guide cache of {cells} cells)"
                         ),
                         value: ns_l,
                         unit: "ns (1 thread)",
