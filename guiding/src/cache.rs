@@ -556,14 +556,23 @@ pub struct SelectionFit {
     pub prior_samples: u32,
     /// The extra cost of a vertex that queries the guide (`c > 0`: the
     /// guide's pdfs for MIS, and its sample) relative to one that does not
-    /// (`c = 0`), `κ ≥ 0`: the fit then minimises the cell's variance times
-    /// its cost, `V(c) · (1 + κ [c > 0])` (an estimator's efficiency is
-    /// `1 / (variance · time)`), so a cell turns the guide on only where it
-    /// lowers the variance by more than it adds to the time. `0` (the
-    /// default): the variance alone. A renderer measures `κ` as the guide
-    /// queries' share of its tracing time, `Q / (T − Q)`, over passes traced
-    /// with the cache.
+    /// (`c = 0`), `κ ≥ 0`. An estimator's efficiency is `1 / (variance ·
+    /// time)`; to first order a cell then takes the candidate of least
+    /// `s V(c) / V_ref + κ [c > 0] n / N`: its variance `V(c) = M̂(c) − mean`
+    /// as a share of `V_ref` (the variance of all samples at their best
+    /// constant `c`) scaled by [`Self::variance_share`] `s`, plus its share
+    /// `n / N` of the samples (the vertices) times `κ` where it queries the
+    /// guide. `0` (the default): the variance alone. A renderer measures `κ`
+    /// as the guide queries' share of its tracing time, `Q / (T − Q)`, over
+    /// passes traced with the cache.
     pub guide_cost: f32,
+    /// `s ∈ [0, 1]`: the share of the image's variance that the fitted
+    /// vertices' sampling makes (1, the default, counts all of it: the fit
+    /// then trusts the vertex variances). A renderer that measured the image
+    /// variance ratio `r_pix` of a fitted guide against none, where the fit
+    /// predicted the vertex variance ratio `r_vert` ([`SelectionReport::variance_ratio`]),
+    /// has `1 − r_pix = s (1 − r_vert)`. Only weighed with a `guide_cost`.
+    pub variance_share: f32,
 }
 
 impl Default for SelectionFit {
@@ -573,6 +582,7 @@ impl Default for SelectionFit {
             max: 0.9,
             prior_samples: 32,
             guide_cost: 0.0,
+            variance_share: 1.0,
         }
     }
 }
@@ -665,6 +675,12 @@ impl GuideCache {
                 fit.min, fit.max
             )));
         }
+        if !(fit.variance_share >= 0.0 && fit.variance_share <= 1.0) {
+            return Err(GuidingError::InvalidConfig(format!(
+                "selection fit variance share {} must lie in [0, 1]",
+                fit.variance_share
+            )));
+        }
         if !(fit.guide_cost >= 0.0 && fit.guide_cost.is_finite()) {
             return Err(GuidingError::InvalidConfig(format!(
                 "selection fit guide cost {} must be finite and >= 0",
@@ -746,15 +762,30 @@ impl GuideCache {
             count[lane] += 1;
             used += 1;
         }
-        // The candidate of least variance times cost: `V(c) (1 + κ [c > 0])`
-        // with `V(c) = M̂(c) − mean`, ranked as `M̂(c) + κ [c > 0] (M̂(c) − mean)`
-        // (the same order; exactly `M̂(c)` without a cost). Every candidate
-        // infinite (a sample with both densities 0): the largest.
-        let kappa = f64::from(fit.guide_cost);
-        let argmin_index = |m: &[f64; CANDIDATES], mean: f64| {
+        // The candidate of least variance times cost, to first order the least
+        // `s V(c) / V_ref + κ [c > 0] n / N` (`V(c) = M̂(c) − mean` of the cell's
+        // sums, `n` its samples, `V_ref` the variance of the whole set at its
+        // best constant `c`; see `SelectionFit::guide_cost`); exactly the least
+        // `M̂(c)` without a cost. Every candidate infinite (a sample with both
+        // densities 0): the largest.
+        let first_total: f64 = first.iter().sum();
+        let mean_total = first_total * first_total / (used.max(1) as f64);
+        let v_ref = total
+            .iter()
+            .map(|&m| m - mean_total)
+            .filter(|v| v.is_finite())
+            .fold(f64::INFINITY, f64::min);
+        let kappa = if v_ref > 0.0 && v_ref.is_finite() {
+            f64::from(fit.guide_cost)
+        } else {
+            0.0
+        };
+        let share = f64::from(fit.variance_share);
+        let argmin_index = |m: &[f64; CANDIDATES], mean: f64, vertices: f64| {
+            let cost = kappa * vertices / (used.max(1) as f64);
             let score = |j: usize| {
-                if kappa > 0.0 && candidate(j) > 0.0 {
-                    m[j] + kappa * (m[j] - mean)
+                if kappa > 0.0 {
+                    share * (m[j] - mean) / v_ref + if candidate(j) > 0.0 { cost } else { 0.0 }
                 } else {
                     m[j]
                 }
@@ -767,9 +798,7 @@ impl GuideCache {
             }
             m[best].is_finite().then_some(best)
         };
-        let first_total: f64 = first.iter().sum();
-        let mean_total = first_total * first_total / (used.max(1) as f64);
-        let global = argmin_index(&total, mean_total).map_or(fit.max, candidate);
+        let global = argmin_index(&total, mean_total, used as f64).map_or(fit.max, candidate);
         let mut report = SelectionReport {
             samples_used: used,
             global,
@@ -797,7 +826,7 @@ impl GuideCache {
                 );
                 // V(c) = M̂(c) − μ̂²/n per cell (its own samples, unshrunk); a cell
                 // with every candidate infinite makes the ratio NaN.
-                let j = argmin_index(&m, f * f / n);
+                let j = argmin_index(&m, f * f / n, n);
                 let mean_term = first[lane] * first[lane] / f64::from(count[lane]);
                 var_fit += j.map_or(f64::INFINITY, |j| moment[lane][j]) - mean_term;
                 var_bsdf += moment[lane][0] - mean_term;

@@ -1493,13 +1493,24 @@ fn first_sum(
 }
 
 /// The candidate of least variance times cost, as `SelectionFit::guide_cost`'s docs say:
-/// `(M̂(c) − mean) (1 + κ [c > 0])`, ranked as `M̂(c) + κ [c > 0] (M̂(c) − mean)`; the
-/// first of equals; every candidate infinite: `max`.
-fn argmin(fit: &SelectionFit, m: &[f64], mean: f64) -> f32 {
-    let kappa = f64::from(fit.guide_cost);
+/// `s (M̂(c) − mean) / v_ref + κ [c > 0] n / N` (`vertex_share = n / N`); the plain `M̂(c)`
+/// without a cost (or without a positive `v_ref`); the first of equals; every candidate
+/// infinite: `max`.
+fn argmin(fit: &SelectionFit, m: &[f64], mean: f64, v_ref: f64, vertex_share: f64) -> f32 {
+    let kappa = if v_ref > 0.0 && v_ref.is_finite() {
+        f64::from(fit.guide_cost)
+    } else {
+        0.0
+    };
+    let s = f64::from(fit.variance_share);
     let score = |k: usize| {
-        if kappa > 0.0 && candidate(fit, k) > 0.0 {
-            m[k] + kappa * (m[k] - mean)
+        if kappa > 0.0 {
+            let cost = if candidate(fit, k) > 0.0 {
+                kappa * vertex_share
+            } else {
+                0.0
+            };
+            s * (m[k] - mean) / v_ref + cost
         } else {
             m[k]
         }
@@ -1587,7 +1598,14 @@ fn expected_fit(
         .collect();
     let total = moments(fit, &all, radiance);
     let first_all = first_sum(&all, radiance);
-    let global = argmin(fit, &total, first_all * first_all / all.len() as f64);
+    let mean_all = first_all * first_all / all.len() as f64;
+    // The whole set's variance at its best constant `c`.
+    let v_ref = total
+        .iter()
+        .map(|m| m - mean_all)
+        .filter(|v| v.is_finite())
+        .fold(f64::INFINITY, f64::min);
+    let global = argmin(fit, &total, mean_all, v_ref, 1.0);
     let weight = f64::from(fit.prior_samples) / all.len() as f64;
     let lanes = sets
         .iter()
@@ -1602,7 +1620,7 @@ fn expected_fit(
                 // The shrunk sums' mean term: `prior_samples` pseudo-samples of all.
                 let n = set.len() as f64 + weight * all.len() as f64;
                 let f = first_sum(set, radiance) + weight * first_all;
-                argmin(fit, &shrunk, f * f / n)
+                argmin(fit, &shrunk, f * f / n, v_ref, n / all.len() as f64)
             }
             _ => global,
         })
@@ -1824,7 +1842,13 @@ fn fit_selection_is_the_argmin_of_the_shrunk_second_moment_per_lane() {
     // weight and the MIS radiance change the fit.
     let unshrunk = |k: usize| {
         let fit = SelectionFit::default();
-        argmin(&fit, &moments(&fit, sets[k].unwrap(), &training), 0.0)
+        argmin(
+            &fit,
+            &moments(&fit, sets[k].unwrap(), &training),
+            0.0,
+            0.0,
+            0.0,
+        )
     };
     assert!(results.iter().any(|(w, _)| w[0] != w[2]));
     assert!(results.iter().any(|(w, _)| w[2] > 0.0 && w[2] < 0.8));
@@ -1840,16 +1864,20 @@ fn fit_selection_is_the_argmin_of_the_shrunk_second_moment_per_lane() {
         .iter()
         .any(|(w, _)| w.iter().any(|&c| c != constant)));
     // With a cost per guided vertex the fit is the argmin of variance times cost; the
-    // cost has teeth: more lanes turn the guide off than without it, and a prohibitive
-    // cost leaves it on only where the variance estimate is at or below 0 (lane A).
+    // cost has teeth: more lanes turn the guide off than without it, more still with a
+    // smaller variance share, and a prohibitive cost turns every lane off.
     let fit0 = SelectionFit::default();
     let (free, _) = expected_fit(&fit0, &sets, &training);
     let mut off_by_cost = Vec::new();
-    for guide_cost in [0.5, 1e6] {
-        let fit = SelectionFit { guide_cost, ..fit0 };
+    for (guide_cost, variance_share) in [(0.5, 1.0), (0.5, 0.2), (1e6, 1.0)] {
+        let fit = SelectionFit {
+            guide_cost,
+            variance_share,
+            ..fit0
+        };
         let (want, global) = expected_fit(&fit, &sets, &training);
         let report = cache.fit_selection(&field, &samples, None, &fit).unwrap();
-        eprintln!("guide cost {guide_cost}: want {want:?}, global {global}: {report:?}");
+        eprintln!("guide cost {guide_cost}, share {variance_share}: want {want:?}, global {global}: {report:?}");
         assert_eq!(report.global, global, "guide cost {guide_cost}");
         let (got, _) = selections(&cache, &field, &queries);
         assert_eq!(got[..5], want[..], "guide cost {guide_cost}");
@@ -1857,11 +1885,22 @@ fn fit_selection_is_the_argmin_of_the_shrunk_second_moment_per_lane() {
     }
     let off_free = free.iter().filter(|&&c| c == 0.0).count();
     assert!(
-        off_by_cost[0] >= off_free && off_by_cost[1] > off_free,
+        off_by_cost[0] >= off_free && off_by_cost[1] > off_by_cost[0] && off_by_cost[2] > off_free,
         "{off_by_cost:?}"
     );
-    for guide_cost in [-0.1, f32::NAN, f32::INFINITY] {
-        let fit = SelectionFit { guide_cost, ..fit0 };
+    for (guide_cost, variance_share) in [
+        (-0.1, 1.0),
+        (f32::NAN, 1.0),
+        (f32::INFINITY, 1.0),
+        (0.5, -0.1),
+        (0.5, 1.5),
+        (0.5, f32::NAN),
+    ] {
+        let fit = SelectionFit {
+            guide_cost,
+            variance_share,
+            ..fit0
+        };
         let r = cache.fit_selection(&field, &samples, None, &fit);
         assert!(matches!(r, Err(GuidingError::InvalidConfig(_))), "{r:?}");
     }

@@ -429,6 +429,13 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
                     "mean": f64::from(r.mean),
                     "variance_ratio": finite(r.variance_ratio),
                 })),
+                "selection_refit": g.selection_refit.map_or(serde_json::Value::Null, |(share, r)| json!({
+                    "variance_share": f64::from(share),
+                    "cells_off": r.cells_off,
+                    "global": f64::from(r.global),
+                    "mean": f64::from(r.mean),
+                    "variance_ratio": finite(r.variance_ratio),
+                })),
             });
         }
         let text = format!("{doc:#}\n");

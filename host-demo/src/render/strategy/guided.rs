@@ -239,6 +239,8 @@ pub struct GuidedStats {
     /// The guide's relative cost per vertex the selection fit weighed
     /// ([`guiding::SelectionFit::guide_cost`]).
     pub guide_cost: Option<f32>,
+    /// The refit after the trial: the variance share it used and what it found.
+    pub selection_refit: Option<(f32, guiding::SelectionReport)>,
     /// The efficiency trial: `None` when it did not run (off, spp budget, or the render ended
     /// before training stopped), else its verdict if it finished.
     pub trial: Option<TrialStats>,
@@ -372,6 +374,14 @@ impl std::fmt::Display for GuidedStats {
                 r.global,
                 r.mean,
                 r.variance_ratio
+            )?;
+        }
+        if let Some((share, r)) = &self.selection_refit {
+            writeln!(
+                f,
+                "selection probability refitted after the trial with {share:.3} of the image \
+                 variance on the fitted vertices: {} cells with the guide off, mean {:.3}",
+                r.cells_off, r.mean
             )?;
         }
         if let Some(t) = &self.trial {
@@ -599,6 +609,40 @@ impl<'g> Guided<'g> {
 
     /// The training probe runs: the efficiency trial is on (time budget, NEE) and so is the
     /// probe.
+    /// Refits the selection probabilities once the trial has kept the guide, with the
+    /// share of the image's variance the fitted vertices make as the trial's favourable end
+    /// says: `s = (1 − r_low) / (1 − r_vert)`, `r_low` the lower end of the trial's cost
+    /// ratio over its time ratio (the image variance ratio at the interval's favourable end),
+    /// `r_vert` the first fit's vertex variance ratio
+    /// ([`guiding::SelectionFit::variance_share`]). Nothing when `s` comes out at 1 or
+    /// cannot be formed (no cost, no interval, a fit that predicted no gain).
+    fn refit_selection(&mut self, v: &guiding::TrialVerdict) {
+        let (Some(first), Some(guide_cost)) = (self.stats.selection_fit, self.stats.guide_cost)
+        else {
+            return;
+        };
+        let r_low = v.ratio_low * v.unguided_seconds / v.guided_seconds;
+        let share = (1.0 - r_low) / (1.0 - first.variance_ratio);
+        if !(guide_cost > 0.0 && share.is_finite() && first.variance_ratio < 1.0 && share < 1.0) {
+            return;
+        }
+        let Some(cache) = self.cache.as_mut() else {
+            return;
+        };
+        let t0 = Instant::now();
+        let fit = guiding::SelectionFit {
+            guide_cost,
+            variance_share: share.max(0.0) as f32,
+            ..guiding::SelectionFit::default()
+        };
+        let samples = &self.last_samples;
+        let mis = (self.last_mis.len() == samples.len()).then_some(self.last_mis.as_slice());
+        if let Ok(report) = cache.fit_selection(self.guide, samples, mis, &fit) {
+            self.stats.selection_refit = Some((fit.variance_share, report));
+        }
+        self.stats.cache_build += t0.elapsed();
+    }
+
     /// The guide's relative cost per vertex for the selection fit,
     /// `κ = Q / (T − Q)` over the training chunks traced with the cache (`Q`
     /// their guide-query seconds, `T` their tracing seconds); 0 before any.
@@ -1074,12 +1118,14 @@ impl<'g> Strategy for Guided<'g> {
                         ..guiding::SelectionFit::default()
                     };
                     self.stats.guide_cost = Some(fit.guide_cost);
-                    let mis = std::mem::take(&mut self.last_mis);
-                    let mis = (mis.len() == samples.len()).then_some(mis.as_slice());
+                    let mis =
+                        (self.last_mis.len() == samples.len()).then_some(self.last_mis.as_slice());
                     self.stats.selection_fit =
                         cache.fit_selection(self.guide, &samples, mis, &fit).ok();
                     self.stats.cache_build += t0.elapsed();
                 }
+                // Kept for the refit after the efficiency trial.
+                self.last_samples = samples;
             }
         }
         self.pass_query_seconds = 0.0;
@@ -1185,6 +1231,11 @@ impl<'g> Strategy for Guided<'g> {
         if let Some(v) = trial.verdict() {
             t.verdict = Some(v);
             self.trial = None;
+            if v.keep_guide {
+                self.refit_selection(&v);
+            }
+            self.last_samples = Vec::new();
+            self.last_mis = Vec::new();
         }
     }
 
