@@ -265,39 +265,39 @@ fn guided_vertex(quick: bool) -> Result<Vec<MicroResult>, guiding::GuidingError>
                     black_box(acc);
                 });
                 // The guide cache (radiance targets): lookup with jitter instead of the
-                // network, the cosine product already in the lanes for NPM.
-                let cached = if target == guiding::Target::Radiance {
-                    let options = guiding::CacheOptions {
-                        cosine_product: true,
-                        ..guiding::CacheOptions::default()
+                // network, the cosine product already in the lanes for NPM; then the same in
+                // a cache the size of a real scene's (tens of thousands of cells, megabytes:
+                // the lookups and lanes come from memory, not L2).
+                let options = guiding::CacheOptions {
+                    cosine_product: true,
+                    ..guiding::CacheOptions::default()
+                };
+                let mut time_cached =
+                    |cache: &guiding::GuideCache, queries: &[QueryPoint], jitter: &[Vec3]| {
+                        let mut missed = Vec::new();
+                        median_secs(repeats, || {
+                            let ok = cache
+                                .decode_batch(&field, queries, jitter, &mut batch, &mut missed)
+                                .is_ok();
+                            for (i, c) in sel.iter_mut().enumerate() {
+                                *c = batch.selection_probability(i);
+                            }
+                            let ok = ok
+                                && field
+                                    .sample_decoded(&batch, &lanes, &us, &mut samples)
+                                    .is_ok()
+                                && field.pdf_decoded(&batch, &lanes2, &dirs, &mut pdfs).is_ok();
+                            black_box((ok, &samples, &pdfs, &sel));
+                        })
                     };
+                let radiance = target == guiding::Target::Radiance;
+                let cached = if radiance {
                     let cache = field.build_cache(&queries, &options)?;
-                    let jitter: Vec<Vec3> = unit_points(37, N);
-                    let mut missed = Vec::new();
-                    Some(median_secs(repeats, || {
-                        let ok = cache
-                            .decode_batch(&field, &queries, &jitter, &mut batch, &mut missed)
-                            .is_ok();
-                        for (i, c) in sel.iter_mut().enumerate() {
-                            *c = batch.selection_probability(i);
-                        }
-                        let ok = ok
-                            && field
-                                .sample_decoded(&batch, &lanes, &us, &mut samples)
-                                .is_ok()
-                            && field.pdf_decoded(&batch, &lanes2, &dirs, &mut pdfs).is_ok();
-                        black_box((ok, &samples, &pdfs, &sel));
-                    }))
+                    Some(time_cached(&cache, &queries, &unit_points(37, N)))
                 } else {
                     None
                 };
-                // The same in a cache the size of a real scene's (tens of thousands of
-                // cells, megabytes: the lookups and lanes come from memory, not L2).
-                let large = if target == guiding::Target::Radiance && size == ModelSize::Compact {
-                    let options = guiding::CacheOptions {
-                        cosine_product: true,
-                        ..guiding::CacheOptions::default()
-                    };
+                let large = if radiance && size == ModelSize::Compact {
                     let points = guiding_bench::inputs::queries(41, LARGE_CACHE_POINTS);
                     let cache = field.build_cache(&points, &options)?;
                     // Queries at build points in a scattered order (an odd multiplier
@@ -305,23 +305,10 @@ fn guided_vertex(quick: bool) -> Result<Vec<MicroResult>, guiding::GuidingError>
                     let picks: Vec<QueryPoint> = (0..N)
                         .map(|i| points[(i * 40_503 + 17) % LARGE_CACHE_POINTS])
                         .collect();
-                    let jitter: Vec<Vec3> = unit_points(43, N);
-                    let mut missed = Vec::new();
-                    let secs = median_secs(repeats, || {
-                        let ok = cache
-                            .decode_batch(&field, &picks, &jitter, &mut batch, &mut missed)
-                            .is_ok();
-                        for (i, c) in sel.iter_mut().enumerate() {
-                            *c = batch.selection_probability(i);
-                        }
-                        let ok = ok
-                            && field
-                                .sample_decoded(&batch, &lanes, &us, &mut samples)
-                                .is_ok()
-                            && field.pdf_decoded(&batch, &lanes2, &dirs, &mut pdfs).is_ok();
-                        black_box((ok, &samples, &pdfs, &sel));
-                    });
-                    Some((cache.cells(), secs))
+                    Some((
+                        cache.cells(),
+                        time_cached(&cache, &picks, &unit_points(43, N)),
+                    ))
                 } else {
                     None
                 };

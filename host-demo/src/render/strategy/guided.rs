@@ -607,8 +607,6 @@ impl<'g> Guided<'g> {
         }
     }
 
-    /// The training probe runs: the efficiency trial is on (time budget, NEE) and so is the
-    /// probe.
     /// Refits the selection probabilities once the trial has kept the guide, with the
     /// share of the image's variance the fitted vertices make as the trial's favourable end
     /// says: `s = (1 − r_low) / (1 − r_vert)`, `r_low` the lower end of the trial's cost
@@ -655,6 +653,8 @@ impl<'g> Guided<'g> {
         }
     }
 
+    /// The training probe runs: the efficiency trial is on (time budget, NEE) and so is the
+    /// probe.
     fn probe_on(&self) -> bool {
         self.gopts.efficiency_trial && self.gopts.training_probe
     }
@@ -1253,16 +1253,12 @@ impl<'g> Strategy for Guided<'g> {
         } = pass_samples;
         let mut missed = Vec::new();
         let threads = reports.len().max(1) as f64;
-        if recorded && self.cache.is_some() && !self.guide_off {
-            self.cached_traced_seconds += traced.seconds;
-            self.cached_query_seconds += reports
-                .iter()
-                .map(|r| r.query_time.as_secs_f64() / threads)
-                .sum::<f64>();
-        }
+        // The chunk used the cache if there was one when it was traced (it is refreshed below).
+        let cost_sample = recorded && self.cache.is_some() && !self.guide_off;
+        let mut chunk_query_seconds = 0.0;
         let st = &mut self.stats;
         for r in reports {
-            self.pass_query_seconds += r.query_time.as_secs_f64() / threads;
+            chunk_query_seconds += r.query_time.as_secs_f64() / threads;
             if let Some(e) = r.device_error {
                 return Err(e);
             }
@@ -1275,6 +1271,11 @@ impl<'g> Strategy for Guided<'g> {
             }
             st.guided_vertices += r.guided_vertices;
             st.query += r.query_time;
+        }
+        self.pass_query_seconds += chunk_query_seconds;
+        if cost_sample {
+            self.cached_query_seconds += chunk_query_seconds;
+            self.cached_traced_seconds += traced.seconds;
         }
         st.samples_recorded += samples.len() as u64;
         if !recorded {
