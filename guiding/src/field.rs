@@ -308,7 +308,9 @@ impl GuidingField {
 
     /// Marks the field's device as failed with `message`, as a failed Vulkan
     /// call would: for tests of the failure paths (a working device cannot
-    /// be made to fail on demand). Does nothing on the CPU.
+    /// be made to fail on demand). Does nothing on the CPU. Feature
+    /// `testing` only (the test crates enable it).
+    #[cfg(feature = "testing")]
     #[doc(hidden)]
     pub fn fail_device_for_tests(&self, message: &str) {
         if let Some(d) = &self.device {

@@ -14,7 +14,7 @@ use guiding_core::field::FieldConfig;
 use guiding_core::loss::Target;
 use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
 use host_demo::render::{render, Image, IntegratorKind, RenderOptions};
-use host_demo::render::{render_guided, GuidedOptions, GuidedStats};
+use host_demo::render::{render_guided, GuidedOptions, GuidedStats, TestHooks};
 use host_demo::scene::builtin::load_builtin;
 use host_demo::scene::Scene;
 
@@ -540,7 +540,10 @@ fn training_probe_abandons_training_and_keeps_the_image_unbiased() {
         let gopts = GuidedOptions {
             schedule: epochs(0.5, 1e6),
             training_probe,
-            probe_force,
+            test_hooks: TestHooks {
+                probe_force,
+                ..TestHooks::default()
+            },
             ..GuidedOptions::default()
         };
         render_guided(&scene, &o, &gopts, &mut g).expect("guided render")

@@ -16,7 +16,7 @@
 //! family-wise false-alarm rate of 1 %.
 //!
 //! Power check, committed (`power_check_rejects_a_scaled_guide_pdf`): the guide pdf scaled by
-//! 1.5 in the guided continuation's combined density (`GuidedOptions::guide_pdf_scale`, a test
+//! 1.5 in the guided continuation's combined density (`TestHooks::guide_pdf_scale`, a test
 //! hook) fails `guided npm` in 17 of its 48 block-channel tests, worst at t = −8.5, at the
 //! per-test level of `all_integrators_agree_per_block`. By hand, not committed (it needs a
 //! defect inside the renderer with no hook): setting the MIS weight of emission found by BSDF
@@ -35,7 +35,7 @@ use guiding_core::field::FieldConfig;
 use guiding_core::loss::Target;
 use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
 use host_demo::render::{render, Image, IntegratorKind, RenderOptions};
-use host_demo::render::{render_guided, CacheMode, GuidedOptions, GuidedStats};
+use host_demo::render::{render_guided, CacheMode, GuidedOptions, GuidedStats, TestHooks};
 use host_demo::scene::builtin::load_builtin;
 use host_demo::scene::Scene;
 
@@ -231,7 +231,10 @@ fn guided_with(
     .expect("guide");
     let gopts = GuidedOptions {
         nee,
-        guide_pdf_scale,
+        test_hooks: TestHooks {
+            guide_pdf_scale,
+            ..TestHooks::default()
+        },
         schedule: REPRODUCIBLE,
         ..GuidedOptions::default()
     };
@@ -391,7 +394,7 @@ fn all_integrators_agree_per_block() {
 /// Power check, committed: the comparison of [`all_integrators_agree_per_block`], at its
 /// per-test level, rejects a deliberately biased estimator. `guided npm` (NEE, the same guide
 /// and seeds as there) with the guide pdf in the continuation's combined density scaled by
-/// 1.5 (`GuidedOptions::guide_pdf_scale`: a sample/pdf mismatch, so every guided continuation
+/// 1.5 (`TestHooks::guide_pdf_scale`: a sample/pdf mismatch, so every guided continuation
 /// is weighted by `f·cos / p` with `p` too large and the indirect light comes out too dark)
 /// must fail at least one block. Measured: 17 of the 48 block-channel tests rejected, the
 /// worst at t = −8.5 (p = 2.7e-9 against the level 3.5e-5); the honest `guided npm` passes

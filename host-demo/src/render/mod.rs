@@ -16,6 +16,8 @@ pub mod wavefront;
 
 pub use image::{Image, RenderStats};
 pub use options::{IntegratorKind, RenderOptions};
+#[cfg(feature = "testing")]
+pub use strategy::guided::TestHooks;
 pub use strategy::guided::{CacheMode, GuidedOptions, GuidedStats, PassWeightStats, TrialStats};
 pub use strategy::probe::{ProbeStats, ProbeVerdict};
 

@@ -142,15 +142,34 @@ pub struct GuidedOptions {
     /// pass unguided, and training abandoned once the guide has trained and its guided pass is
     /// worse per pass even at no cost, with a confidence interval above 1).
     pub training_probe: bool,
-    /// Test hook, `None` in every real render: forces the probe's verdict (`Some(true)`
-    /// abandons, `Some(false)` keeps).
+    /// Test hooks (feature `testing`, which only the test crates enable).
+    #[cfg(feature = "testing")]
     #[doc(hidden)]
+    pub test_hooks: TestHooks,
+}
+
+/// Deliberate defects and forced verdicts for the tests' negative controls (feature
+/// `testing`); absent from the library and the binary that renders.
+#[cfg(feature = "testing")]
+#[doc(hidden)]
+#[derive(Clone, Copy, Debug)]
+pub struct TestHooks {
+    /// Forces the probe's verdict (`Some(true)` abandons, `Some(false)` keeps).
     pub probe_force: Option<bool>,
-    /// Test hook, 1 in every real render: factor on the guide pdf inside the continuation's
-    /// combined density (≠ 1 is a deliberate sample/pdf mismatch, a biased estimator; the
-    /// power check of `tests/unbiased.rs` uses it).
-    #[doc(hidden)]
+    /// Factor on the guide pdf inside the continuation's combined density (≠ 1 is a
+    /// deliberate sample/pdf mismatch, a biased estimator; the power check of
+    /// `tests/unbiased.rs` uses it).
     pub guide_pdf_scale: f32,
+}
+
+#[cfg(feature = "testing")]
+impl Default for TestHooks {
+    fn default() -> Self {
+        Self {
+            probe_force: None,
+            guide_pdf_scale: 1.0,
+        }
+    }
 }
 
 impl Default for GuidedOptions {
@@ -167,8 +186,8 @@ impl Default for GuidedOptions {
             efficiency_trial: true,
             weight_passes: true,
             training_probe: true,
-            probe_force: None,
-            guide_pdf_scale: 1.0,
+            #[cfg(feature = "testing")]
+            test_hooks: TestHooks::default(),
         }
     }
 }
@@ -677,8 +696,16 @@ impl<'g> Guided<'g> {
             find(GROUP_UNGUIDED)?,
             find(guided_pass)?,
             (unguided, unguided + self.probe_query_seconds?),
-            self.gopts.probe_force,
+            self.probe_force(),
         )
+    }
+
+    /// The probe verdict a test forces (never in a real render).
+    fn probe_force(&self) -> Option<bool> {
+        #[cfg(feature = "testing")]
+        return self.gopts.test_hooks.probe_force;
+        #[cfg(not(feature = "testing"))]
+        None
     }
 
     /// Brings the cache to the field's current generation and adds the cells of `positions`
@@ -1039,7 +1066,11 @@ impl VertexStrategy for GuidedWorker<'_> {
             let frame = Frame::from_z(verts.ns[i]);
             let (f, pdf_bsdf) = verts.bsdf[i].eval(frame.to_local(verts.wo[i]), frame.to_local(wi));
             let c = self.selection[qi as usize];
-            let pdf = c * self.guide_pdf[i] * self.gopts.guide_pdf_scale + (1.0 - c) * pdf_bsdf;
+            #[cfg(feature = "testing")]
+            let guide_pdf = self.guide_pdf[i] * self.gopts.test_hooks.guide_pdf_scale;
+            #[cfg(not(feature = "testing"))]
+            let guide_pdf = self.guide_pdf[i];
+            let pdf = c * guide_pdf + (1.0 - c) * pdf_bsdf;
             if !(pdf > 0.0 && pdf.is_finite()) || f.max_element() <= 0.0 {
                 out.set(i, Vec3::ZERO, Vec3::ZERO, 0.0);
                 continue;
