@@ -2,7 +2,7 @@
 //! anything with a C FFI). The header `include/guiding.h` is generated from
 //! these declarations by cbindgen (`cbindgen.toml`) and committed; a test
 //! fails when it is out of date. `examples/toy_renderer.c` is a complete
-//! C99 program using it, and the README section "Embedding in your renderer" maps Open PGL's calls to ours.
+//! C99 program using it, and `docs/manual/embedding.md` ("Embedding in your renderer") maps Open PGL's calls to ours.
 //!
 //! # Conventions
 //!

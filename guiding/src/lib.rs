@@ -116,8 +116,8 @@ pub use recorder::{BatchRecorder, Continuation, PathRecorder, PathVertex};
 pub use schedule::{Budget, ScheduleOptions, ScheduleReport, StepRule, TrainingSchedule};
 pub use trial::{GuideTrial, TrialArm, TrialOptions, TrialVerdict};
 
-/// The README's code examples (`guiding-core` kernels and the embedding API),
-/// compiled and run as doctests.
+/// The code examples of the embedding guide, `docs/manual/embedding.md` (the
+/// embedding API and the `guiding-core` kernels), compiled and run as doctests.
 #[cfg(doctest)]
-#[doc = include_str!("../../README.md")]
-pub struct ReadmeDoctests;
+#[doc = include_str!("../../docs/manual/embedding.md")]
+pub struct EmbeddingGuideDoctests;

@@ -2,7 +2,7 @@
 //! [--stats FILE.json] ...` and `host-demo compare IMAGE.exr REFERENCE.exr`.
 //!
 //! Guided example (the README's main command, about 20 s on 2 cores):
-//! `host-demo render builtin:door --integrator guided --guide npm --spp 32 --out door-guided.exr`
+//! `host-demo render builtin:door --integrator guided --guide npm --target radiance --spp 32 --out door-guided.exr`
 
 mod cli;
 

@@ -20,7 +20,8 @@
 //! variant (AVX-512F, AVX2, the baseline) gives the reference's bits.
 //!
 //! Measured (`benches/distributions.rs`, one thread, this repository's
-//! 2-core AMD EPYC Zen 4): see the README's benchmark section.
+//! 2-core AMD EPYC Zen 4): see `docs/results.md` and, for the block kernels
+//! against the per-lane loop, `docs/architecture.md` ("A cached vertex runs no network").
 
 use crate::factorised::square_from_direction;
 use crate::lobe::nasg::{log_g_local, unit_direction};

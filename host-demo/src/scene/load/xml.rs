@@ -1,4 +1,4 @@
-//! Loader for Mitsuba 3 scenes and Mitsuba 0.6 / 0.5 files (README "Scene support" has the
+//! Loader for Mitsuba 3 scenes and Mitsuba 0.6 / 0.5 files (`docs/manual/scenes.md` has the
 //! full table of what is supported, approximated, skipped or rejected).
 //!
 //! Supported: integrator `path` (max_depth, rr_depth); sensors `perspective` and `thinlens`
