@@ -4,6 +4,35 @@
 //! fails when it is out of date. `examples/toy_renderer.c` is a complete
 //! C99 program using it, and `docs/manual/embedding.md` ("Embedding in your renderer") maps Open PGL's calls to ours.
 //!
+//! The calls of a C renderer, written here in Rust (the same sequence as
+//! `examples/toy_renderer.c`): a field over the scene box, one query, one
+//! guided direction with its density, the handles released.
+//!
+//! ```
+//! use guiding_capi::*;
+//! use std::mem::MaybeUninit;
+//! use std::ptr;
+//!
+//! unsafe {
+//!     let mut args = MaybeUninit::<PgFieldArgs>::uninit();
+//!     assert_eq!(pg_field_args_set_defaults(args.as_mut_ptr(), PG_REPRESENTATION_NPM), PgStatus::PG_OK);
+//!     let mut args = args.assume_init();
+//!     args.bounds_min = [-1.0; 3];
+//!     args.bounds_max = [1.0; 3];
+//!     let mut field = ptr::null_mut();
+//!     assert_eq!(pg_field_new(&args, &mut field), PgStatus::PG_OK);
+//!
+//!     let query = PgQueryPoint { position: [0.1, 0.2, 0.3], normal: [0.0, 0.0, 1.0],
+//!         wo: [0.0, 0.0, 1.0], roughness: 1.0, pad0: 0.0, pad1: 0.0 };
+//!     let (u, mut dir, mut pdf) = ([0.3f32, 0.7], [0.0f32; 3], 0.0f32);
+//!     assert_eq!(pg_field_sample(field, 1, &query, u.as_ptr(), dir.as_mut_ptr(), &mut pdf), PgStatus::PG_OK);
+//!     let mut again = 0.0f32;
+//!     assert_eq!(pg_field_pdf(field, 1, &query, dir.as_ptr(), &mut again), PgStatus::PG_OK);
+//!     assert!(pdf > 0.0 && (again / pdf - 1.0).abs() < 1e-3);
+//!     pg_field_release(field);
+//! }
+//! ```
+//!
 //! # Conventions
 //!
 //! - Every `pg_*` function except [`pg_version`], [`pg_last_error`] and the

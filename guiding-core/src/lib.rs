@@ -13,6 +13,21 @@
 //! - [`pdf1d::Pdf1d`] and [`factorised`] — factorised piecewise PDFs
 //!   (Figueiredo et al. 2025).
 //!
+//! ```
+//! use guiding_core::glam::Vec2;
+//! use guiding_core::mixture::vmf::VmfMixture;
+//!
+//! // Raw network outputs, 4 per lobe: [weight logit, ln κ, θ, φ] (NPM's activations).
+//! let raw = [[0.0, 3.0, 0.5, -1.0], [1.0, 1.0, 2.0, 0.5]];
+//! let guide = VmfMixture::<2>::decode(&raw);
+//! let s = guide.sample(Vec2::new(0.3, 0.7));
+//! assert!((guide.pdf(s.direction) / s.pdf - 1.0).abs() < 1e-4);
+//! ```
+//!
+//! A neural field that learns these distributions online is
+//! `field::Field` (feature `std`); renderers embed it through the
+//! `guiding` crate (or its C ABI, `guiding-capi`).
+//!
 //! # Conventions
 //!
 //! - **`pdf` vs `eval`.** `pdf` is always a normalised density: in solid
