@@ -61,7 +61,7 @@ fn bench_model<M: RawOutputs + bytemuck::Pod + Sync>(
         ctx.clone(),
         ModelEntryPoints {
             prefix: name,
-            raw_outputs: M::RAW_OUTPUTS as u32,
+            family: M::FAMILY,
         },
         bytemuck::bytes_of(&model),
         &params,

@@ -16,9 +16,7 @@ use bytemuck::Pod;
 use guiding_core::batch::{AdamArgs, BatchArgs, MAX_ABS_BLOCK};
 pub use guiding_core::field::StepOutcome;
 use guiding_core::model::df::DfVertex;
-use guiding_core::model::nasg::NASG_OUTPUTS;
-use guiding_core::model::npm::NPM_OUTPUTS;
-use guiding_core::model::QueryPoint;
+use guiding_core::model::{Family, QueryPoint};
 use guiding_core::optim::{ema_weight, step_clip_factor, AdamConfig, AdamStepFactors};
 use guiding_core::sample::TrainingSample;
 use std::mem::size_of;
@@ -29,8 +27,9 @@ use std::mem::size_of;
 pub struct ModelEntryPoints {
     /// Entry-point prefix, e.g. `"npm_compact_radiance"`.
     pub prefix: &'static str,
-    /// Raw outputs per query of `{prefix}_infer` (0: the model has none, DF).
-    pub raw_outputs: u32,
+    /// The model's family: which lane kernels it uses, and its raw outputs
+    /// per query of `{prefix}_infer` ([`Family::raw_outputs`]; DF has none).
+    pub family: Family,
 }
 
 /// Training settings of [`GpuModel::train_step`] (those of the CPU field).
@@ -220,37 +219,37 @@ impl GpuModel {
         let b = size_of::<BatchArgs>() as u32;
         let p = entry.prefix;
         let kernels = Kernels {
-            infer: if entry.raw_outputs > 0 {
+            infer: if entry.family != Family::Df {
                 Some(ctx.embedded_kernel(&format!("{p}_infer"), 4, b)?)
             } else {
                 None
             },
-            lane_sample: match entry.raw_outputs as usize {
-                NPM_OUTPUTS => Some(ctx.embedded_kernel("vmf_lane_sample", 5, b)?),
-                NASG_OUTPUTS => Some(ctx.embedded_kernel("nasg_lane_sample", 5, b)?),
-                _ => None,
+            lane_sample: match entry.family {
+                Family::Npm => Some(ctx.embedded_kernel("vmf_lane_sample", 5, b)?),
+                Family::Nasg => Some(ctx.embedded_kernel("nasg_lane_sample", 5, b)?),
+                Family::Df => None,
             },
-            lane_pdf: match entry.raw_outputs as usize {
-                NPM_OUTPUTS => Some(ctx.embedded_kernel("vmf_lane_pdf", 5, b)?),
-                NASG_OUTPUTS => Some(ctx.embedded_kernel("nasg_lane_pdf", 5, b)?),
-                _ => None,
+            lane_pdf: match entry.family {
+                Family::Npm => Some(ctx.embedded_kernel("vmf_lane_pdf", 5, b)?),
+                Family::Nasg => Some(ctx.embedded_kernel("nasg_lane_pdf", 5, b)?),
+                Family::Df => None,
             },
-            selection: if entry.raw_outputs as usize == NASG_OUTPUTS {
+            selection: if entry.family == Family::Nasg {
                 Some(ctx.embedded_kernel("nasg_selection", 2, b)?)
             } else {
                 None
             },
-            vertex: if entry.raw_outputs == 0 {
+            vertex: if entry.family == Family::Df {
                 Some(ctx.embedded_kernel(&format!("{p}_vertex"), 4, b)?)
             } else {
                 None
             },
-            vertex_sample: if entry.raw_outputs == 0 {
+            vertex_sample: if entry.family == Family::Df {
                 Some(ctx.embedded_kernel(&format!("{p}_vertex_sample"), 6, b)?)
             } else {
                 None
             },
-            vertex_pdf: if entry.raw_outputs == 0 {
+            vertex_pdf: if entry.family == Family::Df {
                 Some(ctx.embedded_kernel(&format!("{p}_vertex_pdf"), 6, b)?)
             } else {
                 None
@@ -318,7 +317,7 @@ impl GpuModel {
         queries: &[QueryPoint],
         out: &mut [f32],
     ) -> Result<BatchReport, GpuError> {
-        let r = self.entry.raw_outputs as usize;
+        let r = self.entry.family.raw_outputs();
         if out.len() != queries.len() * r {
             return Err(GpuError::BadArgument(format!(
                 "infer: {} queries need {} outputs, {} given",
@@ -344,7 +343,7 @@ impl GpuModel {
         queries: &[QueryPoint],
         out: &mut [f32],
     ) -> Result<BatchReport, GpuError> {
-        let r = self.entry.raw_outputs as usize;
+        let r = self.entry.family.raw_outputs();
         let Some(kernel) = self.kernels.infer.as_ref() else {
             return Err(GpuError::BadArgument(format!(
                 "{} has no raw outputs (its conditional network depends on the direction): \
@@ -664,7 +663,7 @@ impl GpuModel {
         selection: &mut Vec<f32>,
     ) -> Result<BatchReport, GpuError> {
         selection.clear();
-        let r = self.entry.raw_outputs as usize;
+        let r = self.entry.family.raw_outputs();
         let Some(kernel) = self.kernels.infer.as_ref() else {
             return Err(GpuError::BadArgument(format!(
                 "{} has no raw outputs (its conditional network depends on the direction)",

@@ -37,7 +37,7 @@ use guiding_core::model::nasg::{NasgCompactProduct, NasgSmallProduct, NasgSmallR
 use guiding_core::model::npm::{
     NpmCompactProduct, NpmCompactRadiance, NpmRadiance, NpmSmallProduct, NpmSmallRadiance,
 };
-use guiding_core::model::{GuidingModel, QueryPoint, RawOutputs};
+use guiding_core::model::{Family, GuidingModel, QueryPoint, RawOutputs};
 use guiding_core::optim::{ema_weight, AdamConfig, AdamStepFactors};
 use guiding_core::pdf1d::Interpolation;
 use guiding_core::rng::{hash2, Rng};
@@ -179,16 +179,13 @@ fn upload<M: GuidingModel + bytemuck::Pod>(
     ctx: GpuContext,
     model: &M,
     prefix: &'static str,
-    raw_outputs: u32,
+    family: Family,
     params: &[f32],
 ) -> Result<GpuModel, GpuError> {
     let zeros = vec![0.0f32; params.len()];
     GpuModel::new(
         ctx,
-        ModelEntryPoints {
-            prefix,
-            raw_outputs,
-        },
+        ModelEntryPoints { prefix, family },
         bytemuck::bytes_of(model),
         params,
         &zeros,
@@ -714,8 +711,8 @@ const MIXTURE_PDF_REL: f32 = 1e-5;
 /// the product by at most `4δ`.
 const DF_PDF_REL: f32 = 4e-5;
 
-fn raw_outputs_of<M: RawOutputs>(_: &M) -> u32 {
-    M::RAW_OUTPUTS as u32
+fn family_of<M: GuidingModel>(_: &M) -> Family {
+    M::FAMILY
 }
 
 macro_rules! model_difftest {
@@ -725,8 +722,7 @@ macro_rules! model_difftest {
             let Some(ctx) = context() else { return };
             let model = $model;
             let params = parameters(&model, 3);
-            let raw = raw_outputs_of(&model);
-            let mut gpu = upload(ctx, &model, $prefix, raw, &params).expect("upload");
+            let mut gpu = upload(ctx, &model, $prefix, family_of(&model), &params).expect("upload");
             let q = queries(1000, 5);
             check_infer(&mut gpu, &model, &params, &q, $prefix);
             model_difftest!(@common gpu, model, params, q, $prefix, MIXTURE_PDF_REL);
@@ -738,7 +734,7 @@ macro_rules! model_difftest {
             let Some(ctx) = context() else { return };
             let model = $model;
             let params = parameters(&model, 3);
-            let mut gpu = upload(ctx, &model, $prefix, 0, &params).expect("upload");
+            let mut gpu = upload(ctx, &model, $prefix, family_of(&model), &params).expect("upload");
             let q = queries(1000, 5);
             assert!(gpu.infer(&q, &mut []).is_err(), "DF has no infer kernel");
             model_difftest!(@common gpu, model, params, q, $prefix, DF_PDF_REL);
@@ -1349,7 +1345,7 @@ fn check_lanes<M: RawOutputs + bytemuck::Pod>(
 ) {
     let params = parameters(model, 9);
     let r = M::RAW_OUTPUTS;
-    let mut gpu = upload(ctx.clone(), model, prefix, r as u32, &params).expect("upload");
+    let mut gpu = upload(ctx.clone(), model, prefix, M::FAMILY, &params).expect("upload");
     let n = 1500;
     let q = queries(n, 31);
     let mut raw_buf = None;
@@ -1512,7 +1508,7 @@ fn df_vertex_kernels_match_the_cpu() {
         prefix: &'static str,
     ) {
         let params = parameters(model, 13);
-        let mut gpu = upload(ctx.clone(), model, prefix, 0, &params).expect("upload");
+        let mut gpu = upload(ctx.clone(), model, prefix, M::FAMILY, &params).expect("upload");
         let n = 600;
         let q = queries(n, 43);
         let mut buf = None;

@@ -23,14 +23,14 @@
 //! after an [`GuidingField::update`] that changed the parameters is
 //! [`GuidingError::StaleDistribution`].
 
-use crate::device::{DeviceLanes, Family};
+use crate::device::DeviceLanes;
 use crate::error::GuidingError;
 use crate::field::{DecodedDistribution, GuidingField};
 use crate::models::{self, with_field, BatchItems, Decode};
 use glam::{Vec2, Vec3};
 use guiding_core::lobe::DirectionSample;
 use guiding_core::model::mixture_batch;
-use guiding_core::model::{GuidingModel, QueryPoint};
+use guiding_core::model::{Family, QueryPoint};
 use std::sync::{Arc, Mutex, PoisonError};
 
 /// Decoded distributions of a batch of shading points (see the [module
@@ -206,7 +206,7 @@ impl DistributionBatch {
     pub fn apply_cosine_product(&mut self, normals: &[Vec3]) -> bool {
         if self.device.is_some() {
             // Device lanes: the lane kernels multiply (NPM only).
-            if self.device_family != Some(Family::Vmf) || self.device_len != normals.len() {
+            if self.device_family != Some(Family::Npm) || self.device_len != normals.len() {
                 return false;
             }
             self.device_normals.clear();
@@ -289,9 +289,7 @@ impl GuidingField {
         let mut selection = std::mem::take(&mut out.items.lane_selection);
         match d.decode(queries, &mut lanes, &mut selection) {
             Ok(()) => {
-                out.items.selection = with_field!(&self.inner, f => f
-                    .model()
-                    .selection_probability(f.ema_params(), &QueryPoint::default()));
+                out.items.selection = models::constant_selection(&self.inner);
                 out.items.lane_selection = selection;
                 out.device_len = queries.len();
                 out.device_family = Some(d.family);
@@ -450,10 +448,8 @@ impl GuidingField {
             });
         }
         let n = raw.len() / r;
-        if r == NPM_OUTPUTS {
-            out.items.selection = with_field!(&self.inner, f => f
-                .model()
-                .selection_probability(f.ema_params(), &QueryPoint::default()));
+        if models::family(&self.inner) == Family::Npm {
+            out.items.selection = models::constant_selection(&self.inner);
             let rows: Vec<[f32; NPM_OUTPUTS]> = raw
                 .chunks_exact(r)
                 .map(|c| c.try_into().unwrap_or([0.0; NPM_OUTPUTS]))

@@ -34,9 +34,7 @@
 
 use crate::error::GuidingError;
 use guiding_core::field::{Field, FieldConfig, FieldState, StepBackend, StepOutcome, UpdateReport};
-use guiding_core::model::nasg::NASG_OUTPUTS;
-use guiding_core::model::npm::NPM_OUTPUTS;
-use guiding_core::model::{GuidingModel, QueryPoint};
+use guiding_core::model::{Family, GuidingModel, QueryPoint};
 use guiding_core::sample::TrainingSample;
 pub use guiding_gpu::{DeviceSelection, GpuContext};
 use guiding_gpu::{GpuBuffer, GpuError, GpuModel, ModelEntryPoints, TrainOptions};
@@ -52,17 +50,6 @@ pub enum DeviceFailure {
     Error = 0,
     /// Go on on the CPU with the weights the device trained.
     FallbackToCpu = 1,
-}
-
-/// The decoded family, as the device runs it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum Family {
-    /// NPM: raw outputs resident, vMF lane kernels.
-    Vmf,
-    /// NASG: raw outputs resident, NASG lane kernels, selection read back.
-    Nasg,
-    /// DF: the whole model per sample / pdf call.
-    Df,
 }
 
 /// The lanes of a batch decoded on the device.
@@ -127,7 +114,7 @@ impl DeviceField {
         ctx: GpuContext,
         on_failure: DeviceFailure,
         prefix: &'static str,
-        raw_outputs: usize,
+        family: Family,
         model_bytes: &[u8],
         state: &FieldState,
     ) -> Result<Self, GuidingError> {
@@ -136,19 +123,9 @@ impl DeviceField {
             ctx.device_info().name,
             ctx.device_info().driver_info
         );
-        let family = match raw_outputs {
-            NPM_OUTPUTS => Family::Vmf,
-            NASG_OUTPUTS => Family::Nasg,
-            _ => Family::Df,
-        };
-        let raw = u32::try_from(raw_outputs)
-            .map_err(|_| GuidingError::Device("raw output count over 2^32".into()))?;
         let model = GpuModel::new(
             ctx,
-            ModelEntryPoints {
-                prefix,
-                raw_outputs: raw,
-            },
+            ModelEntryPoints { prefix, family },
             model_bytes,
             &state.params,
             &state.adam_m,
@@ -261,7 +238,7 @@ impl DeviceField {
     ) -> Result<(), GpuError> {
         let mut model = lock(&self.model);
         match (&decoded.raw, self.family) {
-            (Some(raw), Family::Vmf | Family::Nasg) => {
+            (Some(raw), Family::Npm | Family::Nasg) => {
                 model.sample_lanes(raw, lanes, normals, u, out)?;
             }
             (Some(vertices), Family::Df) => {
@@ -284,7 +261,7 @@ impl DeviceField {
     ) -> Result<(), GpuError> {
         let mut model = lock(&self.model);
         match (&decoded.raw, self.family) {
-            (Some(raw), Family::Vmf | Family::Nasg) => {
+            (Some(raw), Family::Npm | Family::Nasg) => {
                 model.pdf_lanes(raw, lanes, normals, directions, out)?;
             }
             (Some(vertices), Family::Df) => {

@@ -284,7 +284,7 @@ impl GuidingField {
             ctx,
             on_failure,
             models::kernel_prefix(&self.inner),
-            models::raw_outputs(&self.inner),
+            models::family(&self.inner),
             &self.model_bytes(),
             &state,
         )?;

@@ -14,7 +14,7 @@ use guiding_core::model::df::DfVertex;
 use guiding_core::model::nasg::{Nasg, NASG_LOBES};
 use guiding_core::model::npm::{Npm, NPM_LOBES};
 use guiding_core::model::wavefront::{DfTable, DfTableSums};
-use guiding_core::model::{GuidingModel, QueryPoint};
+use guiding_core::model::{Family, GuidingModel, QueryPoint};
 use guiding_core::pdf1d::Interpolation;
 
 pub use guiding_core::model::df::{DfCompactProduct, DfCompactRadiance};
@@ -274,7 +274,7 @@ impl<const IN: usize, const W: usize, const H: usize> Decode for Npm<IN, W, H> {
 
     fn decode_batch_into(&self, params: &[f32], queries: &[QueryPoint], out: &mut BatchItems) {
         out.clear();
-        out.selection = self.selection_probability(params, &QueryPoint::default());
+        out.selection = self.constant_selection_probability().unwrap_or(0.0);
         out.vmf.resize(queries.len(), VmfMixture::ZERO);
         self.decode_batch(params, queries, &mut out.vmf);
     }
@@ -317,7 +317,7 @@ impl<
 
     fn decode_batch_into(&self, params: &[f32], queries: &[QueryPoint], out: &mut BatchItems) {
         out.clear();
-        out.selection = self.selection_probability(params, &QueryPoint::default());
+        out.selection = self.constant_selection_probability().unwrap_or(0.0);
         out.df.resize(queries.len(), DfVertex::ZERO);
         self.decode_batch(params, queries, &mut out.df);
     }
@@ -423,13 +423,6 @@ macro_rules! any_field {
             }
         }
 
-        /// Raw network outputs per query of the model (0 for DF, whose
-        /// conditional network depends on the direction).
-        pub(crate) fn raw_outputs(field: &AnyField) -> usize {
-            match field {
-                $(AnyField::$prefix(_) => raw_outputs_of!($family),)*
-            }
-        }
     };
 }
 
@@ -443,19 +436,6 @@ macro_rules! family_matches {
     };
     (df, $rep:expr) => {
         matches!($rep, Representation::DfNearest | Representation::DfLinear)
-    };
-}
-
-/// Raw outputs per query of a family.
-macro_rules! raw_outputs_of {
-    (npm) => {
-        guiding_core::model::npm::NPM_OUTPUTS
-    };
-    (nasg) => {
-        guiding_core::model::nasg::NASG_OUTPUTS
-    };
-    (df) => {
-        0
     };
 }
 
@@ -498,16 +478,34 @@ guiding_core::for_each_model!(any_field);
 /// running [`guiding_core::model::RawOutputs::write_raw`]); `None` for DF.
 pub(crate) fn decode_raw(field: &AnyField, raw: &[f32]) -> Option<Decoded> {
     use guiding_core::batch::{nasg_mixture_from_raw, vmf_mixture_from_raw};
-    match raw_outputs(field) {
-        0 => None,
-        n if n == guiding_core::model::npm::NPM_OUTPUTS => Some(Decoded::Vmf {
+    match family(field) {
+        Family::Df => None,
+        Family::Npm => Some(Decoded::Vmf {
             mixture: vmf_mixture_from_raw(raw, 0),
-            selection: with_field!(field, f => f
-                .model()
-                .selection_probability(f.ema_params(), &QueryPoint::default())),
+            selection: constant_selection(field),
         }),
-        _ => Some(Decoded::Nasg(nasg_mixture_from_raw(raw, 0))),
+        Family::Nasg => Some(Decoded::Nasg(nasg_mixture_from_raw(raw, 0))),
     }
+}
+
+/// The family of the field's model type.
+pub(crate) fn family(field: &AnyField) -> Family {
+    fn of<M: GuidingModel>(_: &M) -> Family {
+        M::FAMILY
+    }
+    with_field!(field, f => of(f.model()))
+}
+
+/// Raw network outputs per query of the model (0 for DF, whose
+/// conditional network depends on the direction).
+pub(crate) fn raw_outputs(field: &AnyField) -> usize {
+    family(field).raw_outputs()
+}
+
+/// The model's constant selection probability (NPM, DF); 0 where it is
+/// learned per query (NASG: each lane carries its own).
+pub(crate) fn constant_selection(field: &AnyField) -> f32 {
+    with_field!(field, f => f.model().constant_selection_probability()).unwrap_or(0.0)
 }
 
 /// The model's bytes (`repr(C)` Pod): its grid box, layer offsets and

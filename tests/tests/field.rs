@@ -14,7 +14,7 @@ use guiding_core::lobe::DirectionSample;
 use guiding_core::loss::{kl_weight, Target};
 use guiding_core::math::INV_FOUR_PI;
 use guiding_core::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
-use guiding_core::model::{GuidingModel, QueryPoint};
+use guiding_core::model::{Family, GuidingModel, QueryPoint};
 use guiding_core::optim::all_finite;
 use guiding_core::rng::{hash2, symmetric_unit_f32};
 use guiding_core::sample::{Rejection, TrainingSample, REJECTION_KINDS};
@@ -47,6 +47,9 @@ impl TinyGrid {
 }
 
 impl GuidingModel for TinyGrid {
+    /// A vMF mixture per cell with a constant selection probability.
+    const FAMILY: Family = Family::Npm;
+
     fn param_count(&self) -> usize {
         self.res * self.res * self.res * PER_CELL
     }
@@ -67,6 +70,10 @@ impl GuidingModel for TinyGrid {
 
     fn selection_probability(&self, _params: &[f32], _query: &QueryPoint) -> f32 {
         0.5
+    }
+
+    fn constant_selection_probability(&self) -> Option<f32> {
+        Some(0.5)
     }
 
     fn accumulate_gradient<G: GradientSink + ?Sized>(
@@ -97,6 +104,7 @@ impl GuidingModel for TinyGrid {
 struct Empty;
 
 impl GuidingModel for Empty {
+    const FAMILY: Family = Family::Npm;
     fn param_count(&self) -> usize {
         0
     }
@@ -112,6 +120,9 @@ impl GuidingModel for Empty {
     }
     fn selection_probability(&self, _: &[f32], _: &QueryPoint) -> f32 {
         0.5
+    }
+    fn constant_selection_probability(&self) -> Option<f32> {
+        Some(0.5)
     }
     fn accumulate_gradient<G: GradientSink + ?Sized>(
         &self,

@@ -651,6 +651,8 @@ impl<
         const CACHE_HIDDEN: usize,
     > GuidingModel for Df<IN_M, IN_C, IN_R, WIDTH, HIDDEN, CACHE_WIDTH, CACHE_HIDDEN>
 {
+    const FAMILY: super::Family = super::Family::Df;
+
     /// The batched kernels of [`super::wavefront`].
     #[cfg(feature = "std")]
     fn accumulate_gradient_batch(
@@ -734,6 +736,10 @@ impl<
         let eps = square_from_direction(direction);
         let conditional = self.conditional_from(params, &base, eps.x);
         factorised::pdf(&marginal, &conditional, direction)
+    }
+
+    fn constant_selection_probability(&self) -> Option<f32> {
+        Some(clean_probability(self.selection_probability))
     }
 
     /// The configuration's constant.

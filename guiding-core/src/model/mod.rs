@@ -109,10 +109,39 @@ impl QueryPoint {
     }
 }
 
+/// The directional family a model decodes to: the model table's family
+/// column ([`for_each_model!`](crate::for_each_model)), known from the type
+/// ([`GuidingModel::FAMILY`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Family {
+    /// Neural Parametric Mixtures: a vMF mixture, constant selection probability.
+    Npm,
+    /// NASG mixtures with a learned selection probability.
+    Nasg,
+    /// Distribution factorisation (DF-N / DF-L): a conditional network per
+    /// direction, so no raw outputs per query.
+    Df,
+}
+
+impl Family {
+    /// Raw network outputs per query ([`RawOutputs::RAW_OUTPUTS`]); 0 for DF.
+    #[must_use]
+    pub const fn raw_outputs(self) -> usize {
+        match self {
+            Self::Npm => npm::NPM_OUTPUTS,
+            Self::Nasg => nasg::NASG_OUTPUTS,
+            Self::Df => 0,
+        }
+    }
+}
+
 /// The per-query kernels every guiding model provides. Generic code (the CPU
 /// runtime, shader entry points) is written against this trait; there is no
 /// `dyn` use of it.
 pub trait GuidingModel: Copy {
+    /// The family of the decoded distribution.
+    const FAMILY: Family;
+
     /// Number of `f32` parameters (the length of the flat buffer).
     fn param_count(&self) -> usize;
 
@@ -128,6 +157,10 @@ pub trait GuidingModel: Copy {
     /// Probability of sampling the guide rather than the BSDF at `query`
     /// (a learned value for NASG; a constant for the other models).
     fn selection_probability(&self, params: &[f32], query: &QueryPoint) -> f32;
+
+    /// The selection probability where it does not depend on the query (NPM
+    /// and DF: a constant of the model); `None` where it is learned (NASG).
+    fn constant_selection_probability(&self) -> Option<f32>;
 
     /// Adds the gradient of one sample's training loss (with respect to every
     /// parameter) into `grad` (length `param_count()`) and returns the loss.

@@ -243,6 +243,8 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Nasg<IN, WIDTH, H
 impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> GuidingModel
     for Nasg<IN, WIDTH, HIDDEN>
 {
+    const FAMILY: super::Family = super::Family::Nasg;
+
     /// The batched kernels of [`super::wavefront`].
     #[cfg(feature = "std")]
     fn accumulate_gradient_batch(
@@ -278,6 +280,11 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> GuidingModel
 
     fn pdf(&self, params: &[f32], query: &QueryPoint, direction: Vec3) -> f32 {
         self.decode(params, query).pdf(direction)
+    }
+
+    /// Learned per query (the network's last output).
+    fn constant_selection_probability(&self) -> Option<f32> {
+        None
     }
 
     /// The learned `c` ([`decode_selection`] of the last output); ½ for a too

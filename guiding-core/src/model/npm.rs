@@ -480,6 +480,8 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Npm<IN, WIDTH, HI
 impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> GuidingModel
     for Npm<IN, WIDTH, HIDDEN>
 {
+    const FAMILY: super::Family = super::Family::Npm;
+
     /// The batched kernels of [`super::wavefront`].
     #[cfg(feature = "std")]
     fn accumulate_gradient_batch(
@@ -516,6 +518,10 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> GuidingModel
 
     fn pdf(&self, params: &[f32], query: &QueryPoint, direction: Vec3) -> f32 {
         self.decode(params, query).pdf(direction)
+    }
+
+    fn constant_selection_probability(&self) -> Option<f32> {
+        Some(clean_probability(self.selection_probability))
     }
 
     /// The configuration's constant (NPM learns none).
