@@ -200,3 +200,68 @@ impl Continuations {
         self.pdf[i] = pdf;
     }
 }
+
+/// Guide samples to draw in one batched call: which decoded distribution, its random
+/// numbers, the vertex the sample continues, and (after the call) the samples.
+#[derive(Default)]
+pub(crate) struct GuideSampleQueue {
+    /// Index of the decoded distribution (the vertex's guidable index).
+    pub query: Vec<u32>,
+    /// The sample's two random numbers.
+    pub u: Vec<glam::Vec2>,
+    /// The vertex (index in [`Vertices`]) the sample continues.
+    pub vertex: Vec<u32>,
+    /// The samples, index-aligned with `query`.
+    pub out: Vec<guiding::DirectionSample>,
+}
+
+impl GuideSampleQueue {
+    /// Empties the queue (keeping its storage).
+    pub(crate) fn clear(&mut self) {
+        self.query.clear();
+        self.u.clear();
+        self.vertex.clear();
+        self.out.clear();
+    }
+
+    /// Queues a sample of distribution `query` with `u` for `vertex`.
+    #[inline]
+    pub(crate) fn push(&mut self, query: u32, u: glam::Vec2, vertex: u32) {
+        self.query.push(query);
+        self.u.push(u);
+        self.vertex.push(vertex);
+    }
+}
+
+/// Guide densities to evaluate in one batched call: which decoded distribution, the
+/// direction, the entry the density answers (a vertex or a light sample), and (after the
+/// call) the densities.
+#[derive(Default)]
+pub(crate) struct GuidePdfQueue {
+    /// Index of the decoded distribution (the vertex's guidable index).
+    pub query: Vec<u32>,
+    /// Unit direction whose density is asked.
+    pub dir: Vec<Vec3>,
+    /// The entry (vertex or light sample) the density answers.
+    pub entry: Vec<u32>,
+    /// The densities, index-aligned with `query`.
+    pub out: Vec<f32>,
+}
+
+impl GuidePdfQueue {
+    /// Empties the queue (keeping its storage).
+    pub(crate) fn clear(&mut self) {
+        self.query.clear();
+        self.dir.clear();
+        self.entry.clear();
+        self.out.clear();
+    }
+
+    /// Queues the density of distribution `query` at `dir` for `entry`.
+    #[inline]
+    pub(crate) fn push(&mut self, query: u32, dir: Vec3, entry: u32) {
+        self.query.push(query);
+        self.dir.push(dir);
+        self.entry.push(entry);
+    }
+}

@@ -69,7 +69,9 @@
 
 use crate::math::{Frame, Rng};
 use crate::render::image::RenderStats;
-use crate::render::queues::{Continuations, LightSamples, Vertices};
+use crate::render::queues::{
+    Continuations, GuidePdfQueue, GuideSampleQueue, LightSamples, Vertices,
+};
 use crate::render::schedule::Pass;
 use crate::render::strategy::bsdf::sample_bsdf;
 use crate::render::strategy::guide::describe;
@@ -479,13 +481,28 @@ impl std::fmt::Display for GuidedStats {
     }
 }
 
+/// Where a guided render is, in the order its passes go through.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    /// The schedule's training phase: passes record training samples.
+    Training,
+    /// Training has stopped; with the efficiency trial on, the next pass is its warm-up
+    /// (guide on, not judged).
+    Stopped,
+    /// Past the warm-up pass: the efficiency trial runs, or has decided (its verdict is in
+    /// the statistics).
+    Trial,
+    /// The training probe abandoned the guide: every pass from then on runs with it off.
+    Abandoned,
+}
+
 /// The guided strategy of one render: the guide (trained between passes, on the CPU or on
 /// its device with `--device gpu`: the same calls) and the statistics.
 pub struct Guided<'g> {
     guide: &'g mut GuidingField,
     gopts: GuidedOptions,
     stats: GuidedStats,
-    stopped: bool,
+    phase: Phase,
     /// The guide cache (see the module docs) and the samples of the latest training pass.
     cache: Option<GuideCache>,
     use_cache: bool,
@@ -494,8 +511,6 @@ pub struct Guided<'g> {
     last_mis: Vec<[f32; 3]>,
     /// The efficiency trial while it runs (created at its first pass, dropped at its verdict).
     trial: Option<GuideTrial>,
-    /// The warm-up pass after training has run (the trial starts after it).
-    trial_warm: bool,
     /// The trial arm of the current pass, if it is a trial pass.
     pass_arm: Option<TrialArm>,
     /// The current pass runs with the guide off (BSDF sampling and NEE only).
@@ -518,8 +533,6 @@ pub struct Guided<'g> {
     /// The first training pass that started after the probe's [`probe::MIN_STEPS`], and the
     /// steps before it.
     probe_pass: Option<(u32, u64)>,
-    /// The probe abandoned the guide: every pass from then on runs with it off.
-    abandoned: bool,
     /// The library's training schedule.
     schedule: TrainingSchedule,
 }
@@ -571,13 +584,12 @@ impl<'g> Guided<'g> {
                 cache,
                 ..GuidedStats::default()
             },
-            stopped: false,
+            phase: Phase::Training,
             cache: None,
             use_cache,
             last_samples: Vec::new(),
             last_mis: Vec::new(),
             trial: None,
-            trial_warm: false,
             pass_arm: None,
             guide_off: false,
             combiner: None,
@@ -588,7 +600,6 @@ impl<'g> Guided<'g> {
             cached_query_seconds: 0.0,
             cached_traced_seconds: 0.0,
             probe_pass: None,
-            abandoned: false,
             schedule,
         })
     }
@@ -598,16 +609,19 @@ impl<'g> Guided<'g> {
     fn plan_trial_pass(&mut self) {
         self.pass_arm = None;
         self.guide_off = false;
-        if self.abandoned {
-            self.guide_off = true;
-            return;
-        }
-        if !(self.stopped && self.gopts.efficiency_trial) {
-            return;
-        }
-        if !self.trial_warm {
-            self.trial_warm = true;
-            return;
+        match self.phase {
+            Phase::Abandoned => {
+                self.guide_off = true;
+                return;
+            }
+            Phase::Training => return,
+            _ if !self.gopts.efficiency_trial => return,
+            Phase::Stopped => {
+                // The warm-up pass.
+                self.phase = Phase::Trial;
+                return;
+            }
+            Phase::Trial => {}
         }
         let t = self.stats.trial.get_or_insert_with(TrialStats::default);
         match t.verdict {
@@ -734,7 +748,7 @@ impl<'g> Guided<'g> {
     /// Ends training (if the schedule has not) and returns the statistics, with the driver's
     /// totals `rs`.
     pub fn finish(self, rs: &RenderStats) -> GuidedStats {
-        if !self.stopped {
+        if self.phase == Phase::Training {
             self.guide.stop_training();
         }
         let mut stats = self.stats;
@@ -794,16 +808,10 @@ pub struct GuidedWorker<'g> {
     decoded: DistributionBatch,
     normals: Vec<Vec3>,
     selection: Vec<f32>,
-    /// Guide samples: guidable index, random numbers, vertex.
-    sample_query: Vec<u32>,
-    sample_u: Vec<Vec2>,
-    sample_vertex: Vec<u32>,
-    sample_out: Vec<DirectionSample>,
-    /// Guide pdf evaluations: guidable index, direction, the entry they answer.
-    pdf_query: Vec<u32>,
-    pdf_dir: Vec<Vec3>,
-    pdf_entry: Vec<u32>,
-    pdf_out: Vec<f32>,
+    /// Guide samples of the bounce, drawn in one batched call.
+    samples: GuideSampleQueue,
+    /// Guide densities of the bounce (BSDF directions or light samples), one batched call.
+    pdfs: GuidePdfQueue,
     /// Guide pdf of each vertex's continuation direction.
     guide_pdf: Vec<f32>,
 }
@@ -835,14 +843,8 @@ impl<'g> GuidedWorker<'g> {
             decoded: DistributionBatch::new(),
             normals: Vec::new(),
             selection: Vec::new(),
-            sample_query: Vec::new(),
-            sample_u: Vec::new(),
-            sample_vertex: Vec::new(),
-            sample_out: Vec::new(),
-            pdf_query: Vec::new(),
-            pdf_dir: Vec::new(),
-            pdf_entry: Vec::new(),
-            pdf_out: Vec::new(),
+            samples: GuideSampleQueue::default(),
+            pdfs: GuidePdfQueue::default(),
             guide_pdf: Vec::new(),
         }
     }
@@ -856,29 +858,22 @@ impl<'g> GuidedWorker<'g> {
     /// the decoded distributions (zeros where it failed: a device failure, and the render
     /// ends with it after the pass).
     fn eval_queued_pdfs(&mut self) {
-        self.pdf_out.clear();
-        self.pdf_out.resize(self.pdf_query.len(), 0.0);
+        let q = &mut self.pdfs;
+        q.out.clear();
+        q.out.resize(q.query.len(), 0.0);
         let t0 = Instant::now();
-        if let Err(e) = self.guide.pdf_decoded(
-            &self.decoded,
-            &self.pdf_query,
-            &self.pdf_dir,
-            &mut self.pdf_out,
-        ) {
-            self.pdf_out.fill(0.0);
-            self.record_error(e);
+        if let Err(e) = self
+            .guide
+            .pdf_decoded(&self.decoded, &q.query, &q.dir, &mut q.out)
+        {
+            q.out.fill(0.0);
+            self.report.device_error.get_or_insert(e);
         }
-        for p in &mut self.pdf_out {
+        for p in &mut q.out {
             *p = if p.is_finite() { p.max(0.0) } else { 0.0 };
         }
-        self.report.queries += self.pdf_query.len() as u64;
+        self.report.queries += q.query.len() as u64;
         self.report.query_time += t0.elapsed();
-    }
-
-    fn clear_pdf_queue(&mut self) {
-        self.pdf_query.clear();
-        self.pdf_dir.clear();
-        self.pdf_entry.clear();
     }
 }
 
@@ -971,23 +966,22 @@ impl VertexStrategy for GuidedWorker<'_> {
     }
 
     fn light_pdfs(&mut self, _: &Vertices, lights: &mut LightSamples) {
-        self.clear_pdf_queue();
+        self.pdfs.clear();
         for k in 0..lights.len() {
             let qi = self.guided_index[lights.vertex[k] as usize];
             // c = 0 (a fitted cell where the guide does not pay): the BSDF density alone.
             if qi != NONE && !lights.light[k].delta && self.selection[qi as usize] > 0.0 {
-                self.pdf_query.push(qi);
-                self.pdf_dir.push(lights.light[k].wo);
-                self.pdf_entry.push(k as u32);
+                self.pdfs.push(qi, lights.light[k].wo, k as u32);
             }
         }
         self.eval_queued_pdfs();
         lights.sampling_pdf.clear();
         lights.sampling_pdf.extend_from_slice(&lights.bsdf_pdf);
-        for e in 0..self.pdf_entry.len() {
-            let k = self.pdf_entry[e] as usize;
-            let c = self.selection[self.pdf_query[e] as usize];
-            lights.sampling_pdf[k] = c * self.pdf_out[e] + (1.0 - c) * lights.bsdf_pdf[k];
+        let q = &self.pdfs;
+        for e in 0..q.entry.len() {
+            let k = q.entry[e] as usize;
+            let c = self.selection[q.query[e] as usize];
+            lights.sampling_pdf[k] = c * q.out[e] + (1.0 - c) * lights.bsdf_pdf[k];
         }
     }
 
@@ -997,10 +991,8 @@ impl VertexStrategy for GuidedWorker<'_> {
 
     fn sample(&mut self, verts: &Vertices, rng: &mut [Rng], out: &mut Continuations) {
         let n = verts.len();
-        self.sample_query.clear();
-        self.sample_u.clear();
-        self.sample_vertex.clear();
-        self.clear_pdf_queue();
+        self.samples.clear();
+        self.pdfs.clear();
         self.guide_pdf.clear();
         self.guide_pdf.resize(n, 0.0);
         // Technique selection: the guide with probability `c`, else the BSDF.
@@ -1009,52 +1001,42 @@ impl VertexStrategy for GuidedWorker<'_> {
             let rng = &mut rng[verts.slot[i] as usize];
             if qi != NONE && rng.next_f32() < self.selection[qi as usize] {
                 let _ = rng.next_f32(); // the BSDF's lobe choice, unused
-                self.sample_query.push(qi);
-                self.sample_u
-                    .push(Vec2::new(rng.next_f32(), rng.next_f32()));
-                self.sample_vertex.push(i as u32);
+                let u = Vec2::new(rng.next_f32(), rng.next_f32());
+                self.samples.push(qi, u, i as u32);
                 continue;
             }
             sample_bsdf(verts, i, rng, out);
             if qi != NONE && self.selection[qi as usize] > 0.0 && out.wi[i] != Vec3::ZERO {
-                self.pdf_query.push(qi);
-                self.pdf_dir.push(out.wi[i]);
-                self.pdf_entry.push(i as u32);
+                self.pdfs.push(qi, out.wi[i], i as u32);
             }
         }
         // Guide samples and the guide pdfs of the BSDF's directions, one batched call each.
         let t0 = Instant::now();
-        self.sample_out.clear();
-        self.sample_out.resize(
-            self.sample_query.len(),
-            DirectionSample {
-                direction: Vec3::ZERO,
-                pdf: 0.0,
-            },
-        );
-        if let Err(e) = self.guide.sample_decoded(
-            &self.decoded,
-            &self.sample_query,
-            &self.sample_u,
-            &mut self.sample_out,
-        ) {
-            self.sample_out.fill(DirectionSample {
-                direction: Vec3::ZERO,
-                pdf: 0.0,
-            });
-            self.record_error(e);
+        let none = DirectionSample {
+            direction: Vec3::ZERO,
+            pdf: 0.0,
+        };
+        let s = &mut self.samples;
+        s.out.clear();
+        s.out.resize(s.query.len(), none);
+        if let Err(e) = self
+            .guide
+            .sample_decoded(&self.decoded, &s.query, &s.u, &mut s.out)
+        {
+            s.out.fill(none);
+            self.report.device_error.get_or_insert(e);
         }
-        for (ds, &i) in self.sample_out.iter().zip(&self.sample_vertex) {
+        for (ds, &i) in s.out.iter().zip(&s.vertex) {
             if ds.direction.is_finite() && ds.pdf.is_finite() && ds.pdf > 0.0 {
                 out.wi[i as usize] = ds.direction.normalize();
                 self.guide_pdf[i as usize] = ds.pdf;
             }
         }
-        self.report.queries += self.sample_query.len() as u64;
+        self.report.queries += s.query.len() as u64;
         self.report.query_time += t0.elapsed();
         self.eval_queued_pdfs();
-        for e in 0..self.pdf_entry.len() {
-            self.guide_pdf[self.pdf_entry[e] as usize] = self.pdf_out[e];
+        for e in 0..self.pdfs.entry.len() {
+            self.guide_pdf[self.pdfs.entry[e] as usize] = self.pdfs.out[e];
         }
         // Weights with the combined density of the guided vertices.
         for i in 0..n {
@@ -1106,11 +1088,13 @@ impl<'g> Strategy for Guided<'g> {
             .schedule
             .in_training_phase(pass.elapsed.as_secs_f64(), pass.index);
         // (Once stopped, by the schedule or the probe, the field counts as converged.)
-        let converged = !self.stopped && self.guide.is_converged();
+        let training = self.phase == Phase::Training;
+        let converged = training && self.guide.is_converged();
         if train && converged && self.stats.converged_at_pass.is_none() {
             self.stats.converged_at_pass = Some(pass.index);
         }
-        let mut record = train && !converged && !self.stopped;
+        let mut record = train && !converged && training;
+        let mut abandoned = false;
         let probe_pending = self.stats.probe.is_some_and(|p| p.verdict.is_none());
         if record && self.probe_on() && probe_pending {
             if let Some(verdict) = self.run_probe(pass.index) {
@@ -1119,18 +1103,22 @@ impl<'g> Strategy for Guided<'g> {
                 }
                 if verdict.abandoned {
                     record = false;
-                    self.abandoned = true;
+                    abandoned = true;
                 }
             } else if probe::picks_pass(self.guide.stats().steps, self.probe_pass) {
                 // This pass is the guided pass the probe will judge.
                 self.probe_pass = Some((pass.index, self.guide.stats().steps));
             }
         }
-        if !record && !self.stopped {
+        if !record && training {
             self.schedule.end_training();
             self.guide.stop_training();
-            self.stopped = true;
-            if self.use_cache && !self.abandoned {
+            self.phase = if abandoned {
+                Phase::Abandoned
+            } else {
+                Phase::Stopped
+            };
+            if self.use_cache && !abandoned {
                 let samples = std::mem::take(&mut self.last_samples);
                 let points = query_points(&samples);
                 // Only a bug makes this fail (radiance target and resolution checked): the
@@ -1174,7 +1162,7 @@ impl<'g> Strategy for Guided<'g> {
             self.guide_off = true;
             self.stats.probe = Some(ProbeStats::default());
         }
-        if probe_pass || self.abandoned {
+        if probe_pass || self.phase == Phase::Abandoned {
             self.stats
                 .probe
                 .get_or_insert_with(ProbeStats::default)
