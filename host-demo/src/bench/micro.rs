@@ -203,12 +203,7 @@ fn guided_vertex(quick: bool) -> Result<Vec<MicroResult>, guiding::GuidingError>
     } else {
         &[ModelSize::Compact, ModelSize::Paper]
     };
-    const N: usize = BATCH;
-    let queries: Vec<QueryPoint> = queries(23, N);
-    let us = unit_pairs(29, N);
-    let lanes: Vec<u32> = (0..N as u32).collect();
-    let lanes2: Vec<u32> = (0..2 * N as u32).map(|i| i % N as u32).collect();
-    let dirs: Vec<Vec3> = directions(31, 2 * N);
+    let inputs = VertexInputs::new();
     let ray = door_ray_ns(repeats);
     let mut out = Vec::new();
     if let Some(r) = ray {
@@ -224,147 +219,253 @@ fn guided_vertex(quick: bool) -> Result<Vec<MicroResult>, guiding::GuidingError>
     for &size in sizes {
         for rep in Representation::ALL {
             for target in [guiding::Target::Radiance, guiding::Target::Product] {
-                let config = GuidingConfig {
-                    representation: rep,
-                    target,
-                    ..GuidingConfig::npm_radiance()
-                }
-                .with_size(size)
-                .with_training(FieldConfig::DEFAULT.with_threads(1));
-                let field = GuidingField::new(config, [-1.0; 3], [1.0; 3])?;
-                let mut batch = guiding::DistributionBatch::new();
-                let mut samples = vec![
-                    guiding::DirectionSample {
-                        direction: Vec3::ZERO,
-                        pdf: 0.0
-                    };
-                    N
-                ];
-                let mut pdfs = vec![0.0f32; 2 * N];
-                let mut sel = vec![0.0f32; N];
-                let batched = median_secs(repeats, || {
-                    field.decode_batch(&queries, &mut batch);
-                    for (i, c) in sel.iter_mut().enumerate() {
-                        *c = batch.selection_probability(i);
-                    }
-                    let ok = field
-                        .sample_decoded(&batch, &lanes, &us, &mut samples)
-                        .is_ok()
-                        && field.pdf_decoded(&batch, &lanes2, &dirs, &mut pdfs).is_ok();
-                    black_box((ok, &samples, &pdfs, &sel));
-                });
-                let per_query = median_secs(repeats.min(3), || {
-                    let mut acc = 0.0f32;
-                    for (i, q) in queries.iter().enumerate() {
-                        let d = field.distribution(q);
-                        acc += d.selection_probability()
-                            + d.sample(us[i]).pdf
-                            + d.pdf(dirs[i])
-                            + d.pdf(dirs[N + i]);
-                    }
-                    black_box(acc);
-                });
-                // The guide cache (radiance targets): lookup with jitter instead of the
-                // network, the cosine product already in the lanes for NPM; then the same in
-                // a cache the size of a real scene's (tens of thousands of cells, megabytes:
-                // the lookups and lanes come from memory, not L2).
-                let options = guiding::CacheOptions {
-                    cosine_product: true,
-                    ..guiding::CacheOptions::default()
-                };
-                let mut time_cached =
-                    |cache: &guiding::GuideCache, queries: &[QueryPoint], jitter: &[Vec3]| {
-                        let mut missed = Vec::new();
-                        median_secs(repeats, || {
-                            let ok = cache
-                                .decode_batch(&field, queries, jitter, &mut batch, &mut missed)
-                                .is_ok();
-                            for (i, c) in sel.iter_mut().enumerate() {
-                                *c = batch.selection_probability(i);
-                            }
-                            let ok = ok
-                                && field
-                                    .sample_decoded(&batch, &lanes, &us, &mut samples)
-                                    .is_ok()
-                                && field.pdf_decoded(&batch, &lanes2, &dirs, &mut pdfs).is_ok();
-                            black_box((ok, &samples, &pdfs, &sel));
-                        })
-                    };
-                let radiance = target == guiding::Target::Radiance;
-                let cached = if radiance {
-                    let cache = field.build_cache(&queries, &options)?;
-                    Some(time_cached(&cache, &queries, &unit_points(37, N)))
-                } else {
-                    None
-                };
-                let large = if radiance && size == ModelSize::Compact {
-                    let points = guiding_bench::inputs::queries(41, LARGE_CACHE_POINTS);
-                    let cache = field.build_cache(&points, &options)?;
-                    // Queries at build points in a scattered order (an odd multiplier
-                    // permutes the power-of-two index range): every lookup hits a cell.
-                    let picks: Vec<QueryPoint> = (0..N)
-                        .map(|i| points[(i * 40_503 + 17) % LARGE_CACHE_POINTS])
-                        .collect();
-                    Some((
-                        cache.cells(),
-                        time_cached(&cache, &picks, &unit_points(43, N)),
-                    ))
-                } else {
-                    None
-                };
-                if let Some((cells, secs)) = large {
-                    let ns_l = secs * 1e9 / N as f64;
-                    out.push(MicroResult {
-                        group: "vertex",
-                        name: format!(
-                            "{rep:?} {size:?} {target:?}: guided vertex (guide cache of {cells} cells)"
-                        ),
-                        value: ns_l,
-                        unit: "ns (1 thread)",
-                        ratio: ray.map(|r| ns_l / r),
-                        note: format!(
-                            "× one ray; {N} scattered lookups in a cache built from \
-                             {LARGE_CACHE_POINTS} points (a real scene's size)"
-                        ),
-                    });
-                }
-                let ns = batched * 1e9 / N as f64;
-                let ns_q = per_query * 1e9 / N as f64;
-                if let Some(c) = cached {
-                    let ns_c = c * 1e9 / N as f64;
-                    out.push(MicroResult {
-                        group: "vertex",
-                        name: format!("{rep:?} {size:?} {target:?}: guided vertex (guide cache)"),
-                        value: ns_c,
-                        unit: "ns (1 thread)",
-                        ratio: ray.map(|r| ns_c / r),
-                        note: format!(
-                            "× one ray; jittered lookup in a {N}-cell cache (resolution 64{}), \
-                             {:.1}× faster than the batched decode",
-                            if matches!(rep, Representation::DfNearest | Representation::DfLinear) {
-                                ", tabulated DF cells"
-                            } else {
-                                ""
-                            },
-                            ns / ns_c
-                        ),
-                    });
-                }
-                out.push(MicroResult {
-                    group: "vertex",
-                    name: format!("{rep:?} {size:?} {target:?}: guided vertex (batched)"),
-                    value: ns,
-                    unit: "ns (1 thread)",
-                    ratio: ray.map(|r| ns / r),
-                    note: format!(
-                        "× one ray; per-query path {ns_q:.0} ns ({:.1}× the batched)",
-                        ns_q / ns
-                    ),
-                });
+                let model = VertexModel { rep, size, target };
+                out.extend(model.time(&inputs, repeats)?.results(&model, ray));
             }
         }
     }
     Ok(out)
+}
+
+/// Vertices of one batch of the vertex micro-benchmark.
+const N: usize = BATCH;
+
+/// The inputs of the vertex micro-benchmark, the same for every model: `N` query points and
+/// random pairs, the lanes of one guide sample per vertex and of two pdfs per vertex (the
+/// BSDF-sampled and the NEE direction) and those directions.
+struct VertexInputs {
+    queries: Vec<QueryPoint>,
+    us: Vec<Vec2>,
+    lanes: Vec<u32>,
+    lanes2: Vec<u32>,
+    dirs: Vec<Vec3>,
+}
+
+impl VertexInputs {
+    fn new() -> Self {
+        Self {
+            queries: queries(23, N),
+            us: unit_pairs(29, N),
+            lanes: (0..N as u32).collect(),
+            lanes2: (0..2 * N as u32).map(|i| i % N as u32).collect(),
+            dirs: directions(31, 2 * N),
+        }
+    }
+}
+
+/// What the timed vertex batches write: the decoded batch, the guide samples, the pdfs and
+/// the selection probabilities.
+struct VertexOutputs {
+    batch: guiding::DistributionBatch,
+    samples: Vec<guiding::DirectionSample>,
+    pdfs: Vec<f32>,
+    sel: Vec<f32>,
+}
+
+impl VertexOutputs {
+    fn new() -> Self {
+        Self {
+            batch: guiding::DistributionBatch::new(),
+            samples: vec![
+                guiding::DirectionSample {
+                    direction: Vec3::ZERO,
+                    pdf: 0.0
+                };
+                N
+            ],
+            pdfs: vec![0.0f32; 2 * N],
+            sel: vec![0.0f32; N],
+        }
+    }
+
+    /// The selection probability of every vertex of the decoded batch.
+    #[inline]
+    fn select(&mut self) {
+        for (i, c) in self.sel.iter_mut().enumerate() {
+            *c = self.batch.selection_probability(i);
+        }
+    }
+
+    /// One guide sample and two pdfs per vertex of the decoded batch; true if both worked.
+    #[inline]
+    fn sample_and_pdf(&mut self, field: &GuidingField, inputs: &VertexInputs) -> bool {
+        field
+            .sample_decoded(&self.batch, &inputs.lanes, &inputs.us, &mut self.samples)
+            .is_ok()
+            && field
+                .pdf_decoded(&self.batch, &inputs.lanes2, &inputs.dirs, &mut self.pdfs)
+                .is_ok()
+    }
+
+    /// Keeps the outputs (and `ok`) alive for the optimiser.
+    #[inline]
+    fn consume(&self, ok: bool) {
+        black_box((ok, &self.samples, &self.pdfs, &self.sel));
+    }
+}
+
+/// One guide of the vertex micro-benchmark.
+struct VertexModel {
+    rep: Representation,
+    size: ModelSize,
+    target: guiding::Target,
+}
+
+/// The median seconds of one batch of `N` vertices of a [`VertexModel`].
+struct VertexTimes {
+    /// Batched decode, selection, sample and pdfs.
+    batched: f64,
+    /// The same per query (`distribution` + `sample` + two `pdf`).
+    per_query: f64,
+    /// Radiance targets: lookups in a guide cache of the `N` query points instead of the
+    /// network.
+    cached: Option<f64>,
+    /// Compact radiance guides: scattered lookups in a cache the size of a real scene's, with
+    /// its cell count.
+    large: Option<(usize, f64)>,
+}
+
+impl VertexModel {
+    /// Builds the guide (untrained, one thread) and times its vertex batches.
+    fn time(
+        &self,
+        inputs: &VertexInputs,
+        repeats: usize,
+    ) -> Result<VertexTimes, guiding::GuidingError> {
+        let config = GuidingConfig {
+            representation: self.rep,
+            target: self.target,
+            ..GuidingConfig::npm_radiance()
+        }
+        .with_size(self.size)
+        .with_training(FieldConfig::DEFAULT.with_threads(1));
+        let field = GuidingField::new(config, [-1.0; 3], [1.0; 3])?;
+        let mut outputs = VertexOutputs::new();
+        let batched = median_secs(repeats, || {
+            field.decode_batch(&inputs.queries, &mut outputs.batch);
+            outputs.select();
+            let ok = outputs.sample_and_pdf(&field, inputs);
+            outputs.consume(ok);
+        });
+        let per_query = median_secs(repeats.min(3), || {
+            let mut acc = 0.0f32;
+            for (i, q) in inputs.queries.iter().enumerate() {
+                let d = field.distribution(q);
+                acc += d.selection_probability()
+                    + d.sample(inputs.us[i]).pdf
+                    + d.pdf(inputs.dirs[i])
+                    + d.pdf(inputs.dirs[N + i]);
+            }
+            black_box(acc);
+        });
+        // The guide cache (radiance targets): lookup with jitter instead of the
+        // network, the cosine product already in the lanes for NPM; then the same in
+        // a cache the size of a real scene's (tens of thousands of cells, megabytes:
+        // the lookups and lanes come from memory, not L2).
+        let options = guiding::CacheOptions {
+            cosine_product: true,
+            ..guiding::CacheOptions::default()
+        };
+        let mut time_cached =
+            |cache: &guiding::GuideCache, queries: &[QueryPoint], jitter: &[Vec3]| {
+                let mut missed = Vec::new();
+                median_secs(repeats, || {
+                    let ok = cache
+                        .decode_batch(&field, queries, jitter, &mut outputs.batch, &mut missed)
+                        .is_ok();
+                    outputs.select();
+                    let ok = ok && outputs.sample_and_pdf(&field, inputs);
+                    outputs.consume(ok);
+                })
+            };
+        let radiance = self.target == guiding::Target::Radiance;
+        let cached = if radiance {
+            let cache = field.build_cache(&inputs.queries, &options)?;
+            Some(time_cached(&cache, &inputs.queries, &unit_points(37, N)))
+        } else {
+            None
+        };
+        let large = if radiance && self.size == ModelSize::Compact {
+            let points = guiding_bench::inputs::queries(41, LARGE_CACHE_POINTS);
+            let cache = field.build_cache(&points, &options)?;
+            // Queries at build points in a scattered order (an odd multiplier
+            // permutes the power-of-two index range): every lookup hits a cell.
+            let picks: Vec<QueryPoint> = (0..N)
+                .map(|i| points[(i * 40_503 + 17) % LARGE_CACHE_POINTS])
+                .collect();
+            Some((
+                cache.cells(),
+                time_cached(&cache, &picks, &unit_points(43, N)),
+            ))
+        } else {
+            None
+        };
+        Ok(VertexTimes {
+            batched,
+            per_query,
+            cached,
+            large,
+        })
+    }
+}
+
+impl VertexTimes {
+    /// The report's entries in ns per vertex, each against one ray (`ray`, ns): the large
+    /// cache, the small cache, then the batched decode (with the per-query path in its note).
+    fn results(&self, model: &VertexModel, ray: Option<f64>) -> Vec<MicroResult> {
+        let VertexModel { rep, size, target } = model;
+        let mut out = Vec::new();
+        if let Some((cells, secs)) = self.large {
+            let ns_l = secs * 1e9 / N as f64;
+            out.push(MicroResult {
+                group: "vertex",
+                name: format!(
+                    "{rep:?} {size:?} {target:?}: guided vertex (guide cache of {cells} cells)"
+                ),
+                value: ns_l,
+                unit: "ns (1 thread)",
+                ratio: ray.map(|r| ns_l / r),
+                note: format!(
+                    "× one ray; {N} scattered lookups in a cache built from \
+                     {LARGE_CACHE_POINTS} points (a real scene's size)"
+                ),
+            });
+        }
+        let ns = self.batched * 1e9 / N as f64;
+        let ns_q = self.per_query * 1e9 / N as f64;
+        if let Some(c) = self.cached {
+            let ns_c = c * 1e9 / N as f64;
+            out.push(MicroResult {
+                group: "vertex",
+                name: format!("{rep:?} {size:?} {target:?}: guided vertex (guide cache)"),
+                value: ns_c,
+                unit: "ns (1 thread)",
+                ratio: ray.map(|r| ns_c / r),
+                note: format!(
+                    "× one ray; jittered lookup in a {N}-cell cache (resolution 64{}), \
+                     {:.1}× faster than the batched decode",
+                    if matches!(rep, Representation::DfNearest | Representation::DfLinear) {
+                        ", tabulated DF cells"
+                    } else {
+                        ""
+                    },
+                    ns / ns_c
+                ),
+            });
+        }
+        out.push(MicroResult {
+            group: "vertex",
+            name: format!("{rep:?} {size:?} {target:?}: guided vertex (batched)"),
+            value: ns,
+            unit: "ns (1 thread)",
+            ratio: ray.map(|r| ns / r),
+            note: format!(
+                "× one ray; per-query path {ns_q:.0} ns ({:.1}× the batched)",
+                ns_q / ns
+            ),
+        });
+        out
+    }
 }
 
 /// The MLP of NPM's paper size (`Mlp<32, 64, 32, 3>`, the criterion bench

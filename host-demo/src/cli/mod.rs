@@ -3,6 +3,7 @@
 
 mod bench;
 mod render;
+mod stats;
 
 use clap::{Parser, Subcommand, ValueEnum};
 use serde_json::json;

@@ -1,15 +1,19 @@
 //! `host-demo render`: one image, its statistics and its output files.
 
+use super::stats::{Budget, CommonStages, GuidedRun, OutputFiles, PlainRun, RunStats, StatsDoc};
 use super::{CacheArg, Cmd, DeviceArg, GuideArg, Integrator, OnOff, SizeArg, TargetArg};
 use guiding_core::field::{FieldConfig, PlateauConfig};
 use guiding_core::loss::Target;
 use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
-use host_demo::render::{render_guided, CacheMode, GuidedOptions};
+use host_demo::render::{render_guided, CacheMode, GuidedOptions, GuidedStats, Image};
 use host_demo::render::{render_with_stats, RenderStats};
 use host_demo::render::{IntegratorKind, RenderOptions};
-use serde_json::json;
+use host_demo::scene::Scene;
+use std::path::Path;
 use std::time::{Duration, Instant};
 
+/// `host-demo render`: checks the arguments, loads the scene, renders it, writes the EXR and
+/// its PNG preview, prints a summary and, with `--stats`, writes the statistics document.
 pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
     let Cmd::Render {
         scene,
@@ -53,109 +57,26 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
     else {
         unreachable!("render_cmd is only called for `render`");
     };
-    let bad = |m: String| Err(host_demo::Error::Scene(m));
     let Some(scene) = scene.or(scene_flag) else {
         return bad("no scene given (positional SCENE or --scene)".into());
     };
-    let time_budget = match time {
-        None => None,
-        Some(t) if t.is_finite() && (0.0..=1e7).contains(&t) => Some(Duration::from_secs_f64(t)),
-        Some(t) => return bad(format!("--time {t} is not a number of seconds in [0, 1e7]")),
-    };
-    // Every default is the library's: what an embedder gets is what this measures.
-    let representation = match guide {
-        GuideArg::Npm => guiding::Representation::Npm,
-        GuideArg::Nasg => guiding::Representation::Nasg,
-        GuideArg::DfN => guiding::Representation::DfNearest,
-        GuideArg::DfL => guiding::Representation::DfLinear,
-    };
-    let preset = guiding::GuidingConfig::for_representation(representation, Target::Radiance);
-    let mut schedule = guiding::ScheduleOptions::DEFAULT;
-    if let Some(f) = train_fraction {
-        schedule.train_fraction = f64::from(f);
+    let time_budget = time_budget(time)?;
+    let tuning = TuningArgs {
+        guide,
+        train_fraction,
+        training_share,
+        train_epochs,
+        selection_probability,
+        steps_per_update,
+        batch_size,
+        learning_rate,
+        plateau_window,
+        plateau_margin,
+        guide_cache_resolution,
     }
-    if let Some(s) = training_share {
-        schedule.steps = guiding::StepRule::TimeShare(s);
-    }
-    if let Some(e) = train_epochs {
-        schedule.steps = guiding::StepRule::Epochs(e);
-    }
-    if let Err(e) = schedule.validate() {
-        return bad(format!(
-            "--train-fraction / --training-share / --train-epochs: {e}"
-        ));
-    }
-    let selection_probability = selection_probability.unwrap_or(preset.selection_probability);
-    if !(0.0..=1.0).contains(&selection_probability) {
-        return bad(format!(
-            "--selection-probability {selection_probability} is not in [0, 1]"
-        ));
-    }
-    let steps_per_update = steps_per_update.unwrap_or(preset.training.steps_per_update);
-    if !(1..=10_000).contains(&steps_per_update) {
-        return bad(format!(
-            "--steps-per-update {steps_per_update} is not in [1, 10000]"
-        ));
-    }
-    let batch_size = batch_size.unwrap_or(preset.training.batch_size);
-    if !(1..=1 << 20).contains(&batch_size) {
-        return bad(format!("--batch-size {batch_size} is not in [1, 2^20]"));
-    }
-    let learning_rate = learning_rate.unwrap_or(preset.training.adam.learning_rate);
-    if !(learning_rate.is_finite() && learning_rate > 0.0) {
-        return bad(format!("--learning-rate {learning_rate} must be > 0"));
-    }
-    if !(1..=guiding::cache::MAX_CACHE_RESOLUTION).contains(&guide_cache_resolution) {
-        return bad(format!(
-            "--guide-cache-resolution {guide_cache_resolution} is not in [1, {}]",
-            guiding::cache::MAX_CACHE_RESOLUTION
-        ));
-    }
-    if !(plateau_margin.is_finite() && plateau_margin >= 0.0) {
-        return bad(format!("--plateau-margin {plateau_margin} must be >= 0"));
-    }
-    let mut params = Vec::new();
-    for d in &define {
-        match d.split_once('=') {
-            Some((k, v))
-                if !k.is_empty() && k.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') =>
-            {
-                params.push((k.to_string(), v.to_string()))
-            }
-            _ => {
-                return bad(format!(
-                    "-D {d}: expected NAME=VALUE (NAME of letters, digits, _)"
-                ))
-            }
-        }
-    }
-    let t0 = Instant::now();
-    let sc = host_demo::load_scene_with(
-        &scene,
-        &host_demo::scene::load::xml::LoadOptions { params, strict },
-    )?;
-    let load_s = t0.elapsed().as_secs_f64();
-    println!(
-        "loaded {} primitives, {} textures ({:.1} MiB of texel data) in {load_s:.3} s",
-        sc.prims.len(),
-        sc.textures.len(),
-        sc.texture_bytes as f64 / (1024.0 * 1024.0)
-    );
-    let (w, h) = match (width, height) {
-        (Some(w), Some(h)) => (w, h),
-        (Some(w), None) => (
-            w,
-            ((w as u64 * sc.settings.height as u64) / sc.settings.width as u64).max(1) as u32,
-        ),
-        (None, Some(h)) => (
-            ((h as u64 * sc.settings.width as u64) / sc.settings.height as u64).max(1) as u32,
-            h,
-        ),
-        (None, None) => (sc.settings.width, sc.settings.height),
-    };
-    if w == 0 || h == 0 || w > 1 << 15 || h > 1 << 15 {
-        return Err(host_demo::Error::Scene(format!("bad image size {w}x{h}")));
-    }
+    .resolve()?;
+    let (sc, load_s) = load(&scene, &define, strict)?;
+    let (w, h) = image_size(width, height, &sc.settings)?;
     let opts = RenderOptions {
         integrator: match integrator {
             Integrator::Pt => IntegratorKind::Pt,
@@ -172,369 +93,479 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         height: h,
     };
     let t1 = Instant::now();
-    let mut guided_stats = None;
-    let mut plain_stats = None;
-    let all_diffuse = all_materials_diffuse(&sc);
-    let img = if let Integrator::Guided = integrator {
-        let gopts = GuidedOptions {
-            nee: match nee {
-                Some(OnOff::On) => true,
-                Some(OnOff::Off) => false,
-                None => sc.has_samplable_emitter(),
-            },
-            schedule,
-            selection_probability,
-            cache: match guide_cache {
-                CacheArg::Off => CacheMode::Off,
-                CacheArg::Frozen => CacheMode::Frozen,
-                CacheArg::Always => CacheMode::Always,
-            },
-            cache_resolution: guide_cache_resolution,
-            fit_selection: matches!(fit_selection, OnOff::On),
-            efficiency_trial: matches!(guide_trial, OnOff::On),
-            weight_passes: matches!(pass_weights, OnOff::On),
-            training_probe: matches!(training_probe, OnOff::On),
-            ..GuidedOptions::default()
-        };
-        let kind = match guide {
-            GuideArg::Npm => GuideKind::Npm,
-            GuideArg::Nasg => GuideKind::Nasg,
-            GuideArg::DfN => GuideKind::DfN,
-            GuideArg::DfL => GuideKind::DfL,
-        };
-        let target = match target {
-            Some(TargetArg::Radiance) | None => Target::Radiance,
-            Some(TargetArg::Product) => Target::Product,
-        };
-        let size = match model_size {
-            SizeArg::Demo => ModelSize::Demo,
-            SizeArg::Small => ModelSize::Small,
-            SizeArg::Paper => ModelSize::Paper,
-        };
-        let config = FieldConfig::DEFAULT
-            .with_batch_size(batch_size)
-            .with_steps_per_update(steps_per_update)
-            .with_learning_rate(learning_rate)
-            .with_plateau(PlateauConfig::new(plateau_window, plateau_margin))
-            .with_threads(threads)
-            .with_seed(seed as u32);
-        let mut g = build_guide(
-            kind,
+    let (img, outcome) = if let Integrator::Guided = integrator {
+        let args = GuideArgs {
+            guide,
             target,
-            size,
-            sc.bounds(),
-            selection_probability,
-            config,
-        )?;
-        if device == DeviceArg::Gpu {
-            let selection: guiding::DeviceSelection = vk_device.parse()?;
-            let on_failure = if fallback_to_cpu {
-                guiding::DeviceFailure::FallbackToCpu
-            } else {
-                guiding::DeviceFailure::Error
-            };
-            g.use_device(selection, on_failure)?;
-            eprintln!("guide on {}", g.device_name().unwrap_or_default());
-        }
-        let (img, stats) = render_guided(&sc, &opts, &gopts, &mut g)?;
-        guided_stats = Some((stats, target, gopts));
-        img
+            model_size,
+            guide_cache,
+            fit_selection,
+            guide_trial,
+            pass_weights,
+            training_probe,
+            nee,
+            device,
+            fallback_to_cpu,
+            vk_device,
+        };
+        run_guided(&sc, &opts, &tuning, args)?
     } else {
         let (img, stats) = render_with_stats(&sc, &opts);
-        plain_stats = Some(stats);
-        img
+        (img, Outcome::Plain(stats))
     };
     let render_s = t1.elapsed().as_secs_f64();
-    host_demo::render::output::write_exr(&img, &out)?;
-    let png = out.with_extension("png");
-    host_demo::render::output::write_png(&img, &png)?;
-    let m = img.mean();
-    let se = img.mean_std_error();
-    println!(
-        "{scene}: {}x{} {} spp max_depth {} ({} prims, {} emitters)",
-        w,
-        h,
-        img_spp(&plain_stats, &guided_stats),
-        opts.max_depth,
-        sc.prims.len(),
-        sc.emitter_count()
-    );
-    println!(
-        "mean RGB = ({:.4}, {:.4}, {:.4})  std.err = ({:.4}, {:.4}, {:.4})",
-        m[0], m[1], m[2], se[0], se[1], se[2]
-    );
-    let var: f64 = img
-        .var_of_mean
-        .iter()
-        .map(|v| v.iter().map(|&c| c as f64).sum::<f64>())
-        .sum::<f64>()
-        / (3.0 * img.var_of_mean.len().max(1) as f64);
-    println!("mean per-pixel variance of the estimate = {var:.4e}");
-    if let Some((st, _, _)) = &guided_stats {
-        println!("{st}");
-    }
-    println!(
-        "load {load_s:.3} s, render {render_s:.3} s, wrote {} and {}",
-        out.display(),
-        png.display()
-    );
+    let png = write_images(&img, &out)?;
+    let done = Finished {
+        scene: &scene,
+        integrator,
+        sc: &sc,
+        opts: &opts,
+        define: &define,
+        mean: img.mean(),
+        std_error: img.mean_std_error(),
+        img: &img,
+        outcome: &outcome,
+        load_s,
+        render_s,
+        out: &out,
+        png: &png,
+    };
+    done.print_summary();
     if let Some(path) = stats_path {
-        let threads = opts.thread_count();
-        let mut doc = json!({
-            "scene": scene,
-            "integrator": match integrator {
-                Integrator::Pt => "pt",
-                Integrator::PtNee => "pt-nee",
-                Integrator::Guided => "guided",
-            },
-            "width": w,
-            "height": h,
-            "max_depth": opts.max_depth,
-            "seed": seed,
-            "threads": threads,
-            "budget": match time_budget {
-                Some(t) => json!({"time_s": t.as_secs_f64()}),
-                None => json!({"spp": opts.spp}),
-            },
-            "load_s": load_s,
-            "primitives": sc.prims.len(),
-            "texture_bytes": sc.texture_bytes,
-            "params": define,
-            "load_warnings": sc.warnings,
-            "mean_rgb": m,
-            "mean_std_error_rgb": se,
-            "output": {"exr": out.display().to_string(), "png": png.display().to_string()},
-        });
-        let (nee_ran, nee_asked) = match (&plain_stats, &guided_stats) {
-            (Some(p), _) => (p.nee, integrator == Integrator::PtNee),
-            (_, Some((g, _, go))) => (g.nee, go.nee),
-            _ => (false, false),
-        };
-        let nee_reason = if nee_ran {
-            "NEE + MIS on every non-delta vertex (delta BSDFs are not connected)"
-        } else if !nee_asked {
-            "not requested (integrator pt or --nee off)"
-        } else {
-            "skipped: the scene has no emitter NEE can sample"
-        };
-        let rr_stage = json!({"ran": rr, "rr_depth": sc.settings.rr_depth});
-        if let Some(p) = &plain_stats {
-            let wall = p.wall.as_secs_f64();
-            doc["spp"] = json!(p.passes);
-            doc["time_s"] =
-                json!({"wall": wall, "tracing": wall, "inference": 0.0, "training": 0.0});
-            doc["rays"] = json!(p.rays);
-            doc["rays_per_second"] = json!(p.rays as f64 / wall.max(1e-9));
-            doc["training_samples_used"] = json!(0);
-            doc["stages"] = json!({
-                "nee": {"ran": nee_ran, "reason": nee_reason},
-                "guiding": {"ran": false, "reason": "unguided integrator"},
-                "product_inputs": {"ran": false, "reason": "unguided integrator"},
-                "training": {"ran": false, "reason": "unguided integrator"},
-                "russian_roulette": rr_stage,
-            });
-        }
-        if let Some((g, target, _)) = &guided_stats {
-            let trace = g.trace.as_secs_f64();
-            // Guide queries run inside the render threads: their thread-seconds divided by
-            // the thread count estimate their share of the tracing wall time.
-            let inference = (g.query.as_secs_f64() / threads as f64).min(trace);
-            let training = g.training.as_secs_f64();
-            let cache_build = g.cache_build.as_secs_f64();
-            // The render's own clock: also the per-pass bookkeeping and the final combination
-            // ("other" below), which the parts leave out.
-            let wall = g.wall.as_secs_f64().max(trace + training + cache_build);
-            let used = g
-                .samples_recorded
-                .saturating_sub(g.rejected_samples + g.overflowed_samples);
-            let product = matches!(target, Target::Product);
-            doc["spp"] = json!(g.passes);
-            doc["guide"] = json!(g.model);
-            doc["device"] = json!(g.device);
-            doc["time_s"] = json!({
-                "wall": wall,
-                "tracing": trace - inference,
-                "inference": inference,
-                "inference_thread_s": g.query.as_secs_f64(),
-                "training": training,
-                "cache_build": cache_build,
-                "other": wall - trace - training - cache_build,
-            });
-            doc["rays"] = json!(g.rays);
-            doc["rays_per_second"] = json!(g.rays as f64 / wall.max(1e-9));
-            doc["training_samples_used"] = json!(used);
-            doc["training_samples"] = json!({
-                "recorded": g.samples_recorded,
-                "rejected": g.rejected_samples,
-                "overflowed": g.overflowed_samples,
-                "recorded_after_training": g.samples_recorded_after_training,
-            });
-            doc["stages"] = json!({
-                "nee": {"ran": nee_ran, "reason": nee_reason},
-                "guiding": {
-                    "ran": g.guided_vertices > 0,
-                    "guided_vertices": g.guided_vertices,
-                    "guide_queries": g.guide_queries,
-                    "reason": "delta, smooth-coated and near-specular vertices use BSDF sampling only",
-                },
-                "product_inputs": {
-                    "ran": product,
-                    "all_materials_diffuse": all_diffuse,
-                    "reason": if !product {
-                        "skipped: the radiance target (the default) reads no product inputs"
-                    } else if all_diffuse {
-                        "product target requested explicitly although every material is diffuse"
-                    } else {
-                        "product target"
-                    },
-                },
-                "training": {
-                    "ran": g.training_passes > 0,
-                    "passes": g.training_passes,
-                    "stopped_after_pass": g.training_passes,
-                    "planned_passes": g.passes_planned_for_training,
-                    "converged_at_pass": g.converged_at_pass,
-                    "skipped_passes": g.passes_planned_for_training.saturating_sub(g.training_passes),
-                    "loss_history": g.loss_history,
-                    "steps": g.training_steps,
-                    "steps_after_stop": g.training_steps_after_training,
-                    "last_loss": finite(g.last_loss),
-                    "schedule": {
-                        "updates": g.schedule.updates,
-                        "steps": g.schedule.steps,
-                        "seconds_per_step": finite(g.schedule.seconds_per_step),
-                        "training_seconds": g.schedule.trained_seconds,
-                        "training_phase_tracing_seconds": g.schedule.traced_seconds,
-                        "training_share": finite(g.schedule.training_share()),
-                    },
-                },
-                "russian_roulette": rr_stage,
-                "efficiency_trial": trial_json(g.trial.as_ref()),
-                "pass_weights": pass_weights_json(g.pass_weights.as_ref()),
-                "training_probe": probe_json(g.probe.as_ref()),
-                "guide_cache": {
-                    "ran": g.cache_hits > 0,
-                    "mode": g.cache,
-                    "cells": g.cache_cells,
-                    "hits": g.cache_hits,
-                    "misses": g.cache_misses,
-                },
-                "selection_fit": g.selection_fit.map_or(serde_json::Value::Null, |r| json!({
-                    "guide_cost": g.guide_cost.map(f64::from).map(finite),
-                    "samples_used": r.samples_used,
-                    "cells_fitted": r.cells_fitted,
-                    "cells_off": r.cells_off,
-                    "cells_global": r.cells_global,
-                    "global": f64::from(r.global),
-                    "mean": f64::from(r.mean),
-                    "variance_ratio": finite(r.variance_ratio),
-                })),
-                "selection_refit": g.selection_refit.map_or(serde_json::Value::Null, |(share, r)| json!({
-                    "variance_share": f64::from(share),
-                    "cells_off": r.cells_off,
-                    "global": f64::from(r.global),
-                    "mean": f64::from(r.mean),
-                    "variance_ratio": finite(r.variance_ratio),
-                })),
-            });
-        }
-        let text = format!("{doc:#}\n");
-        std::fs::write(&path, text).map_err(|source| host_demo::Error::Io {
-            path: path.clone(),
-            source,
-        })?;
+        done.write_stats(&path)?;
     }
     Ok(())
 }
 
-/// A JSON number, or `null` where it is not finite (JSON has no NaN or infinity).
-fn finite(x: f64) -> serde_json::Value {
-    if x.is_finite() {
-        json!(x)
-    } else {
-        json!(null)
+/// A scene error with message `m` (the error of every bad argument).
+fn bad<T>(m: String) -> host_demo::Result<T> {
+    Err(host_demo::Error::Scene(m))
+}
+
+/// `--time`: a number of seconds in [0, 1e7], or no time budget.
+fn time_budget(time: Option<f64>) -> host_demo::Result<Option<Duration>> {
+    match time {
+        None => Ok(None),
+        Some(t) if t.is_finite() && (0.0..=1e7).contains(&t) => {
+            Ok(Some(Duration::from_secs_f64(t)))
+        }
+        Some(t) => bad(format!("--time {t} is not a number of seconds in [0, 1e7]")),
     }
 }
 
-/// The `--stats` entry of the efficiency trial.
-fn trial_json(t: Option<&host_demo::render::TrialStats>) -> serde_json::Value {
-    let Some(t) = t else {
-        return json!({"ran": false, "reason": "off, an spp budget, or training never stopped"});
-    };
-    match &t.verdict {
-        None => json!({"ran": true, "finished": false, "passes": t.passes}),
-        Some(v) => json!({
-            "ran": true,
-            "finished": true,
-            "passes": t.passes,
-            "keep_guide": v.keep_guide,
-            "evidence": format!("{:?}", v.evidence),
-            "cost_ratio_interval": [finite(v.ratio_low), finite(v.ratio_high)],
-            "guided_relmse_per_pass": finite(v.guided_variance),
-            "unguided_relmse_per_pass": finite(v.unguided_variance),
-            "guided_seconds_per_pass": v.guided_seconds,
-            "unguided_seconds_per_pass": v.unguided_seconds,
-            "cost_ratio": finite(v.cost_ratio),
-            "pixels_skipped": v.pixels_skipped,
-            "passes_guide_off": t.passes_guide_off,
-        }),
-    }
+/// Loads the scene with the `-D` parameters `define` and prints what it holds; returns it with
+/// the seconds the loading took.
+fn load(scene: &str, define: &[String], strict: bool) -> host_demo::Result<(Scene, f64)> {
+    let params = parse_defines(define)?;
+    let t0 = Instant::now();
+    let sc = host_demo::load_scene_with(
+        scene,
+        &host_demo::scene::load::xml::LoadOptions { params, strict },
+    )?;
+    let load_s = t0.elapsed().as_secs_f64();
+    println!(
+        "loaded {} primitives, {} textures ({:.1} MiB of texel data) in {load_s:.3} s",
+        sc.prims.len(),
+        sc.textures.len(),
+        sc.texture_bytes as f64 / (1024.0 * 1024.0)
+    );
+    Ok((sc, load_s))
 }
 
-/// The `--stats` entry of the training probe.
-fn probe_json(p: Option<&host_demo::render::ProbeStats>) -> serde_json::Value {
-    let Some(p) = p else {
-        return json!({"ran": false, "reason": "off, or the efficiency trial is off"});
-    };
-    match &p.verdict {
-        None => json!({"ran": true, "finished": false, "passes_guide_off": p.passes_guide_off}),
-        Some(v) => json!({
-            "ran": true,
-            "finished": true,
-            "at_pass": v.at_pass,
-            "abandoned": v.abandoned,
-            "guided_pass": v.guided_pass,
-            "steps_before_guided_pass": v.steps,
-            "guided_relmse_per_pass": finite(v.ratio.guided_variance),
-            "unguided_relmse_per_pass": finite(v.ratio.unguided_variance),
-            "unguided_seconds_per_pass": v.unguided_seconds,
-            "guided_seconds_per_pass_after_training": v.guided_seconds,
-            "cost_ratio": finite(v.ratio.ratio),
-            "cost_ratio_interval": [finite(v.ratio.low), finite(v.ratio.high)],
-            "passes_guide_off": p.passes_guide_off,
-        }),
-    }
+/// Writes the image to `out` (EXR) and its preview next to it (PNG); returns the PNG's path.
+fn write_images(img: &Image, out: &Path) -> host_demo::Result<std::path::PathBuf> {
+    host_demo::render::output::write_exr(img, out)?;
+    let png = out.with_extension("png");
+    host_demo::render::output::write_png(img, &png)?;
+    Ok(png)
 }
 
-/// The `--stats` entry of the inverse-variance combination of the passes.
-fn pass_weights_json(w: Option<&host_demo::render::PassWeightStats>) -> serde_json::Value {
-    let Some(w) = w else {
-        return json!({"ran": false, "reason": "off, or a single group of passes"});
+/// The `-D NAME=VALUE` scene parameters as (name, value) pairs.
+fn parse_defines(define: &[String]) -> host_demo::Result<Vec<(String, String)>> {
+    let mut params = Vec::new();
+    for d in define {
+        match d.split_once('=') {
+            Some((k, v))
+                if !k.is_empty() && k.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') =>
+            {
+                params.push((k.to_string(), v.to_string()))
+            }
+            _ => {
+                return bad(format!(
+                    "-D {d}: expected NAME=VALUE (NAME of letters, digits, _)"
+                ))
+            }
+        }
+    }
+    Ok(params)
+}
+
+/// The image size from `--width` / `--height`: one of them keeps the scene's aspect ratio,
+/// neither gives the scene's size; each side in [1, 2^15].
+fn image_size(
+    width: Option<u32>,
+    height: Option<u32>,
+    settings: &host_demo::scene::Settings,
+) -> host_demo::Result<(u32, u32)> {
+    let (w, h) = match (width, height) {
+        (Some(w), Some(h)) => (w, h),
+        (Some(w), None) => (
+            w,
+            ((w as u64 * settings.height as u64) / settings.width as u64).max(1) as u32,
+        ),
+        (None, Some(h)) => (
+            ((h as u64 * settings.width as u64) / settings.height as u64).max(1) as u32,
+            h,
+        ),
+        (None, None) => (settings.width, settings.height),
     };
-    let groups: Vec<serde_json::Value> = w
-        .groups
-        .iter()
-        .map(|g| {
-            let kind = match g.group {
-                host_demo::render::strategy::guided::GROUP_GUIDED => json!("guided"),
-                host_demo::render::strategy::guided::GROUP_UNGUIDED => json!("unguided"),
-                pass => json!({"training_pass": pass}),
-            };
-            json!({
-                "group": kind,
-                "passes": g.passes,
-                "relmse_per_pass": [finite(g.relative_variance[0]), finite(g.relative_variance[1])],
-                "share": finite(g.share),
-            })
+    if w == 0 || h == 0 || w > 1 << 15 || h > 1 << 15 {
+        return Err(host_demo::Error::Scene(format!("bad image size {w}x{h}")));
+    }
+    Ok((w, h))
+}
+
+/// The training and guide-selection arguments as given (`None`: the library's preset).
+struct TuningArgs {
+    guide: GuideArg,
+    train_fraction: Option<f32>,
+    training_share: Option<f64>,
+    train_epochs: Option<f64>,
+    selection_probability: Option<f32>,
+    steps_per_update: Option<u32>,
+    batch_size: Option<usize>,
+    learning_rate: Option<f32>,
+    plateau_window: u32,
+    plateau_margin: f32,
+    guide_cache_resolution: u32,
+}
+
+/// [`TuningArgs`] checked, with the library's defaults filled in (checked for every
+/// integrator, used by the guided one).
+struct Tuning {
+    schedule: guiding::ScheduleOptions,
+    selection_probability: f32,
+    steps_per_update: u32,
+    batch_size: usize,
+    learning_rate: f32,
+    plateau_window: u32,
+    plateau_margin: f32,
+    cache_resolution: u32,
+}
+
+impl TuningArgs {
+    /// Fills in the defaults and checks the ranges; the first bad argument is the error.
+    fn resolve(self) -> host_demo::Result<Tuning> {
+        // Every default is the library's: what an embedder gets is what this measures.
+        let representation = match self.guide {
+            GuideArg::Npm => guiding::Representation::Npm,
+            GuideArg::Nasg => guiding::Representation::Nasg,
+            GuideArg::DfN => guiding::Representation::DfNearest,
+            GuideArg::DfL => guiding::Representation::DfLinear,
+        };
+        let preset = guiding::GuidingConfig::for_representation(representation, Target::Radiance);
+        let mut schedule = guiding::ScheduleOptions::DEFAULT;
+        if let Some(f) = self.train_fraction {
+            schedule.train_fraction = f64::from(f);
+        }
+        if let Some(s) = self.training_share {
+            schedule.steps = guiding::StepRule::TimeShare(s);
+        }
+        if let Some(e) = self.train_epochs {
+            schedule.steps = guiding::StepRule::Epochs(e);
+        }
+        if let Err(e) = schedule.validate() {
+            return bad(format!(
+                "--train-fraction / --training-share / --train-epochs: {e}"
+            ));
+        }
+        let selection_probability = self
+            .selection_probability
+            .unwrap_or(preset.selection_probability);
+        if !(0.0..=1.0).contains(&selection_probability) {
+            return bad(format!(
+                "--selection-probability {selection_probability} is not in [0, 1]"
+            ));
+        }
+        let steps_per_update = self
+            .steps_per_update
+            .unwrap_or(preset.training.steps_per_update);
+        if !(1..=10_000).contains(&steps_per_update) {
+            return bad(format!(
+                "--steps-per-update {steps_per_update} is not in [1, 10000]"
+            ));
+        }
+        let batch_size = self.batch_size.unwrap_or(preset.training.batch_size);
+        if !(1..=1 << 20).contains(&batch_size) {
+            return bad(format!("--batch-size {batch_size} is not in [1, 2^20]"));
+        }
+        let learning_rate = self
+            .learning_rate
+            .unwrap_or(preset.training.adam.learning_rate);
+        if !(learning_rate.is_finite() && learning_rate > 0.0) {
+            return bad(format!("--learning-rate {learning_rate} must be > 0"));
+        }
+        let cache_resolution = self.guide_cache_resolution;
+        if !(1..=guiding::cache::MAX_CACHE_RESOLUTION).contains(&cache_resolution) {
+            return bad(format!(
+                "--guide-cache-resolution {cache_resolution} is not in [1, {}]",
+                guiding::cache::MAX_CACHE_RESOLUTION
+            ));
+        }
+        let plateau_margin = self.plateau_margin;
+        if !(plateau_margin.is_finite() && plateau_margin >= 0.0) {
+            return bad(format!("--plateau-margin {plateau_margin} must be >= 0"));
+        }
+        Ok(Tuning {
+            schedule,
+            selection_probability,
+            steps_per_update,
+            batch_size,
+            learning_rate,
+            plateau_window: self.plateau_window,
+            plateau_margin,
+            cache_resolution,
         })
-        .collect();
-    json!({
-        "ran": true,
-        "fell_back": w.fell_back,
-        "predicted_gain": finite(w.predicted_gain),
-        "seconds": w.seconds,
-        "groups": groups,
-    })
+    }
+}
+
+/// The arguments only the guided integrator reads (besides [`Tuning`]).
+struct GuideArgs {
+    guide: GuideArg,
+    target: Option<TargetArg>,
+    model_size: SizeArg,
+    guide_cache: CacheArg,
+    fit_selection: OnOff,
+    guide_trial: OnOff,
+    pass_weights: OnOff,
+    training_probe: OnOff,
+    nee: Option<OnOff>,
+    device: DeviceArg,
+    fallback_to_cpu: bool,
+    vk_device: String,
+}
+
+/// What the integrator reported.
+enum Outcome {
+    /// `pt` or `pt-nee`.
+    Plain(RenderStats),
+    /// `guided`.
+    Guided(Box<GuidedOutcome>),
+}
+
+/// A guided render's statistics, with the target and the options it ran with.
+struct GuidedOutcome {
+    stats: GuidedStats,
+    target: Target,
+    options: GuidedOptions,
+}
+
+impl Outcome {
+    /// Passes (samples per pixel) rendered.
+    fn spp(&self) -> u32 {
+        match self {
+            Outcome::Plain(p) => p.passes,
+            Outcome::Guided(g) => g.stats.passes,
+        }
+    }
+}
+
+/// Builds the guide (on the device `--device` names) and renders `sc` with it.
+fn run_guided(
+    sc: &Scene,
+    opts: &RenderOptions,
+    tuning: &Tuning,
+    args: GuideArgs,
+) -> host_demo::Result<(Image, Outcome)> {
+    let gopts = GuidedOptions {
+        nee: match args.nee {
+            Some(OnOff::On) => true,
+            Some(OnOff::Off) => false,
+            None => sc.has_samplable_emitter(),
+        },
+        schedule: tuning.schedule,
+        selection_probability: tuning.selection_probability,
+        cache: match args.guide_cache {
+            CacheArg::Off => CacheMode::Off,
+            CacheArg::Frozen => CacheMode::Frozen,
+            CacheArg::Always => CacheMode::Always,
+        },
+        cache_resolution: tuning.cache_resolution,
+        fit_selection: matches!(args.fit_selection, OnOff::On),
+        efficiency_trial: matches!(args.guide_trial, OnOff::On),
+        weight_passes: matches!(args.pass_weights, OnOff::On),
+        training_probe: matches!(args.training_probe, OnOff::On),
+        ..GuidedOptions::default()
+    };
+    let kind = match args.guide {
+        GuideArg::Npm => GuideKind::Npm,
+        GuideArg::Nasg => GuideKind::Nasg,
+        GuideArg::DfN => GuideKind::DfN,
+        GuideArg::DfL => GuideKind::DfL,
+    };
+    let target = match args.target {
+        Some(TargetArg::Radiance) | None => Target::Radiance,
+        Some(TargetArg::Product) => Target::Product,
+    };
+    let size = match args.model_size {
+        SizeArg::Demo => ModelSize::Demo,
+        SizeArg::Small => ModelSize::Small,
+        SizeArg::Paper => ModelSize::Paper,
+    };
+    let config = FieldConfig::DEFAULT
+        .with_batch_size(tuning.batch_size)
+        .with_steps_per_update(tuning.steps_per_update)
+        .with_learning_rate(tuning.learning_rate)
+        .with_plateau(PlateauConfig::new(
+            tuning.plateau_window,
+            tuning.plateau_margin,
+        ))
+        .with_threads(opts.threads)
+        .with_seed(opts.seed as u32);
+    let mut g = build_guide(
+        kind,
+        target,
+        size,
+        sc.bounds(),
+        tuning.selection_probability,
+        config,
+    )?;
+    if args.device == DeviceArg::Gpu {
+        let selection: guiding::DeviceSelection = args.vk_device.parse()?;
+        let on_failure = if args.fallback_to_cpu {
+            guiding::DeviceFailure::FallbackToCpu
+        } else {
+            guiding::DeviceFailure::Error
+        };
+        g.use_device(selection, on_failure)?;
+        eprintln!("guide on {}", g.device_name().unwrap_or_default());
+    }
+    let (img, stats) = render_guided(sc, opts, &gopts, &mut g)?;
+    let outcome = GuidedOutcome {
+        stats,
+        target,
+        options: gopts,
+    };
+    Ok((img, Outcome::Guided(Box::new(outcome))))
+}
+
+/// A finished render: what the summary lines and the `--stats` document report.
+struct Finished<'a> {
+    scene: &'a str,
+    integrator: Integrator,
+    sc: &'a Scene,
+    opts: &'a RenderOptions,
+    /// The `-D` arguments as given.
+    define: &'a [String],
+    /// Mean RGB of the image and its standard error.
+    mean: [f64; 3],
+    std_error: [f64; 3],
+    img: &'a Image,
+    outcome: &'a Outcome,
+    load_s: f64,
+    render_s: f64,
+    out: &'a Path,
+    png: &'a Path,
+}
+
+impl Finished<'_> {
+    /// The summary on stdout: size and spp, image mean and its error, the guided render's
+    /// report, the times and the files written.
+    fn print_summary(&self) {
+        let (m, se) = (self.mean, self.std_error);
+        println!(
+            "{}: {}x{} {} spp max_depth {} ({} prims, {} emitters)",
+            self.scene,
+            self.opts.width,
+            self.opts.height,
+            self.outcome.spp(),
+            self.opts.max_depth,
+            self.sc.prims.len(),
+            self.sc.emitter_count()
+        );
+        println!(
+            "mean RGB = ({:.4}, {:.4}, {:.4})  std.err = ({:.4}, {:.4}, {:.4})",
+            m[0], m[1], m[2], se[0], se[1], se[2]
+        );
+        let var: f64 = self
+            .img
+            .var_of_mean
+            .iter()
+            .map(|v| v.iter().map(|&c| c as f64).sum::<f64>())
+            .sum::<f64>()
+            / (3.0 * self.img.var_of_mean.len().max(1) as f64);
+        println!("mean per-pixel variance of the estimate = {var:.4e}");
+        if let Outcome::Guided(g) = self.outcome {
+            println!("{}", g.stats);
+        }
+        println!(
+            "load {:.3} s, render {:.3} s, wrote {} and {}",
+            self.load_s,
+            self.render_s,
+            self.out.display(),
+            self.png.display()
+        );
+    }
+
+    /// The `--stats` document.
+    fn stats_doc(&self) -> StatsDoc<'_> {
+        let (opts, sc) = (self.opts, self.sc);
+        let threads = opts.thread_count();
+        let (nee_ran, nee_asked) = match self.outcome {
+            Outcome::Plain(p) => (p.nee, self.integrator == Integrator::PtNee),
+            Outcome::Guided(g) => (g.stats.nee, g.options.nee),
+        };
+        let common = CommonStages::new(nee_ran, nee_asked, opts.rr, sc.settings.rr_depth);
+        let run = match self.outcome {
+            Outcome::Plain(p) => RunStats::Plain(PlainRun::new(p, common)),
+            Outcome::Guided(g) => RunStats::Guided(Box::new(GuidedRun::new(
+                &g.stats,
+                threads,
+                matches!(g.target, Target::Product),
+                all_materials_diffuse(sc),
+                common,
+            ))),
+        };
+        StatsDoc {
+            scene: self.scene,
+            integrator: match self.integrator {
+                Integrator::Pt => "pt",
+                Integrator::PtNee => "pt-nee",
+                Integrator::Guided => "guided",
+            },
+            width: opts.width,
+            height: opts.height,
+            max_depth: opts.max_depth,
+            seed: opts.seed,
+            threads,
+            budget: match opts.time_budget {
+                Some(t) => Budget::TimeS(t.as_secs_f64()),
+                None => Budget::Spp(opts.spp),
+            },
+            load_s: self.load_s,
+            primitives: sc.prims.len(),
+            texture_bytes: sc.texture_bytes,
+            params: self.define,
+            load_warnings: &sc.warnings,
+            mean_rgb: self.mean,
+            mean_std_error_rgb: self.std_error,
+            output: OutputFiles {
+                exr: self.out.display().to_string(),
+                png: self.png.display().to_string(),
+            },
+            run,
+        }
+    }
+
+    /// Writes the `--stats` document to `path`.
+    fn write_stats(&self, path: &Path) -> host_demo::Result<()> {
+        let io = |source| host_demo::Error::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let text = self.stats_doc().to_json().map_err(io)?;
+        std::fs::write(path, text).map_err(io)
+    }
 }
 
 /// True when every material is Lambertian (a `twosided` counts when both its sides are), so
@@ -548,15 +579,4 @@ fn all_materials_diffuse(sc: &host_demo::scene::Scene) -> bool {
         }
         ref m => m.is_diffuse(),
     })
-}
-
-fn img_spp(
-    plain: &Option<RenderStats>,
-    guided: &Option<(host_demo::render::GuidedStats, Target, GuidedOptions)>,
-) -> u32 {
-    match (plain, guided) {
-        (Some(p), _) => p.passes,
-        (_, Some((g, _, _))) => g.passes,
-        _ => 0,
-    }
 }

@@ -1197,183 +1197,62 @@ impl Material {
 
     /// Samples an outgoing direction from three uniform numbers (`u0` picks the lobe where
     /// there is a choice, `u1, u2` the direction). `None` when absorbed or invalid.
+    ///
+    /// Dispatches to one sampler per variant; the dielectrics also sample from below the
+    /// surface (`wi.z < 0`), the opaque BSDFs return `None` there.
     pub fn sample(&self, wi: Vec3, u0: f32, u1: f32, u2: f32) -> Option<BsdfSample> {
         match *self {
             Material::Dielectric {
                 eta,
                 reflectance,
                 transmittance,
-            } => {
-                if wi.z == 0.0 {
-                    return None;
-                }
-                let (f, cos_t, _, eta_ti) = fresnel_dielectric(wi.z, eta);
-                return Some(if u0 < f {
-                    BsdfSample {
-                        wo: reflect_z(wi),
-                        weight: reflectance,
-                        pdf: f32::INFINITY,
-                    }
-                } else {
-                    BsdfSample {
-                        wo: Vec3::new(-eta_ti * wi.x, -eta_ti * wi.y, cos_t),
-                        // Radiance is scaled by (η_t/i)² across the interface.
-                        weight: transmittance * (eta_ti * eta_ti),
-                        pdf: f32::INFINITY,
-                    }
-                });
-            }
+            } => sample_dielectric(wi, eta, reflectance, transmittance, u0),
             Material::RoughDielectric {
                 distribution,
                 alpha,
                 eta,
                 reflectance,
                 transmittance,
-            } => {
-                return rough_dielectric_sample(
-                    wi,
-                    distribution,
-                    alpha,
-                    eta,
-                    reflectance,
-                    transmittance,
-                    u0,
-                    u1,
-                    u2,
-                )
-            }
+            } => rough_dielectric_sample(
+                wi,
+                distribution,
+                alpha,
+                eta,
+                reflectance,
+                transmittance,
+                u0,
+                u1,
+                u2,
+            ),
             Material::ThinDielectric {
                 eta,
                 reflectance,
                 transmittance,
-            } => {
-                if wi.z == 0.0 {
-                    return None;
-                }
-                let r = thin_dielectric_reflectance(wi.z.abs(), eta);
-                return Some(if u0 < r {
-                    BsdfSample {
-                        wo: reflect_z(wi),
-                        weight: reflectance,
-                        pdf: f32::INFINITY,
-                    }
-                } else {
-                    BsdfSample {
-                        wo: -wi,
-                        weight: transmittance,
-                        pdf: f32::INFINITY,
-                    }
-                });
-            }
-            Material::TwoSided { .. } | Material::Blend { .. } => return None,
-            _ => {}
-        }
-        if wi.z <= 0.0 {
-            return None;
-        }
-        match *self {
-            Material::Diffuse { reflectance } => {
-                let wo = sample_cosine_hemisphere(u1, u2);
-                if wo.z <= 0.0 {
-                    return None;
-                }
-                Some(BsdfSample {
-                    wo,
-                    weight: reflectance,
-                    pdf: wo.z * FRAC_1_PI,
-                })
-            }
+            } => sample_thin_dielectric(wi, eta, reflectance, transmittance, u0),
+            Material::TwoSided { .. } | Material::Blend { .. } => None,
+            // The opaque BSDFs below reflect only into the upper hemisphere.
+            _ if wi.z <= 0.0 => None,
+            Material::Diffuse { reflectance } => sample_diffuse(reflectance, u1, u2),
             Material::RoughConductor {
-                distribution: dist,
+                distribution,
                 alpha,
                 eta,
                 k,
                 specular,
-            } => {
-                let m = dist.sample_visible(wi, alpha, u1, u2);
-                let wo = 2.0 * wi.dot(m) * m - wi;
-                if wo.z <= 0.0 {
-                    return None;
-                }
-                let g1i = dist.g1(wi, m, alpha);
-                if g1i <= 0.0 {
-                    return None;
-                }
-                let d = dist.d(m, alpha);
-                let pdf = g1i * wi.dot(m).max(0.0) * d / wi.z / (4.0 * wo.dot(m));
-                // f cos / pdf = F G1(wi) G1(wo) / G1(wi) = F G1(wo) (separable Smith G).
-                let weight =
-                    specular * fresnel_conductor(wi.dot(m), eta, k) * dist.g1(wo, m, alpha);
-                if pdf.is_nan() || pdf <= 0.0 || !weight.is_finite() {
-                    return None;
-                }
-                Some(BsdfSample { wo, weight, pdf })
-            }
+            } => sample_rough_conductor(wi, distribution, alpha, eta, k, specular, u1, u2),
             Material::Conductor { eta, k, specular } => Some(BsdfSample {
                 wo: reflect_z(wi),
                 weight: specular * fresnel_conductor(wi.z, eta, k),
                 pdf: f32::INFINITY,
             }),
-            Material::Plastic(ref c) => {
-                let f_i = fresnel_dielectric(wi.z, c.eta).0;
-                let ps = f_i * c.spec_weight;
-                let pd = (1.0 - f_i) * (1.0 - c.spec_weight);
-                let prob_spec = if ps + pd > 0.0 { ps / (ps + pd) } else { 0.0 };
-                if u0 < prob_spec {
-                    return Some(BsdfSample {
-                        wo: reflect_z(wi),
-                        weight: c.specular * (f_i / prob_spec),
-                        pdf: f32::INFINITY,
-                    });
-                }
-                let wo = sample_cosine_hemisphere(u1, u2);
-                if wo.z <= 0.0 {
-                    return None;
-                }
-                let (f, pdf) = self.eval(wi, wo);
-                (pdf > 0.0).then(|| BsdfSample {
-                    wo,
-                    weight: f / pdf,
-                    pdf,
-                })
-            }
-            Material::RoughPlastic(ref c) => {
-                let prob_spec = rough_plastic_spec_prob(c, c.transmittance(wi.z));
-                let wo = if u0 < prob_spec {
-                    let m = c.distribution.sample_visible(wi, c.alpha, u1, u2);
-                    2.0 * wi.dot(m) * m - wi
-                } else {
-                    sample_cosine_hemisphere(u1, u2)
-                };
-                if wo.z <= 0.0 {
-                    return None;
-                }
-                let (f, pdf) = self.eval(wi, wo);
-                (pdf > 0.0 && pdf.is_finite() && f.is_finite()).then(|| BsdfSample {
-                    wo,
-                    weight: f / pdf,
-                    pdf,
-                })
-            }
+            Material::Plastic(ref c) => self.sample_plastic(c, wi, u0, u1, u2),
+            Material::RoughPlastic(ref c) => self.sample_rough_plastic(c, wi, u0, u1, u2),
             Material::Phong {
                 exponent,
                 diffuse,
                 specular,
                 ..
-            } => {
-                let wo = if u0 < glossy_weight(diffuse, specular) {
-                    // cos α = u^(1/(n+1)) about the mirror direction: density
-                    // (n+1)/(2π) cosⁿα.
-                    let cos_a = u2.powf(1.0 / (exponent + 1.0)).min(1.0);
-                    let sin_a = (1.0 - cos_a * cos_a).max(0.0).sqrt();
-                    let (sp, cp) = (2.0 * PI * u1).sin_cos();
-                    let local = Vec3::new(sin_a * cp, sin_a * sp, cos_a);
-                    crate::math::Frame::from_z(reflect_z(wi)).to_world(local)
-                } else {
-                    sample_cosine_hemisphere(u1, u2)
-                };
-                self.weighted(wi, wo)
-            }
+            } => self.sample_phong(exponent, diffuse, specular, wi, u0, u1, u2),
             // Cosine-weighted, as Mitsuba 0.6's `roughdiffuse` samples.
             Material::RoughDiffuse { .. } => self.weighted(wi, sample_cosine_hemisphere(u1, u2)),
             Material::Ward {
@@ -1382,17 +1261,123 @@ impl Material {
                 diffuse,
                 specular,
                 ..
-            } => {
-                let wo = if u0 < glossy_weight(diffuse, specular) {
-                    let h = sample_ward_half(alpha_u, alpha_v, u1, u2);
-                    2.0 * wi.dot(h) * h - wi
-                } else {
-                    sample_cosine_hemisphere(u1, u2)
-                };
-                self.weighted(wi, wo)
-            }
-            _ => None,
+            } => self.sample_ward([alpha_u, alpha_v], diffuse, specular, wi, u0, u1, u2),
         }
+    }
+
+    /// [`Material::sample`] of [`Material::Plastic`]: the coating's delta reflection with
+    /// probability `F·w_s / (F·w_s + (1 − F)(1 − w_s))`, else the cosine-weighted base.
+    #[inline(always)] // one call site in the per-vertex `Material::sample`
+    fn sample_plastic(
+        &self,
+        c: &Coating,
+        wi: Vec3,
+        u0: f32,
+        u1: f32,
+        u2: f32,
+    ) -> Option<BsdfSample> {
+        let f_i = fresnel_dielectric(wi.z, c.eta).0;
+        let ps = f_i * c.spec_weight;
+        let pd = (1.0 - f_i) * (1.0 - c.spec_weight);
+        let prob_spec = if ps + pd > 0.0 { ps / (ps + pd) } else { 0.0 };
+        if u0 < prob_spec {
+            return Some(BsdfSample {
+                wo: reflect_z(wi),
+                weight: c.specular * (f_i / prob_spec),
+                pdf: f32::INFINITY,
+            });
+        }
+        let wo = sample_cosine_hemisphere(u1, u2);
+        if wo.z <= 0.0 {
+            return None;
+        }
+        let (f, pdf) = self.eval(wi, wo);
+        (pdf > 0.0).then(|| BsdfSample {
+            wo,
+            weight: f / pdf,
+            pdf,
+        })
+    }
+
+    /// [`Material::sample`] of [`Material::RoughPlastic`]: a visible normal of the coating
+    /// with the specular probability, else the cosine-weighted base; the weight from the full
+    /// mixture pdf.
+    #[inline(always)] // one call site in the per-vertex `Material::sample`
+    fn sample_rough_plastic(
+        &self,
+        c: &Coating,
+        wi: Vec3,
+        u0: f32,
+        u1: f32,
+        u2: f32,
+    ) -> Option<BsdfSample> {
+        let prob_spec = rough_plastic_spec_prob(c, c.transmittance(wi.z));
+        let wo = if u0 < prob_spec {
+            let m = c.distribution.sample_visible(wi, c.alpha, u1, u2);
+            2.0 * wi.dot(m) * m - wi
+        } else {
+            sample_cosine_hemisphere(u1, u2)
+        };
+        if wo.z <= 0.0 {
+            return None;
+        }
+        let (f, pdf) = self.eval(wi, wo);
+        (pdf > 0.0 && pdf.is_finite() && f.is_finite()).then(|| BsdfSample {
+            wo,
+            weight: f / pdf,
+            pdf,
+        })
+    }
+
+    /// [`Material::sample`] of [`Material::Phong`]: the Phong lobe about the mirror direction
+    /// with probability [`glossy_weight`], else cosine-weighted.
+    #[allow(clippy::too_many_arguments)] // the lobe's fields plus `wi` and three random numbers
+    #[inline(always)] // one call site in the per-vertex `Material::sample`
+    fn sample_phong(
+        &self,
+        exponent: f32,
+        diffuse: Vec3,
+        specular: Vec3,
+        wi: Vec3,
+        u0: f32,
+        u1: f32,
+        u2: f32,
+    ) -> Option<BsdfSample> {
+        let wo = if u0 < glossy_weight(diffuse, specular) {
+            // cos α = u^(1/(n+1)) about the mirror direction: density
+            // (n+1)/(2π) cosⁿα.
+            let cos_a = u2.powf(1.0 / (exponent + 1.0)).min(1.0);
+            let sin_a = (1.0 - cos_a * cos_a).max(0.0).sqrt();
+            let (sp, cp) = (2.0 * PI * u1).sin_cos();
+            let local = Vec3::new(sin_a * cp, sin_a * sp, cos_a);
+            crate::math::Frame::from_z(reflect_z(wi)).to_world(local)
+        } else {
+            sample_cosine_hemisphere(u1, u2)
+        };
+        self.weighted(wi, wo)
+    }
+
+    /// [`Material::sample`] of [`Material::Ward`]: Walter's half-vector warp of the lobe
+    /// (`alpha = [α_u, α_v]`) with probability [`glossy_weight`], else cosine-weighted.
+    #[allow(clippy::too_many_arguments)] // the lobe's fields plus `wi` and three random numbers
+    #[inline(always)] // one call site in the per-vertex `Material::sample`
+    fn sample_ward(
+        &self,
+        alpha: [f32; 2],
+        diffuse: Vec3,
+        specular: Vec3,
+        wi: Vec3,
+        u0: f32,
+        u1: f32,
+        u2: f32,
+    ) -> Option<BsdfSample> {
+        let wo = if u0 < glossy_weight(diffuse, specular) {
+            let h = sample_ward_half(alpha[0], alpha[1], u1, u2);
+            2.0 * wi.dot(h) * h - wi
+        } else {
+            sample_cosine_hemisphere(u1, u2)
+        };
+        self.weighted(wi, wo)
     }
 
     /// The sample `wo` of a mixture sampler: `None` below the surface or where the density
@@ -1543,6 +1528,112 @@ fn rough_dielectric_eval(
         let pdf = ((1.0 - f) * pdf_m * eta_rel * eta_rel * wom / denom2).abs();
         (value, pdf)
     }
+}
+
+/// [`Material::sample`] of [`Material::Dielectric`]: the delta reflection with the Fresnel
+/// reflectance as probability, else the delta refraction (from either side).
+#[inline(always)] // one call site in the per-vertex `Material::sample`
+fn sample_dielectric(
+    wi: Vec3,
+    eta: f32,
+    reflectance: Vec3,
+    transmittance: Vec3,
+    u0: f32,
+) -> Option<BsdfSample> {
+    if wi.z == 0.0 {
+        return None;
+    }
+    let (f, cos_t, _, eta_ti) = fresnel_dielectric(wi.z, eta);
+    Some(if u0 < f {
+        BsdfSample {
+            wo: reflect_z(wi),
+            weight: reflectance,
+            pdf: f32::INFINITY,
+        }
+    } else {
+        BsdfSample {
+            wo: Vec3::new(-eta_ti * wi.x, -eta_ti * wi.y, cos_t),
+            // Radiance is scaled by (η_t/i)² across the interface.
+            weight: transmittance * (eta_ti * eta_ti),
+            pdf: f32::INFINITY,
+        }
+    })
+}
+
+/// [`Material::sample`] of [`Material::ThinDielectric`]: the delta reflection with the
+/// sheet's reflectance as probability, else straight through.
+#[inline(always)] // one call site in the per-vertex `Material::sample`
+fn sample_thin_dielectric(
+    wi: Vec3,
+    eta: f32,
+    reflectance: Vec3,
+    transmittance: Vec3,
+    u0: f32,
+) -> Option<BsdfSample> {
+    if wi.z == 0.0 {
+        return None;
+    }
+    let r = thin_dielectric_reflectance(wi.z.abs(), eta);
+    Some(if u0 < r {
+        BsdfSample {
+            wo: reflect_z(wi),
+            weight: reflectance,
+            pdf: f32::INFINITY,
+        }
+    } else {
+        BsdfSample {
+            wo: -wi,
+            weight: transmittance,
+            pdf: f32::INFINITY,
+        }
+    })
+}
+
+/// [`Material::sample`] of [`Material::Diffuse`]: cosine-weighted (`wi.z > 0` checked).
+#[inline(always)] // one call site in the per-vertex `Material::sample`
+fn sample_diffuse(reflectance: Vec3, u1: f32, u2: f32) -> Option<BsdfSample> {
+    let wo = sample_cosine_hemisphere(u1, u2);
+    if wo.z <= 0.0 {
+        return None;
+    }
+    Some(BsdfSample {
+        wo,
+        weight: reflectance,
+        pdf: wo.z * FRAC_1_PI,
+    })
+}
+
+/// [`Material::sample`] of [`Material::RoughConductor`]: a visible normal of the distribution
+/// reflected about (`wi.z > 0` checked).
+#[allow(clippy::too_many_arguments)] // the material's fields plus `wi` and two random numbers
+#[inline(always)] // one call site in the per-vertex `Material::sample`
+fn sample_rough_conductor(
+    wi: Vec3,
+    dist: Microfacet,
+    alpha: f32,
+    eta: Vec3,
+    k: Vec3,
+    specular: Vec3,
+    u1: f32,
+    u2: f32,
+) -> Option<BsdfSample> {
+    let m = dist.sample_visible(wi, alpha, u1, u2);
+    let wo = 2.0 * wi.dot(m) * m - wi;
+    if wo.z <= 0.0 {
+        return None;
+    }
+    let g1i = dist.g1(wi, m, alpha);
+    if g1i <= 0.0 {
+        return None;
+    }
+    let d = dist.d(m, alpha);
+    let pdf = g1i * wi.dot(m).max(0.0) * d / wi.z / (4.0 * wo.dot(m));
+    // f cos / pdf = F G1(wi) G1(wo) / G1(wi) = F G1(wo) (separable Smith G).
+    let weight = specular * fresnel_conductor(wi.dot(m), eta, k) * dist.g1(wo, m, alpha);
+    if pdf.is_nan() || pdf <= 0.0 || !weight.is_finite() {
+        return None;
+    }
+    Some(BsdfSample { wo, weight, pdf })
 }
 
 #[allow(clippy::too_many_arguments)] // the material's fields plus three random numbers

@@ -231,153 +231,18 @@ fn slab(b: &mut SceneBuilder, x: (f32, f32), y: (f32, f32), z: (f32, f32), mat: 
 /// About 60 quads; 320x240, 64 spp, max_depth 8 by default.
 pub fn door() -> Result<Scene> {
     let mut b = SceneBuilder::default();
-    let white = b.material(Material::Diffuse {
-        reflectance: Vec3::splat(0.7),
-    });
-    let black = b.material(Material::Diffuse {
-        reflectance: Vec3::ZERO,
-    });
-    let door_mat = b.material(Material::Diffuse {
-        reflectance: Vec3::new(0.55, 0.4, 0.28),
-    });
-    let crate_mat = b.material(Material::Diffuse {
-        reflectance: Vec3::new(0.5, 0.5, 0.55),
-    });
-    // Glossy coatings share one (distribution, alpha, eta), so the coating tables are
-    // computed once.
-    let (dist, alpha, eta) = (Microfacet::Ggx, 0.15f32, 1.5f32);
-    let checker = b.texture(Texture::Checkerboard {
-        color0: Vec3::new(0.7, 0.68, 0.64),
-        color1: Vec3::new(0.15, 0.13, 0.12),
-        uv: UvMap {
-            // One checker period is two tiles.
-            m: glam::Mat2::from_diagonal(glam::Vec2::splat(0.5 / TILE)),
-            t: glam::Vec2::ZERO,
-        },
-    });
-    let floor = b.textured_material(
-        Material::RoughPlastic(Coating::rough(
-            Vec3::splat(0.5),
-            Vec3::ONE,
-            eta,
-            false,
-            dist,
-            alpha,
-        )),
-        MaterialTextures {
-            diffuse: Some(checker),
-            ..Default::default()
-        },
-    );
-    let table_top = b.material(Material::RoughPlastic(Coating::rough(
-        Vec3::new(0.25, 0.12, 0.06),
-        Vec3::ONE,
-        eta,
-        false,
-        dist,
-        alpha,
-    )));
-    let copper = b.material(Material::RoughConductor {
-        distribution: Microfacet::Ggx,
-        alpha: 0.25,
-        eta: Vec3::new(0.2004, 0.9240, 1.1022),
-        k: Vec3::new(3.9129, 2.4528, 2.1421),
-        specular: Vec3::ONE,
-    });
-    let (h, za, zb) = (2.6f32, -2.5f32, 2.5f32);
-    let (xa, xb) = (-5.0f32, 3.0f32);
-    // Room A (viewed): x in [xa, 0], checkered glossy floor; room B (lit): x in [0, xb].
-    let (ua, ub) = (glam::Vec2::new(xa, za), glam::Vec2::new(0.0, zb));
-    let fl = |x: f32, z: f32| Vec3::new(x, 0.0, z);
-    b.shape_with(
-        vec![
-            Prim::Tri {
-                p: [fl(xa, za), fl(xa, zb), fl(0.0, zb)],
-                n: None,
-            },
-            Prim::Tri {
-                p: [fl(xa, za), fl(0.0, zb), fl(0.0, za)],
-                n: None,
-            },
-        ],
-        Some(vec![
-            [ua, glam::Vec2::new(xa, zb), ub],
-            [ua, ub, glam::Vec2::new(0.0, za)],
-        ]),
-        floor,
-        None,
-        None,
-    );
-    aa_quad(&mut b, 1, 0.0, (za, zb), (0.0, xb), 1.0, white, None);
-    for (x0, x1) in [(xa, 0.0f32), (0.0, xb)] {
-        aa_quad(&mut b, 1, h, (za, zb), (x0, x1), -1.0, white, None);
-        aa_quad(&mut b, 2, za, (x0, x1), (0.0, h), 1.0, white, None);
-        aa_quad(&mut b, 2, zb, (x0, x1), (0.0, h), -1.0, white, None);
-    }
-    aa_quad(&mut b, 0, xa, (0.0, h), (za, zb), 1.0, white, None);
-    aa_quad(&mut b, 0, xb, (0.0, h), (za, zb), -1.0, white, None);
-    // Dividing wall at x = 0 with the doorway z in [d0, d1], y in [0, top]: one
-    // zero-thickness sheet, white on both sides. (Two coincident one-sided quads facing away
-    // from each other tie at every hit, and the BVH then returns the back face about a third
-    // of the time, which a one-sided diffuse BSDF absorbs.)
-    let wall = b.material(Material::TwoSided {
-        front: white,
-        back: white,
-    });
-    let (d0, d1, top) = (-1.6f32, -0.7f32, 2.1f32);
-    aa_quad(&mut b, 0, 0.0, (0.0, h), (za, d0), 1.0, wall, None);
-    aa_quad(&mut b, 0, 0.0, (0.0, h), (d1, zb), 1.0, wall, None);
-    aa_quad(&mut b, 0, 0.0, (top, h), (d0, d1), 1.0, wall, None);
-    // The door: hinged at (0, d0), swung into room A by DOOR_OPEN_DEG, 4 cm thick.
-    let th = DOOR_OPEN_DEG.to_radians();
-    let (u, n) = (
-        glam::Vec2::new(-th.sin(), th.cos()) * (d1 - d0),
-        glam::Vec2::new(-th.cos(), -th.sin()) * 0.04,
-    );
-    let hinge = glam::Vec2::new(0.0, d0);
-    let foot = [hinge, hinge + u, hinge + u + n, hinge + n].map(|p| (p.x, p.y));
-    boxx(&mut b, foot, top, door_mat);
-    // Table with a glossy top and a rough copper block on it; a box against the back wall.
-    let (tx, tz, tw, td, ty) = (-2.2f32, -1.75f32, 0.75f32, 0.45f32, 0.75f32);
-    slab(
-        &mut b,
-        (tx - tw, tx + tw),
-        (ty - 0.05, ty),
-        (tz - td, tz + td),
-        table_top,
-    );
-    for (lx, lz) in [(-1.0f32, -1.0f32), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
-        let (cx, cz) = (tx + lx * (tw - 0.08), tz + lz * (td - 0.08));
-        slab(
-            &mut b,
-            (cx - 0.03, cx + 0.03),
-            (0.0, ty - 0.05),
-            (cz - 0.03, cz + 0.03),
-            door_mat,
-        );
-    }
-    slab(
-        &mut b,
-        (tx - 0.35, tx - 0.05),
-        (ty, ty + 0.3),
-        (tz - 0.1, tz + 0.2),
-        copper,
-    );
-    boxx(
-        &mut b,
-        [(-2.0, 0.9), (-1.45, 0.75), (-1.3, 1.3), (-1.85, 1.45)],
-        0.6,
-        crate_mat,
-    );
+    let mats = DoorMaterials::new(&mut b);
+    door_rooms(&mut b, &mats);
+    door_furniture(&mut b, &mats);
     // Ceiling light in room B, behind the door (hinge side), facing down.
     aa_quad(
         &mut b,
         1,
-        h - 0.01,
+        ROOM_HEIGHT - 0.01,
         (-2.3, -1.5),
         (0.8, 1.8),
         -1.0,
-        black,
+        mats.black,
         Some(Vec3::splat(LIGHT)),
     );
     let camera = Camera::new(
@@ -403,8 +268,187 @@ pub fn door() -> Result<Scene> {
     )
 }
 
+/// The materials of `builtin:door` (indices into its builder), added in this order.
+struct DoorMaterials {
+    white: u32,
+    /// The light's own surface.
+    black: u32,
+    /// The door and the table legs.
+    door_mat: u32,
+    crate_mat: u32,
+    /// Checkered rough plastic.
+    floor: u32,
+    table_top: u32,
+    /// The rough copper block on the table.
+    copper: u32,
+}
+
+impl DoorMaterials {
+    fn new(b: &mut SceneBuilder) -> Self {
+        let white = b.material(Material::Diffuse {
+            reflectance: Vec3::splat(0.7),
+        });
+        let black = b.material(Material::Diffuse {
+            reflectance: Vec3::ZERO,
+        });
+        let door_mat = b.material(Material::Diffuse {
+            reflectance: Vec3::new(0.55, 0.4, 0.28),
+        });
+        let crate_mat = b.material(Material::Diffuse {
+            reflectance: Vec3::new(0.5, 0.5, 0.55),
+        });
+        // Glossy coatings share one (distribution, alpha, eta), so the coating tables are
+        // computed once.
+        let (dist, alpha, eta) = (Microfacet::Ggx, 0.15f32, 1.5f32);
+        let checker = b.texture(Texture::Checkerboard {
+            color0: Vec3::new(0.7, 0.68, 0.64),
+            color1: Vec3::new(0.15, 0.13, 0.12),
+            uv: UvMap {
+                // One checker period is two tiles.
+                m: glam::Mat2::from_diagonal(glam::Vec2::splat(0.5 / TILE)),
+                t: glam::Vec2::ZERO,
+            },
+        });
+        let floor = b.textured_material(
+            Material::RoughPlastic(Coating::rough(
+                Vec3::splat(0.5),
+                Vec3::ONE,
+                eta,
+                false,
+                dist,
+                alpha,
+            )),
+            MaterialTextures {
+                diffuse: Some(checker),
+                ..Default::default()
+            },
+        );
+        let table_top = b.material(Material::RoughPlastic(Coating::rough(
+            Vec3::new(0.25, 0.12, 0.06),
+            Vec3::ONE,
+            eta,
+            false,
+            dist,
+            alpha,
+        )));
+        let copper = b.material(Material::RoughConductor {
+            distribution: Microfacet::Ggx,
+            alpha: 0.25,
+            eta: Vec3::new(0.2004, 0.9240, 1.1022),
+            k: Vec3::new(3.9129, 2.4528, 2.1421),
+            specular: Vec3::ONE,
+        });
+        Self {
+            white,
+            black,
+            door_mat,
+            crate_mat,
+            floor,
+            table_top,
+            copper,
+        }
+    }
+}
+
+/// The two rooms of `builtin:door` (floors, walls, ceilings), the dividing wall with its
+/// doorway and the door standing ajar in it.
+fn door_rooms(b: &mut SceneBuilder, mats: &DoorMaterials) {
+    let (h, za, zb) = (ROOM_HEIGHT, -2.5f32, 2.5f32);
+    let (xa, xb) = (-5.0f32, 3.0f32);
+    let white = mats.white;
+    // Room A (viewed): x in [xa, 0], checkered glossy floor; room B (lit): x in [0, xb].
+    let (ua, ub) = (glam::Vec2::new(xa, za), glam::Vec2::new(0.0, zb));
+    let fl = |x: f32, z: f32| Vec3::new(x, 0.0, z);
+    b.shape_with(
+        vec![
+            Prim::Tri {
+                p: [fl(xa, za), fl(xa, zb), fl(0.0, zb)],
+                n: None,
+            },
+            Prim::Tri {
+                p: [fl(xa, za), fl(0.0, zb), fl(0.0, za)],
+                n: None,
+            },
+        ],
+        Some(vec![
+            [ua, glam::Vec2::new(xa, zb), ub],
+            [ua, ub, glam::Vec2::new(0.0, za)],
+        ]),
+        mats.floor,
+        None,
+        None,
+    );
+    aa_quad(b, 1, 0.0, (za, zb), (0.0, xb), 1.0, white, None);
+    for (x0, x1) in [(xa, 0.0f32), (0.0, xb)] {
+        aa_quad(b, 1, h, (za, zb), (x0, x1), -1.0, white, None);
+        aa_quad(b, 2, za, (x0, x1), (0.0, h), 1.0, white, None);
+        aa_quad(b, 2, zb, (x0, x1), (0.0, h), -1.0, white, None);
+    }
+    aa_quad(b, 0, xa, (0.0, h), (za, zb), 1.0, white, None);
+    aa_quad(b, 0, xb, (0.0, h), (za, zb), -1.0, white, None);
+    // Dividing wall at x = 0 with the doorway z in [d0, d1], y in [0, top]: one
+    // zero-thickness sheet, white on both sides. (Two coincident one-sided quads facing away
+    // from each other tie at every hit, and the BVH then returns the back face about a third
+    // of the time, which a one-sided diffuse BSDF absorbs.)
+    let wall = b.material(Material::TwoSided {
+        front: white,
+        back: white,
+    });
+    let (d0, d1, top) = (-1.6f32, -0.7f32, 2.1f32);
+    aa_quad(b, 0, 0.0, (0.0, h), (za, d0), 1.0, wall, None);
+    aa_quad(b, 0, 0.0, (0.0, h), (d1, zb), 1.0, wall, None);
+    aa_quad(b, 0, 0.0, (top, h), (d0, d1), 1.0, wall, None);
+    // The door: hinged at (0, d0), swung into room A by DOOR_OPEN_DEG, 4 cm thick.
+    let th = DOOR_OPEN_DEG.to_radians();
+    let (u, n) = (
+        glam::Vec2::new(-th.sin(), th.cos()) * (d1 - d0),
+        glam::Vec2::new(-th.cos(), -th.sin()) * 0.04,
+    );
+    let hinge = glam::Vec2::new(0.0, d0);
+    let foot = [hinge, hinge + u, hinge + u + n, hinge + n].map(|p| (p.x, p.y));
+    boxx(b, foot, top, mats.door_mat);
+}
+
+/// The furniture of `builtin:door`'s room A: a table with a glossy top and a rough copper
+/// block on it, and a box against the back wall.
+fn door_furniture(b: &mut SceneBuilder, mats: &DoorMaterials) {
+    let (tx, tz, tw, td, ty) = (-2.2f32, -1.75f32, 0.75f32, 0.45f32, 0.75f32);
+    slab(
+        b,
+        (tx - tw, tx + tw),
+        (ty - 0.05, ty),
+        (tz - td, tz + td),
+        mats.table_top,
+    );
+    for (lx, lz) in [(-1.0f32, -1.0f32), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
+        let (cx, cz) = (tx + lx * (tw - 0.08), tz + lz * (td - 0.08));
+        slab(
+            b,
+            (cx - 0.03, cx + 0.03),
+            (0.0, ty - 0.05),
+            (cz - 0.03, cz + 0.03),
+            mats.door_mat,
+        );
+    }
+    slab(
+        b,
+        (tx - 0.35, tx - 0.05),
+        (ty, ty + 0.3),
+        (tz - 0.1, tz + 0.2),
+        mats.copper,
+    );
+    boxx(
+        b,
+        [(-2.0, 0.9), (-1.45, 0.75), (-1.3, 1.3), (-1.85, 1.45)],
+        0.6,
+        mats.crate_mat,
+    );
+}
+
 /// Angle by which the door of `builtin:door` stands open.
 pub const DOOR_OPEN_DEG: f32 = 20.0;
+/// Ceiling height of `builtin:door`'s rooms (m).
+const ROOM_HEIGHT: f32 = 2.6;
 /// Side of the floor tiles of `builtin:door` (m).
 const TILE: f32 = 0.5;
 /// Radiance of the light of `builtin:door`.

@@ -104,11 +104,37 @@ impl Reader<'_> {
 /// `nx ny nz` and texture coordinates when it has `u v` (or `s t`, `texture_u texture_v`),
 /// stored as in the file. `file` is only used in error messages.
 pub fn parse_ply(bytes: &[u8], file: &str) -> Result<TriangleMesh> {
-    let err = |msg: String| Error::Ply {
+    let err = |msg: String| ply_error(file, msg);
+    let (lines, body_start) = header_lines(bytes, file)?;
+    let (binary, elements) = parse_header(&lines, file)?;
+    let body = &bytes[body_start..];
+    let mut reader = if binary {
+        Reader::Binary { data: body, pos: 0 }
+    } else {
+        let text = std::str::from_utf8(body).map_err(|_| err("ASCII body is not text".into()))?;
+        Reader::Ascii {
+            tokens: text.split_ascii_whitespace(),
+        }
+    };
+    let mut data = Body::default();
+    for e in &elements {
+        read_element(e, &mut reader, &mut data, file)?;
+    }
+    triangulate(data, file)
+}
+
+/// The error `msg` about `file`.
+fn ply_error(file: &str, msg: String) -> Error {
+    Error::Ply {
         file: file.to_string(),
         msg,
-    };
-    // Header: ASCII lines up to and including `end_header`.
+    }
+}
+
+/// The header's lines (ASCII, trimmed) up to and including `end_header`, and the offset of
+/// the body after it.
+fn header_lines(bytes: &[u8], file: &str) -> Result<(Vec<String>, usize)> {
+    let err = |msg: String| ply_error(file, msg);
     let mut pos = 0usize;
     let mut lines = Vec::new();
     loop {
@@ -131,6 +157,13 @@ pub fn parse_ply(bytes: &[u8], file: &str) -> Result<TriangleMesh> {
             return Err(err("header longer than 10000 lines".into()));
         }
     }
+    Ok((lines, pos))
+}
+
+/// The header's format (`true`: binary little endian) and its elements with their
+/// properties; errors name the header line.
+fn parse_header(lines: &[String], file: &str) -> Result<(bool, Vec<Element>)> {
+    let err = |msg: String| ply_error(file, msg);
     if lines.first().map(String::as_str) != Some("ply") {
         return Err(err("line 1: not a PLY file (expected \"ply\")".into()));
     }
@@ -191,96 +224,122 @@ pub fn parse_ply(bytes: &[u8], file: &str) -> Result<TriangleMesh> {
         }
     }
     let binary = binary.ok_or_else(|| err("no format line in the header".into()))?;
-    let body = &bytes[pos..];
-    let mut reader = if binary {
-        Reader::Binary { data: body, pos: 0 }
-    } else {
-        let text = std::str::from_utf8(body).map_err(|_| err("ASCII body is not text".into()))?;
-        Reader::Ascii {
-            tokens: text.split_ascii_whitespace(),
-        }
-    };
-    let mut pos3: Vec<Vec3> = Vec::new();
-    let mut nrm: Vec<Vec3> = Vec::new();
-    let mut uvs: Vec<glam::Vec2> = Vec::new();
-    let mut faces: Vec<Vec<u32>> = Vec::new();
-    for e in &elements {
-        let is_vertex = e.name == "vertex";
-        let is_face = e.name == "face";
-        let find = |n: &str| e.props.iter().position(|p| p.name == n && p.list.is_none());
-        let xyz = [find("x"), find("y"), find("z")];
-        let nxyz = [find("nx"), find("ny"), find("nz")];
-        let has_n = nxyz.iter().all(Option::is_some);
-        let uv = [["u", "v"], ["s", "t"], ["texture_u", "texture_v"]]
-            .iter()
-            .map(|[a, b]| (find(a), find(b)))
-            .find(|(a, b)| a.is_some() && b.is_some());
-        if is_vertex && xyz.iter().any(Option::is_none) {
-            return Err(err("vertex element lacks x, y or z".into()));
-        }
-        let idx_prop = e.props.iter().position(|p| {
-            p.list.is_some() && (p.name == "vertex_indices" || p.name == "vertex_index")
-        });
-        if is_face && idx_prop.is_none() {
-            return Err(err("face element lacks a vertex_indices list".into()));
-        }
-        if e.count > 1 << 28 {
-            return Err(err(format!(
-                "element {} count {} is too large",
-                e.name, e.count
-            )));
-        }
-        let mut vals = vec![0.0f64; e.props.len()];
-        for k in 0..e.count {
-            let short = || {
-                err(format!(
-                    "element {} {k}: file ends early or a value does not parse",
-                    e.name
-                ))
-            };
-            for (j, p) in e.props.iter().enumerate() {
-                match p.list {
-                    None => vals[j] = reader.value(p.ty).ok_or_else(short)?,
-                    Some(ct) => {
-                        let n = reader.value(ct).ok_or_else(short)?;
-                        if !(0.0..=1024.0).contains(&n) || n.fract() != 0.0 {
-                            return Err(err(format!(
-                                "element {} {k}: bad list length {n}",
-                                e.name
-                            )));
-                        }
-                        let mut list = Vec::with_capacity(n as usize);
-                        for _ in 0..n as usize {
-                            list.push(reader.value(p.ty).ok_or_else(short)?);
-                        }
-                        if is_face && Some(j) == idx_prop {
-                            if list.len() < 3 {
-                                return Err(err(format!("face {k} has fewer than 3 vertices")));
-                            }
-                            let mut f = Vec::with_capacity(list.len());
-                            for v in list {
-                                if !(v >= 0.0 && v.fract() == 0.0 && v < u32::MAX as f64) {
-                                    return Err(err(format!("face {k}: bad vertex index {v}")));
-                                }
-                                f.push(v as u32);
-                            }
-                            faces.push(f);
-                        }
+    Ok((binary, elements))
+}
+
+/// What the body's `vertex` and `face` elements hold.
+#[derive(Default)]
+struct Body {
+    positions: Vec<Vec3>,
+    normals: Vec<Vec3>,
+    uvs: Vec<glam::Vec2>,
+    /// Vertex indices of each face (n-gons, not yet triangulated).
+    faces: Vec<Vec<u32>>,
+}
+
+/// Reads the `e.count` items of element `e`: positions, normals and uvs of a `vertex`
+/// element and the index lists of a `face` element go to `data`; other elements and
+/// properties are read and dropped.
+fn read_element(e: &Element, reader: &mut Reader, data: &mut Body, file: &str) -> Result<()> {
+    let err = |msg: String| ply_error(file, msg);
+    let is_vertex = e.name == "vertex";
+    let is_face = e.name == "face";
+    let find = |n: &str| e.props.iter().position(|p| p.name == n && p.list.is_none());
+    let xyz = [find("x"), find("y"), find("z")];
+    let nxyz = [find("nx"), find("ny"), find("nz")];
+    let has_n = nxyz.iter().all(Option::is_some);
+    let uv = [["u", "v"], ["s", "t"], ["texture_u", "texture_v"]]
+        .iter()
+        .map(|[a, b]| (find(a), find(b)))
+        .find(|(a, b)| a.is_some() && b.is_some());
+    if is_vertex && xyz.iter().any(Option::is_none) {
+        return Err(err("vertex element lacks x, y or z".into()));
+    }
+    let idx_prop = e
+        .props
+        .iter()
+        .position(|p| p.list.is_some() && (p.name == "vertex_indices" || p.name == "vertex_index"));
+    if is_face && idx_prop.is_none() {
+        return Err(err("face element lacks a vertex_indices list".into()));
+    }
+    if e.count > 1 << 28 {
+        return Err(err(format!(
+            "element {} count {} is too large",
+            e.name, e.count
+        )));
+    }
+    let mut vals = vec![0.0f64; e.props.len()];
+    for k in 0..e.count {
+        let short = || {
+            err(format!(
+                "element {} {k}: file ends early or a value does not parse",
+                e.name
+            ))
+        };
+        for (j, p) in e.props.iter().enumerate() {
+            match p.list {
+                None => vals[j] = reader.value(p.ty).ok_or_else(short)?,
+                Some(ct) => {
+                    let n = reader.value(ct).ok_or_else(short)?;
+                    if !(0.0..=1024.0).contains(&n) || n.fract() != 0.0 {
+                        return Err(err(format!("element {} {k}: bad list length {n}", e.name)));
+                    }
+                    let mut list = Vec::with_capacity(n as usize);
+                    for _ in 0..n as usize {
+                        list.push(reader.value(p.ty).ok_or_else(short)?);
+                    }
+                    if is_face && Some(j) == idx_prop {
+                        data.faces.push(face_indices(list, k, file)?);
                     }
                 }
             }
-            if is_vertex {
-                let g = |i: Option<usize>| vals[i.unwrap_or(0)] as f32;
-                pos3.push(Vec3::new(g(xyz[0]), g(xyz[1]), g(xyz[2])));
-                if has_n {
-                    nrm.push(Vec3::new(g(nxyz[0]), g(nxyz[1]), g(nxyz[2])).normalize_or_zero());
-                }
-                if let Some((a, b)) = uv {
-                    uvs.push(glam::Vec2::new(g(a), g(b)));
-                }
+        }
+        if is_vertex {
+            let g = |i: Option<usize>| vals[i.unwrap_or(0)] as f32;
+            data.positions
+                .push(Vec3::new(g(xyz[0]), g(xyz[1]), g(xyz[2])));
+            if has_n {
+                data.normals
+                    .push(Vec3::new(g(nxyz[0]), g(nxyz[1]), g(nxyz[2])).normalize_or_zero());
+            }
+            if let Some((a, b)) = uv {
+                data.uvs.push(glam::Vec2::new(g(a), g(b)));
             }
         }
     }
+    Ok(())
+}
+
+/// The vertex indices of face `k` from its list of values: at least 3, each a whole number
+/// in `[0, u32::MAX)`.
+#[inline]
+fn face_indices(list: Vec<f64>, k: usize, file: &str) -> Result<Vec<u32>> {
+    if list.len() < 3 {
+        return Err(ply_error(
+            file,
+            format!("face {k} has fewer than 3 vertices"),
+        ));
+    }
+    let mut f = Vec::with_capacity(list.len());
+    for v in list {
+        if !(v >= 0.0 && v.fract() == 0.0 && v < u32::MAX as f64) {
+            return Err(ply_error(file, format!("face {k}: bad vertex index {v}")));
+        }
+        f.push(v as u32);
+    }
+    Ok(f)
+}
+
+/// The mesh of the body: faces fan-triangulated (indices checked against the vertices),
+/// normals if the vertices have them, uvs if every vertex has one.
+fn triangulate(data: Body, file: &str) -> Result<TriangleMesh> {
+    let err = |msg: String| ply_error(file, msg);
+    let Body {
+        positions: pos3,
+        normals: nrm,
+        uvs,
+        faces,
+    } = data;
     let has_uv = !uvs.is_empty() && uvs.len() == pos3.len();
     let mut indices = Vec::new();
     for (k, f) in faces.iter().enumerate() {

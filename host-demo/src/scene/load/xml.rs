@@ -1361,431 +1361,482 @@ impl Ctx<'_> {
         Ok(idx)
     }
 
+    /// Reads a `<bsdf>` of any type (one helper per family of plugin names), adds its
+    /// material and returns the index; `mask` and the bump maps return theirs directly.
     fn bsdf_body(&mut self, n: Node) -> Result<u32> {
         self.aniso = [None, None];
         let ty = n.attribute("type").unwrap_or("");
         let mut tex = MaterialTextures::default();
         let m = match ty {
-            "diffuse" => {
-                let mut reflectance = Vec3::splat(0.5);
-                for p in elements(n) {
-                    match self.name(p)?.as_ref() {
-                        "reflectance" => {
-                            let v = self.param(p)?;
-                            reflectance = Self::split(v, &mut tex.diffuse);
-                        }
-                        _ => self.ignore(p, "diffuse property")?,
-                    }
-                }
-                Material::Diffuse { reflectance }
-            }
-            // Mitsuba 0.6 `roughdiffuse` (Oren–Nayar, see [`crate::scene::bsdf::oren_nayar`]):
-            // `reflectance` (or `diffuseReflectance`) and `alpha` constants or textures,
-            // `useFastApprox`; its defaults 0.5, 0.2 and false.
-            "roughdiffuse" => {
-                let (mut reflectance, mut alpha, mut fast) = (Vec3::splat(0.5), 0.2f32, false);
-                let mut conserve = true;
-                for p in elements(n) {
-                    match (p.tag_name().name(), self.name(p)?.as_ref()) {
-                        (_, "reflectance" | "diffuse_reflectance") => {
-                            let v = self.param(p)?;
-                            reflectance = Self::split(v, &mut tex.diffuse);
-                        }
-                        ("float", "alpha") => alpha = self.float(p)?,
-                        ("texture" | "ref", "alpha") => tex.scalar = Some(self.texture_param(p)?),
-                        ("boolean", "use_fast_approx") => fast = self.boolean(p)?,
-                        ("boolean", "ensure_energy_conservation") => conserve = self.boolean(p)?,
-                        _ => self.ignore(p, "roughdiffuse property")?,
-                    }
-                }
-                if !(alpha.is_finite() && alpha >= 0.0) {
-                    return Err(self.err(
-                        n,
-                        format!("roughdiffuse alpha {alpha} must be finite and >= 0"),
-                    ));
-                }
-                // Mitsuba 0.6's `ensureEnergyConservation(reflectance, 1)`: a reflectance
-                // above 1 in some channel is scaled by 0.99 / max.
-                let max = reflectance.max_element();
-                if conserve && tex.diffuse.is_none() && max > 1.0 {
-                    let scale = 0.99 / max;
-                    self.warn(n, format!("roughdiffuse: reflectance reaches {max} (> 1, not energy conserving); scaled by {scale} as Mitsuba 0.6 does"));
-                    reflectance *= scale;
-                }
-                Material::RoughDiffuse {
-                    reflectance,
-                    alpha,
-                    fast,
-                }
-            }
-            "conductor" | "roughconductor" => {
-                let (mut alpha, mut eta, mut k) = (0.1f32, Vec3::ZERO, Vec3::ONE);
-                let (mut ext_eta, mut specular) = (1.0f32, Vec3::ONE);
-                let mut distribution = "beckmann".to_string();
-                for p in elements(n) {
-                    if ty == "roughconductor"
-                        && self.rough_property(p, &mut distribution, &mut alpha, &mut tex.scalar)?
-                    {
-                        continue;
-                    }
-                    match (p.tag_name().name(), self.name(p)?.as_ref()) {
-                        ("string", "material") => {
-                            let name = self.attr(p, "value")?;
-                            let (e, kk) = named_conductor(name).ok_or_else(|| {
-                                self.err(p, format!("unknown conductor material \"{name}\" (Mitsuba's names: Ag, Al, Au, Cu, Cr, ...; see host-demo/src/conductors.rs)"))
-                            })?;
-                            (eta, k) = (Vec3::from(e), Vec3::from(kk));
-                        }
-                        (_, "eta") => eta = self.unbounded_color(p)?,
-                        (_, "k") => k = self.unbounded_color(p)?,
-                        // Mitsuba 0.6: the exterior medium's real IOR (a float or a name).
-                        (_, "ext_eta") => ext_eta = self.ior(p)?,
-                        (_, "specular_reflectance") => {
-                            let v = self.param(p)?;
-                            specular = Self::split(v, &mut tex.specular);
-                        }
-                        // Research forks of 0.6 put a roughness on smooth conductors; 0.6
-                        // itself ignores it.
-                        (_, "alpha" | "alpha_u" | "alpha_v" | "distribution") if ty == "conductor" => {
-                            self.warn(p, "a roughness on a smooth conductor is ignored (as Mitsuba 0.6 does); use roughconductor")
-                        }
-                        _ => self.ignore(p, &format!("{ty} property"))?,
-                    }
-                }
-                // 0.6's `extEta`: the Fresnel term sees the IOR relative to the exterior.
-                let (eta, k) = (eta / ext_eta, k / ext_eta);
-                if ty == "conductor" {
-                    Material::Conductor { eta, k, specular }
-                } else {
-                    let (distribution, alpha) = self.check_rough(n, &distribution, alpha)?;
-                    Material::RoughConductor {
-                        distribution,
-                        alpha,
-                        eta,
-                        k,
-                        specular,
-                    }
-                }
-            }
+            "diffuse" => self.diffuse_bsdf(n, &mut tex)?,
+            "roughdiffuse" => self.roughdiffuse_bsdf(n, &mut tex)?,
+            "conductor" | "roughconductor" => self.conductor_bsdf(n, ty, &mut tex)?,
             "dielectric" | "roughdielectric" | "thindielectric" => {
-                let (mut int_ior, mut ext_ior, mut alpha) = (1.5046f32, 1.000_277f32, 0.1f32);
-                let (mut reflectance, mut transmittance) = (Vec3::ONE, Vec3::ONE);
-                let mut distribution = "beckmann".to_string();
-                for p in elements(n) {
-                    if ty == "roughdielectric"
-                        && self.rough_property(p, &mut distribution, &mut alpha, &mut tex.scalar)?
-                    {
-                        continue;
-                    }
-                    match self.name(p)?.as_ref() {
-                        "int_ior" => int_ior = self.ior(p)?,
-                        "ext_ior" => ext_ior = self.ior(p)?,
-                        "specular_reflectance" => {
-                            let v = self.param(p)?;
-                            reflectance = Self::split(v, &mut tex.specular);
-                        }
-                        "specular_transmittance" => {
-                            let v = self.param(p)?;
-                            transmittance = Self::split(v, &mut tex.transmittance);
-                        }
-                        "alpha" | "alpha_u" | "alpha_v" | "distribution" if ty != "roughdielectric" => {
-                            self.warn(p, format!("a roughness on {ty} is ignored (as Mitsuba 0.6 does); use roughdielectric"))
-                        }
-                        _ => self.ignore(p, &format!("{ty} property"))?,
-                    }
-                }
-                if int_ior == ext_ior {
-                    return Err(self.err(n, "int_ior and ext_ior must differ"));
-                }
-                let eta = int_ior / ext_ior;
-                match ty {
-                    "dielectric" => Material::Dielectric {
-                        eta,
-                        reflectance,
-                        transmittance,
-                    },
-                    "thindielectric" => Material::ThinDielectric {
-                        eta,
-                        reflectance,
-                        transmittance,
-                    },
-                    _ => {
-                        let (distribution, alpha) = self.check_rough(n, &distribution, alpha)?;
-                        Material::RoughDielectric {
-                            distribution,
-                            alpha,
-                            eta,
-                            reflectance,
-                            transmittance,
-                        }
-                    }
-                }
+                self.dielectric_bsdf(n, ty, &mut tex)?
             }
-            "plastic" | "roughplastic" => {
-                let (mut int_ior, mut ext_ior, mut alpha) = (1.49f32, 1.000_277f32, 0.1f32);
-                let (mut diffuse, mut specular) = (Vec3::splat(0.5), Vec3::ONE);
-                let mut nonlinear = false;
-                let mut distribution = "beckmann".to_string();
-                let mut alpha_tex = None;
-                for p in elements(n) {
-                    if ty == "roughplastic"
-                        && self.rough_property(p, &mut distribution, &mut alpha, &mut alpha_tex)?
-                    {
-                        if alpha_tex.is_some() {
-                            return Err(self.err(p, "a textured alpha on roughplastic is not supported (its coating tables are precomputed per alpha); use a float"));
-                        }
-                        continue;
-                    }
-                    match (p.tag_name().name(), self.name(p)?.as_ref()) {
-                        (_, "int_ior") => int_ior = self.ior(p)?,
-                        (_, "ext_ior") => ext_ior = self.ior(p)?,
-                        (_, "diffuse_reflectance") => {
-                            let v = self.param(p)?;
-                            diffuse = Self::split(v, &mut tex.diffuse);
-                        }
-                        (_, "specular_reflectance") => {
-                            let v = self.param(p)?;
-                            specular = Self::split(v, &mut tex.specular);
-                        }
-                        ("boolean", "nonlinear") => nonlinear = self.boolean(p)?,
-                        _ => self.ignore(p, &format!("{ty} property"))?,
-                    }
-                }
-                if int_ior == ext_ior {
-                    return Err(self.err(n, "int_ior and ext_ior must differ"));
-                }
-                let eta = int_ior / ext_ior;
-                if ty == "plastic" {
-                    Material::Plastic(Coating::smooth(diffuse, specular, eta, nonlinear))
-                } else {
-                    let (distribution, alpha) = self.check_rough(n, &distribution, alpha)?;
-                    Material::RoughPlastic(Coating::rough(
-                        diffuse,
-                        specular,
-                        eta,
-                        nonlinear,
-                        distribution,
-                        alpha,
-                    ))
-                }
-            }
-            "twosided" => {
-                let mut sides = Vec::new();
-                for p in elements(n) {
-                    let Some(idx) = self.nested_bsdf(p, "twosided property")? else {
-                        continue;
-                    };
-                    if !self.wrappable(idx) {
-                        return Err(self.err(p, "twosided can only wrap opaque, one-sided BSDFs (not dielectrics or another twosided)"));
-                    }
-                    sides.push(idx);
-                }
-                match sides.as_slice() {
-                    [f] => Material::TwoSided {
-                        front: *f,
-                        back: *f,
-                    },
-                    [f, b] => Material::TwoSided {
-                        front: *f,
-                        back: *b,
-                    },
-                    _ => return Err(self.err(n, "twosided needs one or two nested BSDFs")),
-                }
-            }
-            "blendbsdf" => {
-                let mut parts = Vec::new();
-                let mut weight = Param::Const(Vec3::splat(0.5));
-                for p in elements(n) {
-                    match (
-                        p.tag_name().name(),
-                        p.attribute("name").map(prop_name).as_deref(),
-                    ) {
-                        ("bsdf", _) | ("ref", None) => {
-                            parts.extend(self.nested_bsdf(p, "blendbsdf property")?)
-                        }
-                        (_, Some("weight")) => weight = self.unit_param(p)?,
-                        _ => self.ignore(p, "blendbsdf property")?,
-                    }
-                }
-                let [a, b] = parts[..] else {
-                    return Err(self.err(
-                        n,
-                        format!(
-                            "blendbsdf needs exactly two nested BSDFs (found {})",
-                            parts.len()
-                        ),
-                    ));
-                };
-                let w = match weight {
-                    Param::Const(c) => c.x,
-                    Param::Tex(t) => {
-                        tex.scalar = Some(t);
-                        0.5
-                    }
-                };
-                Material::Blend { a, b, weight: w }
-            }
-            "mask" => {
-                let mut nested = None;
-                let mut opacity = Param::Const(Vec3::splat(0.5));
-                for p in elements(n) {
-                    match (
-                        p.tag_name().name(),
-                        p.attribute("name").map(prop_name).as_deref(),
-                    ) {
-                        ("bsdf", _) | ("ref", None) => {
-                            nested = self.nested_bsdf(p, "mask property")?
-                        }
-                        (_, Some("opacity")) => opacity = self.unit_param(p)?,
-                        _ => self.ignore(p, "mask property")?,
-                    }
-                }
-                let inner = nested.ok_or_else(|| self.err(n, "mask needs a nested BSDF"))?;
-                if let Param::Const(c) = opacity {
-                    if c.x > 0.0 && c.x < 1.0 {
-                        self.warn(n, format!("mask opacity {} is approximated as a cut-out: {} (opacity < 0.5 is fully transparent, otherwise opaque)", c.x, if c.x < 0.5 { "fully transparent" } else { "opaque" }));
-                    }
-                }
-                // A copy of the nested material that carries the opacity.
-                let m = self.builder.materials()[inner as usize];
-                let t = self.builder.material_textures()[inner as usize];
-                let idx = self.add_material(m, t);
-                self.mask_opacity.insert(idx, opacity);
-                return Ok(idx);
-            }
-            "bumpmap" | "normalmap" => {
-                let mut nested = None;
-                for p in elements(n) {
-                    match p.tag_name().name() {
-                        "bsdf" | "ref"
-                            if p.attribute("name").is_none() || p.tag_name().name() == "bsdf" =>
-                        {
-                            nested = self.nested_bsdf(p, &format!("{ty} property"))?
-                        }
-                        // The bump / normal texture itself and its scale are not used; a
-                        // texture with an id stays available to later references.
-                        "texture" => {
-                            if let Some(id) = p.attribute("id") {
-                                let def = self.texture_def(p)?;
-                                self.tex_defs.insert(id.to_string(), def);
-                            } else {
-                                self.register_nested_ids(p)?;
-                            }
-                        }
-                        "ref" | "float" => {}
-                        _ => self.ignore(p, &format!("{ty} property"))?,
-                    }
-                }
-                let inner =
-                    nested.ok_or_else(|| self.err(n, format!("{ty} needs a nested BSDF")))?;
-                self.warn(n, format!("{ty} is ignored: the nested BSDF is rendered with the unperturbed shading normal"));
-                return Ok(inner);
-            }
-            "phong" | "ward" => {
-                // Mitsuba 0.6 `phong` / `ward`, with their defaults; `ensureEnergyConservation`
-                // (on by default) scales kd and ks by 0.99 / max_c(kd + ks) where that is > 1.
-                let (mut diffuse, mut specular) = (Vec3::splat(0.5), Vec3::splat(0.2));
-                let (mut exponent, mut variant) =
-                    (30.0f32, crate::scene::bsdf::WardVariant::Balanced);
-                let (mut alpha, mut alpha_u, mut alpha_v) = (0.1f32, None, None);
-                let mut conserve = true;
-                for p in elements(n) {
-                    match (p.tag_name().name(), self.name(p)?.as_ref()) {
-                        (_, "diffuse_reflectance") => {
-                            let v = self.param(p)?;
-                            diffuse = Self::split(v, &mut tex.diffuse);
-                        }
-                        (_, "specular_reflectance") => {
-                            let v = self.param(p)?;
-                            specular = Self::split(v, &mut tex.specular);
-                        }
-                        ("boolean", "ensure_energy_conservation") => conserve = self.boolean(p)?,
-                        ("float", "exponent") if ty == "phong" => exponent = self.float(p)?,
-                        ("string", "variant") if ty == "ward" => {
-                            let v = self.attr(p, "value")?;
-                            variant = crate::scene::bsdf::WardVariant::parse(v).ok_or_else(|| self.err(p, format!("ward variant \"{v}\" is not supported (\"ward\", \"ward-duer\" or \"balanced\")")))?;
-                        }
-                        ("float", "alpha") if ty == "ward" => alpha = self.float(p)?,
-                        ("float", "alpha_u") if ty == "ward" => alpha_u = Some(self.float(p)?),
-                        ("float", "alpha_v") if ty == "ward" => alpha_v = Some(self.float(p)?),
-                        (
-                            "texture" | "ref",
-                            name @ ("exponent" | "alpha" | "alpha_u" | "alpha_v"),
-                        ) => {
-                            return Err(self.err(
-                                p,
-                                format!("a textured {name} on {ty} is not supported; use a float"),
-                            ));
-                        }
-                        _ => self.ignore(p, &format!("{ty} property"))?,
-                    }
-                }
-                let tex_max = |t: Option<u32>, c: Vec3| {
-                    t.map_or(c, |t| self.builder.textures()[t as usize].max_rgb())
-                };
-                let (kd_max, ks_max) = (
-                    tex_max(tex.diffuse, diffuse),
-                    tex_max(tex.specular, specular),
-                );
-                let scale = if conserve {
-                    crate::scene::bsdf::energy_scale(kd_max, ks_max)
-                } else {
-                    1.0
-                };
-                if !conserve && (kd_max + ks_max).max_element() > 1.0 {
-                    self.warn(n, format!("{ty}: diffuse_reflectance + specular_reflectance reach {} in a channel (> 1, not energy conserving; kept, as ensure_energy_conservation=false asks)", (kd_max + ks_max).max_element()));
-                }
-                if scale < 1.0 {
-                    self.warn(n, format!("{ty}: diffuse_reflectance + specular_reflectance reach {} in a channel (> 1, not energy conserving); both are scaled by {scale} as Mitsuba 0.6 does (set ensure_energy_conservation=false to keep them)", (kd_max + ks_max).max_element()));
-                }
-                if ty == "phong" {
-                    if !(exponent.is_finite() && exponent >= 0.0) {
-                        return Err(self.err(
-                            n,
-                            format!("phong exponent {exponent} must be finite and >= 0"),
-                        ));
-                    }
-                    Material::Phong {
-                        exponent,
-                        diffuse,
-                        specular,
-                        scale,
-                    }
-                } else {
-                    let (alpha_u, alpha_v) = (alpha_u.unwrap_or(alpha), alpha_v.unwrap_or(alpha));
-                    for a in [alpha_u, alpha_v] {
-                        if !(a.is_finite() && a > 0.0) {
-                            return Err(
-                                self.err(n, format!("ward alpha {a} must be finite and positive"))
-                            );
-                        }
-                    }
-                    if alpha_u != alpha_v {
-                        self.warn(n, format!("ward: anisotropic alphas ({alpha_u}, {alpha_v}) are oriented along the renderer's tangent frame built from the shading normal, not along dpdu as in Mitsuba 0.6 (the highlight's orientation may differ)"));
-                    }
-                    Material::Ward {
-                        variant,
-                        alpha_u,
-                        alpha_v,
-                        diffuse,
-                        specular,
-                        scale,
-                    }
-                }
-            }
-            _ => {
-                self.fallback(
-                    n,
-                    "bsdf type",
-                    "rendered as a grey diffuse (reflectance 0.5)",
-                )?;
-                self.register_nested_ids(n)?;
-                Material::Diffuse {
-                    reflectance: Vec3::splat(0.5),
-                }
-            }
+            "plastic" | "roughplastic" => self.plastic_bsdf(n, ty, &mut tex)?,
+            "twosided" => self.twosided_bsdf(n)?,
+            "blendbsdf" => self.blend_bsdf(n, &mut tex)?,
+            "mask" => return self.mask_bsdf(n),
+            "bumpmap" | "normalmap" => return self.bump_bsdf(n, ty),
+            "phong" | "ward" => self.phong_ward_bsdf(n, ty, &mut tex)?,
+            _ => self.unknown_bsdf(n)?,
         };
         Ok(self.add_material(m, tex))
+    }
+
+    /// `diffuse`: a constant or textured `reflectance` (default 0.5).
+    fn diffuse_bsdf(&mut self, n: Node, tex: &mut MaterialTextures) -> Result<Material> {
+        let mut reflectance = Vec3::splat(0.5);
+        for p in elements(n) {
+            match self.name(p)?.as_ref() {
+                "reflectance" => {
+                    let v = self.param(p)?;
+                    reflectance = Self::split(v, &mut tex.diffuse);
+                }
+                _ => self.ignore(p, "diffuse property")?,
+            }
+        }
+        Ok(Material::Diffuse { reflectance })
+    }
+
+    /// Mitsuba 0.6 `roughdiffuse` (Oren–Nayar, see [`crate::scene::bsdf::oren_nayar`]):
+    /// `reflectance` (or `diffuseReflectance`) and `alpha` constants or textures,
+    /// `useFastApprox`; its defaults 0.5, 0.2 and false.
+    fn roughdiffuse_bsdf(&mut self, n: Node, tex: &mut MaterialTextures) -> Result<Material> {
+        let (mut reflectance, mut alpha, mut fast) = (Vec3::splat(0.5), 0.2f32, false);
+        let mut conserve = true;
+        for p in elements(n) {
+            match (p.tag_name().name(), self.name(p)?.as_ref()) {
+                (_, "reflectance" | "diffuse_reflectance") => {
+                    let v = self.param(p)?;
+                    reflectance = Self::split(v, &mut tex.diffuse);
+                }
+                ("float", "alpha") => alpha = self.float(p)?,
+                ("texture" | "ref", "alpha") => tex.scalar = Some(self.texture_param(p)?),
+                ("boolean", "use_fast_approx") => fast = self.boolean(p)?,
+                ("boolean", "ensure_energy_conservation") => conserve = self.boolean(p)?,
+                _ => self.ignore(p, "roughdiffuse property")?,
+            }
+        }
+        if !(alpha.is_finite() && alpha >= 0.0) {
+            return Err(self.err(
+                n,
+                format!("roughdiffuse alpha {alpha} must be finite and >= 0"),
+            ));
+        }
+        // Mitsuba 0.6's `ensureEnergyConservation(reflectance, 1)`: a reflectance
+        // above 1 in some channel is scaled by 0.99 / max.
+        let max = reflectance.max_element();
+        if conserve && tex.diffuse.is_none() && max > 1.0 {
+            let scale = 0.99 / max;
+            self.warn(n, format!("roughdiffuse: reflectance reaches {max} (> 1, not energy conserving); scaled by {scale} as Mitsuba 0.6 does"));
+            reflectance *= scale;
+        }
+        Ok(Material::RoughDiffuse {
+            reflectance,
+            alpha,
+            fast,
+        })
+    }
+
+    /// `conductor` and `roughconductor`: a named material or `eta`, `k`, Mitsuba 0.6's `ext_eta`,
+    /// `specular_reflectance`, and the rough one's microfacet properties.
+    fn conductor_bsdf(
+        &mut self,
+        n: Node,
+        ty: &str,
+        tex: &mut MaterialTextures,
+    ) -> Result<Material> {
+        let (mut alpha, mut eta, mut k) = (0.1f32, Vec3::ZERO, Vec3::ONE);
+        let (mut ext_eta, mut specular) = (1.0f32, Vec3::ONE);
+        let mut distribution = "beckmann".to_string();
+        for p in elements(n) {
+            if ty == "roughconductor"
+                && self.rough_property(p, &mut distribution, &mut alpha, &mut tex.scalar)?
+            {
+                continue;
+            }
+            match (p.tag_name().name(), self.name(p)?.as_ref()) {
+                ("string", "material") => {
+                    let name = self.attr(p, "value")?;
+                    let (e, kk) = named_conductor(name).ok_or_else(|| {
+                        self.err(p, format!("unknown conductor material \"{name}\" (Mitsuba's names: Ag, Al, Au, Cu, Cr, ...; see host-demo/src/conductors.rs)"))
+                    })?;
+                    (eta, k) = (Vec3::from(e), Vec3::from(kk));
+                }
+                (_, "eta") => eta = self.unbounded_color(p)?,
+                (_, "k") => k = self.unbounded_color(p)?,
+                // Mitsuba 0.6: the exterior medium's real IOR (a float or a name).
+                (_, "ext_eta") => ext_eta = self.ior(p)?,
+                (_, "specular_reflectance") => {
+                    let v = self.param(p)?;
+                    specular = Self::split(v, &mut tex.specular);
+                }
+                // Research forks of 0.6 put a roughness on smooth conductors; 0.6
+                // itself ignores it.
+                (_, "alpha" | "alpha_u" | "alpha_v" | "distribution") if ty == "conductor" => {
+                    self.warn(p, "a roughness on a smooth conductor is ignored (as Mitsuba 0.6 does); use roughconductor")
+                }
+                _ => self.ignore(p, &format!("{ty} property"))?,
+            }
+        }
+        // 0.6's `extEta`: the Fresnel term sees the IOR relative to the exterior.
+        let (eta, k) = (eta / ext_eta, k / ext_eta);
+        if ty == "conductor" {
+            return Ok(Material::Conductor { eta, k, specular });
+        }
+        let (distribution, alpha) = self.check_rough(n, &distribution, alpha)?;
+        Ok(Material::RoughConductor {
+            distribution,
+            alpha,
+            eta,
+            k,
+            specular,
+        })
+    }
+
+    /// `dielectric`, `roughdielectric` and `thindielectric`: the two IORs, the reflectance and
+    /// transmittance multipliers, and the rough one's microfacet properties.
+    fn dielectric_bsdf(
+        &mut self,
+        n: Node,
+        ty: &str,
+        tex: &mut MaterialTextures,
+    ) -> Result<Material> {
+        let (mut int_ior, mut ext_ior, mut alpha) = (1.5046f32, 1.000_277f32, 0.1f32);
+        let (mut reflectance, mut transmittance) = (Vec3::ONE, Vec3::ONE);
+        let mut distribution = "beckmann".to_string();
+        for p in elements(n) {
+            if ty == "roughdielectric"
+                && self.rough_property(p, &mut distribution, &mut alpha, &mut tex.scalar)?
+            {
+                continue;
+            }
+            match self.name(p)?.as_ref() {
+                "int_ior" => int_ior = self.ior(p)?,
+                "ext_ior" => ext_ior = self.ior(p)?,
+                "specular_reflectance" => {
+                    let v = self.param(p)?;
+                    reflectance = Self::split(v, &mut tex.specular);
+                }
+                "specular_transmittance" => {
+                    let v = self.param(p)?;
+                    transmittance = Self::split(v, &mut tex.transmittance);
+                }
+                "alpha" | "alpha_u" | "alpha_v" | "distribution" if ty != "roughdielectric" => {
+                    self.warn(p, format!("a roughness on {ty} is ignored (as Mitsuba 0.6 does); use roughdielectric"))
+                }
+                _ => self.ignore(p, &format!("{ty} property"))?,
+            }
+        }
+        if int_ior == ext_ior {
+            return Err(self.err(n, "int_ior and ext_ior must differ"));
+        }
+        let eta = int_ior / ext_ior;
+        Ok(match ty {
+            "dielectric" => Material::Dielectric {
+                eta,
+                reflectance,
+                transmittance,
+            },
+            "thindielectric" => Material::ThinDielectric {
+                eta,
+                reflectance,
+                transmittance,
+            },
+            _ => {
+                let (distribution, alpha) = self.check_rough(n, &distribution, alpha)?;
+                Material::RoughDielectric {
+                    distribution,
+                    alpha,
+                    eta,
+                    reflectance,
+                    transmittance,
+                }
+            }
+        })
+    }
+
+    /// `plastic` and `roughplastic`: the IORs, the diffuse and specular reflectances,
+    /// `nonlinear`, and the rough one's microfacet properties (a constant alpha only).
+    fn plastic_bsdf(&mut self, n: Node, ty: &str, tex: &mut MaterialTextures) -> Result<Material> {
+        let (mut int_ior, mut ext_ior, mut alpha) = (1.49f32, 1.000_277f32, 0.1f32);
+        let (mut diffuse, mut specular) = (Vec3::splat(0.5), Vec3::ONE);
+        let mut nonlinear = false;
+        let mut distribution = "beckmann".to_string();
+        let mut alpha_tex = None;
+        for p in elements(n) {
+            if ty == "roughplastic"
+                && self.rough_property(p, &mut distribution, &mut alpha, &mut alpha_tex)?
+            {
+                if alpha_tex.is_some() {
+                    return Err(self.err(p, "a textured alpha on roughplastic is not supported (its coating tables are precomputed per alpha); use a float"));
+                }
+                continue;
+            }
+            match (p.tag_name().name(), self.name(p)?.as_ref()) {
+                (_, "int_ior") => int_ior = self.ior(p)?,
+                (_, "ext_ior") => ext_ior = self.ior(p)?,
+                (_, "diffuse_reflectance") => {
+                    let v = self.param(p)?;
+                    diffuse = Self::split(v, &mut tex.diffuse);
+                }
+                (_, "specular_reflectance") => {
+                    let v = self.param(p)?;
+                    specular = Self::split(v, &mut tex.specular);
+                }
+                ("boolean", "nonlinear") => nonlinear = self.boolean(p)?,
+                _ => self.ignore(p, &format!("{ty} property"))?,
+            }
+        }
+        if int_ior == ext_ior {
+            return Err(self.err(n, "int_ior and ext_ior must differ"));
+        }
+        let eta = int_ior / ext_ior;
+        if ty == "plastic" {
+            return Ok(Material::Plastic(Coating::smooth(
+                diffuse, specular, eta, nonlinear,
+            )));
+        }
+        let (distribution, alpha) = self.check_rough(n, &distribution, alpha)?;
+        Ok(Material::RoughPlastic(Coating::rough(
+            diffuse,
+            specular,
+            eta,
+            nonlinear,
+            distribution,
+            alpha,
+        )))
+    }
+
+    /// `twosided`: one nested BSDF for both sides, or front and back; only opaque one-sided
+    /// BSDFs can be wrapped.
+    fn twosided_bsdf(&mut self, n: Node) -> Result<Material> {
+        let mut sides = Vec::new();
+        for p in elements(n) {
+            let Some(idx) = self.nested_bsdf(p, "twosided property")? else {
+                continue;
+            };
+            if !self.wrappable(idx) {
+                return Err(self.err(p, "twosided can only wrap opaque, one-sided BSDFs (not dielectrics or another twosided)"));
+            }
+            sides.push(idx);
+        }
+        match sides.as_slice() {
+            [f] => Ok(Material::TwoSided {
+                front: *f,
+                back: *f,
+            }),
+            [f, b] => Ok(Material::TwoSided {
+                front: *f,
+                back: *b,
+            }),
+            _ => Err(self.err(n, "twosided needs one or two nested BSDFs")),
+        }
+    }
+
+    /// `blendbsdf`: exactly two nested BSDFs and a constant or textured `weight`.
+    fn blend_bsdf(&mut self, n: Node, tex: &mut MaterialTextures) -> Result<Material> {
+        let mut parts = Vec::new();
+        let mut weight = Param::Const(Vec3::splat(0.5));
+        for p in elements(n) {
+            match (
+                p.tag_name().name(),
+                p.attribute("name").map(prop_name).as_deref(),
+            ) {
+                ("bsdf", _) | ("ref", None) => {
+                    parts.extend(self.nested_bsdf(p, "blendbsdf property")?)
+                }
+                (_, Some("weight")) => weight = self.unit_param(p)?,
+                _ => self.ignore(p, "blendbsdf property")?,
+            }
+        }
+        let [a, b] = parts[..] else {
+            return Err(self.err(
+                n,
+                format!(
+                    "blendbsdf needs exactly two nested BSDFs (found {})",
+                    parts.len()
+                ),
+            ));
+        };
+        let w = match weight {
+            Param::Const(c) => c.x,
+            Param::Tex(t) => {
+                tex.scalar = Some(t);
+                0.5
+            }
+        };
+        Ok(Material::Blend { a, b, weight: w })
+    }
+
+    /// `mask`: a copy of the nested BSDF's material that carries the opacity (its index).
+    fn mask_bsdf(&mut self, n: Node) -> Result<u32> {
+        let mut nested = None;
+        let mut opacity = Param::Const(Vec3::splat(0.5));
+        for p in elements(n) {
+            match (
+                p.tag_name().name(),
+                p.attribute("name").map(prop_name).as_deref(),
+            ) {
+                ("bsdf", _) | ("ref", None) => nested = self.nested_bsdf(p, "mask property")?,
+                (_, Some("opacity")) => opacity = self.unit_param(p)?,
+                _ => self.ignore(p, "mask property")?,
+            }
+        }
+        let inner = nested.ok_or_else(|| self.err(n, "mask needs a nested BSDF"))?;
+        if let Param::Const(c) = opacity {
+            if c.x > 0.0 && c.x < 1.0 {
+                self.warn(n, format!("mask opacity {} is approximated as a cut-out: {} (opacity < 0.5 is fully transparent, otherwise opaque)", c.x, if c.x < 0.5 { "fully transparent" } else { "opaque" }));
+            }
+        }
+        // A copy of the nested material that carries the opacity.
+        let m = self.builder.materials()[inner as usize];
+        let t = self.builder.material_textures()[inner as usize];
+        let idx = self.add_material(m, t);
+        self.mask_opacity.insert(idx, opacity);
+        Ok(idx)
+    }
+
+    /// `bumpmap` and `normalmap`: the nested BSDF's own index (the perturbation is ignored,
+    /// with a warning); a texture with an id stays available to later references.
+    fn bump_bsdf(&mut self, n: Node, ty: &str) -> Result<u32> {
+        let mut nested = None;
+        for p in elements(n) {
+            match p.tag_name().name() {
+                "bsdf" | "ref"
+                    if p.attribute("name").is_none() || p.tag_name().name() == "bsdf" =>
+                {
+                    nested = self.nested_bsdf(p, &format!("{ty} property"))?
+                }
+                // The bump / normal texture itself and its scale are not used; a
+                // texture with an id stays available to later references.
+                "texture" => {
+                    if let Some(id) = p.attribute("id") {
+                        let def = self.texture_def(p)?;
+                        self.tex_defs.insert(id.to_string(), def);
+                    } else {
+                        self.register_nested_ids(p)?;
+                    }
+                }
+                "ref" | "float" => {}
+                _ => self.ignore(p, &format!("{ty} property"))?,
+            }
+        }
+        let inner = nested.ok_or_else(|| self.err(n, format!("{ty} needs a nested BSDF")))?;
+        self.warn(
+            n,
+            format!(
+                "{ty} is ignored: the nested BSDF is rendered with the unperturbed shading normal"
+            ),
+        );
+        Ok(inner)
+    }
+
+    /// Mitsuba 0.6 `phong` / `ward`, with their defaults; `ensureEnergyConservation` (on by
+    /// default) scales kd and ks by 0.99 / max_c(kd + ks) where that is > 1.
+    fn phong_ward_bsdf(
+        &mut self,
+        n: Node,
+        ty: &str,
+        tex: &mut MaterialTextures,
+    ) -> Result<Material> {
+        let (mut diffuse, mut specular) = (Vec3::splat(0.5), Vec3::splat(0.2));
+        let (mut exponent, mut variant) = (30.0f32, crate::scene::bsdf::WardVariant::Balanced);
+        let (mut alpha, mut alpha_u, mut alpha_v) = (0.1f32, None, None);
+        let mut conserve = true;
+        for p in elements(n) {
+            match (p.tag_name().name(), self.name(p)?.as_ref()) {
+                (_, "diffuse_reflectance") => {
+                    let v = self.param(p)?;
+                    diffuse = Self::split(v, &mut tex.diffuse);
+                }
+                (_, "specular_reflectance") => {
+                    let v = self.param(p)?;
+                    specular = Self::split(v, &mut tex.specular);
+                }
+                ("boolean", "ensure_energy_conservation") => conserve = self.boolean(p)?,
+                ("float", "exponent") if ty == "phong" => exponent = self.float(p)?,
+                ("string", "variant") if ty == "ward" => {
+                    let v = self.attr(p, "value")?;
+                    variant = crate::scene::bsdf::WardVariant::parse(v).ok_or_else(|| self.err(p, format!("ward variant \"{v}\" is not supported (\"ward\", \"ward-duer\" or \"balanced\")")))?;
+                }
+                ("float", "alpha") if ty == "ward" => alpha = self.float(p)?,
+                ("float", "alpha_u") if ty == "ward" => alpha_u = Some(self.float(p)?),
+                ("float", "alpha_v") if ty == "ward" => alpha_v = Some(self.float(p)?),
+                ("texture" | "ref", name @ ("exponent" | "alpha" | "alpha_u" | "alpha_v")) => {
+                    return Err(self.err(
+                        p,
+                        format!("a textured {name} on {ty} is not supported; use a float"),
+                    ));
+                }
+                _ => self.ignore(p, &format!("{ty} property"))?,
+            }
+        }
+        let tex_max = |t: Option<u32>, c: Vec3| {
+            t.map_or(c, |t| self.builder.textures()[t as usize].max_rgb())
+        };
+        let (kd_max, ks_max) = (
+            tex_max(tex.diffuse, diffuse),
+            tex_max(tex.specular, specular),
+        );
+        let scale = if conserve {
+            crate::scene::bsdf::energy_scale(kd_max, ks_max)
+        } else {
+            1.0
+        };
+        if !conserve && (kd_max + ks_max).max_element() > 1.0 {
+            self.warn(n, format!("{ty}: diffuse_reflectance + specular_reflectance reach {} in a channel (> 1, not energy conserving; kept, as ensure_energy_conservation=false asks)", (kd_max + ks_max).max_element()));
+        }
+        if scale < 1.0 {
+            self.warn(n, format!("{ty}: diffuse_reflectance + specular_reflectance reach {} in a channel (> 1, not energy conserving); both are scaled by {scale} as Mitsuba 0.6 does (set ensure_energy_conservation=false to keep them)", (kd_max + ks_max).max_element()));
+        }
+        if ty == "phong" {
+            if !(exponent.is_finite() && exponent >= 0.0) {
+                return Err(self.err(
+                    n,
+                    format!("phong exponent {exponent} must be finite and >= 0"),
+                ));
+            }
+            return Ok(Material::Phong {
+                exponent,
+                diffuse,
+                specular,
+                scale,
+            });
+        }
+        let (alpha_u, alpha_v) = (alpha_u.unwrap_or(alpha), alpha_v.unwrap_or(alpha));
+        for a in [alpha_u, alpha_v] {
+            if !(a.is_finite() && a > 0.0) {
+                return Err(self.err(n, format!("ward alpha {a} must be finite and positive")));
+            }
+        }
+        if alpha_u != alpha_v {
+            self.warn(n, format!("ward: anisotropic alphas ({alpha_u}, {alpha_v}) are oriented along the renderer's tangent frame built from the shading normal, not along dpdu as in Mitsuba 0.6 (the highlight's orientation may differ)"));
+        }
+        Ok(Material::Ward {
+            variant,
+            alpha_u,
+            alpha_v,
+            diffuse,
+            specular,
+            scale,
+        })
+    }
+
+    /// An unknown BSDF type: a grey diffuse in its place (an error with `--strict`), its nested
+    /// ids registered.
+    fn unknown_bsdf(&mut self, n: Node) -> Result<Material> {
+        self.fallback(
+            n,
+            "bsdf type",
+            "rendered as a grey diffuse (reflectance 0.5)",
+        )?;
+        self.register_nested_ids(n)?;
+        Ok(Material::Diffuse {
+            reflectance: Vec3::splat(0.5),
+        })
     }
 
     /// A top-level `<emitter>`: `point`, `constant` or `envmap` (area emitters live in shapes).
@@ -2099,6 +2150,8 @@ impl Ctx<'_> {
         }
     }
 
+    /// Reads a `<shape>` of a known type: its properties, then its geometry, flipped with
+    /// `flip_normals`; an unknown type is skipped (an error with `--strict`).
     fn shape_data(&mut self, n: Node) -> Result<ShapeData> {
         let ty = n.attribute("type").unwrap_or("");
         const KNOWN: [&str; 7] = [
@@ -2120,28 +2173,65 @@ impl Ctx<'_> {
                 opacity: None,
             });
         }
-        let mut to_world = Mat4::IDENTITY;
-        let (mut flip, mut face_normals) = (false, false);
-        let mut material = None;
-        let mut emission = None;
-        let mut filename = None;
-        let mut shape_index = 0u32;
-        let (mut center, mut radius) = (Vec3::ZERO, 1.0f32);
+        let props = self.shape_props(n, ty)?;
+        let to_world = props.to_world;
+        let (mut prims, mut uvs) = match ty {
+            "obj" | "ply" | "serialized" => self.mesh_prims(n, ty, &props)?,
+            "sphere" => (self.sphere_prims(n, &props)?, None),
+            "rectangle" => {
+                let (prims, uvs) = rectangle_prims(to_world);
+                (prims, Some(uvs))
+            }
+            "cube" => (cube_prims(to_world), None),
+            "disk" => (self.disk_prims(n, to_world)?, None),
+            _ => unreachable!("unknown shape types return early"),
+        };
+        if props.flip {
+            flip_shape(&mut prims, &mut uvs);
+        }
+        let material = match props.material {
+            Some(m) => m,
+            None => self.default_material(),
+        };
+        let opacity = self.opacity_of(material);
+        Ok(ShapeData {
+            prims,
+            uvs,
+            material,
+            emission: props.emission,
+            opacity,
+        })
+    }
+
+    /// The properties of a `<shape>` of type `ty` (nested BSDFs and area emitters read and
+    /// added on the way); what does not apply to the type is ignored with a warning.
+    fn shape_props(&mut self, n: Node, ty: &str) -> Result<ShapeProps> {
+        let mut s = ShapeProps {
+            to_world: Mat4::IDENTITY,
+            flip: false,
+            face_normals: false,
+            material: None,
+            emission: None,
+            filename: None,
+            shape_index: 0,
+            center: Vec3::ZERO,
+            radius: 1.0,
+        };
         for p in elements(n) {
             let tag = p.tag_name().name();
             let pname = prop_name(p.attribute("name").unwrap_or(""));
             match (tag, pname.as_ref(), ty) {
-                ("transform", "to_world", _) => to_world = self.transform(p)?,
-                ("boolean", "flip_normals", _) => flip = self.boolean(p)?,
+                ("transform", "to_world", _) => s.to_world = self.transform(p)?,
+                ("boolean", "flip_normals", _) => s.flip = self.boolean(p)?,
                 ("boolean", "face_normals", "obj" | "ply" | "serialized") => {
-                    face_normals = self.boolean(p)?
+                    s.face_normals = self.boolean(p)?
                 }
                 ("string", "filename", "obj" | "ply" | "serialized") => {
-                    filename = Some(self.attr(p, "value")?.to_string())
+                    s.filename = Some(self.attr(p, "value")?.to_string())
                 }
                 ("integer", "shape_index", "serialized") => {
                     let v = self.integer(p)?;
-                    shape_index = u32::try_from(v)
+                    s.shape_index = u32::try_from(v)
                         .map_err(|_| self.err(p, format!("shape_index {v} must be >= 0")))?;
                 }
                 // Mitsuba 0.6 mesh options.
@@ -2154,10 +2244,10 @@ impl Ctx<'_> {
                     self.warn(p, "max_smooth_angle is ignored (the file's vertex normals, or face normals, are used)");
                 }
                 ("boolean", "collapse", "obj") => {}
-                ("point", "center", "sphere") => center = self.vec3(p)?,
-                ("float", "radius", "sphere") => radius = self.float(p)?,
-                ("ref", _, _) => material = Some(self.bsdf_ref(p)?),
-                ("bsdf", _, _) => material = Some(self.bsdf(p)?),
+                ("point", "center", "sphere") => s.center = self.vec3(p)?,
+                ("float", "radius", "sphere") => s.radius = self.float(p)?,
+                ("ref", _, _) => s.material = Some(self.bsdf_ref(p)?),
+                ("bsdf", _, _) => s.material = Some(self.bsdf(p)?),
                 ("emitter", _, _) => {
                     if p.attribute("type") != Some("area") {
                         self.fallback(p, "emitter type inside a shape", "skipped")?;
@@ -2170,170 +2260,198 @@ impl Ctx<'_> {
                             _ => self.ignore(q, "area emitter property")?,
                         }
                     }
-                    emission = Some(radiance);
+                    s.emission = Some(radiance);
                 }
                 _ => self.ignore(p, &format!("property of shape \"{ty}\""))?,
             }
         }
-        let nmat = Mat4::from_mat3(glam::Mat3::from_mat4(to_world).inverse().transpose());
-        let xf_n = |v: Vec3| nmat.transform_vector3(v).normalize_or_zero();
-        let mut uvs: Option<Vec<[Vec2; 3]>> = None;
-        let mut prims = match ty {
-            "obj" | "ply" | "serialized" => {
-                let f = filename.ok_or_else(|| {
-                    self.err(n, format!("{ty} shape needs a \"filename\" string"))
-                })?;
-                let (path, bytes) = self
-                    .read_rel(&f)
-                    .map_err(|e| self.err(n, format!("{ty} shape: {e}")))?;
-                let name = path.display().to_string();
-                let mut mesh = match ty {
-                    "obj" => {
-                        let text = String::from_utf8(bytes)
-                            .map_err(|_| self.err(n, format!("{name} is not UTF-8 text")))?;
-                        parse_obj(&text, &name)?
-                    }
-                    "ply" => parse_ply(&bytes, &name)?,
-                    _ => {
-                        let m = parse_serialized(&bytes, shape_index, &name)?;
-                        face_normals |= m.face_normals;
-                        m.mesh
-                    }
-                };
-                mesh.transform(to_world);
-                uvs = mesh.triangle_uvs();
-                mesh.primitives(face_normals)
+        Ok(s)
+    }
+
+    /// The triangles (and texture coordinates, if the file has them) of an `obj`, `ply` or
+    /// `serialized` mesh, read relative to the scene and transformed to world space.
+    #[allow(clippy::type_complexity)] // the pair `shape_data` matches on, as the other shapes
+    fn mesh_prims(
+        &mut self,
+        n: Node,
+        ty: &str,
+        props: &ShapeProps,
+    ) -> Result<(Vec<Prim>, Option<Vec<[Vec2; 3]>>)> {
+        let f = props
+            .filename
+            .as_deref()
+            .ok_or_else(|| self.err(n, format!("{ty} shape needs a \"filename\" string")))?;
+        let (path, bytes) = self
+            .read_rel(f)
+            .map_err(|e| self.err(n, format!("{ty} shape: {e}")))?;
+        let name = path.display().to_string();
+        let mut face_normals = props.face_normals;
+        let mut mesh = match ty {
+            "obj" => {
+                let text = String::from_utf8(bytes)
+                    .map_err(|_| self.err(n, format!("{name} is not UTF-8 text")))?;
+                parse_obj(&text, &name)?
             }
-            "sphere" => {
-                let m = to_world
-                    * Mat4::from_translation(center)
-                    * Mat4::from_scale(Vec3::splat(radius));
-                let c = m.transform_point3(Vec3::ZERO);
-                let axes = [
-                    m.x_axis.truncate().length(),
-                    m.y_axis.truncate().length(),
-                    m.z_axis.truncate().length(),
-                ];
-                if (axes[0] - axes[1]).abs() > 1e-4 * axes[0]
-                    || (axes[0] - axes[2]).abs() > 1e-4 * axes[0]
-                {
-                    return Err(self.err(n, "sphere with a non-uniform scale is not supported"));
-                }
-                if axes[0].is_nan() || axes[0] <= 0.0 {
-                    return Err(self.err(n, "sphere radius must be positive"));
-                }
-                vec![Prim::Sphere {
-                    center: c,
-                    radius: axes[0],
-                    flip: false,
-                }]
+            "ply" => parse_ply(&bytes, &name)?,
+            _ => {
+                let m = parse_serialized(&bytes, props.shape_index, &name)?;
+                face_normals |= m.face_normals;
+                m.mesh
             }
-            "rectangle" => {
-                let c = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
-                    .map(|(x, y)| to_world.transform_point3(Vec3::new(x, y, 0.0)));
-                let nz = xf_n(Vec3::Z);
-                let mut tris = vec![
-                    Prim::Tri {
-                        p: [c[0], c[1], c[2]],
-                        n: None,
-                    },
-                    Prim::Tri {
-                        p: [c[0], c[2], c[3]],
-                        n: None,
-                    },
-                ];
-                // Mitsuba's rectangle uv: local (x, y) in [-1, 1]² mapped to [0, 1]².
-                let q = [Vec2::ZERO, Vec2::X, Vec2::ONE, Vec2::Y];
-                let mut uv = vec![[q[0], q[1], q[2]], [q[0], q[2], q[3]]];
-                if (c[1] - c[0]).cross(c[2] - c[0]).dot(nz) < 0.0 {
-                    for (t, u) in tris.iter_mut().zip(&mut uv) {
-                        if let Prim::Tri { p, .. } = t {
-                            p.swap(1, 2);
-                            u.swap(1, 2);
-                        }
-                    }
-                }
-                uvs = Some(uv);
-                tris
-            }
-            "cube" => {
-                // Mitsuba's cube: [-1, 1]³, 12 triangles, outward face normals.
-                let mut tris = Vec::with_capacity(12);
-                for axis in 0..3 {
-                    for sign in [-1.0f32, 1.0] {
-                        let mut nl = Vec3::ZERO;
-                        nl[axis] = sign;
-                        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
-                        let c =
-                            [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)].map(|(x, y)| {
-                                let mut q = nl;
-                                q[u] = x;
-                                q[v] = y;
-                                to_world.transform_point3(q)
-                            });
-                        let nw = xf_n(nl);
-                        let mut t = [[c[0], c[1], c[2]], [c[0], c[2], c[3]]];
-                        if (c[1] - c[0]).cross(c[2] - c[0]).dot(nw) < 0.0 {
-                            for p in &mut t {
-                                p.swap(1, 2);
-                            }
-                        }
-                        tris.extend(t.map(|p| Prim::Tri { p, n: None }));
-                    }
-                }
-                tris
-            }
-            "disk" => {
-                let center = to_world.transform_point3(Vec3::ZERO);
-                let (a, b) = (
-                    to_world.transform_vector3(Vec3::X),
-                    to_world.transform_vector3(Vec3::Y),
-                );
-                let area = a.cross(b).length();
-                if area.is_nan() || area <= 0.0 {
-                    return Err(self.err(n, "disk to_world is degenerate"));
-                }
-                vec![Prim::Disk {
-                    center,
-                    a,
-                    b,
-                    n: xf_n(Vec3::Z),
-                }]
-            }
-            _ => unreachable!("unknown shape types return early"),
         };
-        if flip {
-            if let Some(uv) = &mut uvs {
-                for u in uv.iter_mut() {
-                    u.swap(1, 2);
-                }
-            }
-            for pr in &mut prims {
-                match pr {
-                    Prim::Tri { p, n } => {
-                        p.swap(1, 2);
-                        if let Some(n) = n {
-                            n.swap(1, 2);
-                            *n = n.map(|v| -v);
-                        }
-                    }
-                    Prim::Sphere { flip, .. } => *flip = !*flip,
-                    Prim::Disk { n, .. } => *n = -*n,
-                }
+        mesh.transform(props.to_world);
+        let uvs = mesh.triangle_uvs();
+        Ok((mesh.primitives(face_normals), uvs))
+    }
+
+    /// A `sphere`: `center` and `radius` under `to_world`, which may scale it uniformly only.
+    fn sphere_prims(&self, n: Node, props: &ShapeProps) -> Result<Vec<Prim>> {
+        let m = props.to_world
+            * Mat4::from_translation(props.center)
+            * Mat4::from_scale(Vec3::splat(props.radius));
+        let c = m.transform_point3(Vec3::ZERO);
+        let axes = [
+            m.x_axis.truncate().length(),
+            m.y_axis.truncate().length(),
+            m.z_axis.truncate().length(),
+        ];
+        if (axes[0] - axes[1]).abs() > 1e-4 * axes[0] || (axes[0] - axes[2]).abs() > 1e-4 * axes[0]
+        {
+            return Err(self.err(n, "sphere with a non-uniform scale is not supported"));
+        }
+        if axes[0].is_nan() || axes[0] <= 0.0 {
+            return Err(self.err(n, "sphere radius must be positive"));
+        }
+        Ok(vec![Prim::Sphere {
+            center: c,
+            radius: axes[0],
+            flip: false,
+        }])
+    }
+
+    /// A `disk`: the unit disk of the local xy plane under `to_world`.
+    fn disk_prims(&self, n: Node, to_world: Mat4) -> Result<Vec<Prim>> {
+        let center = to_world.transform_point3(Vec3::ZERO);
+        let (a, b) = (
+            to_world.transform_vector3(Vec3::X),
+            to_world.transform_vector3(Vec3::Y),
+        );
+        let area = a.cross(b).length();
+        if area.is_nan() || area <= 0.0 {
+            return Err(self.err(n, "disk to_world is degenerate"));
+        }
+        Ok(vec![Prim::Disk {
+            center,
+            a,
+            b,
+            n: normal_transform(to_world)(Vec3::Z),
+        }])
+    }
+}
+
+/// The properties of a `<shape>` its geometry is built from ([`Ctx::shape_props`]).
+struct ShapeProps {
+    to_world: Mat4,
+    /// `flip_normals`.
+    flip: bool,
+    /// `face_normals` (meshes).
+    face_normals: bool,
+    /// The nested or referenced BSDF, if any.
+    material: Option<u32>,
+    /// The radiance of a nested area emitter.
+    emission: Option<Vec3>,
+    /// The mesh file (meshes).
+    filename: Option<String>,
+    /// The mesh of a `serialized` file.
+    shape_index: u32,
+    /// Centre and radius of a `sphere`.
+    center: Vec3,
+    radius: f32,
+}
+
+/// Maps a local normal to world space under `to_world` (inverse transpose), normalised.
+fn normal_transform(to_world: Mat4) -> impl Fn(Vec3) -> Vec3 {
+    let nmat = Mat4::from_mat3(glam::Mat3::from_mat4(to_world).inverse().transpose());
+    move |v| nmat.transform_vector3(v).normalize_or_zero()
+}
+
+/// A `rectangle`: two triangles of local `[-1, 1]²` under `to_world`, wound to face the
+/// transformed normal, with Mitsuba's uv (local (x, y) in [-1, 1]² mapped to [0, 1]²).
+fn rectangle_prims(to_world: Mat4) -> (Vec<Prim>, Vec<[Vec2; 3]>) {
+    let c = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
+        .map(|(x, y)| to_world.transform_point3(Vec3::new(x, y, 0.0)));
+    let nz = normal_transform(to_world)(Vec3::Z);
+    let mut tris = vec![
+        Prim::Tri {
+            p: [c[0], c[1], c[2]],
+            n: None,
+        },
+        Prim::Tri {
+            p: [c[0], c[2], c[3]],
+            n: None,
+        },
+    ];
+    let q = [Vec2::ZERO, Vec2::X, Vec2::ONE, Vec2::Y];
+    let mut uv = vec![[q[0], q[1], q[2]], [q[0], q[2], q[3]]];
+    if (c[1] - c[0]).cross(c[2] - c[0]).dot(nz) < 0.0 {
+        for (t, u) in tris.iter_mut().zip(&mut uv) {
+            if let Prim::Tri { p, .. } = t {
+                p.swap(1, 2);
+                u.swap(1, 2);
             }
         }
-        let material = match material {
-            Some(m) => m,
-            None => self.default_material(),
-        };
-        let opacity = self.opacity_of(material);
-        Ok(ShapeData {
-            prims,
-            uvs,
-            material,
-            emission,
-            opacity,
-        })
+    }
+    (tris, uv)
+}
+
+/// A `cube`: Mitsuba's `[-1, 1]³` under `to_world`, 12 triangles wound to face outwards.
+fn cube_prims(to_world: Mat4) -> Vec<Prim> {
+    let xf_n = normal_transform(to_world);
+    let mut tris = Vec::with_capacity(12);
+    for axis in 0..3 {
+        for sign in [-1.0f32, 1.0] {
+            let mut nl = Vec3::ZERO;
+            nl[axis] = sign;
+            let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+            let c = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)].map(|(x, y)| {
+                let mut q = nl;
+                q[u] = x;
+                q[v] = y;
+                to_world.transform_point3(q)
+            });
+            let nw = xf_n(nl);
+            let mut t = [[c[0], c[1], c[2]], [c[0], c[2], c[3]]];
+            if (c[1] - c[0]).cross(c[2] - c[0]).dot(nw) < 0.0 {
+                for p in &mut t {
+                    p.swap(1, 2);
+                }
+            }
+            tris.extend(t.map(|p| Prim::Tri { p, n: None }));
+        }
+    }
+    tris
+}
+
+/// `flip_normals`: reverses the winding (and the uvs with it) and the normals of every
+/// primitive; spheres flip their orientation flag.
+fn flip_shape(prims: &mut [Prim], uvs: &mut Option<Vec<[Vec2; 3]>>) {
+    if let Some(uv) = uvs {
+        for u in uv.iter_mut() {
+            u.swap(1, 2);
+        }
+    }
+    for pr in prims {
+        match pr {
+            Prim::Tri { p, n } => {
+                p.swap(1, 2);
+                if let Some(n) = n {
+                    n.swap(1, 2);
+                    *n = n.map(|v| -v);
+                }
+            }
+            Prim::Sphere { flip, .. } => *flip = !*flip,
+            Prim::Disk { n, .. } => *n = -*n,
+        }
     }
 }
 
