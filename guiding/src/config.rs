@@ -39,6 +39,18 @@ impl Representation {
         }
     }
 
+    /// The representation's name (`npm`, `nasg`, `df-n`, `df-l`), as
+    /// [`str::parse`] reads it and as the bench's method names spell it.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Npm => "npm",
+            Self::Nasg => "nasg",
+            Self::DfNearest => "df-n",
+            Self::DfLinear => "df-l",
+        }
+    }
+
     /// Whether the guide-selection probability is learned (NASG) rather than
     /// [`GuidingConfig::selection_probability`].
     #[must_use]
@@ -67,6 +79,16 @@ pub enum ModelSize {
 impl ModelSize {
     /// Every size, in code order.
     pub const ALL: [Self; 3] = [Self::Small, Self::Compact, Self::Paper];
+
+    /// The size's name (`small`, `compact`, `paper`), as [`str::parse`] reads it.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Small => "small",
+            Self::Compact => "compact",
+            Self::Paper => "paper",
+        }
+    }
 
     /// The size with this stable code (the `repr(u32)` value).
     #[must_use]
@@ -243,5 +265,95 @@ impl Default for GuidingConfig {
     /// [`GuidingConfig::npm_product`].
     fn default() -> Self {
         Self::npm_product()
+    }
+}
+
+/// The error of parsing a [`Representation`] or [`ModelSize`] name: the name
+/// and the names that exist.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct UnknownName {
+    /// The name that was given.
+    pub given: String,
+    /// The names that exist.
+    pub expected: &'static [&'static str],
+}
+
+impl std::fmt::Display for UnknownName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "unknown name {:?} (expected one of: {})",
+            self.given,
+            self.expected.join(", ")
+        )
+    }
+}
+
+impl std::error::Error for UnknownName {}
+
+/// Parses `s` as the value of `all` whose `name` it is.
+fn parse_name<T: Copy>(
+    s: &str,
+    all: &[T],
+    name: fn(T) -> &'static str,
+    names: &'static [&'static str],
+) -> Result<T, UnknownName> {
+    all.iter()
+        .copied()
+        .find(|&v| name(v) == s)
+        .ok_or_else(|| UnknownName {
+            given: s.to_string(),
+            expected: names,
+        })
+}
+
+impl std::str::FromStr for Representation {
+    type Err = UnknownName;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        parse_name(s, &Self::ALL, Self::name, &["npm", "nasg", "df-n", "df-l"])
+    }
+}
+
+impl std::str::FromStr for ModelSize {
+    type Err = UnknownName;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        parse_name(s, &Self::ALL, Self::name, &["small", "compact", "paper"])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every name parses back to its value, the error lists exactly the names of `ALL`, and
+    /// the stable codes run in `ALL`'s order: a value added to one list and not the others
+    /// fails here.
+    #[test]
+    fn names_codes_and_lists_are_in_step() {
+        let e = "?".parse::<Representation>().unwrap_err();
+        assert_eq!(e.expected, Representation::ALL.map(Representation::name));
+        for (i, r) in Representation::ALL.into_iter().enumerate() {
+            assert_eq!(r.name().parse::<Representation>(), Ok(r));
+            assert_eq!(Representation::from_code(i as u32), Some(r));
+            assert_eq!(r as u32, i as u32);
+        }
+        let e = "?".parse::<ModelSize>().unwrap_err();
+        assert_eq!(e.expected, ModelSize::ALL.map(ModelSize::name));
+        for (i, s) in ModelSize::ALL.into_iter().enumerate() {
+            assert_eq!(s.name().parse::<ModelSize>(), Ok(s));
+            assert_eq!(ModelSize::from_code(i as u32), Some(s));
+            assert_eq!(s as u32, i as u32);
+        }
+        assert_eq!(
+            Representation::from_code(Representation::ALL.len() as u32),
+            None
+        );
+        assert_eq!(ModelSize::from_code(ModelSize::ALL.len() as u32), None);
+        assert!(
+            "Npm".parse::<Representation>().is_err(),
+            "names are case-sensitive"
+        );
     }
 }

@@ -102,7 +102,7 @@ pub mod trial;
 pub use batch::DistributionBatch;
 pub use cache::{CacheLookup, CacheOptions, GuideCache, SelectionFit, SelectionReport};
 pub use combine::{Combination, CombineOptions, Denominator, GroupWeight, PassCombiner};
-pub use config::{GuidingConfig, ModelSize, Representation, Target};
+pub use config::{GuidingConfig, ModelSize, Representation, Target, UnknownName};
 pub use device::{DeviceFailure, DeviceSelection, GpuContext};
 pub use error::GuidingError;
 pub use evidence::{CostRatio, Verdict};

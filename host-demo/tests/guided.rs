@@ -10,9 +10,10 @@
 
 mod common;
 
+use guiding::{ModelSize, Representation};
 use guiding_core::field::FieldConfig;
 use guiding_core::loss::Target;
-use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
+use host_demo::render::strategy::guide::build_guide;
 use host_demo::render::{render, Image, IntegratorKind, RenderOptions};
 use host_demo::render::{render_guided, GuidedOptions, GuidedStats, TestHooks};
 use host_demo::scene::builtin::load_builtin;
@@ -70,7 +71,7 @@ fn opts(
 #[allow(clippy::too_many_arguments)]
 fn guided(
     scene: &Scene,
-    kind: GuideKind,
+    kind: Representation,
     target: Target,
     size: ModelSize,
     o: &RenderOptions,
@@ -99,7 +100,7 @@ fn guided(
 /// The small NPM radiance guide of the time-budget tests.
 fn small_npm_radiance(scene: &Scene, config: FieldConfig) -> guiding::GuidingField {
     build_guide(
-        GuideKind::Npm,
+        Representation::Npm,
         Target::Radiance,
         ModelSize::Small,
         scene.bounds(),
@@ -150,11 +151,11 @@ fn guided_unbiased_cornell() {
     let (w, h) = (res(48), res(48));
     let reference = render(&scene, &opts(IntegratorKind::PtNee, 64, w, h, 1, 0));
     let cases = [
-        (GuideKind::Npm, Target::Product),
-        (GuideKind::Npm, Target::Radiance),
-        (GuideKind::Nasg, Target::Product),
-        (GuideKind::DfN, Target::Product),
-        (GuideKind::DfL, Target::Product),
+        (Representation::Npm, Target::Product),
+        (Representation::Npm, Target::Radiance),
+        (Representation::Nasg, Target::Product),
+        (Representation::DfNearest, Target::Product),
+        (Representation::DfLinear, Target::Product),
     ];
     for (i, (kind, target)) in cases.into_iter().enumerate() {
         let o = opts(IntegratorKind::PtNee, 32, w, h, 100 + i as u64, 0);
@@ -174,7 +175,7 @@ fn guided_unbiased_cornell_no_nee() {
     let o = opts(IntegratorKind::Pt, 64, w, h, 4, 0);
     let (img, _) = guided(
         &scene,
-        GuideKind::Npm,
+        Representation::Npm,
         Target::Product,
         ModelSize::Small,
         &o,
@@ -204,9 +205,9 @@ fn guided_reduces_variance() {
     let o = opts(IntegratorKind::Pt, spp, w, h, 6, 0);
     let (g, st) = guided(
         &scene,
-        GuideKind::Npm,
+        Representation::Npm,
         Target::Product,
-        ModelSize::Demo,
+        ModelSize::Compact,
         &o,
         false,
         16,
@@ -317,9 +318,9 @@ fn door_ratio(seed: u64) -> (f64, f64) {
         .with_threads(0)
         .with_seed(6 + seed as u32);
     let mut g = build_guide(
-        GuideKind::Npm,
+        Representation::Npm,
         Target::Radiance,
-        ModelSize::Demo,
+        ModelSize::Compact,
         scene.bounds(),
         0.3,
         config,
@@ -384,7 +385,7 @@ fn training_stops_after_fraction() {
     let o = opts(IntegratorKind::PtNee, 10, res(24), res(24), 9, 0);
     let (_, st) = guided(
         &scene,
-        GuideKind::Npm,
+        Representation::Npm,
         Target::Product,
         ModelSize::Small,
         &o,
@@ -410,7 +411,7 @@ fn guided_deterministic_across_threads() {
         let o = opts(IntegratorKind::PtNee, 6, w, h, 11, threads);
         guided(
             &scene,
-            GuideKind::Nasg,
+            Representation::Nasg,
             Target::Product,
             ModelSize::Small,
             &o,
@@ -597,9 +598,9 @@ fn a_guide_that_does_not_pay_on_the_cornell_box_is_switched_off() {
     let scene = host_demo::load_scene(path).expect("the shared Cornell box loads");
     let config = FieldConfig::DEFAULT.with_threads(2).with_seed(8);
     let mut g = build_guide(
-        GuideKind::Npm,
+        Representation::Npm,
         Target::Radiance,
-        ModelSize::Demo,
+        ModelSize::Compact,
         scene.bounds(),
         0.9,
         config,

@@ -667,9 +667,10 @@ fn guided_phong_ward_agrees_with_pt_nee() {
 /// 64 spp and block-z-tests the guided image against `pt-nee` (seed `seed`; the guided render
 /// uses `seed + 1`).
 fn guided_agrees_with_pt_nee(name: &str, sc: &Scene, seed: u64, field_seed: u32) {
+    use guiding::{ModelSize, Representation};
     use guiding_core::field::FieldConfig;
     use guiding_core::loss::Target;
-    use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
+    use host_demo::render::strategy::guide::build_guide;
     use host_demo::render::{render_guided, GuidedOptions};
     let reference = render_scene(sc, IntegratorKind::PtNee, 64, seed);
     let mut o = opts(IntegratorKind::PtNee, 64, seed + 1);
@@ -680,7 +681,7 @@ fn guided_agrees_with_pt_nee(name: &str, sc: &Scene, seed: u64, field_seed: u32)
         .with_learning_rate(1e-2)
         .with_seed(field_seed);
     let mut g = build_guide(
-        GuideKind::Npm,
+        Representation::Npm,
         Target::Product,
         ModelSize::Small,
         sc.bounds(),

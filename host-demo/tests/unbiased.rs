@@ -31,9 +31,10 @@
 mod common;
 
 use common::sidak;
+use guiding::{ModelSize, Representation};
 use guiding_core::field::FieldConfig;
 use guiding_core::loss::Target;
-use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
+use host_demo::render::strategy::guide::build_guide;
 use host_demo::render::{render, Image, IntegratorKind, RenderOptions};
 use host_demo::render::{render_guided, CacheMode, GuidedOptions, GuidedStats, TestHooks};
 use host_demo::scene::builtin::load_builtin;
@@ -189,14 +190,14 @@ fn t_two_sided(t: f64, df: f64) -> f64 {
 /// A method under test: renders the scene with the given seed.
 type Method<'a> = (&'a str, Box<dyn Fn(u64) -> Image + 'a>);
 
-fn guided(scene: &Scene, kind: GuideKind, nee: bool, seed: u64) -> Image {
+fn guided(scene: &Scene, kind: Representation, nee: bool, seed: u64) -> Image {
     guided_with(scene, kind, nee, seed, None, 1.0)
 }
 
 /// A guided render with NEE, the guide on `gpu` when given.
 fn guided_on(
     scene: &Scene,
-    kind: GuideKind,
+    kind: Representation,
     seed: u64,
     gpu: Option<&guiding_gpu::GpuContext>,
 ) -> Image {
@@ -207,7 +208,7 @@ fn guided_on(
 /// `guide_pdf_scale ≠ 1` is the deliberate defect of the power check.
 fn guided_with(
     scene: &Scene,
-    kind: GuideKind,
+    kind: Representation,
     nee: bool,
     seed: u64,
     gpu: Option<&guiding_gpu::GpuContext>,
@@ -308,10 +309,10 @@ fn gpu_guide_agrees_with_the_cpu_guide_per_block() {
     };
     let scene = load_builtin("cornell-box").expect("builtin");
     let kinds = [
-        ("npm", GuideKind::Npm),
-        ("nasg", GuideKind::Nasg),
-        ("df-n", GuideKind::DfN),
-        ("df-l", GuideKind::DfL),
+        ("npm", Representation::Npm),
+        ("nasg", Representation::Nasg),
+        ("df-n", Representation::DfNearest),
+        ("df-l", Representation::DfLinear),
     ];
     let level = sidak(
         ALPHA,
@@ -362,23 +363,23 @@ fn all_integrators_agree_per_block() {
         ),
         (
             "guided npm",
-            Box::new(|s| guided(&scene, GuideKind::Npm, true, s)),
+            Box::new(|s| guided(&scene, Representation::Npm, true, s)),
         ),
         (
             "guided nasg",
-            Box::new(|s| guided(&scene, GuideKind::Nasg, true, s)),
+            Box::new(|s| guided(&scene, Representation::Nasg, true, s)),
         ),
         (
             "guided df-n",
-            Box::new(|s| guided(&scene, GuideKind::DfN, true, s)),
+            Box::new(|s| guided(&scene, Representation::DfNearest, true, s)),
         ),
         (
             "guided df-l",
-            Box::new(|s| guided(&scene, GuideKind::DfL, true, s)),
+            Box::new(|s| guided(&scene, Representation::DfLinear, true, s)),
         ),
         (
             "guided npm no-NEE",
-            Box::new(|s| guided(&scene, GuideKind::Npm, false, 100 + s)),
+            Box::new(|s| guided(&scene, Representation::Npm, false, 100 + s)),
         ),
     ];
     assert_eq!(methods.len(), METHODS);
@@ -403,7 +404,7 @@ fn all_integrators_agree_per_block() {
 fn power_check_rejects_a_scaled_guide_pdf() {
     let scene = load_builtin("cornell-box").expect("builtin");
     let reference = reference_statistics(&scene);
-    let biased = seed_statistics(|s| guided_with(&scene, GuideKind::Npm, true, s, None, 1.5));
+    let biased = seed_statistics(|s| guided_with(&scene, Representation::Npm, true, s, None, 1.5));
     let mut failures = Vec::new();
     compare_blocks(
         "guided npm, guide pdf x 1.5",
@@ -440,7 +441,7 @@ fn guided_cached(
         .with_threads(0)
         .with_seed(seed as u32 + 7);
     let mut g = build_guide(
-        GuideKind::Npm,
+        Representation::Npm,
         Target::Radiance,
         ModelSize::Small,
         scene.bounds(),
@@ -622,7 +623,7 @@ fn sharp_frozen_guides_agree_per_block() {
             .with_threads(0)
             .with_seed(11 + i as u32);
         let mut g = build_guide(
-            GuideKind::Npm,
+            Representation::Npm,
             target,
             ModelSize::Small,
             scene.bounds(),

@@ -81,7 +81,7 @@ impl Method {
                 let (guide, target) = name
                     .rsplit_once('-')
                     .filter(|(g, t)| {
-                        ["npm", "nasg", "df-n", "df-l"].contains(g)
+                        g.parse::<guiding::Representation>().is_ok()
                             && ["radiance", "product"].contains(t)
                     })
                     .ok_or_else(|| {

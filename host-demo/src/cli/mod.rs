@@ -31,18 +31,6 @@ enum Integrator {
 }
 
 #[derive(Clone, Copy, ValueEnum)]
-enum GuideArg {
-    /// Neural Parametric Mixtures (vMF).
-    Npm,
-    /// NASG mixture with a learned selection probability.
-    Nasg,
-    /// Distribution factorisation, nearest reconstruction.
-    DfN,
-    /// Distribution factorisation, linear reconstruction.
-    DfL,
-}
-
-#[derive(Clone, Copy, ValueEnum)]
 enum TargetArg {
     /// Learn the incident radiance.
     Radiance,
@@ -50,14 +38,16 @@ enum TargetArg {
     Product,
 }
 
-#[derive(Clone, Copy, ValueEnum)]
-enum SizeArg {
-    /// 4-level grid (4..32 cells), MLP 2 x 32.
-    Demo,
-    /// The library's tiny test presets.
-    Small,
-    /// The papers' sizes (4.1 M parameters; slow on a CPU).
-    Paper,
+/// A library name (`guiding::Representation`, `guiding::ModelSize`) as a CLI value: the
+/// library's `FromStr` (one name per concept), its error as clap's.
+fn library_name<T: std::str::FromStr<Err = guiding::UnknownName>>(s: &str) -> Result<T, String> {
+    s.parse().map_err(|e: guiding::UnknownName| e.to_string())
+}
+
+/// `--model-size`: the library's size names; `demo`, this CLI's earlier name of `compact`,
+/// still reads as it.
+fn model_size_arg(s: &str) -> Result<guiding::ModelSize, String> {
+    library_name(if s == "demo" { "compact" } else { s })
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -140,17 +130,20 @@ enum Cmd {
         /// Output EXR path (the PNG preview goes next to it, same name with `.png`).
         #[arg(long, default_value = "image.exr")]
         out: PathBuf,
-        /// Guiding model (`--integrator guided`).
-        #[arg(long, value_enum, default_value = "npm")]
-        guide: GuideArg,
+        /// Guiding model (`--integrator guided`): npm (vMF mixtures), nasg (NASG mixtures
+        /// with a learned selection probability), df-n / df-l (distribution factorisation,
+        /// nearest / linear reconstruction).
+        #[arg(long, value_parser = library_name::<guiding::Representation>, default_value = "npm")]
+        guide: guiding::Representation,
         /// Guiding target (`--integrator guided`). Default: `radiance` (the library's
         /// `npm_radiance` preset: the guide cache and the cosine product apply); `product`
         /// learns `f · L · cos` per outgoing direction and never uses the cache.
         #[arg(long, value_enum)]
         target: Option<TargetArg>,
-        /// Model size preset (`--integrator guided`).
-        #[arg(long, value_enum, default_value = "demo")]
-        model_size: SizeArg,
+        /// Model size preset (`--integrator guided`): compact (4-level grid, MLP 2 x 32),
+        /// small (the library's tiny test presets), paper (4.1 M parameters; slow on a CPU).
+        #[arg(long, value_parser = model_size_arg, default_value = "compact")]
+        model_size: guiding::ModelSize,
         /// Fraction of the budget (spp passes or time) in the training phase, in [0, 1].
         /// Default: the library's `ScheduleOptions::DEFAULT` (0.2).
         #[arg(long)]

@@ -1,10 +1,10 @@
 //! `host-demo render`: one image, its statistics and its output files.
 
 use super::stats::{Budget, CommonStages, GuidedRun, OutputFiles, PlainRun, RunStats, StatsDoc};
-use super::{CacheArg, Cmd, DeviceArg, GuideArg, Integrator, OnOff, SizeArg, TargetArg};
+use super::{CacheArg, Cmd, DeviceArg, Integrator, OnOff, TargetArg};
 use guiding_core::field::{FieldConfig, PlateauConfig};
 use guiding_core::loss::Target;
-use host_demo::render::strategy::guide::{build_guide, GuideKind, ModelSize};
+use host_demo::render::strategy::guide::build_guide;
 use host_demo::render::{render_guided, CacheMode, GuidedOptions, GuidedStats, Image};
 use host_demo::render::{render_with_stats, RenderStats};
 use host_demo::render::{IntegratorKind, RenderOptions};
@@ -227,7 +227,7 @@ fn image_size(
 
 /// The training and guide-selection arguments as given (`None`: the library's preset).
 struct TuningArgs {
-    guide: GuideArg,
+    guide: guiding::Representation,
     train_fraction: Option<f32>,
     training_share: Option<f64>,
     train_epochs: Option<f64>,
@@ -257,13 +257,7 @@ impl TuningArgs {
     /// Fills in the defaults and checks the ranges; the first bad argument is the error.
     fn resolve(self) -> host_demo::Result<Tuning> {
         // Every default is the library's: what an embedder gets is what this measures.
-        let representation = match self.guide {
-            GuideArg::Npm => guiding::Representation::Npm,
-            GuideArg::Nasg => guiding::Representation::Nasg,
-            GuideArg::DfN => guiding::Representation::DfNearest,
-            GuideArg::DfL => guiding::Representation::DfLinear,
-        };
-        let preset = guiding::GuidingConfig::for_representation(representation, Target::Radiance);
+        let preset = guiding::GuidingConfig::for_representation(self.guide, Target::Radiance);
         let mut schedule = guiding::ScheduleOptions::DEFAULT;
         if let Some(f) = self.train_fraction {
             schedule.train_fraction = f64::from(f);
@@ -331,9 +325,9 @@ impl TuningArgs {
 
 /// The arguments only the guided integrator reads (besides [`Tuning`]).
 struct GuideArgs {
-    guide: GuideArg,
+    guide: guiding::Representation,
     target: Option<TargetArg>,
-    model_size: SizeArg,
+    model_size: guiding::ModelSize,
     guide_cache: CacheArg,
     fit_selection: OnOff,
     guide_trial: OnOff,
@@ -397,20 +391,9 @@ fn run_guided(
         training_probe: matches!(args.training_probe, OnOff::On),
         ..GuidedOptions::default()
     };
-    let kind = match args.guide {
-        GuideArg::Npm => GuideKind::Npm,
-        GuideArg::Nasg => GuideKind::Nasg,
-        GuideArg::DfN => GuideKind::DfN,
-        GuideArg::DfL => GuideKind::DfL,
-    };
     let target = match args.target {
         Some(TargetArg::Radiance) | None => Target::Radiance,
         Some(TargetArg::Product) => Target::Product,
-    };
-    let size = match args.model_size {
-        SizeArg::Demo => ModelSize::Demo,
-        SizeArg::Small => ModelSize::Small,
-        SizeArg::Paper => ModelSize::Paper,
     };
     let config = FieldConfig::DEFAULT
         .with_batch_size(tuning.batch_size)
@@ -423,9 +406,9 @@ fn run_guided(
         .with_threads(opts.threads)
         .with_seed(opts.seed as u32);
     let mut g = build_guide(
-        kind,
+        args.guide,
         target,
-        size,
+        args.model_size,
         sc.bounds(),
         tuning.selection_probability,
         config,

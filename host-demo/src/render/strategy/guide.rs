@@ -1,4 +1,4 @@
-//! The guiding models the `guided` integrator can use, behind one object-safe trait.
+//! The guide of the `guided` integrator.
 //!
 //! [`build_guide`] maps the CLI's choices onto the embedding facade's
 //! [`guiding::GuidingField`] (model + online trainer + EMA weights over every representation
@@ -8,7 +8,7 @@
 //!
 //! # Model sizes
 //!
-//! * [`ModelSize::Demo`] (default): [`guiding::ModelSize::Compact`], a 4-level dense grid (4,
+//! * [`ModelSize::Compact`] (default): a 4-level dense grid (4,
 //!   8, 16, 32 cells per axis, 4 features per vertex: 166 816 parameters) and MLPs of 2 hidden
 //!   layers × 32. About 25× fewer parameters than the paper grids and ~4× cheaper per query,
 //!   so a 320×240 image trains and renders in about a minute on 2 cores.
@@ -17,33 +17,9 @@
 //! * [`ModelSize::Paper`]: the papers' sizes (4.1 M grid parameters; slow on a CPU).
 
 use glam::Vec3;
-use guiding::{GuidingConfig, GuidingField, Representation};
+use guiding::{GuidingConfig, GuidingField, ModelSize, Representation};
 use guiding_core::field::FieldConfig;
 use guiding_core::loss::Target;
-
-/// Which guiding model.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum GuideKind {
-    /// Neural Parametric Mixtures (vMF mixture, constant selection probability).
-    Npm,
-    /// Normalised anisotropic spherical Gaussians with a learned selection probability.
-    Nasg,
-    /// Distribution factorisation, piecewise-constant (nearest) reconstruction.
-    DfN,
-    /// Distribution factorisation, piecewise-linear reconstruction.
-    DfL,
-}
-
-/// Model size preset; see the [module docs](self#model-sizes).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ModelSize {
-    /// 4-level grid, MLP 2 × 32 (the default of the CLI).
-    Demo,
-    /// The library's test presets (tiny).
-    Small,
-    /// The papers' presets (4.1 M parameters).
-    Paper,
-}
 
 /// Human-readable description of a guide: representation, target, size and parameter count.
 pub fn describe(field: &GuidingField) -> String {
@@ -61,24 +37,13 @@ pub fn describe(field: &GuidingField) -> String {
 /// points on the box never sit exactly on the grid boundary). `selection` is the constant
 /// guide-selection probability of NPM / DF (NASG learns its own).
 pub fn build_guide(
-    kind: GuideKind,
+    representation: Representation,
     target: Target,
     size: ModelSize,
     bbox: (Vec3, Vec3),
     selection: f32,
     config: FieldConfig,
 ) -> crate::Result<GuidingField> {
-    let representation = match kind {
-        GuideKind::Npm => Representation::Npm,
-        GuideKind::Nasg => Representation::Nasg,
-        GuideKind::DfN => Representation::DfNearest,
-        GuideKind::DfL => Representation::DfLinear,
-    };
-    let size = match size {
-        ModelSize::Demo => guiding::ModelSize::Compact,
-        ModelSize::Small => guiding::ModelSize::Small,
-        ModelSize::Paper => guiding::ModelSize::Paper,
-    };
     let config = GuidingConfig {
         representation,
         target,
