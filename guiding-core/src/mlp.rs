@@ -538,7 +538,7 @@ mod batch {
     /// three sizes below), within the noise of that shared machine; it
     /// is preferred for its fewer instructions and larger register file.
     ///
-    /// Measured (`cargo bench -p guiding-core --features std --bench mlp`,
+    /// Measured (`cargo bench -p guiding-bench --bench mlp`,
     /// AMD EPYC Zen 4, one thread, batch 4096; measured FMA peak 117.4
     /// GFLOP/s, 32 flop/cycle at ≈ 3.65 GHz, the same with AVX2 and
     /// AVX-512; flops: `2 · MACS` per query forward, `6 · MACS` forward +

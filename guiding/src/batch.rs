@@ -223,7 +223,7 @@ impl DistributionBatch {
         }
         self.materialize();
         let vmf = &mut self.items.vmf;
-        guiding_core::model::wavefront::cosine_product_batch(vmf, normals);
+        guiding_core::model::batched::cosine_product_batch(vmf, normals);
         true
     }
 
@@ -430,9 +430,9 @@ impl GuidingField {
         raw: &[f32],
         out: &mut DistributionBatch,
     ) -> Result<(), GuidingError> {
+        use guiding_core::model::batched::{decode_nasg_batch, decode_vmf_batch};
         use guiding_core::model::nasg::NASG_OUTPUTS;
         use guiding_core::model::npm::NPM_OUTPUTS;
-        use guiding_core::model::wavefront::{decode_nasg_batch, decode_vmf_batch};
         out.reset(self);
         let r = models::raw_outputs(&self.inner);
         if r == 0 {

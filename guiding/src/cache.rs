@@ -76,7 +76,7 @@ pub struct CacheOptions {
     /// multiplied, network-decoded misses included. Ignored for NASG and DF.
     pub cosine_product: bool,
     /// DF guides: store each cell's frozen distribution as a table
-    /// ([`guiding_core::model::wavefront::DfTable`]: the marginal, and the
+    /// ([`guiding_core::model::batched::DfTable`]: the marginal, and the
     /// conditional at the 32 marginal bins' centres, ~2.4 kB a cell), so a
     /// query runs no network at all; otherwise a cell keeps the marginal and
     /// every sample and pdf runs the conditional network. A deviation from
@@ -372,7 +372,7 @@ impl GuideCache {
             let mut decoded = BatchItems::default();
             decode_cells(field, &queries, self.tabulate, &mut decoded);
             if self.product {
-                guiding_core::model::wavefront::cosine_product_batch(&mut decoded.vmf, &normals);
+                guiding_core::model::batched::cosine_product_batch(&mut decoded.vmf, &normals);
                 self.normals.extend_from_slice(&normals);
             }
             let items = Arc::make_mut(&mut self.items);
@@ -413,7 +413,7 @@ impl GuideCache {
         decode_cells(field, &queries, self.tabulate, items);
         items.lane_selection = selection;
         if self.product {
-            guiding_core::model::wavefront::cosine_product_batch(&mut items.vmf, &self.normals);
+            guiding_core::model::batched::cosine_product_batch(&mut items.vmf, &self.normals);
         }
         Ok(())
     }
@@ -497,7 +497,7 @@ impl GuideCache {
             decode_cells(field, &mq, self.tabulate, &mut out.items);
             if self.product {
                 let normals: Vec<Vec3> = mq.iter().map(|q| Vec3::from_array(q.normal)).collect();
-                guiding_core::model::wavefront::cosine_product_batch(&mut out.items.vmf, &normals);
+                guiding_core::model::batched::cosine_product_batch(&mut out.items.vmf, &normals);
             }
         }
         out.items.selection = self.items.selection;
@@ -529,7 +529,7 @@ fn decode_cells(
 ) {
     decode_into(field, queries, out);
     if tabulate && !out.df.is_empty() {
-        let mut tables = vec![guiding_core::model::wavefront::DfTable::ZERO; out.df.len()];
+        let mut tables = vec![guiding_core::model::batched::DfTable::ZERO; out.df.len()];
         with_field!(&field.inner, f => f
             .model()
             .tabulate_vertices_any(f.ema_params(), &out.df, &mut tables));

@@ -9,11 +9,11 @@ use guiding_core::field::{Field, FieldState};
 use guiding_core::lobe::DirectionSample;
 use guiding_core::mixture::nasg::NasgMixture;
 use guiding_core::mixture::vmf::VmfMixture;
+use guiding_core::model::batched::{DfTable, DfTableSums};
 use guiding_core::model::df::Df;
 use guiding_core::model::df::DfVertex;
 use guiding_core::model::nasg::{Nasg, NASG_LOBES};
 use guiding_core::model::npm::{Npm, NPM_LOBES};
-use guiding_core::model::wavefront::{DfTable, DfTableSums};
 use guiding_core::model::{Family, GuidingModel, QueryPoint};
 use guiding_core::pdf1d::Interpolation;
 

@@ -39,12 +39,12 @@
 //! one-sample MIS of guide and BSDF next to NEE depends on this share
 //! ([`crate::GuideCache::fit_selection`]).
 
-pub mod wavefront;
+pub mod batch;
 
 use crate::field::GuidingField;
+pub use batch::{BatchRecorder, Continuation};
 use guiding_core::model::QueryPoint;
 use guiding_core::sample::TrainingSample;
-pub use wavefront::{BatchRecorder, Continuation};
 
 /// One path vertex as the renderer saw it. All vectors in world space, the
 /// directions as in the [crate conventions](crate#conventions); RGB values

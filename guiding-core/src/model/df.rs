@@ -653,7 +653,7 @@ impl<
 {
     const FAMILY: super::Family = super::Family::Df;
 
-    /// The batched kernels of [`super::wavefront`].
+    /// The batched kernels of [`super::batched`].
     #[cfg(feature = "std")]
     fn accumulate_gradient_batch(
         &self,

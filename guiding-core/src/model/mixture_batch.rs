@@ -30,9 +30,9 @@ use crate::math::{exp, exp_nonpositive, sqrt};
 use crate::mixture::nasg::NasgMixture;
 use crate::mixture::pairwise_sum;
 use crate::mixture::vmf::VmfMixture;
+use crate::model::batched::{DfTable, DfTableSums};
 use crate::model::nasg::NASG_LOBES;
 use crate::model::npm::NPM_LOBES;
-use crate::model::wavefront::{DfTable, DfTableSums};
 use glam::{Vec2, Vec3};
 
 /// (mixture, direction) pairs per block.

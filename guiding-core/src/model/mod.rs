@@ -6,6 +6,8 @@
 //! offsets, target); parameters live outside it, in `params: &[f32]`, and
 //! gradients are accumulated into a buffer of the same layout.
 
+#[cfg(feature = "std")]
+pub mod batched;
 pub mod df;
 #[cfg(feature = "std")]
 pub mod mixture_batch;
@@ -14,8 +16,6 @@ pub mod npm;
 pub mod table;
 #[cfg(feature = "std")]
 pub mod vmf_gradient;
-#[cfg(feature = "std")]
-pub mod wavefront;
 
 use crate::gradient::GradientSink;
 use crate::lobe::DirectionSample;
@@ -177,7 +177,7 @@ pub trait GuidingModel: Copy {
     /// gradient element summed over the samples in their order, and returns
     /// the summed loss (in `f64`). The default calls
     /// [`Self::accumulate_gradient`] per sample; NPM and NASG override it
-    /// with the batched network kernels (`std`, [`wavefront`]), which round
+    /// with the batched network kernels (`std`, [`batched`]), which round
     /// differently within the bound stated in [`crate::mlp`].
     fn accumulate_gradient_batch(
         &self,

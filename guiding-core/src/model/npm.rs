@@ -482,7 +482,7 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> GuidingModel
 {
     const FAMILY: super::Family = super::Family::Npm;
 
-    /// The batched kernels of [`super::wavefront`].
+    /// The batched kernels of [`super::batched`].
     #[cfg(feature = "std")]
     fn accumulate_gradient_batch(
         &self,

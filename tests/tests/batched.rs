@@ -1,5 +1,5 @@
 //! The wavefront (batched) decode and training paths against the per-query
-//! reference kernels: `guiding_core::model::wavefront`, the `guiding`
+//! reference kernels: `guiding_core::model::batched`, the `guiding`
 //! crate's `DistributionBatch`, and the batched gradient the CPU runtime
 //! trains with.
 //!
@@ -20,13 +20,13 @@ use guiding_core::glam::{Vec2, Vec3};
 use guiding_core::math::INV_FOUR_PI;
 use guiding_core::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
 use guiding_core::mlp::Mlp;
+use guiding_core::model::batched::{decode_vmf_batch, decode_vmf_batch_portable};
 use guiding_core::model::df::{DfCompactRadiance, DfVertex, VertexModel};
 use guiding_core::model::nasg::NasgCompactProduct;
 use guiding_core::model::npm::{
     encode_inputs, encode_inputs_fast, NpmCompactProduct, NpmCompactRadiance, NPM_LOBES,
     NPM_OUTPUTS,
 };
-use guiding_core::model::wavefront::{decode_vmf_batch, decode_vmf_batch_portable};
 use guiding_core::model::GuidingModel;
 use guiding_core::pdf1d::Interpolation;
 use guiding_core::sample::TrainingSample;
@@ -508,7 +508,7 @@ fn df_vertices_sample_and_evaluate_like_the_model() {
 #[test]
 fn tabulated_df_vertices_hold_the_conditional_at_the_row_centres() {
     use guiding_core::factorised::{direction_from_square, square_from_direction};
-    use guiding_core::model::wavefront::DfTable;
+    use guiding_core::model::batched::DfTable;
     let model = DfCompactRadiance::new(
         guiding::config::compact_grid(LO, HI),
         Target::Radiance,
@@ -615,7 +615,7 @@ fn check_gradient<M: GuidingModel>(model: &M, seed: u64) {
 /// (2⁻²⁴ · 2⁷ ≈ 7.6·10⁻⁶) or 10⁻⁶ absolute for means near zero.
 #[test]
 fn batched_cosine_product_is_the_per_mixture_product() {
-    use guiding_core::model::wavefront::cosine_product_batch;
+    use guiding_core::model::batched::cosine_product_batch;
     let rows = raw_rows(300, 77);
     let mut ms = vec![VmfMixture::ZERO; rows.len()];
     decode_vmf_batch(&rows, &mut ms);
@@ -652,8 +652,8 @@ fn batched_cosine_product_is_the_per_mixture_product() {
 #[test]
 fn batched_nasg_decoder_matches_the_per_query_decoder() {
     use guiding_core::mixture::nasg::{NasgMixture, NASG_RAW_PER_LOBE};
+    use guiding_core::model::batched::decode_nasg_batch;
     use guiding_core::model::nasg::{NASG_LOBES, NASG_OUTPUTS};
-    use guiding_core::model::wavefront::decode_nasg_batch;
     let mut rng = Pcg32::new(12, 1);
     let specials = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 1e30, -1e30, 0.0];
     let rows: Vec<[f32; NASG_OUTPUTS]> = (0..777)
