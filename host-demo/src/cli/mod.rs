@@ -5,7 +5,7 @@ mod bench;
 mod render;
 mod stats;
 
-use clap::{Parser, Subcommand, ValueEnum};
+use clap::{Args, Parser, Subcommand, ValueEnum};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -130,104 +130,12 @@ enum Cmd {
         /// Output EXR path (the PNG preview goes next to it, same name with `.png`).
         #[arg(long, default_value = "image.exr")]
         out: PathBuf,
-        /// Guiding model (`--integrator guided`): npm (vMF mixtures), nasg (NASG mixtures
-        /// with a learned selection probability), df-n / df-l (distribution factorisation,
-        /// nearest / linear reconstruction).
-        #[arg(long, value_parser = library_name::<guiding::Representation>, default_value = "npm")]
-        guide: guiding::Representation,
-        /// Guiding target (`--integrator guided`). Default: `radiance` (the library's
-        /// `npm_radiance` preset: the guide cache and the cosine product apply); `product`
-        /// learns `f · L · cos` per outgoing direction and never uses the cache.
-        #[arg(long, value_enum)]
-        target: Option<TargetArg>,
-        /// Model size preset (`--integrator guided`): compact (4-level grid, MLP 2 x 32),
-        /// small (the library's tiny test presets), paper (4.1 M parameters; slow on a CPU).
-        #[arg(long, value_parser = model_size_arg, default_value = "compact")]
-        model_size: guiding::ModelSize,
-        /// Fraction of the budget (spp passes or time) in the training phase, in [0, 1].
-        /// Default: the library's `ScheduleOptions::DEFAULT` (0.2).
-        #[arg(long)]
-        train_fraction: Option<f32>,
-        /// Share of the training phase's wall clock given to Adam steps, in (0, 1). Default:
-        /// the library's (1/3; `guiding::schedule`).
-        #[arg(long)]
-        training_share: Option<f64>,
-        /// Reproducible training instead of the time share: one update per training pass
-        /// with this many epochs over its samples, at most --steps-per-update steps.
-        #[arg(long)]
-        train_epochs: Option<f64>,
-        /// Guide-selection probability c in [0, 1] (NASG uses its learned value). Default: the
-        /// library's preset (0.3; `guiding::config::PRESET_SELECTION_PROBABILITY`).
-        #[arg(long)]
-        selection_probability: Option<f32>,
-        /// Most Adam steps per update of --train-epochs (and of the library's plain
-        /// `update`). Default: the library's preset (64).
-        #[arg(long)]
-        steps_per_update: Option<u32>,
-        /// Training minibatch size. Default: the library's preset (8192).
-        #[arg(long)]
-        batch_size: Option<usize>,
-        /// Learning rate of the guide's Adam optimiser. Default: the library's preset (5e-3
-        /// for NPM, 3e-2 for NASG and DF; `guiding::config`).
-        #[arg(long)]
-        learning_rate: Option<f32>,
-        /// Stop training when the mean loss has not improved by --plateau-margin (relative)
-        /// over the best so far for this many consecutive passes (0, the default: train for the
-        /// whole training phase).
-        #[arg(long, default_value_t = 0)]
-        plateau_window: u32,
-        /// Relative improvement of the mean loss that counts as progress (see
-        /// --plateau-window).
-        #[arg(long, default_value_t = 0.01)]
-        plateau_margin: f32,
-        /// Answer radiance-target guide queries from a spatial cache of the decoded guide
-        /// (one network pass per occupied cell, stochastic trilinear lookup) instead of the
-        /// network per vertex; product guides never use it.
-        #[arg(long, value_enum, default_value = "always")]
-        guide_cache: CacheArg,
-        /// Cells of the guide cache along the scene's longest axis, in [1, 256].
-        #[arg(long, default_value_t = 64)]
-        guide_cache_resolution: u32,
-        /// With the guide cache (NPM / DF): fit the guide-selection probability per cell when
-        /// training stops (minimum estimated second moment of the one-sample MIS estimator over
-        /// c = 0, 0.1, ..., 0.9, with the MIS-weighted incident radiance of the last training
-        /// pass), instead of the constant --selection-probability; c = 0 skips the guide there.
-        #[arg(long, value_enum, default_value = "on")]
-        fit_selection: OnOff,
-        /// With --time: once training has stopped, alternate 4 guided and 4 unguided passes
-        /// (BSDF sampling and NEE), compare relMSE per pass x seconds per pass on the image,
-        /// and switch the guide off for the rest of the render when it does not pay.
-        #[arg(long, value_enum, default_value = "on")]
-        guide_trial: OnOff,
-        /// Combine the passes with inverse-variance weights (each training pass its own group,
-        /// the guided and the unguided passes after training one each; weights estimated on the
-        /// other half of a checkerboard so the image stays unbiased) instead of the plain mean.
-        #[arg(long, value_enum, default_value = "on")]
-        pass_weights: OnOff,
-        /// With the trial on: render the first training pass with the guide off and, after 3
-        /// guided training passes, end training and keep the guide off when even the best of
-        /// them costs more than the unguided pass (relMSE per pass x seconds per pass).
-        #[arg(long, value_enum, default_value = "on")]
-        training_probe: OnOff,
-        /// NEE in the guided integrator (default: on when the scene has an emitter NEE can sample).
-        #[arg(long, value_enum)]
-        nee: Option<OnOff>,
-        /// Where the guide runs (`--integrator guided`, every guide): `cpu`, or `gpu` (Vulkan:
-        /// the network's inference, the guide's samples and pdfs and the arithmetic of its
-        /// training steps through the SPIR-V kernels of guiding-gpu; tracing stays on the CPU).
-        /// Needs a build with `--features guiding-gpu/shaders`. A device failure ends the
-        /// render with the error unless --fallback-to-cpu.
-        #[arg(long, value_enum, default_value = "cpu")]
-        device: DeviceArg,
-        /// With `--device gpu`: when the device fails mid-render, go on on the CPU with the
-        /// weights the device trained instead of ending the render with the error.
-        #[arg(long)]
-        fallback_to_cpu: bool,
-        /// The Vulkan device of `--device gpu`: `auto` (discrete GPU first, then integrated,
-        /// then lavapipe), `gpu` (never a CPU implementation), `cpu` (lavapipe), an index, or
-        /// `name:TEXT`. The environment variable GUIDING_VK_DEVICE overrides `auto`.
-        #[arg(long, default_value = "auto")]
-        vk_device: String,
+        /// The guide and how the guided integrator runs it.
+        #[command(flatten)]
+        guide: GuideArgs,
+        /// How the guide trains (the library's presets unless given).
+        #[command(flatten)]
+        training: TuningArgs,
     },
     /// Run time against error: scenes × methods × budgets × seeds against references, written as
     /// runs.csv, report.md (equal-budget table, speed-up vs pt, micro-benchmarks) and one
@@ -335,4 +243,112 @@ fn compare(image: &Path, reference: &Path) -> host_demo::Result<()> {
     });
     println!("{out:#}");
     Ok(())
+}
+
+/// The guided integrator's arguments: the guide and how it runs (besides [`TuningArgs`]).
+#[derive(Args)]
+struct GuideArgs {
+    /// Guiding model (`--integrator guided`): npm (vMF mixtures), nasg (NASG mixtures
+    /// with a learned selection probability), df-n / df-l (distribution factorisation,
+    /// nearest / linear reconstruction).
+    #[arg(long, value_parser = library_name::<guiding::Representation>, default_value = "npm")]
+    guide: guiding::Representation,
+    /// Guiding target (`--integrator guided`). Default: `radiance` (the library's
+    /// `npm_radiance` preset: the guide cache and the cosine product apply); `product`
+    /// learns `f · L · cos` per outgoing direction and never uses the cache.
+    #[arg(long, value_enum)]
+    target: Option<TargetArg>,
+    /// Model size preset (`--integrator guided`): compact (4-level grid, MLP 2 x 32),
+    /// small (the library's tiny test presets), paper (4.1 M parameters; slow on a CPU).
+    #[arg(long, value_parser = model_size_arg, default_value = "compact")]
+    model_size: guiding::ModelSize,
+    /// Answer radiance-target guide queries from a spatial cache of the decoded guide
+    /// (one network pass per occupied cell, stochastic trilinear lookup) instead of the
+    /// network per vertex; product guides never use it.
+    #[arg(long, value_enum, default_value = "always")]
+    guide_cache: CacheArg,
+    /// With the guide cache (NPM / DF): fit the guide-selection probability per cell when
+    /// training stops (minimum estimated second moment of the one-sample MIS estimator over
+    /// c = 0, 0.1, ..., 0.9, with the MIS-weighted incident radiance of the last training
+    /// pass), instead of the constant --selection-probability; c = 0 skips the guide there.
+    #[arg(long, value_enum, default_value = "on")]
+    fit_selection: OnOff,
+    /// With --time: once training has stopped, alternate 4 guided and 4 unguided passes
+    /// (BSDF sampling and NEE), compare relMSE per pass x seconds per pass on the image,
+    /// and switch the guide off for the rest of the render when it does not pay.
+    #[arg(long, value_enum, default_value = "on")]
+    guide_trial: OnOff,
+    /// Combine the passes with inverse-variance weights (each training pass its own group,
+    /// the guided and the unguided passes after training one each; weights estimated on the
+    /// other half of a checkerboard so the image stays unbiased) instead of the plain mean.
+    #[arg(long, value_enum, default_value = "on")]
+    pass_weights: OnOff,
+    /// With the trial on: render the first training pass with the guide off and, after 3
+    /// guided training passes, end training and keep the guide off when even the best of
+    /// them costs more than the unguided pass (relMSE per pass x seconds per pass).
+    #[arg(long, value_enum, default_value = "on")]
+    training_probe: OnOff,
+    /// NEE in the guided integrator (default: on when the scene has an emitter NEE can sample).
+    #[arg(long, value_enum)]
+    nee: Option<OnOff>,
+    /// Where the guide runs (`--integrator guided`, every guide): `cpu`, or `gpu` (Vulkan:
+    /// the network's inference, the guide's samples and pdfs and the arithmetic of its
+    /// training steps through the SPIR-V kernels of guiding-gpu; tracing stays on the CPU).
+    /// Needs a build with `--features guiding-gpu/shaders`. A device failure ends the
+    /// render with the error unless --fallback-to-cpu.
+    #[arg(long, value_enum, default_value = "cpu")]
+    device: DeviceArg,
+    /// With `--device gpu`: when the device fails mid-render, go on on the CPU with the
+    /// weights the device trained instead of ending the render with the error.
+    #[arg(long)]
+    fallback_to_cpu: bool,
+    /// The Vulkan device of `--device gpu`: `auto` (discrete GPU first, then integrated,
+    /// then lavapipe), `gpu` (never a CPU implementation), `cpu` (lavapipe), an index, or
+    /// `name:TEXT`. The environment variable GUIDING_VK_DEVICE overrides `auto`.
+    #[arg(long, default_value = "auto")]
+    vk_device: String,
+}
+
+/// The training and guide-selection arguments as given (`None`: the library's preset).
+#[derive(Args)]
+struct TuningArgs {
+    /// Fraction of the budget (spp passes or time) in the training phase, in [0, 1].
+    /// Default: the library's `ScheduleOptions::DEFAULT` (0.2).
+    #[arg(long)]
+    train_fraction: Option<f32>,
+    /// Share of the training phase's wall clock given to Adam steps, in (0, 1). Default:
+    /// the library's (1/3; `guiding::schedule`).
+    #[arg(long)]
+    training_share: Option<f64>,
+    /// Reproducible training instead of the time share: one update per training pass
+    /// with this many epochs over its samples, at most --steps-per-update steps.
+    #[arg(long)]
+    train_epochs: Option<f64>,
+    /// Guide-selection probability c in [0, 1] (NASG uses its learned value). Default: the
+    /// library's preset (0.3; `guiding::config::PRESET_SELECTION_PROBABILITY`).
+    #[arg(long)]
+    selection_probability: Option<f32>,
+    /// Most Adam steps per update of --train-epochs (and of the library's plain
+    /// `update`). Default: the library's preset (64).
+    #[arg(long)]
+    steps_per_update: Option<u32>,
+    /// Training minibatch size. Default: the library's preset (8192).
+    #[arg(long)]
+    batch_size: Option<usize>,
+    /// Learning rate of the guide's Adam optimiser. Default: the library's preset (5e-3
+    /// for NPM, 3e-2 for NASG and DF; `guiding::config`).
+    #[arg(long)]
+    learning_rate: Option<f32>,
+    /// Stop training when the mean loss has not improved by --plateau-margin (relative)
+    /// over the best so far for this many consecutive passes (0, the default: train for the
+    /// whole training phase).
+    #[arg(long, default_value_t = 0)]
+    plateau_window: u32,
+    /// Relative improvement of the mean loss that counts as progress (see
+    /// --plateau-window).
+    #[arg(long, default_value_t = 0.01)]
+    plateau_margin: f32,
+    /// Cells of the guide cache along the scene's longest axis, in [1, 256].
+    #[arg(long, default_value_t = 64)]
+    guide_cache_resolution: u32,
 }

@@ -1,7 +1,7 @@
 //! `host-demo render`: one image, its statistics and its output files.
 
 use super::stats::{Budget, CommonStages, GuidedRun, OutputFiles, PlainRun, RunStats, StatsDoc};
-use super::{CacheArg, Cmd, DeviceArg, Integrator, OnOff, TargetArg};
+use super::{CacheArg, Cmd, DeviceArg, GuideArgs, Integrator, OnOff, TargetArg, TuningArgs};
 use guiding_core::field::{FieldConfig, PlateauConfig};
 use guiding_core::loss::Target;
 use host_demo::render::strategy::guide::build_guide;
@@ -31,28 +31,8 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         width,
         height,
         out,
-        guide,
-        target,
-        model_size,
-        train_fraction,
-        training_share,
-        train_epochs,
-        selection_probability,
-        steps_per_update,
-        batch_size,
-        learning_rate,
-        plateau_window,
-        plateau_margin,
-        guide_cache,
-        guide_cache_resolution,
-        fit_selection,
-        guide_trial,
-        pass_weights,
-        training_probe,
-        nee,
-        device,
-        fallback_to_cpu,
-        vk_device,
+        guide: guide_args,
+        training,
     } = cmd
     else {
         unreachable!("render_cmd is only called for `render`");
@@ -61,20 +41,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         return bad("no scene given (positional SCENE or --scene)".into());
     };
     let time_budget = time_budget(time)?;
-    let tuning = TuningArgs {
-        guide,
-        train_fraction,
-        training_share,
-        train_epochs,
-        selection_probability,
-        steps_per_update,
-        batch_size,
-        learning_rate,
-        plateau_window,
-        plateau_margin,
-        guide_cache_resolution,
-    }
-    .resolve()?;
+    let tuning = training.resolve(guide_args.guide)?;
     let (sc, load_s) = load(&scene, &define, strict)?;
     let (w, h) = image_size(width, height, &sc.settings)?;
     let opts = RenderOptions {
@@ -94,21 +61,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
     };
     let t1 = Instant::now();
     let (img, outcome) = if let Integrator::Guided = integrator {
-        let args = GuideArgs {
-            guide,
-            target,
-            model_size,
-            guide_cache,
-            fit_selection,
-            guide_trial,
-            pass_weights,
-            training_probe,
-            nee,
-            device,
-            fallback_to_cpu,
-            vk_device,
-        };
-        run_guided(&sc, &opts, &tuning, args)?
+        run_guided(&sc, &opts, &tuning, guide_args)?
     } else {
         let (img, stats) = render_with_stats(&sc, &opts);
         (img, Outcome::Plain(stats))
@@ -225,21 +178,6 @@ fn image_size(
     Ok((w, h))
 }
 
-/// The training and guide-selection arguments as given (`None`: the library's preset).
-struct TuningArgs {
-    guide: guiding::Representation,
-    train_fraction: Option<f32>,
-    training_share: Option<f64>,
-    train_epochs: Option<f64>,
-    selection_probability: Option<f32>,
-    steps_per_update: Option<u32>,
-    batch_size: Option<usize>,
-    learning_rate: Option<f32>,
-    plateau_window: u32,
-    plateau_margin: f32,
-    guide_cache_resolution: u32,
-}
-
 /// [`TuningArgs`] checked, with the library's defaults filled in (checked for every
 /// integrator, used by the guided one).
 struct Tuning {
@@ -255,9 +193,9 @@ struct Tuning {
 
 impl TuningArgs {
     /// Fills in the defaults and checks the ranges; the first bad argument is the error.
-    fn resolve(self) -> host_demo::Result<Tuning> {
+    fn resolve(self, guide: guiding::Representation) -> host_demo::Result<Tuning> {
         // Every default is the library's: what an embedder gets is what this measures.
-        let preset = guiding::GuidingConfig::for_representation(self.guide, Target::Radiance);
+        let preset = guiding::GuidingConfig::for_representation(guide, Target::Radiance);
         let mut schedule = guiding::ScheduleOptions::DEFAULT;
         if let Some(f) = self.train_fraction {
             schedule.train_fraction = f64::from(f);
@@ -321,22 +259,6 @@ impl TuningArgs {
             cache_resolution,
         })
     }
-}
-
-/// The arguments only the guided integrator reads (besides [`Tuning`]).
-struct GuideArgs {
-    guide: guiding::Representation,
-    target: Option<TargetArg>,
-    model_size: guiding::ModelSize,
-    guide_cache: CacheArg,
-    fit_selection: OnOff,
-    guide_trial: OnOff,
-    pass_weights: OnOff,
-    training_probe: OnOff,
-    nee: Option<OnOff>,
-    device: DeviceArg,
-    fallback_to_cpu: bool,
-    vk_device: String,
 }
 
 /// What the integrator reported.
