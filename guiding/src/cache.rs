@@ -587,6 +587,36 @@ impl Default for SelectionFit {
     }
 }
 
+impl SelectionFit {
+    /// The `k`-th of the [`CANDIDATES`] probabilities, evenly spaced from `min` to `max`.
+    fn candidate(&self, k: usize) -> f32 {
+        self.min + (self.max - self.min) * k as f32 / (CANDIDATES - 1) as f32
+    }
+
+    /// The fit's settings in their ranges, or the error naming the one that is not.
+    fn validate(&self) -> Result<(), GuidingError> {
+        if !(self.min >= 0.0 && self.min <= self.max && self.max < 1.0) {
+            return Err(GuidingError::InvalidConfig(format!(
+                "selection fit range [{}, {}] must satisfy 0 <= min <= max < 1",
+                self.min, self.max
+            )));
+        }
+        if !(self.variance_share >= 0.0 && self.variance_share <= 1.0) {
+            return Err(GuidingError::InvalidConfig(format!(
+                "selection fit variance share {} must lie in [0, 1]",
+                self.variance_share
+            )));
+        }
+        if !(self.guide_cost >= 0.0 && self.guide_cost.is_finite()) {
+            return Err(GuidingError::InvalidConfig(format!(
+                "selection fit guide cost {} must be finite and >= 0",
+                self.guide_cost
+            )));
+        }
+        Ok(())
+    }
+}
+
 /// Candidate selection probabilities of [`GuideCache::fit_selection`].
 pub const CANDIDATES: usize = 10;
 
@@ -669,24 +699,7 @@ impl GuideCache {
                 "NASG learns its own selection probability".into(),
             ));
         }
-        if !(fit.min >= 0.0 && fit.min <= fit.max && fit.max < 1.0) {
-            return Err(GuidingError::InvalidConfig(format!(
-                "selection fit range [{}, {}] must satisfy 0 <= min <= max < 1",
-                fit.min, fit.max
-            )));
-        }
-        if !(fit.variance_share >= 0.0 && fit.variance_share <= 1.0) {
-            return Err(GuidingError::InvalidConfig(format!(
-                "selection fit variance share {} must lie in [0, 1]",
-                fit.variance_share
-            )));
-        }
-        if !(fit.guide_cost >= 0.0 && fit.guide_cost.is_finite()) {
-            return Err(GuidingError::InvalidConfig(format!(
-                "selection fit guide cost {} must be finite and >= 0",
-                fit.guide_cost
-            )));
-        }
+        fit.validate()?;
         if let Some(m) = mis_radiance {
             if m.len() != samples.len() {
                 return Err(GuidingError::LengthMismatch {
@@ -694,8 +707,26 @@ impl GuideCache {
                 });
             }
         }
-        let candidate =
-            |k: usize| fit.min + (fit.max - fit.min) * k as f32 / (CANDIDATES - 1) as f32;
+        let Moments {
+            moment,
+            first,
+            count,
+            total,
+            used,
+        } = self.selection_moments(field, samples, mis_radiance, fit)?;
+        Ok(self.assign_selection(fit, &moment, &first, &count, &total, used))
+    }
+
+    /// Per lane and candidate `c`, the sums of the second-moment estimate `M̂(c)` of the
+    /// samples whose position and normal fall in the lane (see [`Self::fit_selection`]).
+    fn selection_moments(
+        &self,
+        field: &GuidingField,
+        samples: &[guiding_core::sample::TrainingSample],
+        mis_radiance: Option<&[[f32; 3]]>,
+        fit: &SelectionFit,
+    ) -> Result<Moments, GuidingError> {
+        let candidate = |k: usize| fit.candidate(k);
         // The samples' own cells (no jitter) and their guide densities.
         let mut lanes = Vec::new();
         let mut kept = Vec::new();
@@ -762,6 +793,28 @@ impl GuideCache {
             count[lane] += 1;
             used += 1;
         }
+        Ok(Moments {
+            moment,
+            first,
+            count,
+            total,
+            used,
+        })
+    }
+
+    /// Takes each lane's candidate of least (cost-weighted) variance from the sums of
+    /// [`Self::selection_moments`], stores the probabilities in the lanes and reports them.
+    fn assign_selection(
+        &mut self,
+        fit: &SelectionFit,
+        moment: &[[f64; CANDIDATES]],
+        first: &[f64],
+        count: &[u32],
+        total: &[f64; CANDIDATES],
+        used: u64,
+    ) -> SelectionReport {
+        let candidate = |k: usize| fit.candidate(k);
+        let cells = moment.len();
         // The candidate of least variance times cost, to first order the least
         // `s V(c) / V_ref + κ [c > 0] n / N` (`V(c) = M̂(c) − mean` of the cell's
         // sums, `n` its samples, `V_ref` the variance of the whole set at its
@@ -798,7 +851,7 @@ impl GuideCache {
             }
             m[best].is_finite().then_some(best)
         };
-        let global = argmin_index(&total, mean_total, used as f64).map_or(fit.max, candidate);
+        let global = argmin_index(total, mean_total, used as f64).map_or(fit.max, candidate);
         let mut report = SelectionReport {
             samples_used: used,
             global,
@@ -814,7 +867,7 @@ impl GuideCache {
                 report.cells_fitted += 1;
                 let mut m = moment[lane];
                 if prior > 0.0 {
-                    for (mj, tj) in m.iter_mut().zip(&total) {
+                    for (mj, tj) in m.iter_mut().zip(total) {
                         *mj += prior * tj;
                     }
                 }
@@ -850,6 +903,20 @@ impl GuideCache {
         } else {
             global
         };
-        Ok(report)
+        report
     }
+}
+
+/// The per-lane sums of [`GuideCache::selection_moments`].
+struct Moments {
+    /// `Σ w / p_c` per lane and candidate (`w = F² / p_sample`).
+    moment: Vec<[f64; CANDIDATES]>,
+    /// `Σ F / p_sample` per lane (the mean term).
+    first: Vec<f64>,
+    /// Samples per lane.
+    count: Vec<u32>,
+    /// `moment` summed over the lanes.
+    total: [f64; CANDIDATES],
+    /// Samples used in all.
+    used: u64,
 }
