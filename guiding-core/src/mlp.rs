@@ -1079,6 +1079,71 @@ mod batch {
         gb: Vec<f32>,
     }
 
+    impl BackLayer {
+        /// Copies each layer's gradient from `grad` into its padded accumulators.
+        fn load_all(layers: &mut [BackLayer], grad: &[f32]) {
+            for l in layers {
+                let (fi, fo) = (l.fan_in, l.fan_out);
+                let g = &grad[l.off..l.off + fi * fo + fo];
+                for (dst, src) in l.gw.chunks_exact_mut(l.in_pad).zip(g.chunks_exact(fi)) {
+                    dst[..fi].copy_from_slice(src);
+                }
+                l.gb.copy_from_slice(&g[fi * fo..]);
+            }
+        }
+
+        /// `∂L/∂W += Σ_b δ_b x_bᵀ` (rows `o`, columns `i`, summed over the
+        /// block's `nb` queries) and `∂L/∂b += Σ_b δ_b`, with the block's deltas
+        /// (rows of `ldd`) and layer inputs (rows of `ldx`).
+        #[inline(always)]
+        fn add_gradients<S: Simd>(
+            &mut self,
+            s: S,
+            (delta, ldd): (&[f32], usize),
+            (x, ldx): (&[f32], usize),
+            nb: usize,
+        ) {
+            gemm::<S, INIT_LOAD, EPI_NONE>(
+                s,
+                &mut Gemm {
+                    rows: self.fan_out,
+                    nvecs: self.in_pad / S::LANES,
+                    k: nb,
+                    a: delta,
+                    a_rs: 1,
+                    a_ks: ldd,
+                    b: x,
+                    ldb: ldx,
+                    c: &mut self.gw,
+                    ldc: self.in_pad,
+                    c2: &mut [],
+                    ldc2: 0,
+                    bias: &[],
+                    h: &[],
+                    ldh: 0,
+                },
+            );
+            for d in delta.chunks_exact(ldd).take(nb) {
+                for (g, &dv) in self.gb.iter_mut().zip(&d[..self.fan_out]) {
+                    *g += dv;
+                }
+            }
+        }
+
+        /// Writes each layer's accumulators back to `grad` (without the padding).
+        fn save_all(layers: &[BackLayer], grad: &mut [f32]) {
+            for l in layers {
+                let (fi, fo) = (l.fan_in, l.fan_out);
+                let g = &mut grad[l.off..l.off + fi * fo + fo];
+                let (gw, gb) = g.split_at_mut(fi * fo);
+                for (dst, src) in gw.chunks_exact_mut(fi).zip(l.gw.chunks_exact(l.in_pad)) {
+                    dst.copy_from_slice(&src[..fi]);
+                }
+                gb.copy_from_slice(&l.gb);
+            }
+        }
+    }
+
     impl<const IN: usize, const WIDTH: usize, const OUT: usize, const HIDDEN: usize>
         Mlp<IN, WIDTH, OUT, HIDDEN>
     {
@@ -1353,6 +1418,62 @@ mod batch {
             }
         }
 
+        /// The layers of the network `net` (at `offset` in the parameter
+        /// buffer) for the blocked backward pass: weights with rows padded to
+        /// the vector width `lanes`, zeroed gradient accumulators.
+        fn back_layers(net: &[f32], offset: usize, lanes: usize) -> Vec<BackLayer> {
+            (0..=HIDDEN)
+                .map(|layer| {
+                    let (off, fan_in, fan_out) = (
+                        Self::layer_offset(layer),
+                        Self::fan_in(layer),
+                        Self::fan_out(layer),
+                    );
+                    let in_pad = pad(fan_in, lanes);
+                    let mut w = vec![0.0; fan_out * in_pad];
+                    for (dst, src) in w
+                        .chunks_exact_mut(in_pad)
+                        .zip(net[off..off + fan_in * fan_out].chunks_exact(fan_in))
+                    {
+                        dst[..fan_in].copy_from_slice(src);
+                    }
+                    BackLayer {
+                        off: offset + off,
+                        fan_in,
+                        fan_out,
+                        in_pad,
+                        w,
+                        gw: vec![0.0; fan_out * in_pad],
+                        gb: vec![0.0; fan_out],
+                    }
+                })
+                .collect()
+        }
+
+        /// The padded query-major copies of a block's inputs `x_blk` (rows of
+        /// `ip`) and hidden activations `h_blk` (layer `j` at `j · BLOCK · wp`,
+        /// rows of `wp`), where the backward pass cannot read them in place;
+        /// an empty destination (read in place) is left alone.
+        #[inline(always)]
+        fn pad_block(
+            x_blk: &[f32],
+            h_blk: &[f32],
+            xin: &mut [f32],
+            hs: &mut [f32],
+            ip: usize,
+            wp: usize,
+        ) {
+            for (dst, src) in xin.chunks_exact_mut(ip).zip(x_blk.chunks_exact(IN)) {
+                dst[..IN].copy_from_slice(src);
+            }
+            let hw = HIDDEN * WIDTH;
+            for (j, hj) in hs.chunks_exact_mut(BLOCK * wp).enumerate() {
+                for (dst, src) in hj.chunks_exact_mut(wp).zip(h_blk.chunks_exact(hw)) {
+                    dst[..WIDTH].copy_from_slice(&src[j * WIDTH..(j + 1) * WIDTH]);
+                }
+            }
+        }
+
         /// The blocked backward pass (see [`Self::backward_batch`]).
         #[allow(clippy::too_many_arguments)]
         #[allow(clippy::too_many_lines)]
@@ -1396,53 +1517,8 @@ mod batch {
             }
             let lanes = S::LANES;
             let (ip, wp) = (pad(IN, lanes), pad(WIDTH, lanes));
-            let mut layers: Vec<BackLayer> = (0..=HIDDEN)
-                .map(|layer| {
-                    let (off, fan_in, fan_out) = (
-                        Self::layer_offset(layer),
-                        Self::fan_in(layer),
-                        Self::fan_out(layer),
-                    );
-                    let in_pad = pad(fan_in, lanes);
-                    let mut w = vec![0.0; fan_out * in_pad];
-                    for (dst, src) in w
-                        .chunks_exact_mut(in_pad)
-                        .zip(net[off..off + fan_in * fan_out].chunks_exact(fan_in))
-                    {
-                        dst[..fan_in].copy_from_slice(src);
-                    }
-                    BackLayer {
-                        off: offset + off,
-                        fan_in,
-                        fan_out,
-                        in_pad,
-                        w,
-                        gw: vec![0.0; fan_out * in_pad],
-                        gb: vec![0.0; fan_out],
-                    }
-                })
-                .collect();
-            let load = |layers: &mut [BackLayer], grad: &[f32]| {
-                for l in layers {
-                    let (fi, fo) = (l.fan_in, l.fan_out);
-                    let g = &grad[l.off..l.off + fi * fo + fo];
-                    for (dst, src) in l.gw.chunks_exact_mut(l.in_pad).zip(g.chunks_exact(fi)) {
-                        dst[..fi].copy_from_slice(src);
-                    }
-                    l.gb.copy_from_slice(&g[fi * fo..]);
-                }
-            };
-            let save = |layers: &[BackLayer], grad: &mut [f32]| {
-                for l in layers {
-                    let (fi, fo) = (l.fan_in, l.fan_out);
-                    let g = &mut grad[l.off..l.off + fi * fo + fo];
-                    let (gw, gb) = g.split_at_mut(fi * fo);
-                    for (dst, src) in gw.chunks_exact_mut(fi).zip(l.gw.chunks_exact(l.in_pad)) {
-                        dst.copy_from_slice(&src[..fi]);
-                    }
-                    gb.copy_from_slice(&l.gb);
-                }
-            };
+            let mut layers = Self::back_layers(net, offset, lanes);
+            let (load, save) = (BackLayer::load_all, BackLayer::save_all);
             load(&mut layers, grad);
             // The block's inputs and hidden activations are read in place
             // when their widths are multiples of the vector width, else from
@@ -1484,18 +1560,7 @@ mod batch {
                     start += nb;
                     continue;
                 }
-                if !direct_in {
-                    for (dst, src) in xin.chunks_exact_mut(ip).zip(x_blk.chunks_exact(IN)) {
-                        dst[..IN].copy_from_slice(src);
-                    }
-                }
-                if !direct_h {
-                    for (j, hj) in hs.chunks_exact_mut(BLOCK * wp).enumerate() {
-                        for (dst, src) in hj.chunks_exact_mut(wp).zip(h_blk.chunks_exact(hw)) {
-                            dst[..WIDTH].copy_from_slice(&src[j * WIDTH..(j + 1) * WIDTH]);
-                        }
-                    }
-                }
+                Self::pad_block(x_blk, h_blk, &mut xin, &mut hs, ip, wp);
                 for layer in (0..=HIDDEN).rev() {
                     let bl = &mut layers[layer];
                     let fo = bl.fan_out;
@@ -1510,32 +1575,7 @@ mod batch {
                     } else {
                         (&d_cur, wp)
                     };
-                    // ∂L/∂W += Σ_b δ_b x_bᵀ: rows o, columns i, sum over b.
-                    gemm::<S, INIT_LOAD, EPI_NONE>(
-                        s,
-                        &mut Gemm {
-                            rows: fo,
-                            nvecs: bl.in_pad / lanes,
-                            k: nb,
-                            a: delta,
-                            a_rs: 1,
-                            a_ks: ldd,
-                            b: x,
-                            ldb: ldx,
-                            c: &mut bl.gw,
-                            ldc: bl.in_pad,
-                            c2: &mut [],
-                            ldc2: 0,
-                            bias: &[],
-                            h: &[],
-                            ldh: 0,
-                        },
-                    );
-                    for d in delta.chunks_exact(ldd).take(nb) {
-                        for (g, &dv) in bl.gb.iter_mut().zip(&d[..fo]) {
-                            *g += dv;
-                        }
-                    }
+                    bl.add_gradients(s, (delta, ldd), (x, ldx), nb);
                     // δ ← (Wᵀ δ) ⊙ [h > 0], or the input gradient.
                     let (c, ldc): (&mut [f32], usize) = match (layer, direct_in) {
                         (0, true) => (
@@ -1569,13 +1609,12 @@ mod batch {
                         core::mem::swap(&mut d_cur, &mut d_next);
                     }
                 }
-                if !direct_in {
-                    for (dst, src) in d_inputs[start..start + nb]
-                        .iter_mut()
-                        .zip(dxin.chunks_exact(ip))
-                    {
-                        dst.copy_from_slice(&src[..IN]);
-                    }
+                // Padded input gradients (empty when written in place) back to their rows.
+                for (dst, src) in d_inputs[start..start + nb]
+                    .iter_mut()
+                    .zip(dxin.chunks_exact(ip))
+                {
+                    dst.copy_from_slice(&src[..IN]);
                 }
                 start += nb;
             }

@@ -981,8 +981,6 @@ impl<
         samples: &[TrainingSample],
         grad: &mut [f32],
     ) -> f64 {
-        use super::df::{guide_weight, softplus, DfWeightSource};
-        use crate::loss::relative_l2;
         let count = self.param_count();
         if params.len() < count || grad.len() < count {
             return 0.0;
@@ -1012,7 +1010,6 @@ impl<
         let mut ok = vec![false; TRAIN_CHUNK];
         let mut losses = vec![0.0f32; TRAIN_CHUNK];
         let mut traces = vec![GridTrace::EMPTY; TRAIN_CHUNK];
-        let lambda_c = self.cache_weight();
         let g = self.grid.output_dims();
         let mut total = 0.0f64;
         for chunk in samples.chunks(TRAIN_CHUNK) {
@@ -1060,43 +1057,12 @@ impl<
                 &mut cc[..m],
             );
             for k in 0..m {
-                let s = &chunk[live[k]];
-                let mut pred = [0.0f32; 3];
-                let mut dpred = [0.0f32; 3];
-                for c in 0..3 {
-                    (pred[c], dpred[c]) = softplus(yr[k][c]);
-                }
-                let (loss_r, dl) = relative_l2(pred, s.radiance);
-                for c in 0..3 {
-                    dr[k][c] = lambda_c * dl[c] * dpred[c];
-                }
-                let mut loss = lambda_c * loss_r;
-                let mut finite = all_finite(&yr[k]);
-                let l = match self.weight_source() {
-                    DfWeightSource::Cache => pred,
-                    DfWeightSource::Sample => s.radiance,
-                };
-                let w = guide_weight(l, s, self.target());
-                dm[k] = [0.0; DF_MARGINAL_BINS];
-                dc[k] = [0.0; DF_CONDITIONAL_BINS];
-                if w != 0.0 {
-                    finite = finite && all_finite(&ym[k]) && all_finite(&yc[k]);
-                    let log_q = factorised::grad_log_pdf(
-                        &ym[k],
-                        &yc[k],
-                        self.interpolation(),
-                        s.wi(),
-                        &mut dm[k],
-                        &mut dc[k],
-                    );
-                    loss += -w * log_q;
-                    for d in &mut dm[k] {
-                        *d *= -w;
-                    }
-                    for d in &mut dc[k] {
-                        *d *= -w;
-                    }
-                } else {
+                let (loss, finite, guided) = self.output_gradients(
+                    &chunk[live[k]],
+                    (&yr[k], &ym[k], &yc[k]),
+                    (&mut dr[k], &mut dm[k], &mut dc[k]),
+                );
+                if !guided {
                     // The per-query kernel never runs these networks here.
                     xb[k] = [0.0; IN_M];
                     xc[k] = [0.0; IN_C];
@@ -1162,5 +1128,62 @@ impl<
             }
         }
         total
+    }
+
+    /// One sample's loss and output gradients, as the per-query kernel forms them: the
+    /// cache's relative L2 (weight `λ_c`) on the softplus of `yr`, and `−w ln q(ωᵢ)` through
+    /// the marginal and conditional outputs when the guide weight `w` is not 0. Returns the
+    /// loss, whether the outputs it read were finite, and whether the guide's networks ran
+    /// (`w ≠ 0`).
+    #[inline]
+    #[allow(clippy::type_complexity)] // the three networks' outputs and gradients
+    fn output_gradients(
+        &self,
+        s: &TrainingSample,
+        (yr, ym, yc): (
+            &[f32; 3],
+            &[f32; DF_MARGINAL_BINS],
+            &[f32; DF_CONDITIONAL_BINS],
+        ),
+        (dr, dm, dc): (
+            &mut [f32; 3],
+            &mut [f32; DF_MARGINAL_BINS],
+            &mut [f32; DF_CONDITIONAL_BINS],
+        ),
+    ) -> (f32, bool, bool) {
+        use super::df::{guide_weight, softplus, DfWeightSource};
+        use crate::loss::relative_l2;
+        let lambda_c = self.cache_weight();
+        let mut pred = [0.0f32; 3];
+        let mut dpred = [0.0f32; 3];
+        for c in 0..3 {
+            (pred[c], dpred[c]) = softplus(yr[c]);
+        }
+        let (loss_r, dl) = relative_l2(pred, s.radiance);
+        for c in 0..3 {
+            dr[c] = lambda_c * dl[c] * dpred[c];
+        }
+        let mut loss = lambda_c * loss_r;
+        let mut finite = all_finite(yr);
+        let l = match self.weight_source() {
+            DfWeightSource::Cache => pred,
+            DfWeightSource::Sample => s.radiance,
+        };
+        let w = guide_weight(l, s, self.target());
+        *dm = [0.0; DF_MARGINAL_BINS];
+        *dc = [0.0; DF_CONDITIONAL_BINS];
+        if w == 0.0 {
+            return (loss, finite, false);
+        }
+        finite = finite && all_finite(ym) && all_finite(yc);
+        let log_q = factorised::grad_log_pdf(ym, yc, self.interpolation(), s.wi(), dm, dc);
+        loss += -w * log_q;
+        for d in dm.iter_mut() {
+            *d *= -w;
+        }
+        for d in dc.iter_mut() {
+            *d *= -w;
+        }
+        (loss, finite, true)
     }
 }
