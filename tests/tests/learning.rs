@@ -277,13 +277,14 @@ fn config() -> FieldConfig {
 /// the final KL is not below `bound` nats, or did not fall tenfold from the
 /// initial KL.
 fn verdict(name: &str, scene: Scene, o: &Outcome, bound: f64) -> Result<(), String> {
-    if !(o.trained < bound) {
+    // A NaN KL fails.
+    if o.trained.is_nan() || o.trained >= bound {
         return Err(format!(
             "{name} on {scene:?}: KL {} not below its bound {bound}",
             o.trained
         ));
     }
-    if !(o.trained < 0.1 * o.initial) {
+    if o.trained >= 0.1 * o.initial {
         return Err(format!(
             "{name} on {scene:?}: KL {} → {} did not fall tenfold",
             o.initial, o.trained
