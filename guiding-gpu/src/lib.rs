@@ -42,6 +42,8 @@ mod model;
 mod select;
 mod shaders;
 mod spirv;
+#[doc(hidden)]
+pub mod test_support;
 
 pub use ash::vk;
 pub use batch::{workgroup_grid, Batch, BatchReport};
@@ -55,3 +57,5 @@ pub use model::{GpuModel, ModelEntryPoints, StepOutcome, TrainOptions};
 pub use select::{DeviceSelection, DEVICE_ENV};
 pub use shaders::shader_module;
 pub use spirv::words_from_bytes;
+#[doc(hidden)]
+pub use test_support::{test_context, test_context_with, TestNeeds};

@@ -43,28 +43,11 @@ use guiding_core::pdf1d::Interpolation;
 use guiding_core::rng::{hash2, Rng};
 use guiding_core::sample::TrainingSample;
 use guiding_gpu::{
-    DeviceSelection, GpuContext, GpuError, GpuModel, ModelEntryPoints, StepOutcome, TrainOptions,
+    test_context, GpuContext, GpuError, GpuModel, ModelEntryPoints, StepOutcome, TrainOptions,
 };
 
 const LO: [f32; 3] = [-1.0, 0.0, -2.0];
 const HI: [f32; 3] = [1.0, 3.0, 2.0];
-
-/// The Vulkan context of the tests, or `None` (with the reason printed) when
-/// the machine has no Vulkan device and `GUIDING_REQUIRE_VULKAN` is not 1.
-fn context() -> Option<GpuContext> {
-    match GpuContext::new(DeviceSelection::Auto) {
-        Ok(ctx) => Some(ctx),
-        Err(e) => {
-            let required = std::env::var("GUIDING_REQUIRE_VULKAN").is_ok_and(|v| v == "1");
-            assert!(
-                !required,
-                "GUIDING_REQUIRE_VULKAN=1 but no Vulkan device: {e}"
-            );
-            eprintln!("skipped: no Vulkan device ({e})");
-            None
-        }
-    }
-}
 
 fn unit(rng: &mut Rng) -> [f32; 3] {
     loop {
@@ -719,7 +702,7 @@ macro_rules! model_difftest {
     ($name:ident, $model:expr, $prefix:literal, raw) => {
         #[test]
         fn $name() {
-            let Some(ctx) = context() else { return };
+            let Some(ctx) = test_context() else { return };
             let model = $model;
             let params = parameters(&model, 3);
             let mut gpu = upload(ctx, &model, $prefix, family_of(&model), &params).expect("upload");
@@ -731,7 +714,7 @@ macro_rules! model_difftest {
     ($name:ident, $model:expr, $prefix:literal) => {
         #[test]
         fn $name() {
-            let Some(ctx) = context() else { return };
+            let Some(ctx) = test_context() else { return };
             let model = $model;
             let params = parameters(&model, 3);
             let mut gpu = upload(ctx, &model, $prefix, family_of(&model), &params).expect("upload");
@@ -1257,7 +1240,7 @@ fn check_decode(
 
 #[test]
 fn decode_kernels_match_the_cpu_on_ordinary_and_extreme_parameters() {
-    let Some(ctx) = context() else { return };
+    let Some(ctx) = test_context() else { return };
     use guiding_core::model::df::{DF_CONDITIONAL_BINS, DF_MARGINAL_BINS};
     // `check_decode` draws the same random pairs (seed 19).
     let u = randoms(2000, 19);
@@ -1327,7 +1310,7 @@ fn decode_kernels_match_the_cpu_on_ordinary_and_extreme_parameters() {
 /// no CDF boundary intervenes, to `rel` plus the density's local condition.
 #[test]
 fn lane_kernels_match_the_cpu_on_resident_outputs() {
-    let Some(ctx) = context() else { return };
+    let Some(ctx) = test_context() else { return };
     let npm = NpmCompactRadiance::new(
         guiding::config::compact_grid(LO, HI),
         guiding_core::loss::Target::Radiance,
@@ -1482,7 +1465,7 @@ fn check_lanes<M: RawOutputs + bytemuck::Pod>(
 #[test]
 fn df_vertex_kernels_match_the_cpu() {
     use guiding_core::model::df::DfVertex;
-    let Some(ctx) = context() else { return };
+    let Some(ctx) = test_context() else { return };
     for (prefix, model) in [
         (
             "df_small_radiance",

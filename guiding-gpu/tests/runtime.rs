@@ -3,8 +3,14 @@
 
 mod common;
 
-use common::{assert_validation_clean, context, context_with, is_absent};
+use common::assert_validation_clean;
+use guiding_gpu::test_support::is_absent;
 use guiding_gpu::*;
+
+/// A context for these tests, which need a device but no SPIR-V.
+fn device_context(options: &ContextOptions) -> Option<GpuContext> {
+    test_context_with(TestNeeds::Device, options)
+}
 
 #[test]
 fn shader_module_reports_whether_it_was_built() {
@@ -97,7 +103,9 @@ fn impossible_selections_fail_with_the_device_list() {
 
 #[test]
 fn device_info_reports_the_limits() {
-    let Some(ctx) = context() else { return };
+    let Some(ctx) = device_context(&ContextOptions::default()) else {
+        return;
+    };
     let info = ctx.device_info();
     assert!(info.api_version >= (1, 2, 0));
     assert!(info.vulkan_memory_model && info.unusable_reason().is_none());
@@ -137,7 +145,9 @@ fn round_trip(ctx: &GpuContext) {
 
 #[test]
 fn buffers_round_trip() {
-    let Some(ctx) = context() else { return };
+    let Some(ctx) = device_context(&ContextOptions::default()) else {
+        return;
+    };
     round_trip(&ctx);
     assert_validation_clean(&ctx);
 }
@@ -148,7 +158,7 @@ fn buffers_round_trip_through_staging() {
         force_staging: true,
         ..ContextOptions::default()
     };
-    let Some(ctx) = context_with(&options) else {
+    let Some(ctx) = device_context(&options) else {
         return;
     };
     assert!(!ctx.mapped_buffers());
@@ -158,7 +168,9 @@ fn buffers_round_trip_through_staging() {
 
 #[test]
 fn buffer_misuse_is_an_error() {
-    let Some(ctx) = context() else { return };
+    let Some(ctx) = device_context(&ContextOptions::default()) else {
+        return;
+    };
     let limit = ctx.device_info().max_storage_buffer_range;
     let e = ctx.buffer(limit + 1).map(|_| ()).unwrap_err();
     assert!(
@@ -190,7 +202,9 @@ fn buffer_misuse_is_an_error() {
 
 #[test]
 fn kernel_rejects_what_is_not_spirv() {
-    let Some(ctx) = context() else { return };
+    let Some(ctx) = device_context(&ContextOptions::default()) else {
+        return;
+    };
     for words in [
         &[][..],
         &[1, 2, 3, 4, 5][..],

@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::{assert_validation_clean, context, context_with};
+use common::assert_validation_clean;
 use guiding_gpu::*;
 
 /// Distance in units in the last place between two finite-or-infinite
@@ -96,7 +96,7 @@ fn check_add_index(input: &[u32], out: &[u32]) {
 
 #[test]
 fn exp_kernel_matches_the_cpu_on_a_million_inputs() {
-    let Some(ctx) = context() else { return };
+    let Some(ctx) = test_context() else { return };
     let n = 1_000_000usize;
     let mut input: Vec<f32> = (0..n)
         .map(|i| -104.0 + 208.0 * i as f32 / n as f32)
@@ -130,7 +130,7 @@ fn exp_kernel_matches_the_cpu_on_a_million_inputs() {
 
 #[test]
 fn a_1d_grid_covers_a_million_invocations_and_reports_gpu_time() {
-    let Some(ctx) = context() else { return };
+    let Some(ctx) = test_context() else { return };
     let input: Vec<u32> = (0..1_000_000u32)
         .map(|i| i.wrapping_mul(2_654_435_761))
         .collect();
@@ -146,7 +146,7 @@ fn a_1d_grid_covers_a_million_invocations_and_reports_gpu_time() {
 
 #[test]
 fn a_2d_grid_covers_every_invocation_once_and_stops_at_n() {
-    let Some(ctx) = context() else { return };
+    let Some(ctx) = test_context() else { return };
     let limits = ctx.device_info().max_compute_work_group_count;
     // One workgroup-row more than the 1-D limit allows, plus a ragged tail.
     let n = limits[0] as usize * 64 + 17;
@@ -160,7 +160,7 @@ fn a_2d_grid_covers_every_invocation_once_and_stops_at_n() {
 
 #[test]
 fn a_batch_chains_dispatches_through_barriers() {
-    let Some(ctx) = context() else { return };
+    let Some(ctx) = test_context() else { return };
     let kernel = ctx.embedded_kernel("add_index_kernel", 2, 4).unwrap();
     let n = 100_000u32;
     let input: Vec<u32> = (0..n).map(|i| i.wrapping_mul(40_503)).collect();
@@ -203,7 +203,7 @@ fn staging_path_runs_kernels_too() {
         force_staging: true,
         ..ContextOptions::default()
     };
-    let Some(ctx) = context_with(&options) else {
+    let Some(ctx) = test_context_with(TestNeeds::Kernels, &options) else {
         return;
     };
     assert!(!ctx.mapped_buffers());
@@ -215,7 +215,7 @@ fn staging_path_runs_kernels_too() {
 
 #[test]
 fn kernel_arguments_are_checked() {
-    let Some(ctx) = context() else { return };
+    let Some(ctx) = test_context() else { return };
     let bad = |r: Result<Kernel, GpuError>| match r {
         Ok(_) => panic!("accepted"),
         Err(e) => e,

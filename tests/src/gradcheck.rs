@@ -45,7 +45,9 @@ pub fn symmetric_relative_error(analytic: f64, numeric: f64, floor: f64) -> f64 
 /// When the check fails.
 pub fn assert_gradients(name: &str, errors: &[f64], tol: f64, ignore_fraction: f64) {
     let labels: Vec<String> = (0..errors.len()).map(|i| format!("#{i}")).collect();
-    check(name, errors, &labels, None, tol, ignore_fraction);
+    if let Err(msg) = check(name, errors, &labels, None, tol, ignore_fraction) {
+        panic!("{msg}");
+    }
 }
 
 /// One compared component.
@@ -105,11 +107,13 @@ impl GradientErrors {
         self.entries.iter().map(|e| e.error).collect()
     }
 
-    /// Like [`assert_gradients`], naming the offenders by label and value.
+    /// The verdict of [`GradientErrors::assert`] without panicking: `Err` with
+    /// the report (the number of failing components, the worst by label and
+    /// value) when more than `⌊ignore_fraction · n⌋` errors exceed `tol`.
     ///
-    /// # Panics
+    /// # Errors
     /// When the check fails.
-    pub fn assert(&self, name: &str, tol: f64, ignore_fraction: f64) {
+    pub fn check(&self, name: &str, tol: f64, ignore_fraction: f64) -> Result<(), String> {
         let labels: Vec<String> = self.entries.iter().map(|e| e.label.clone()).collect();
         check(
             name,
@@ -118,7 +122,48 @@ impl GradientErrors {
             Some(&self.entries),
             tol,
             ignore_fraction,
-        );
+        )
+    }
+
+    /// Like [`assert_gradients`], naming the offenders by label and value.
+    ///
+    /// # Panics
+    /// When the check fails.
+    pub fn assert(&self, name: &str, tol: f64, ignore_fraction: f64) {
+        if let Err(msg) = self.check(name, tol, ignore_fraction) {
+            panic!("{msg}");
+        }
+    }
+
+    /// A copy with a planted defect: entry `i`'s analytic value multiplied by
+    /// `factor(i, entry)` (1 leaves it alone), its error recomputed. The
+    /// negative controls take a gradient that passes and check that the same
+    /// tolerance rejects it with a known defect (one parameter's derivative off
+    /// by a few per cent, or of the wrong sign).
+    #[must_use]
+    pub fn with_defect(&self, factor: impl Fn(usize, &GradientEntry) -> f64) -> Self {
+        let mut out = Self::new(self.floor);
+        for (i, e) in self.entries.iter().enumerate() {
+            out.push(e.label.clone(), e.analytic * factor(i, e), e.numeric);
+        }
+        out
+    }
+
+    /// The `q`-quantile (`0 ≤ q ≤ 1`, nearest rank) of the errors, NaN counted
+    /// as infinite; 0 when empty.
+    #[must_use]
+    pub fn quantile(&self, q: f64) -> f64 {
+        let mut e: Vec<f64> = self
+            .errors()
+            .into_iter()
+            .map(|e| if e.is_nan() { f64::INFINITY } else { e })
+            .collect();
+        if e.is_empty() {
+            return 0.0;
+        }
+        e.sort_by(f64::total_cmp);
+        let rank = ((q * e.len() as f64).ceil() as usize).clamp(1, e.len());
+        e[rank - 1]
     }
 
     /// `(number above tol, largest error)`, for reporting.
@@ -148,7 +193,7 @@ fn check(
     entries: Option<&[GradientEntry]>,
     tol: f64,
     ignore_fraction: f64,
-) {
+) -> Result<(), String> {
     let allowed = (ignore_fraction * errors.len() as f64).floor() as usize;
     // NaN sorts as the worst.
     let key = |e: f64| if e.is_nan() { f64::INFINITY } else { e };
@@ -159,7 +204,7 @@ fn check(
         .filter(|&&i| errors[i].is_nan() || errors[i] > tol)
         .count();
     if failing <= allowed {
-        return;
+        return Ok(());
     }
     let mut msg = format!(
         "{name}: {failing} of {} gradient components exceed the symmetric relative error {tol:e} \
@@ -175,7 +220,7 @@ fn check(
             None => msg.push_str(&format!("  {}: error {:.3e}\n", labels[i], errors[i])),
         }
     }
-    panic!("{msg}");
+    Err(msg)
 }
 
 #[cfg(test)]
@@ -202,5 +247,20 @@ mod tests {
         assert!(r.is_err());
         let r = std::panic::catch_unwind(|| assert_gradients("NaN", &[f64::NAN], 1e-2, 0.0));
         assert!(r.is_err());
+    }
+
+    #[test]
+    fn a_planted_defect_is_reported() {
+        let mut e = GradientErrors::new(1e-3);
+        for i in 0..400 {
+            let g = f64::from(i) * 0.01 - 2.005;
+            e.push(format!("#{i}"), g * (1.0 + 1e-6), g);
+        }
+        assert!(e.check("clean", 1e-2, 0.01).is_ok());
+        assert!(e.quantile(1.0) < 1e-5 && e.quantile(0.0) < 1e-5);
+        // One component in eight 5 % off: 50 of 400 fail, 4 may.
+        let bad = e.with_defect(|i, _| if i % 8 == 0 { 1.05 } else { 1.0 });
+        let msg = bad.check("defect", 1e-2, 0.01).unwrap_err();
+        assert!(msg.starts_with("defect: 50 of 400"), "{msg}");
     }
 }

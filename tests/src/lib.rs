@@ -56,20 +56,3 @@ pub fn random_query_in(
         ..guiding_core::model::QueryPoint::default()
     }
 }
-
-/// A Vulkan context for the device tests, or `None` (with the reason printed) when this
-/// build has no SPIR-V (`guiding-gpu`'s feature `shaders`) or the machine no Vulkan device;
-/// with `GUIDING_REQUIRE_VULKAN=1` (CI) that is a failure instead of a skip.
-pub fn vulkan_context() -> Option<guiding_gpu::GpuContext> {
-    match guiding_gpu::shader_module()
-        .and_then(|_| guiding_gpu::GpuContext::new(guiding_gpu::DeviceSelection::Auto))
-    {
-        Ok(ctx) => Some(ctx),
-        Err(e) => {
-            let required = std::env::var("GUIDING_REQUIRE_VULKAN").is_ok_and(|v| v == "1");
-            assert!(!required, "GUIDING_REQUIRE_VULKAN=1 but: {e}");
-            eprintln!("skipped: {e}");
-            None
-        }
-    }
-}

@@ -4,9 +4,11 @@
 //! `Material::sample` may reject a sample (a microfacet reflection below the horizon) or pick
 //! a delta lobe (the plastic coating); the distribution under test is the sampler *conditioned
 //! on* returning a non-delta direction, whose density is `pdf(ω) / ∫pdf`. The normaliser is
-//! computed with the same quadrature as the expected counts, so this test checks the *shape*
-//! of the pdf; its scale (∫pdf = acceptance rate) and `weight = f·cos/pdf` are checked by the
-//! unit tests in `host-demo/src/bsdf.rs`.
+//! computed with the same quadrature as the expected counts, so the chi² test checks the
+//! *shape* of the pdf; its scale, ∫pdf = the sampler's acceptance rate, is checked against the
+//! acceptance counted while sampling (`check_mass`, with its negative control
+//! `normalisation_check_rejects_a_scaled_pdf`), and `weight = f·cos/pdf` by the unit tests in
+//! `host-demo/src/bsdf.rs`.
 //!
 //! Grids: Mitsuba's 101 × 51 with Gauss–Legendre order 6 per cell. The rough dielectrics with
 //! η = 1.33 and α = 0.6 get 201 × 101 cells at order 16: their transmission lobe ends in a
@@ -20,25 +22,30 @@
 //! densities (a Beckmann sampler against the GGX pdf or α·1.1, Phong's `n + 1`, Ward's quadrant
 //! slip) that must be rejected.
 //!
-//! Run with `cargo test --release -p guiding-tests --test bsdf_chi2` (about a minute).
+//! Run with `cargo test --release -p guiding-tests --test bsdf_chi2` (about 1.5 minutes).
 
 use glam::Vec3;
 use guiding_tests::cases::Case;
-use guiding_tests::chi2::{run_chi2, Chi2Config, Warp};
+use guiding_tests::chi2::{run_chi2, sidak, Chi2Config, Warp};
 use guiding_tests::quadrature::integrate;
 use guiding_tests::rng::Pcg32;
 use guiding_tests::SphereDistribution;
 use host_demo::scene::bsdf::{Coating, Material, Microfacet, WardVariant};
+use std::cell::Cell;
+use std::rc::Rc;
 
 struct Conditioned {
     m: Material,
     wi: Vec3,
     norm: f64,
+    /// Calls of `Material::sample`, accepted or not (for [`check_mass`]).
+    attempts: Rc<Cell<u64>>,
 }
 
 impl SphereDistribution for Conditioned {
     fn sample(&self, rng: &mut Pcg32) -> (Vec3, f32) {
         for _ in 0..10_000 {
+            self.attempts.set(self.attempts.get() + 1);
             let (u0, u1, u2) = (rng.next_f32(), rng.next_f32(), rng.next_f32());
             if let Some(s) = self.m.sample(self.wi, u0, u1, u2) {
                 if s.pdf.is_finite() {
@@ -375,6 +382,109 @@ fn phong_ward_cases() -> Vec<(String, Material, Vec3, bool)> {
     ]
 }
 
+/// `∫pdf` over the sphere by [`integrate`] (Gauss–Legendre order 16 on the case's grid)
+/// and an estimate of its quadrature error: the larger difference to two other rules,
+/// order 8 on the same cells and order 8 on cells halved in both directions. Where the
+/// rules converge the order-16 value is the most accurate and the differences bound its
+/// error; a lobe narrower than a cell (Phong n = 300 or Beckmann α = 0.05 at normal
+/// incidence: the whole lobe in the polar row) defeats the same-cell comparison alone
+/// (measured: it gave 1.2·10⁻⁶ for an error of 4.3·10⁻⁶), the halved cells do not.
+fn pdf_mass(pdf: impl Fn(glam::DVec3) -> f64 + Copy, res_u: usize, res_v: usize) -> (f64, f64) {
+    let warp = Warp::uniform();
+    let i16 = integrate(&warp, pdf, res_u, res_v, 16);
+    let i8 = integrate(&warp, pdf, res_u, res_v, 8);
+    let i8_fine = integrate(&warp, pdf, 2 * res_u, 2 * res_v, 8);
+    (i16, (i16 - i8).abs().max((i16 - i8_fine).abs()))
+}
+
+/// Significance level of all the normalisation checks of this file together.
+const MASS_ALPHA: f64 = 0.01;
+
+/// The sharpness `s` of a material's narrowest lobe, for the rounding term of
+/// [`check_mass`]: the Phong exponent, `1/α²` of a microfacet or Ward lobe, 1 for
+/// diffuse lobes.
+fn lobe_sharpness(m: &Material) -> f64 {
+    let inv_sq = |a: f32| 1.0 / f64::from(a).powi(2);
+    match *m {
+        Material::Phong { exponent, .. } => f64::from(exponent).max(1.0),
+        Material::RoughConductor { alpha, .. } | Material::RoughDielectric { alpha, .. } => {
+            inv_sq(alpha)
+        }
+        Material::RoughPlastic(c) => inv_sq(c.alpha),
+        Material::Ward {
+            alpha_u, alpha_v, ..
+        } => inv_sq(alpha_u.min(alpha_v)),
+        _ => 1.0,
+    }
+}
+
+/// The normalisation check: `∫pdf` must be the probability that the sampler returns a
+/// non-delta direction.
+///
+/// `Material::sample` draws one direction per call, or gives up (a microfacet reflection
+/// below the horizon), or picks a delta lobe (infinite pdf); `eval`'s pdf is the density of
+/// the directions it does return, *including* the lobe-selection probabilities, so its
+/// integral is that acceptance probability `p` — not the albedo, which weighs by `f·cos`
+/// instead; `p ≤ 1`, with equality for a material that always returns a direction. (A pdf
+/// that is right up to a constant factor passes the chi² test, which conditions on
+/// acceptance and renormalises; this check is what pins the scale.)
+///
+/// `p` is measured by counting the attempts behind `accepted` samples: `p̂ = accepted /
+/// attempts`, standard deviation `σ = p √((1 − p)/accepted)` (the attempts are a negative
+/// binomial count), taken with one extra rejection counted so that `p̂ = 1` does not give
+/// `σ = 0`. Tolerance `|∫pdf − p̂| ≤ z σ + q + r`:
+/// - `z`, the two-sided normal quantile at α = 0.01 Šidák-corrected over `checks` (3.78 for
+///   the 65 checks of this file);
+/// - `q`, the quadrature error estimate of [`pdf_mass`];
+/// - `r = ε₃₂ (16 + 2s) ∫pdf`, the `f32` evaluation of the pdf: a product of ~16 rounded
+///   factors (normalisation, Fresnel and selection weights, Jacobian), and a lobe
+///   `exp(−s g)` or `cosˢ` whose argument, formed from unit vectors good to `ε₃₂`, errs by
+///   `≈ 2 s ε₃₂` absolute (`s` from [`lobe_sharpness`]): a relative error of the lobe. (It
+///   is what a sharp lobe needs: Phong n = 300 at normal incidence always returns a
+///   direction, yet its `∫pdf` is 1 − 4.1·10⁻⁶ on every grid tried, within `r` = 7.4·10⁻⁵.)
+///
+/// The result is at most 1 + tolerance, since `p̂ ≤ 1`. It replaces `0.05 < ∫pdf ≤
+/// 1.001`, whose 0.05 admitted a pdf 20 times too small and whose 10⁻³ had no source.
+/// Measured over the 65 checks: `|∫pdf − p̂|` ≤ 0.51 of its tolerance; beyond 2 σ only
+/// for the sharp lobes (α = 0.05, n = 300: 4–10 σ, covered by their quadrature and
+/// rounding terms).
+fn check_mass(
+    name: &str,
+    (mass, quadrature): (f64, f64),
+    sharpness: f64,
+    accepted: u64,
+    attempts: u64,
+    checks: usize,
+) -> Result<String, String> {
+    use statrs::distribution::{ContinuousCDF, Normal};
+    let n = accepted as f64;
+    let p = n / attempts as f64;
+    let p_pad = n / (attempts + 1) as f64;
+    let sigma = p_pad * ((1.0 - p_pad) / n).sqrt();
+    let z = Normal::new(0.0, 1.0)
+        .expect("standard normal")
+        .inverse_cdf(1.0 - 0.5 * sidak(MASS_ALPHA, checks));
+    let rounding = f64::from(f32::EPSILON) * (16.0 + 2.0 * sharpness) * mass;
+    let tol = z * sigma + quadrature + rounding;
+    let report = format!(
+        "{name}: ∫pdf {mass:.6} vs acceptance {p:.6} ({accepted} of {attempts}): |Δ| {:.2e}, \
+         {:.2} σ; tolerance {tol:.2e} (z {z:.2} × σ {sigma:.2e} + quadrature {quadrature:.2e} \
+         + rounding {rounding:.2e})",
+        (mass - p).abs(),
+        (mass - p).abs() / sigma
+    );
+    if (mass - p).abs() > tol {
+        return Err(format!("∫pdf is not the acceptance probability: {report}"));
+    }
+    Ok(report)
+}
+
+/// How many normalisation checks the file makes: one per case and two in
+/// `blendbsdf_sampling_matches_mixture_pdf`.
+fn mass_checks() -> usize {
+    cases().len() + 2
+}
+
 #[test]
 fn bsdf_sampling_matches_pdf() {
     let all = cases();
@@ -391,20 +501,19 @@ fn bsdf_sampling_matches_pdf() {
             Chi2Config::default()
         };
         let warp = Warp::uniform();
-        let norm = integrate(
-            &warp,
+        let mass = pdf_mass(
             |d| f64::from(m.eval(*wi, d.as_vec3()).1),
             cfg.res_u,
             cfg.res_v,
-            16,
         );
-        assert!(norm > 0.05 && norm <= 1.001, "{name}: ∫pdf = {norm}");
+        let attempts = Rc::new(Cell::new(0));
         let case = Case {
             name: format!("bsdf/{name}"),
             dist: Box::new(Conditioned {
                 m: *m,
                 wi: *wi,
-                norm,
+                norm: mass.0,
+                attempts: Rc::clone(&attempts),
             }),
             warp,
         };
@@ -416,12 +525,68 @@ fn bsdf_sampling_matches_pdf() {
                 ..cfg.clone()
             },
         );
-        eprintln!("{} (∫pdf {norm:.4})", r.message);
+        eprintln!("{}", r.message);
         if !r.passed {
             failures.push(r.message);
         }
+        let (s, checks) = (lobe_sharpness(m), mass_checks());
+        match check_mass(name, mass, s, cfg.samples as u64, attempts.get(), checks) {
+            Ok(report) => eprintln!("  {report}"),
+            Err(e) => failures.push(e),
+        }
     }
     assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// Negative control of the normalisation check: a pdf claimed 3 % too small or too large
+/// (a lost or doubled selection probability would be far worse) is rejected, where the
+/// right one passes, for a rough plastic, the diffuse part of a smooth plastic (acceptance
+/// ≈ 0.51: the rest is the delta coating), a grazing rough conductor (≈ 0.90: reflections
+/// below the horizon) and the sharpest lobe (Phong n = 300, the largest rounding term).
+/// The acceptance comes from 10⁵ samples (σ ≤ 1.6·10⁻³, against a defect of 3 % of `p`);
+/// `∫` is linear, so the claimed pdf's integral is the scaled `∫pdf`.
+#[test]
+fn normalisation_check_rejects_a_scaled_pdf() {
+    const SAMPLES: u64 = 100_000;
+    let picks = [
+        "roughplastic a0.2",
+        "plastic diffuse part",
+        "roughconductor a0.6 grazing",
+        "phong n300 normal",
+    ];
+    let checks = mass_checks();
+    let mut seen = 0;
+    for (i, (name, m, wi, fine)) in cases().into_iter().enumerate() {
+        if !picks.contains(&name.as_str()) {
+            continue;
+        }
+        seen += 1;
+        let (res_u, res_v) = if fine { (201, 101) } else { (101, 51) };
+        let mass = pdf_mass(|d| f64::from(m.eval(wi, d.as_vec3()).1), res_u, res_v);
+        let mut rng = Pcg32::new(900 + i as u64, 0);
+        let (mut accepted, mut attempts) = (0u64, 0u64);
+        while accepted < SAMPLES {
+            attempts += 1;
+            let (u0, u1, u2) = (rng.next_f32(), rng.next_f32(), rng.next_f32());
+            if m.sample(wi, u0, u1, u2).is_some_and(|s| s.pdf.is_finite()) {
+                accepted += 1;
+            }
+        }
+        let s = lobe_sharpness(&m);
+        match check_mass(&name, mass, s, accepted, attempts, checks) {
+            Ok(report) => eprintln!("{report}"),
+            Err(e) => panic!("the right pdf is rejected: {e}"),
+        }
+        for scale in [0.97, 1.03] {
+            let claimed = (scale * mass.0, scale * mass.1);
+            let label = format!("{name}, pdf × {scale}");
+            match check_mass(&label, claimed, s, accepted, attempts, checks) {
+                Ok(report) => panic!("a scaled pdf passed the normalisation check: {report}"),
+                Err(e) => eprintln!("rejected as it must be: {e}"),
+            }
+        }
+    }
+    assert_eq!(seen, picks.len());
 }
 
 /// Samples of `sampled` (conditioned on a non-delta sample, as [`Conditioned`]) tested
@@ -713,11 +878,13 @@ fn blendbsdf_sampling_matches_mixture_pdf() {
         uv: Vec2,
         wi: Vec3,
         norm: f64,
+        attempts: Rc<Cell<u64>>,
     }
     impl SphereDistribution for Blend {
         fn sample(&self, rng: &mut Pcg32) -> (Vec3, f32) {
             let mut r = host_demo::math::Rng::from_keys(u64::from(rng.next_u32()), 1, 2);
             for _ in 0..10_000 {
+                self.attempts.set(self.attempts.get() + 1);
                 let (_, m, _, _) = self.scene.resolve_material(
                     self.id,
                     Vec3::Z,
@@ -746,14 +913,12 @@ fn blendbsdf_sampling_matches_mixture_pdf() {
     for (i, uv) in uvs.iter().enumerate() {
         let cfg = Chi2Config::default();
         let warp = Warp::uniform();
-        let norm = integrate(
-            &warp,
+        let mass = pdf_mass(
             |d| f64::from(scene.eval_mixture(outer, *uv, wi, d.as_vec3()).1),
             cfg.res_u,
             cfg.res_v,
-            16,
         );
-        assert!(norm > 0.05 && norm <= 1.001, "∫pdf = {norm}");
+        let attempts = Rc::new(Cell::new(0));
         let case = Case {
             name: format!("bsdf/blendbsdf uv{i}"),
             dist: Box::new(Blend {
@@ -761,7 +926,8 @@ fn blendbsdf_sampling_matches_mixture_pdf() {
                 id: outer,
                 uv: *uv,
                 wi,
-                norm,
+                norm: mass.0,
+                attempts: Rc::clone(&attempts),
             }),
             warp,
         };
@@ -773,7 +939,15 @@ fn blendbsdf_sampling_matches_mixture_pdf() {
                 ..cfg
             },
         );
-        eprintln!("{} (∫pdf {norm:.4})", r.message);
+        eprintln!("{}", r.message);
         assert!(r.passed, "{}", r.message);
+        let name = format!("blendbsdf uv{i}");
+        let checks = mass_checks();
+        // The sharpest lobe is the rough conductor's, α = 0.15.
+        let s = 1.0 / 0.15f64.powi(2);
+        match check_mass(&name, mass, s, cfg.samples as u64, attempts.get(), checks) {
+            Ok(report) => eprintln!("  {report}"),
+            Err(e) => panic!("{e}"),
+        }
     }
 }

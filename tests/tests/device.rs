@@ -18,9 +18,10 @@ use guiding_tests::rng::Pcg32;
 const LO: [f32; 3] = [-1.0, -2.0, 0.0];
 const HI: [f32; 3] = [1.0, 2.0, 3.0];
 
-/// The device of the tests, or `None` (with the reason printed).
+/// The device of the tests, or `None` (with the reason printed): the
+/// workspace's one rule, `guiding_gpu::test_support`.
 fn context() -> Option<GpuContext> {
-    guiding_tests::vulkan_context()
+    guiding_gpu::test_context()
 }
 
 fn config(base: GuidingConfig, seed: u32) -> GuidingConfig {

@@ -30,7 +30,7 @@
 
 use guiding_core::encoding::GridConfig;
 use guiding_core::field::{Field, FieldConfig};
-use guiding_core::glam::{Vec2, Vec3};
+use guiding_core::glam::{Quat, Vec2, Vec3};
 use guiding_core::lobe::nasg::{NasgLobe, NASG_EPSILON};
 use guiding_core::lobe::vmf::VmfLobe;
 use guiding_core::loss::Target;
@@ -92,12 +92,47 @@ fn sample_at(scene: Scene, p: Vec3, wi: Vec3) -> TrainingSample {
     TrainingSample::new(query(p), wi.to_array(), [l; 3], INV_FOUR_PI, 0.0, [0.0; 3])
 }
 
+/// A defect planted in the training stream: the negative controls train on it
+/// and the learning check must reject what they learn.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Defect {
+    /// The stream of the tests.
+    None,
+    /// Each sample's radiance is the target's at one position, and the position
+    /// recorded with it another, independent one (a renderer that records the
+    /// wrong hit point, or a learner whose samples lost their positions): the
+    /// stream says nothing about how the target varies with position, so the
+    /// best the learner can do is the positions' average density.
+    ShuffledPositions,
+    /// Each sample's direction is recorded rotated by this angle (radians) about
+    /// `+z`, its radiance that of the unrotated direction (a renderer whose shading
+    /// frame is off by a few degrees): the guide learns the target turned by it.
+    RotatedFrame(f32),
+}
+
 fn training_samples(scene: Scene, rng: &mut Pcg32, n: usize) -> Vec<TrainingSample> {
+    defective_samples(scene, rng, n, Defect::None)
+}
+
+fn defective_samples(
+    scene: Scene,
+    rng: &mut Pcg32,
+    n: usize,
+    defect: Defect,
+) -> Vec<TrainingSample> {
     (0..n)
         .map(|_| {
             let p = uniform_position(rng);
             let wi = square_to_uniform_sphere(rng.next_vec2());
-            sample_at(scene, p, wi)
+            let mut s = sample_at(scene, p, wi);
+            match defect {
+                Defect::None => {}
+                Defect::ShuffledPositions => s.position = uniform_position(rng).to_array(),
+                Defect::RotatedFrame(angle) => {
+                    s.wi = (Quat::from_rotation_z(angle) * wi).to_array();
+                }
+            }
+            s
         })
         .collect()
 }
@@ -198,14 +233,17 @@ fn train<M: GuidingModel + Send + Sync>(
     scene: Scene,
     config: FieldConfig,
     updates: usize,
+    seed: u64,
+    defect: Defect,
 ) -> (Field<M>, Outcome) {
-    let mut field = Field::new(model, config).expect("valid config");
+    assert!(seed >= 1);
+    let mut field = Field::new(model, config.with_seed(seed as u32)).expect("valid config");
     let initial = mean_kl(&field, scene);
-    let mut rng = Pcg32::new(0x5eed, scene as u64);
+    let mut rng = Pcg32::new(0x5eed, scene as u64 + 16 * (seed - 1));
     let per_update = config.batch_size * config.steps_per_update as usize;
     let start = Instant::now();
     for _ in 0..updates {
-        field.add_samples(&training_samples(scene, &mut rng, per_update));
+        field.add_samples(&defective_samples(scene, &mut rng, per_update, defect));
         let r = field.update();
         assert_eq!(r.skipped_steps, 0);
     }
@@ -235,66 +273,143 @@ fn config() -> FieldConfig {
         .with_seed(1)
 }
 
-/// Trains `model` on `scene`, prints and returns the outcome, and checks
-/// the bounds every model must meet: the final KL is below `max_fraction`
-/// of `KL(p ‖ uniform)` and below a tenth of the initial KL.
-fn check<M: GuidingModel + Send + Sync>(
+/// The learning check's verdict on a trained outcome: `Err` (the reason) when
+/// the final KL is not below `bound` nats, or did not fall tenfold from the
+/// initial KL.
+fn verdict(name: &str, scene: Scene, o: &Outcome, bound: f64) -> Result<(), String> {
+    // A NaN KL fails.
+    if o.trained.is_nan() || o.trained >= bound {
+        return Err(format!(
+            "{name} on {scene:?}: KL {} not below its bound {bound}",
+            o.trained
+        ));
+    }
+    if o.trained >= 0.1 * o.initial {
+        return Err(format!(
+            "{name} on {scene:?}: KL {} → {} did not fall tenfold",
+            o.initial, o.trained
+        ));
+    }
+    Ok(())
+}
+
+/// Trains `model` on `scene` with the tests' schedule (seed 1) on a stream
+/// with `defect`, and prints the outcome.
+fn run<M: GuidingModel + Send + Sync>(
     name: &str,
     model: M,
     scene: Scene,
-    max_fraction: f64,
+    defect: Defect,
 ) -> Outcome {
-    let (field, o) = train(model, scene, config(), UPDATES);
+    let (field, o) = train(model, scene, config(), UPDATES, 1, defect);
     eprintln!(
-        "{name:>6} {scene:<11?} ({:>4} params, {:>4} steps): KL {:.4} -> {:.4}  (uniform {:.4}, ratio {:.3}) {:.1}s",
+        "{name:>6} {scene:<11?} ({:>4} params, {:>4} steps{}): KL {:.4} -> {:.4}  (uniform {:.4}, ratio {:.3}) {:.1}s",
         o.params,
         field.steps(),
+        if defect == Defect::None {
+            String::new()
+        } else {
+            format!(", defect {defect:?}")
+        },
         o.initial,
         o.trained,
         o.uniform,
         o.trained / o.uniform,
         o.seconds
     );
-    assert!(
-        o.trained < max_fraction * o.uniform,
-        "{name} on {scene:?}: KL {} not below {max_fraction} × KL(uniform) = {}",
-        o.trained,
-        max_fraction * o.uniform
-    );
-    assert!(
-        o.trained < 0.1 * o.initial,
-        "{name} on {scene:?}: KL {} → {} did not fall tenfold",
-        o.initial,
-        o.trained
-    );
     o
+}
+
+/// Trains `model` on `scene` (no defect), prints and returns the outcome,
+/// and fails unless [`verdict`] accepts it.
+fn check<M: GuidingModel + Send + Sync>(name: &str, model: M, scene: Scene, bound: f64) -> Outcome {
+    let o = run(name, model, scene, Defect::None);
+    if let Err(reason) = verdict(name, scene, &o, bound) {
+        panic!("{reason}");
+    }
+    o
+}
+
+/// Trains `model` on `scene` from a stream with `defect` and asserts that the
+/// learning check rejects the result (a negative control).
+fn assert_rejected<M: GuidingModel + Send + Sync>(
+    name: &str,
+    model: M,
+    scene: Scene,
+    bound: f64,
+    defect: Defect,
+) {
+    let o = run(name, model, scene, defect);
+    match verdict(name, scene, &o, bound) {
+        Ok(()) => panic!(
+            "{name} on {scene:?} with {defect:?}: KL {} passed the bound {bound}",
+            o.trained
+        ),
+        Err(reason) => eprintln!("       rejected as it must be: {reason}"),
+    }
 }
 
 const SCENES: [Scene; 3] = [Scene::Rotating, Scene::Anisotropic, Scene::TwoLobes];
 
-// Thresholds. `KL(p ‖ uniform)` is ≈ 2.7 nats for (a) and (b) and ≈ 1.8 for
-// (c) (printed). A model that can represent the target exactly is limited
-// by the noise of 300 steps of Monte Carlo gradients (the EMA averages
-// some of it out); one that cannot is limited by its representation:
-// - NPM (8 vMF lobes) represents (a) and (c) exactly and reaches ≈ 0.005
-//   nats: bound 2 % of uniform (≈ 0.05). On (b) a vMF mixture can only
-//   tile the 31:1 lobe (≈ 0.2 nats): bound 15 %.
-// - NASG represents all three exactly (a = 0 is a vMF lobe): ≈ 0.005–0.01
-//   nats, bound 2 %.
-// - DF (32 × 16 bins, nearest or linear) is limited by its bin size
-//   (11.25° in φ, ~7° in θ at the equator against lobes ~13° wide) and
-//   trains its guide on the radiance cache's prediction (DF eq. 14),
-//   which itself is learnt during these 300 steps: 0.06–0.18 nats; bound
-//   10 % of uniform.
+/// Significance level of the learning checks as a whole, and their number (4
+/// families × 3 scenes, and NPM-20).
+const LEARNING_ALPHA: f64 = 0.01;
+const LEARNING_CHECKS: usize = 13;
+
+// The bounds, in nats of `KL(p ‖ q)`, per scene [(a) rotating, (b) anisotropic,
+// (c) two lobes]; `KL(p ‖ uniform)` is 2.689, 2.729 and 1.784 (printed).
+//
+// A model that can represent the target exactly is limited by the noise of
+// 300 steps of Monte Carlo gradients (the EMA averages some of it out); one
+// that cannot, by its representation: NPM's 8 vMF lobes can only tile the 31:1
+// lobe of (b); DF (32 × 16 bins) is limited by its bins (11.25° in φ, ~7° in θ
+// at the equator, against lobes ~13° wide) and trains its guide on the radiance
+// cache's prediction (DF eq. 14), itself learnt during these 300 steps.
+//
+// Derivation. The committed test runs seed 1; the bound must hold for any
+// seed (a changed stream, another platform's rounding: the same as a new seed)
+// and should be as tight as that allows. `seed_spread` (ignored, ~4 minutes)
+// trains every case with seeds 1–8 (the init and the sample stream). ln KL
+// spreads alike for the cases of one family, so its standard deviation `s` is
+// pooled per family (NPM with NPM-20: 4 × 7 = 28 degrees of freedom, the
+// others 21). The bound is the one-sided upper prediction bound of a new
+// seed's KL, `exp(m + t·s·√(1 + 1/8))` (`m` the case's mean ln KL, `t` Student's
+// quantile at `1 − α₁`, `α₁ = 1 − 0.99^{1/13}` = 7.7·10⁻⁴: α = 0.01 for the 13
+// checks together, Šidák), rounded down to two digits. Where the old bound (a
+// fraction of `KL(p ‖ u)`: 2 % for NPM / NASG, 15 % for NPM on (b), 10 % for
+// DF) was tighter, it is kept (rounded down) — never loosened:
+//
+//   case     geo-mean KL (max of 8)          s      t     factor  prediction bound  bound
+//   NPM      .0050 (.0077) .169 (.202) .0038 (.0059)   .306  3.51  3.12   .0156 .525 .0118   .015 .40 .011
+//   NPM-20   (b) .174 (.208)                    (pooled with NPM)   .543             .40
+//   NASG     .0063 (.0100) .0077 (.0119) .0060 (.0095)  .287  3.64  3.03  .0192 .0233 .0183  .019 .023 .018
+//   DF-N     .115 (.141) .158 (.195) .093 (.108)   .194  3.64  2.12   .244 .334 .196     .24 .27 .17
+//   DF-L     .066 (.085) .083 (.114) .055 (.069)   .357  3.64  3.97   .262 .327 .217     .26 .27 .17
+//
+// The kept bounds are NPM and NPM-20 on (b), where the KL is capped by the
+// tiling plateau (0.195–0.208 at 10 of the 16 seeds, never above 0.21), so the
+// lognormal tail overstates the upside, and DF on (b) and (c); each of the 48
+// DF runs is below 0.73 of its bound.
+//
+// What they catch (the negative controls below): a learner that ignores the
+// position cannot go below `position_independent_floor` (0.755, 0.785, 0.365
+// nats), above every bound; and for NPM and NASG, whose bounds are now 3×
+// their typical KL rather than 10×, a shading frame off by 4°, which the guide
+// reproduces (`κ A(κ) (1 − cos θ)` ≈ 0.04 nats for κ = 20, the lobe 14° above
+// the equator), fails (measured
+// 0.038 and 0.037 on (a), against 0.015 and 0.019; the old 2 % bound, 0.054,
+// passed it). DF's bound is 2–4× its typical KL too, but that is ~0.2 nats: it
+// catches a frame off by ≳ 8°, not 4°.
+const NPM_BOUNDS: [f64; 3] = [0.015, 0.40, 0.011];
+const NPM20_ANISOTROPIC_BOUND: f64 = 0.40;
+const NASG_BOUNDS: [f64; 3] = [0.019, 0.023, 0.018];
+const DF_N_BOUNDS: [f64; 3] = [0.24, 0.27, 0.17];
+const DF_L_BOUNDS: [f64; 3] = [0.26, 0.27, 0.17];
 
 #[test]
 fn npm_learns_the_targets() {
     for scene in SCENES {
-        let bound = if scene == Scene::Anisotropic {
-            0.15
-        } else {
-            0.02
-        };
+        let bound = NPM_BOUNDS[scene as usize];
         check("NPM", NpmSmallRadiance::small(LO, HI), scene, bound);
     }
 }
@@ -302,7 +417,8 @@ fn npm_learns_the_targets() {
 #[test]
 fn nasg_learns_the_targets() {
     for scene in SCENES {
-        check("NASG", NasgSmallRadiance::small(LO, HI), scene, 0.02);
+        let bound = NASG_BOUNDS[scene as usize];
+        check("NASG", NasgSmallRadiance::small(LO, HI), scene, bound);
     }
 }
 
@@ -310,7 +426,7 @@ fn nasg_learns_the_targets() {
 fn df_nearest_learns_the_targets() {
     for scene in SCENES {
         let model = DfSmallRadiance::small(LO, HI, Interpolation::Nearest);
-        check("DF-N", model, scene, 0.1);
+        check("DF-N", model, scene, DF_N_BOUNDS[scene as usize]);
     }
 }
 
@@ -318,8 +434,56 @@ fn df_nearest_learns_the_targets() {
 fn df_linear_learns_the_targets() {
     for scene in SCENES {
         let model = DfSmallRadiance::small(LO, HI, Interpolation::Linear);
-        check("DF-L", model, scene, 0.1);
+        check("DF-L", model, scene, DF_L_BOUNDS[scene as usize]);
     }
+}
+
+/// Negative control: a learner whose samples lost their positions. Every bound
+/// is below the KL of the best position-blind guide (`position_independent_floor`,
+/// checked here for all 12 cases), and each family, trained on such a stream
+/// with the tests' schedule on the scene where its bound is closest to that
+/// floor, is rejected (measured: NPM 0.95 on (b) against 0.40; NASG, DF-N and
+/// DF-L 0.50, 0.50, 0.47 on (c) against 0.018, 0.17, 0.17).
+#[test]
+fn learning_check_rejects_a_position_blind_learner() {
+    for scene in SCENES {
+        let floor = position_independent_floor(scene);
+        for (family, bounds) in [
+            ("NPM", NPM_BOUNDS),
+            ("NASG", NASG_BOUNDS),
+            ("DF-N", DF_N_BOUNDS),
+            ("DF-L", DF_L_BOUNDS),
+        ] {
+            let bound = bounds[scene as usize];
+            assert!(
+                floor > 1.5 * bound,
+                "{family} on {scene:?}: a position-blind guide (KL ≥ {floor}) is within 1.5× of the bound {bound}"
+            );
+        }
+        assert!(floor > 1.5 * NPM20_ANISOTROPIC_BOUND || scene != Scene::Anisotropic);
+    }
+    let shuffled = Defect::ShuffledPositions;
+    let (b, c) = (Scene::Anisotropic, Scene::TwoLobes);
+    let npm = NpmSmallRadiance::small(LO, HI);
+    assert_rejected("NPM", npm, b, NPM_BOUNDS[b as usize], shuffled);
+    let nasg = NasgSmallRadiance::small(LO, HI);
+    assert_rejected("NASG", nasg, c, NASG_BOUNDS[c as usize], shuffled);
+    let df_n = DfSmallRadiance::small(LO, HI, Interpolation::Nearest);
+    assert_rejected("DF-N", df_n, c, DF_N_BOUNDS[c as usize], shuffled);
+    let df_l = DfSmallRadiance::small(LO, HI, Interpolation::Linear);
+    assert_rejected("DF-L", df_l, c, DF_L_BOUNDS[c as usize], shuffled);
+}
+
+/// Negative control near the bounds: NPM and NASG trained on the rotating target
+/// with every direction recorded 4° off (about `+z`) learn the lobe turned by 4°
+/// and are rejected (see the bounds' comment for the numbers).
+#[test]
+fn learning_check_rejects_a_frame_off_by_four_degrees() {
+    let (a, defect) = (Scene::Rotating, Defect::RotatedFrame(4f32.to_radians()));
+    let npm = NpmSmallRadiance::small(LO, HI);
+    assert_rejected("NPM", npm, a, NPM_BOUNDS[a as usize], defect);
+    let nasg = NasgSmallRadiance::small(LO, HI);
+    assert_rejected("NASG", nasg, a, NASG_BOUNDS[a as usize], defect);
 }
 
 /// NPM widened to 20 hidden units (1 880 parameters) against the NASG
@@ -335,10 +499,13 @@ fn nasg_beats_vmf_on_the_anisotropic_target_at_equal_size() {
         (np as f64 / ng as f64 - 1.0).abs() < 0.02,
         "parameter counts {np} vs {ng}"
     );
-    let o_npm = check("NPM-20", npm, Scene::Anisotropic, 0.15);
-    let o_nasg = check("NASG", nasg, Scene::Anisotropic, 0.02);
+    let b = Scene::Anisotropic;
+    let o_npm = check("NPM-20", npm, b, NPM20_ANISOTROPIC_BOUND);
+    let o_nasg = check("NASG", nasg, b, NASG_BOUNDS[b as usize]);
     // One anisotropic lobe is exactly one NASG lobe, while vMF lobes must
-    // tile it: expect an order of magnitude; assert a factor of two.
+    // tile it: measured ≥ 9× at each of the 8 seeds. Asserted: 2×, what the
+    // prediction bounds above guarantee — NPM-20's lower one (its geometric
+    // mean 0.174 / 3.12 = 0.056) is 2.4× NASG's upper one (0.023).
     assert!(
         o_nasg.trained < 0.5 * o_npm.trained,
         "NASG {} vs NPM {}",
@@ -624,5 +791,111 @@ fn long_soak_heavy_tailed_noise_fireflies_and_invalid_samples() {
             "KL {kl} after {} steps exceeds KL(p‖u)/4 = {bound}",
             (i + 1) * 1000
         );
+    }
+}
+
+/// Mean over the held-out positions of `KL(p_x ‖ m)`, `m` the positions' average
+/// density: no guide that ignores the position gets below it (for a fixed `q`,
+/// `Σ_x KL(p_x ‖ q) = Σ_x KL(p_x ‖ m) + n KL(m ‖ q)`).
+fn position_independent_floor(scene: Scene) -> f64 {
+    let dirs = quadrature_directions();
+    let positions = held_out_positions();
+    let densities: Vec<Vec<f64>> = positions
+        .iter()
+        .map(|&x| {
+            let p: Vec<f64> = dirs
+                .iter()
+                .map(|&w| f64::from(scene.density(x, w)))
+                .collect();
+            let s: f64 = p.iter().sum();
+            p.iter().map(|v| v / s).collect()
+        })
+        .collect();
+    let m: Vec<f64> = (0..dirs.len())
+        .map(|i| densities.iter().map(|p| p[i]).sum::<f64>() / positions.len() as f64)
+        .collect();
+    densities.iter().map(|p| discrete_kl(p, &m)).sum::<f64>() / positions.len() as f64
+}
+
+/// Seeds of the spread measurement behind the bounds.
+const SPREAD_SEEDS: u64 = 8;
+
+/// `ln KL` of seeds `1..=SPREAD_SEEDS` of the test's schedule on `scene`.
+fn log_kls<M: GuidingModel + Send + Sync>(name: &str, model: M, scene: Scene) -> Vec<f64> {
+    let kls: Vec<f64> = (1..=SPREAD_SEEDS)
+        .map(|s| {
+            train(model, scene, config(), UPDATES, s, Defect::None)
+                .1
+                .trained
+        })
+        .collect();
+    let shown: Vec<String> = kls.iter().map(|k| format!("{k:.4}")).collect();
+    eprintln!("{name:>6} {scene:<11?}: KL over seeds {}", shown.join(" "));
+    kls.iter().map(|k| k.ln()).collect()
+}
+
+/// Prints, per case of one family, the upper prediction bound of the KL of a new seed
+/// (see the bounds' comment): `exp(m + t·s·√(1 + 1/n))`.
+fn family_bounds(cases: &[(&str, Scene, Vec<f64>)]) {
+    use statrs::distribution::{ContinuousCDF, StudentsT};
+    let n = SPREAD_SEEDS as f64;
+    let means: Vec<f64> = cases
+        .iter()
+        .map(|(_, _, l)| l.iter().sum::<f64>() / n)
+        .collect();
+    let ss: f64 = cases
+        .iter()
+        .zip(&means)
+        .map(|((_, _, l), m)| l.iter().map(|x| (x - m).powi(2)).sum::<f64>())
+        .sum();
+    let dof = cases.len() as f64 * (n - 1.0);
+    let s = (ss / dof).sqrt();
+    let alpha1 = 1.0 - (1.0 - LEARNING_ALPHA).powf(1.0 / LEARNING_CHECKS as f64);
+    let t = StudentsT::new(0.0, 1.0, dof)
+        .unwrap()
+        .inverse_cdf(1.0 - alpha1);
+    let factor = (t * s * (1.0 + 1.0 / n).sqrt()).exp();
+    for ((name, scene, l), m) in cases.iter().zip(&means) {
+        let max = l.iter().copied().fold(f64::MIN, f64::max).exp();
+        eprintln!(
+            "{name:>6} {scene:<11?}: geometric mean {:.4}, max {max:.4}, pooled sd(ln) {s:.3} \
+             ({dof} dof), t {t:.2}, factor {factor:.2}: bound {:.4} (floor of a position-blind guide {:.3})",
+            m.exp(),
+            m.exp() * factor,
+            position_independent_floor(*scene)
+        );
+    }
+}
+
+/// The measurement behind the bounds (about 4 minutes):
+/// `cargo test --release -p guiding-tests --test learning -- --ignored --nocapture seed_spread`.
+#[test]
+#[ignore = "measurement behind the learning bounds, about 4 minutes"]
+fn seed_spread() {
+    let npm = NpmSmallRadiance::small(LO, HI);
+    let npm20 = NpmMatched::new(small_grid(LO, HI), Target::Radiance);
+    let mut cases: Vec<_> = SCENES
+        .iter()
+        .map(|&s| ("NPM", s, log_kls("NPM", npm, s)))
+        .collect();
+    let b = Scene::Anisotropic;
+    cases.push(("NPM-20", b, log_kls("NPM-20", npm20, b)));
+    family_bounds(&cases);
+    let nasg = NasgSmallRadiance::small(LO, HI);
+    let cases: Vec<_> = SCENES
+        .iter()
+        .map(|&s| ("NASG", s, log_kls("NASG", nasg, s)))
+        .collect();
+    family_bounds(&cases);
+    for (name, interpolation) in [
+        ("DF-N", Interpolation::Nearest),
+        ("DF-L", Interpolation::Linear),
+    ] {
+        let df = DfSmallRadiance::small(LO, HI, interpolation);
+        let cases: Vec<_> = SCENES
+            .iter()
+            .map(|&s| (name, s, log_kls(name, df, s)))
+            .collect();
+        family_bounds(&cases);
     }
 }

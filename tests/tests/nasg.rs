@@ -560,19 +560,9 @@ fn random_grad_raw(rng: &mut Pcg32) -> [[f32; R]; GK] {
     })
 }
 
-/// `grad_log_pdf` against central differences (`h = 10⁻⁶`) of the `f64`
-/// oracle, on 400 random raw vectors away from the clamp boundaries
-/// (`ln λ ∈ [−3, 5]`, `ln a ∈ [−4, 4]`), at directions drawn from the mixture,
-/// uniform directions, and exactly on a lobe axis (the pole of its frame).
-/// Symmetric relative error `|a − n| / max(|a|, |n|, 10⁻³) ≤ 10⁻²` for ≥ 99% of
-/// all components. What exceeds it (measured: ~0.1%, all below 4·10⁻²) are
-/// frame-angle components of size ~10⁻⁵ in the on-axis trials: the oracle's
-/// `f64` frame differs from the decoded `f32` one by ~10⁻⁷ rad, so the
-/// "on-axis" direction is ~10⁻⁷ off the oracle's axis, where
-/// `∂ ln G/∂angle ≈ B θ` (`B = (2λ + 1)(1 + ε + a)`) is ~10⁻⁵ rather than 0.
-/// Also `ln p` itself agrees with the oracle.
-#[test]
-fn gradient_matches_f64_oracle() {
+/// The compared components of [`gradient_matches_f64_oracle`] (it asserts
+/// `ln p` on the way).
+fn oracle_gradient_errors() -> GradientErrors {
     let mut rng = Pcg32::new(9, 100);
     let mut errors = GradientErrors::new(1e-3);
     for trial in 0..400 {
@@ -601,12 +591,60 @@ fn gradient_matches_f64_oracle() {
         let analytic: Vec<f64> = grad.iter().flatten().map(|&g| f64::from(g)).collect();
         errors.push_all(&format!("trial {trial}"), &analytic, &numeric);
     }
+    errors
+}
+
+/// `grad_log_pdf` against central differences (`h = 10⁻⁶`) of the `f64`
+/// oracle, on 400 random raw vectors away from the clamp boundaries
+/// (`ln λ ∈ [−3, 5]`, `ln a ∈ [−4, 4]`), at directions drawn from the mixture,
+/// uniform directions, and exactly on a lobe axis (the pole of its frame).
+/// Symmetric relative error `|a − n| / max(|a|, |n|, 10⁻³) ≤ 10⁻²` for ≥ 99% of
+/// all components. What exceeds it (measured: 12 of 9600, all below 4·10⁻²) are
+/// frame-angle components of size ~10⁻⁵ in the on-axis trials: the oracle's
+/// `f64` frame differs from the decoded `f32` one by ~10⁻⁷ rad, so the
+/// "on-axis" direction is ~10⁻⁷ off the oracle's axis, where
+/// `∂ ln G/∂angle ≈ B θ` (`B = (2λ + 1)(1 + ε + a)`) is ~10⁻⁵ rather than 0.
+/// Also `ln p` itself agrees with the oracle.
+///
+/// The tolerance. Numeric side: truncation `h² |f‴| / 6`, relative `~h² B ≤
+/// 10⁻¹² · 1.7·10⁴` (`B ≤ 297 · 56` at `ln λ = 5`, `ln a = 4`), and rounding
+/// `ε₆₄ |ln p| / h ≤ 1.1·10⁻¹⁶ · 3·10⁴ / 10⁻⁶ = 3.3·10⁻⁶` absolute (`|ln p| ≤
+/// 2B`), i.e. ≤ 3.3·10⁻³ at the floor 10⁻³ and negligible above it. Analytic
+/// side (`f32`): a component is a product of a few factors of size up to `B`
+/// through `N ≈ 30` roundings, relative error `~ε₃₂ √N ≈ 7·10⁻⁷` (measured
+/// median 1.4·10⁻⁷); where terms of size `S` cancel to `|g|` it grows by
+/// `S / max(|g|, 10⁻³)`, which the tolerance admits up to `10⁻² / 7·10⁻⁷ ≈
+/// 1.4·10⁴` (99th percentile measured: 4·10⁻⁴). A defect of relative size `δ`
+/// gives `e = δ / (1 + δ)`: any `δ ≳ 1 %` in more than 1 % of the components
+/// fails (`gradient_check_rejects_a_planted_nasg_defect`).
+#[test]
+fn gradient_matches_f64_oracle() {
+    let errors = oracle_gradient_errors();
     let (above, worst) = errors.summary(1e-2);
     println!(
-        "gradient: {above} of {} components above 1e-2, worst {worst:.2e}",
-        errors.entries.len()
+        "gradient: {above} of {} components above 1e-2, median {:.1e}, 99th percentile {:.1e}, worst {worst:.2e}",
+        errors.entries.len(), errors.quantile(0.5), errors.quantile(0.99)
     );
     errors.assert("NASG grad_log_pdf vs f64 oracle", 1e-2, 0.01);
+}
+
+/// Negative control: the components of [`gradient_matches_f64_oracle`] with one
+/// defect planted — lobe 0's `∂/∂ ln λ` 5 % too large (400 of the 9600
+/// components, each at `e = 0.05/1.05 = 0.048` unless it is below `2·10⁻⁴`,
+/// where the floor hides it) — fail the same check: measured 278 components
+/// fail, against 96 allowed.
+#[test]
+fn gradient_check_rejects_a_planted_nasg_defect() {
+    let errors = oracle_gradient_errors();
+    let planted = errors.with_defect(|i, _| if i % (GK * R) == 1 { 1.05 } else { 1.0 });
+    let (above, worst) = planted.summary(1e-2);
+    let verdict = planted.check("NASG grad_log_pdf with lobe 0's ∂/∂ln λ × 1.05", 1e-2, 0.01);
+    println!(
+        "planted: {above} of {} components above 1e-2 (worst {worst:.2e}), rejected: {}",
+        planted.entries.len(),
+        verdict.is_err()
+    );
+    assert!(verdict.is_err(), "a 5 % defect in lobe 0's ∂/∂ln λ passed");
 }
 
 /// Clamped `ln λ`, `ln a` outputs get a zero gradient; saturated sigmoids too.

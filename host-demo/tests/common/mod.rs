@@ -57,6 +57,7 @@ pub fn number(s: &str) -> f64 {
     s.parse().unwrap_or_else(|_| panic!("not a number: {s}"))
 }
 
-/// A Vulkan context for the `--device gpu` tests, or a skip: the workspace's one copy.
+/// A Vulkan context for the `--device gpu` tests, or a skip: the workspace's one rule,
+/// `guiding_gpu::test_support`.
 #[allow(unused_imports)] // each test binary uses a subset
-pub use guiding_tests::vulkan_context;
+pub use guiding_gpu::test_context as vulkan_context;
