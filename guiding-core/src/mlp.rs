@@ -1518,8 +1518,7 @@ mod batch {
             let lanes = S::LANES;
             let (ip, wp) = (pad(IN, lanes), pad(WIDTH, lanes));
             let mut layers = Self::back_layers(net, offset, lanes);
-            let (load, save) = (BackLayer::load_all, BackLayer::save_all);
-            load(&mut layers, grad);
+            BackLayer::load_all(&mut layers, grad);
             // The block's inputs and hidden activations are read in place
             // when their widths are multiples of the vector width, else from
             // padded query-major copies (hidden layer j at j · BLOCK · wp);
@@ -1545,7 +1544,7 @@ mod batch {
                     .chain(h_blk)
                     .fold(true, |ok, v| ok & v.is_finite())
                 {
-                    save(&layers, grad);
+                    BackLayer::save_all(&layers, grad);
                     Self::backward_per_query(
                         params,
                         offset,
@@ -1556,7 +1555,7 @@ mod batch {
                         d_inputs,
                         start..start + nb,
                     );
-                    load(&mut layers, grad);
+                    BackLayer::load_all(&mut layers, grad);
                     start += nb;
                     continue;
                 }
@@ -1618,7 +1617,7 @@ mod batch {
                 }
                 start += nb;
             }
-            save(&layers, grad);
+            BackLayer::save_all(&layers, grad);
         }
 
         /// [`Self::backward`] for every query, in order: **adds** the

@@ -707,14 +707,8 @@ impl GuideCache {
                 });
             }
         }
-        let Moments {
-            moment,
-            first,
-            count,
-            total,
-            used,
-        } = self.selection_moments(field, samples, mis_radiance, fit)?;
-        Ok(self.assign_selection(fit, &moment, &first, &count, &total, used))
+        let sums = self.selection_moments(field, samples, mis_radiance, fit)?;
+        Ok(self.assign_selection(fit, &sums))
     }
 
     /// Per lane and candidate `c`, the sums of the second-moment estimate `M̂(c)` of the
@@ -804,15 +798,15 @@ impl GuideCache {
 
     /// Takes each lane's candidate of least (cost-weighted) variance from the sums of
     /// [`Self::selection_moments`], stores the probabilities in the lanes and reports them.
-    fn assign_selection(
-        &mut self,
-        fit: &SelectionFit,
-        moment: &[[f64; CANDIDATES]],
-        first: &[f64],
-        count: &[u32],
-        total: &[f64; CANDIDATES],
-        used: u64,
-    ) -> SelectionReport {
+    fn assign_selection(&mut self, fit: &SelectionFit, sums: &Moments) -> SelectionReport {
+        let Moments {
+            moment,
+            first,
+            count,
+            total,
+            used,
+        } = sums;
+        let used = *used;
         let candidate = |k: usize| fit.candidate(k);
         let cells = moment.len();
         // The candidate of least variance times cost, to first order the least

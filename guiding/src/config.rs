@@ -275,7 +275,7 @@ pub struct UnknownName {
     /// The name that was given.
     pub given: String,
     /// The names that exist.
-    pub expected: &'static [&'static str],
+    pub expected: Vec<&'static str>,
 }
 
 impl std::fmt::Display for UnknownName {
@@ -292,18 +292,13 @@ impl std::fmt::Display for UnknownName {
 impl std::error::Error for UnknownName {}
 
 /// Parses `s` as the value of `all` whose `name` it is.
-fn parse_name<T: Copy>(
-    s: &str,
-    all: &[T],
-    name: fn(T) -> &'static str,
-    names: &'static [&'static str],
-) -> Result<T, UnknownName> {
+fn parse_name<T: Copy>(s: &str, all: &[T], name: fn(T) -> &'static str) -> Result<T, UnknownName> {
     all.iter()
         .copied()
         .find(|&v| name(v) == s)
         .ok_or_else(|| UnknownName {
             given: s.to_string(),
-            expected: names,
+            expected: all.iter().map(|&v| name(v)).collect(),
         })
 }
 
@@ -311,7 +306,7 @@ impl std::str::FromStr for Representation {
     type Err = UnknownName;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        parse_name(s, &Self::ALL, Self::name, &["npm", "nasg", "df-n", "df-l"])
+        parse_name(s, &Self::ALL, Self::name)
     }
 }
 
@@ -319,7 +314,7 @@ impl std::str::FromStr for ModelSize {
     type Err = UnknownName;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        parse_name(s, &Self::ALL, Self::name, &["small", "compact", "paper"])
+        parse_name(s, &Self::ALL, Self::name)
     }
 }
 

@@ -1010,6 +1010,7 @@ impl<
         let mut ok = vec![false; TRAIN_CHUNK];
         let mut losses = vec![0.0f32; TRAIN_CHUNK];
         let mut traces = vec![GridTrace::EMPTY; TRAIN_CHUNK];
+        let lambda_c = self.cache_weight();
         let g = self.grid.output_dims();
         let mut total = 0.0f64;
         for chunk in samples.chunks(TRAIN_CHUNK) {
@@ -1059,6 +1060,7 @@ impl<
             for k in 0..m {
                 let (loss, finite, guided) = self.output_gradients(
                     &chunk[live[k]],
+                    lambda_c,
                     (&yr[k], &ym[k], &yc[k]),
                     (&mut dr[k], &mut dm[k], &mut dc[k]),
                 );
@@ -1131,7 +1133,7 @@ impl<
     }
 
     /// One sample's loss and output gradients, as the per-query kernel forms them: the
-    /// cache's relative L2 (weight `λ_c`) on the softplus of `yr`, and `−w ln q(ωᵢ)` through
+    /// cache's relative L2 (weight `lambda_c`, [`Self::cache_weight`]) on the softplus of `yr`, and `−w ln q(ωᵢ)` through
     /// the marginal and conditional outputs when the guide weight `w` is not 0. Returns the
     /// loss, whether the outputs it read were finite, and whether the guide's networks ran
     /// (`w ≠ 0`).
@@ -1140,6 +1142,7 @@ impl<
     fn output_gradients(
         &self,
         s: &TrainingSample,
+        lambda_c: f32,
         (yr, ym, yc): (
             &[f32; 3],
             &[f32; DF_MARGINAL_BINS],
@@ -1153,7 +1156,6 @@ impl<
     ) -> (f32, bool, bool) {
         use super::df::{guide_weight, softplus, DfWeightSource};
         use crate::loss::relative_l2;
-        let lambda_c = self.cache_weight();
         let mut pred = [0.0f32; 3];
         let mut dpred = [0.0f32; 3];
         for c in 0..3 {
