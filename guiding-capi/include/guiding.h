@@ -77,6 +77,23 @@
 #include <stddef.h>
 #include <stdint.h>
 
+/* Model sizes (PgModelSize), one per row of the size table. */
+
+/**
+ * Tiny, a few thousand parameters: tests and toy scenes.
+ */
+#define PG_SIZE_SMALL 0
+
+/**
+ * About 25x fewer parameters than the papers' (a 166 816-parameter grid): the default, sized for CPU rendering.
+ */
+#define PG_SIZE_COMPACT 1
+
+/**
+ * The papers' sizes (NPM's grid of 4.1 M parameters).
+ */
+#define PG_SIZE_PAPER 2
+
 /**
  * Number of rejection kinds counted in `PgFieldStats.rejected_samples`.
  */
@@ -177,7 +194,7 @@ typedef uint32_t PgRepresentation;
 typedef uint32_t PgTarget;
 
 /**
- * Model size code (`PG_SIZE_*`).
+ * Model size code (`PG_SIZE_*`): `guiding::ModelSize` as `u32`.
  */
 typedef uint32_t PgModelSize;
 
@@ -688,21 +705,6 @@ typedef struct PgScheduleReport {
  * Go on on the CPU with the weights the device trained.
  */
 #define PG_DEVICE_FALLBACK_CPU 1
-
-/**
- * Tiny (2-level grid, MLP 2 × 16): tests and toy scenes.
- */
-#define PG_SIZE_SMALL 0
-
-/**
- * 4-level dense grid and 2 × 32 MLPs, sized for CPU rendering (default).
- */
-#define PG_SIZE_COMPACT 1
-
-/**
- * The papers' sizes (grids of 4.1 M parameters).
- */
-#define PG_SIZE_PAPER 2
 
 /**
  * Training gets the share `PgScheduleArgs.step_value` (in `(0, 1)`, default 1/3) of the

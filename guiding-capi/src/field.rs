@@ -124,8 +124,9 @@ fn config_of(args: &PgFieldArgs) -> Result<GuidingConfig, Failure> {
     };
     let size = ModelSize::from_code(args.size).ok_or_else(|| {
         Failure::invalid(format!(
-            "size {} is not a PG_SIZE_* code (0 to 2)",
-            args.size
+            "size {} is not a PG_SIZE_* code (0 to {})",
+            args.size,
+            ModelSize::ALL.len() - 1
         ))
     })?;
     let training = base

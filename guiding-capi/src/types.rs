@@ -46,14 +46,24 @@ pub const PG_DEVICE_FAILURE_ERROR: PgDeviceFailure = 0;
 /// Go on on the CPU with the weights the device trained.
 pub const PG_DEVICE_FALLBACK_CPU: PgDeviceFailure = 1;
 
-/// Model size code (`PG_SIZE_*`).
+/// Model size code (`PG_SIZE_*`): `guiding::ModelSize` as `u32`.
 pub type PgModelSize = u32;
-/// Tiny (2-level grid, MLP 2 × 16): tests and toy scenes.
-pub const PG_SIZE_SMALL: PgModelSize = 0;
-/// 4-level dense grid and 2 × 32 MLPs, sized for CPU rendering (default).
-pub const PG_SIZE_COMPACT: PgModelSize = 1;
-/// The papers' sizes (grids of 4.1 M parameters).
-pub const PG_SIZE_PAPER: PgModelSize = 2;
+
+/// `PG_SIZE_<NAME>`, one constant per row of the size table
+/// ([`guiding_core::for_each_size`]). cbindgen does not expand macros: the
+/// header's `#define`s are written from `ModelSize::ALL` by its generator
+/// (`tests/header.rs`).
+macro_rules! size_constants {
+    ([$($size:ident = $code:literal, $name:ident, $doc:literal, $shape:tt;)*]) => {
+        guiding_core::__pastey::paste! {
+            $(
+                #[doc = $doc]
+                pub const [<PG_SIZE_ $name:upper>]: PgModelSize = $code;
+            )*
+        }
+    };
+}
+guiding_core::for_each_size!(size_constants);
 
 /// Number of rejection kinds counted in `PgFieldStats.rejected_samples`.
 pub const PG_REJECTION_KINDS: usize = 4;

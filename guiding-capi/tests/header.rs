@@ -1,13 +1,32 @@
 //! The committed `include/guiding.h` is exactly what cbindgen generates from
 //! the current sources and `cbindgen.toml`.
 
+use guiding::ModelSize;
 use std::path::Path;
 
 const REGENERATE: &str = "GUIDING_UPDATE_HEADER=1 cargo test -p guiding-capi --test header";
 
+/// The `PG_SIZE_*` `#define`s, one per [`ModelSize`] (the Rust constants are
+/// generated from the size table by a macro, which cbindgen does not expand).
+fn size_defines() -> String {
+    let mut out =
+        String::from("\n/* Model sizes (PgModelSize), one per row of the size table. */\n");
+    for size in ModelSize::ALL {
+        let name = size.name().to_uppercase();
+        let doc = size.description();
+        out += &format!(
+            "\n/**\n * {doc}\n */\n#define PG_SIZE_{name} {}\n",
+            size as u32
+        );
+    }
+    out.truncate(out.trim_end().len());
+    out
+}
+
 fn generate(dir: &Path) -> Vec<u8> {
-    let config = cbindgen::Config::from_file(dir.join("cbindgen.toml"))
+    let mut config = cbindgen::Config::from_file(dir.join("cbindgen.toml"))
         .unwrap_or_else(|e| panic!("cbindgen.toml: {e}"));
+    config.after_includes = Some(size_defines());
     let bindings = cbindgen::Builder::new()
         .with_config(config)
         .with_src(dir.join("src/lib.rs"))

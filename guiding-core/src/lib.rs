@@ -70,3 +70,5 @@ pub mod sample;
 pub mod sphere;
 
 pub use glam;
+#[doc(hidden)]
+pub use pastey as __pastey;

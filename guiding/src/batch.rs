@@ -26,7 +26,7 @@
 use crate::device::DeviceLanes;
 use crate::error::GuidingError;
 use crate::field::{DecodedDistribution, GuidingField};
-use crate::models::{self, with_field, BatchItems, Decode};
+use crate::models::{self, with_df_field, with_field, BatchItems, Decode, Lanes};
 use glam::{Vec2, Vec3};
 use guiding_core::lobe::DirectionSample;
 use guiding_core::model::mixture_batch;
@@ -216,13 +216,16 @@ impl DistributionBatch {
         }
         // Checked before the shared cells are copied in: a NASG or DF batch
         // needs no copy.
-        let has_vmf =
-            !self.items.vmf.is_empty() || self.cells.as_ref().is_some_and(|c| !c.vmf.is_empty());
+        let has_vmf = !self.items.lanes.vmf().is_empty()
+            || self
+                .cells
+                .as_ref()
+                .is_some_and(|c| !c.lanes.vmf().is_empty());
         if !has_vmf || self.len() != normals.len() {
             return false;
         }
         self.materialize();
-        let vmf = &mut self.items.vmf;
+        let vmf = self.items.lanes.vmf_mut();
         guiding_core::model::batched::cosine_product_batch(vmf, normals);
         true
     }
@@ -454,20 +457,18 @@ impl GuidingField {
                 .chunks_exact(r)
                 .map(|c| c.try_into().unwrap_or([0.0; NPM_OUTPUTS]))
                 .collect();
-            out.items
-                .vmf
-                .resize(n, guiding_core::mixture::vmf::VmfMixture::ZERO);
-            decode_vmf_batch(&rows, &mut out.items.vmf);
+            let lanes = out.items.lanes.vmf_mut();
+            lanes.resize(n, guiding_core::mixture::vmf::VmfMixture::ZERO);
+            decode_vmf_batch(&rows, lanes);
         } else {
             // The batched decoders, as decode_batch: rows of the model's outputs.
             let rows: Vec<[f32; NASG_OUTPUTS]> = raw
                 .chunks_exact(r)
                 .map(|c| c.try_into().unwrap_or([0.0; NASG_OUTPUTS]))
                 .collect();
-            out.items
-                .nasg
-                .resize(n, guiding_core::mixture::nasg::NasgMixture::ZERO);
-            decode_nasg_batch(&rows, &mut out.items.nasg);
+            let lanes = out.items.lanes.nasg_mut();
+            lanes.resize(n, guiding_core::mixture::nasg::NasgMixture::ZERO);
+            decode_nasg_batch(&rows, lanes);
         }
         Ok(())
     }
@@ -534,17 +535,15 @@ impl GuidingField {
             let packed: Vec<[f32; 4]> = u.iter().map(|v| [v.x, v.y, 0.0, 0.0]).collect();
             return self.device_lanes_call(batch, lanes, &packed, DeviceOut::Samples(out));
         }
-        batch.route(lanes, u, out, |items, lanes, u, out| {
-            if !items.vmf.is_empty() {
-                mixture_batch::vmf_sample_batch(&items.vmf, lanes, u, out);
-            } else if !items.nasg.is_empty() {
-                mixture_batch::nasg_sample_batch(&items.nasg, lanes, u, out);
-            } else if !items.df.is_empty() {
-                with_field!(&self.inner, f => f
-                    .model()
-                    .sample_vertices_any(f.ema_params(), &items.df, lanes, u, out));
-            } else if !items.df_table.is_empty() {
-                mixture_batch::table_sample_batch(&items.df_table, &items.df_sums, lanes, u, out);
+        batch.route(lanes, u, out, |items, lanes, u, out| match &items.lanes {
+            Lanes::Vmf(m) => mixture_batch::vmf_sample_batch(m, lanes, u, out),
+            Lanes::Nasg(m) => mixture_batch::nasg_sample_batch(m, lanes, u, out),
+            // DF lanes come from a DF field (`check_batch`: this field).
+            Lanes::Df(v) => with_df_field!(&self.inner, f => f
+                .model()
+                .sample_vertices(f.ema_params(), v, lanes, u, out), ()),
+            Lanes::DfTable { tables, sums } => {
+                mixture_batch::table_sample_batch(tables, sums, lanes, u, out);
             }
         });
         Ok(())
@@ -583,19 +582,22 @@ impl GuidingField {
             let packed: Vec<[f32; 4]> = directions.iter().map(|d| [d.x, d.y, d.z, 0.0]).collect();
             return self.device_lanes_call(batch, lanes, &packed, DeviceOut::Pdfs(out));
         }
-        batch.route(lanes, directions, out, |items, lanes, directions, out| {
-            if !items.vmf.is_empty() {
-                mixture_batch::vmf_pdf_batch(&items.vmf, lanes, directions, out);
-            } else if !items.nasg.is_empty() {
-                mixture_batch::nasg_pdf_batch(&items.nasg, lanes, directions, out);
-            } else if !items.df.is_empty() {
-                with_field!(&self.inner, f => f
-                    .model()
-                    .pdf_vertices_any(f.ema_params(), &items.df, lanes, directions, out));
-            } else if !items.df_table.is_empty() {
-                mixture_batch::table_pdf_batch(&items.df_table, lanes, directions, out);
-            }
-        });
+        batch.route(
+            lanes,
+            directions,
+            out,
+            |items, lanes, dirs, out| match &items.lanes {
+                Lanes::Vmf(m) => mixture_batch::vmf_pdf_batch(m, lanes, dirs, out),
+                Lanes::Nasg(m) => mixture_batch::nasg_pdf_batch(m, lanes, dirs, out),
+                // DF lanes come from a DF field (`check_batch`: this field).
+                Lanes::Df(v) => with_df_field!(&self.inner, f => f
+                .model()
+                .pdf_vertices(f.ema_params(), v, lanes, dirs, out), ()),
+                Lanes::DfTable { tables, .. } => {
+                    mixture_batch::table_pdf_batch(tables, lanes, dirs, out);
+                }
+            },
+        );
         Ok(())
     }
 }

@@ -50,7 +50,7 @@ use crate::batch::{DistributionBatch, CACHE_MISS as MISS};
 use crate::config::Target;
 use crate::error::GuidingError;
 use crate::field::GuidingField;
-use crate::models::{with_field, BatchItems, Decode};
+use crate::models::{with_df_field, with_field, BatchItems, Decode, Lanes};
 use glam::Vec3;
 use guiding_core::model::QueryPoint;
 use std::sync::Arc;
@@ -372,7 +372,10 @@ impl GuideCache {
             let mut decoded = BatchItems::default();
             decode_cells(field, &queries, self.tabulate, &mut decoded);
             if self.product {
-                guiding_core::model::batched::cosine_product_batch(&mut decoded.vmf, &normals);
+                guiding_core::model::batched::cosine_product_batch(
+                    decoded.lanes.vmf_mut(),
+                    &normals,
+                );
                 self.normals.extend_from_slice(&normals);
             }
             let items = Arc::make_mut(&mut self.items);
@@ -413,7 +416,10 @@ impl GuideCache {
         decode_cells(field, &queries, self.tabulate, items);
         items.lane_selection = selection;
         if self.product {
-            guiding_core::model::batched::cosine_product_batch(&mut items.vmf, &self.normals);
+            guiding_core::model::batched::cosine_product_batch(
+                items.lanes.vmf_mut(),
+                &self.normals,
+            );
         }
         Ok(())
     }
@@ -497,7 +503,10 @@ impl GuideCache {
             decode_cells(field, &mq, self.tabulate, &mut out.items);
             if self.product {
                 let normals: Vec<Vec3> = mq.iter().map(|q| Vec3::from_array(q.normal)).collect();
-                guiding_core::model::batched::cosine_product_batch(&mut out.items.vmf, &normals);
+                guiding_core::model::batched::cosine_product_batch(
+                    out.items.lanes.vmf_mut(),
+                    &normals,
+                );
             }
         }
         out.items.selection = self.items.selection;
@@ -528,14 +537,16 @@ fn decode_cells(
     out: &mut BatchItems,
 ) {
     decode_into(field, queries, out);
-    if tabulate && !out.df.is_empty() {
-        let mut tables = vec![guiding_core::model::batched::DfTable::ZERO; out.df.len()];
-        with_field!(&field.inner, f => f
+    if !tabulate {
+        return;
+    }
+    if let Lanes::Df(vertices) = &out.lanes {
+        let mut tables = vec![guiding_core::model::batched::DfTable::ZERO; vertices.len()];
+        with_df_field!(&field.inner, f => f
             .model()
-            .tabulate_vertices_any(f.ema_params(), &out.df, &mut tables));
-        out.df.clear();
-        out.df_sums = tables.iter().map(|t| t.running_sums()).collect();
-        out.df_table = tables;
+            .tabulate_vertices(f.ema_params(), vertices, &mut tables), ());
+        let sums = tables.iter().map(|t| t.running_sums()).collect();
+        out.lanes = Lanes::DfTable { tables, sums };
     }
 }
 
@@ -694,7 +705,7 @@ impl GuideCache {
         fit: &SelectionFit,
     ) -> Result<SelectionReport, GuidingError> {
         self.check(field)?;
-        if !self.items.nasg.is_empty() {
+        if matches!(self.items.lanes, Lanes::Nasg(_)) {
             return Err(GuidingError::InvalidConfig(
                 "NASG learns its own selection probability".into(),
             ));

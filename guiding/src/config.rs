@@ -2,7 +2,6 @@
 //! and training hyper-parameters, as one `Copy` value with `const fn` presets.
 
 use crate::error::GuidingError;
-use guiding_core::encoding::GridConfig;
 use guiding_core::field::FieldConfig;
 pub use guiding_core::loss::Target;
 
@@ -59,55 +58,59 @@ impl Representation {
     }
 }
 
-/// Network and grid size.
-#[repr(u32)]
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum ModelSize {
-    /// Tiny (2-level grid, MLP 2 × 16, a few thousand parameters): tests and
-    /// toy scenes.
-    Small = 0,
-    /// A 4-level dense grid (4, 8, 16, 32 cells per axis, 4 features each:
-    /// 166 816 grid parameters) and MLPs of 2 hidden layers × 32 (the DF
-    /// radiance cache 2 × 32): about 25× fewer parameters than the papers',
-    /// the default, sized for CPU rendering.
-    Compact = 1,
-    /// The papers' sizes (NPM/NASG/DF grids of 4.1 M parameters; MLPs
-    /// 3 × 64 for NPM, 4 × 128 for NASG, 3 × 64 for DF).
-    Paper = 2,
-}
-
-impl ModelSize {
-    /// Every size, in code order.
-    pub const ALL: [Self; 3] = [Self::Small, Self::Compact, Self::Paper];
-
-    /// The size's name (`small`, `compact`, `paper`), as [`str::parse`] reads it.
-    #[must_use]
-    pub const fn name(self) -> &'static str {
-        match self {
-            Self::Small => "small",
-            Self::Compact => "compact",
-            Self::Paper => "paper",
+/// Generates [`ModelSize`] from the size table.
+macro_rules! model_size {
+    ([$($size:ident = $code:literal, $name:ident, $doc:literal, $shape:tt;)*]) => {
+        /// Network and grid size, one variant per row of the size table
+        /// ([`guiding_core::for_each_size`]), which gives each its grid and
+        /// networks (`n_hidden_layers` × `n_neurons`).
+        #[repr(u32)]
+        #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+        pub enum ModelSize {
+            $(
+                #[doc = $doc]
+                #[doc = ""]
+                #[doc = concat!("`", stringify!($shape), "`")]
+                $size = $code,
+            )*
         }
-    }
 
-    /// The size with this stable code (the `repr(u32)` value).
-    #[must_use]
-    pub const fn from_code(code: u32) -> Option<Self> {
-        match code {
-            0 => Some(Self::Small),
-            1 => Some(Self::Compact),
-            2 => Some(Self::Paper),
-            _ => None,
+        impl ModelSize {
+            /// Every size, in code order.
+            pub const ALL: [Self; [$($code),*].len()] = [$(Self::$size),*];
+
+            /// The size's name, as [`str::parse`] reads it.
+            #[must_use]
+            pub const fn name(self) -> &'static str {
+                match self {
+                    $(Self::$size => stringify!($name),)*
+                }
+            }
+
+            /// The size's one-line description (the size table's).
+            #[must_use]
+            pub const fn description(self) -> &'static str {
+                match self {
+                    $(Self::$size => $doc,)*
+                }
+            }
+
+            /// The size with this stable code (the `repr(u32)` value).
+            #[must_use]
+            pub const fn from_code(code: u32) -> Option<Self> {
+                match code {
+                    $($code => Some(Self::$size),)*
+                    _ => None,
+                }
+            }
         }
-    }
+    };
 }
 
-/// The [`ModelSize::Compact`] grid: 4 levels (4, 8, 16, 32 cells per axis), 4
-/// features per vertex, over `[bbox_min, bbox_max]`.
-#[must_use]
-pub const fn compact_grid(bbox_min: [f32; 3], bbox_max: [f32; 3]) -> GridConfig {
-    GridConfig::new(bbox_min, bbox_max, 4, 4, 2.0, 4)
-}
+guiding_core::for_each_size!(model_size);
+
+/// The [`ModelSize::Compact`] grid over `[bbox_min, bbox_max]`.
+pub use guiding_core::model::sizes::compact_grid;
 
 /// Training defaults of the presets, the settings `host-demo`'s guided integrator takes its
 /// defaults from (and `host-demo bench` measures): Adam with learning rate `3·10⁻²` (NPM:

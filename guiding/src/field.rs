@@ -4,7 +4,7 @@
 use crate::config::GuidingConfig;
 use crate::device::{DeviceFailure, DeviceField, DeviceSelection, GpuContext};
 use crate::error::GuidingError;
-use crate::models::{self, with_field, AnyField, Decode, Decoded};
+use crate::models::{self, with_df_field, with_field, AnyField, Decode, Decoded};
 use glam::{Vec2, Vec3};
 use guiding_core::field::{FieldState, UpdateReport};
 use guiding_core::lobe::DirectionSample;
@@ -613,9 +613,10 @@ impl GuidingField {
             pdf: 0.0,
         }];
         let v = std::slice::from_ref(vertex);
-        with_field!(&self.inner, f => f
+        // A DF vertex is attached to the DF field that decoded it (`attach`).
+        with_df_field!(&self.inner, f => f
             .model()
-            .sample_vertices_any(f.ema_params(), v, &[0], &[u], &mut out));
+            .sample_vertices(f.ema_params(), v, &[0], &[u], &mut out), ());
         out[0]
     }
 
@@ -623,9 +624,9 @@ impl GuidingField {
     fn pdf_df(&self, vertex: &DfVertex, direction: Vec3) -> f32 {
         let mut out = [0.0f32];
         let v = std::slice::from_ref(vertex);
-        with_field!(&self.inner, f => f
+        with_df_field!(&self.inner, f => f
             .model()
-            .pdf_vertices_any(f.ema_params(), v, &[0], &[direction], &mut out));
+            .pdf_vertices(f.ema_params(), v, &[0], &[direction], &mut out), ());
         out[0]
     }
 }

@@ -2,11 +2,10 @@
 //! per (representation family, target, size), dispatched with a `match`
 //! (no `dyn`), and the per-family decode into a [`Decoded`] distribution.
 
-use crate::config::{compact_grid, GuidingConfig, ModelSize, Representation, Target};
+use crate::config::{GuidingConfig, ModelSize, Representation, Target};
 use crate::error::GuidingError;
-use glam::{Vec2, Vec3};
+
 use guiding_core::field::{Field, FieldState};
-use guiding_core::lobe::DirectionSample;
 use guiding_core::mixture::nasg::NasgMixture;
 use guiding_core::mixture::vmf::VmfMixture;
 use guiding_core::model::batched::{DfTable, DfTableSums};
@@ -16,32 +15,6 @@ use guiding_core::model::nasg::{Nasg, NASG_LOBES};
 use guiding_core::model::npm::{Npm, NPM_LOBES};
 use guiding_core::model::{Family, GuidingModel, QueryPoint};
 use guiding_core::pdf1d::Interpolation;
-
-pub use guiding_core::model::df::{DfCompactProduct, DfCompactRadiance};
-pub use guiding_core::model::nasg::{NasgCompactProduct, NasgCompactRadiance};
-pub use guiding_core::model::npm::{NpmCompactProduct, NpmCompactRadiance};
-
-const B0: [f32; 3] = [0.0; 3];
-const B1: [f32; 3] = [1.0; 3];
-const _: () =
-    assert!(NpmCompactRadiance::new(compact_grid(B0, B1), Target::Radiance).is_consistent());
-const _: () =
-    assert!(NpmCompactProduct::new(compact_grid(B0, B1), Target::Product).is_consistent());
-const _: () =
-    assert!(NasgCompactRadiance::new(compact_grid(B0, B1), Target::Radiance).is_consistent());
-const _: () =
-    assert!(NasgCompactProduct::new(compact_grid(B0, B1), Target::Product).is_consistent());
-const _: () = assert!(DfCompactRadiance::new(
-    compact_grid(B0, B1),
-    Target::Radiance,
-    Interpolation::Linear
-)
-.is_consistent());
-const _: () =
-    assert!(
-        DfCompactProduct::new(compact_grid(B0, B1), Target::Product, Interpolation::Linear)
-            .is_consistent()
-    );
 
 /// A distribution decoded at one query point: the mixtures are kept whole
 /// (sampling and evaluating them again costs no network pass); DF keeps the
@@ -65,17 +38,109 @@ pub(crate) enum Decoded {
     },
 }
 
-/// The per-family buffers of a [`crate::batch::DistributionBatch`]; only
-/// the model's family is filled.
+/// The decoded lanes of one family, as a [`crate::batch::DistributionBatch`]
+/// or a [`crate::GuideCache`] keeps them.
+#[derive(Clone, Debug)]
+pub(crate) enum Lanes {
+    /// NPM's vMF mixtures.
+    Vmf(Vec<VmfMixture<NPM_LOBES>>),
+    /// NASG's mixtures (each with its learned selection probability).
+    Nasg(Vec<NasgMixture<NASG_LOBES>>),
+    /// DF's vertices: sampling and pdfs run the conditional network.
+    Df(Vec<DfVertex>),
+    /// DF vertices tabulated by a [`crate::GuideCache`] ([`DfTable`]), with
+    /// each table's running sums.
+    DfTable {
+        tables: Vec<DfTable>,
+        sums: Vec<DfTableSums>,
+    },
+}
+
+impl Default for Lanes {
+    fn default() -> Self {
+        Self::Vmf(Vec::new())
+    }
+}
+
+/// `Lanes::$variant`'s buffer: read (empty for another family) and written
+/// (the lanes switched to `$variant`, emptied, if they were another family).
+macro_rules! lane_buffer {
+    ($read:ident, $write:ident, $variant:ident, $t:ty) => {
+        pub(crate) fn $read(&self) -> &[$t] {
+            match self {
+                Self::$variant(v) => v,
+                _ => &[],
+            }
+        }
+
+        pub(crate) fn $write(&mut self) -> &mut Vec<$t> {
+            if !matches!(self, Self::$variant(_)) {
+                *self = Self::$variant(Vec::new());
+            }
+            match self {
+                Self::$variant(v) => v,
+                _ => unreachable!("switched to {} above", stringify!($variant)),
+            }
+        }
+    };
+}
+
+impl Lanes {
+    lane_buffer!(vmf, vmf_mut, Vmf, VmfMixture<NPM_LOBES>);
+    lane_buffer!(nasg, nasg_mut, Nasg, NasgMixture<NASG_LOBES>);
+    lane_buffer!(df, df_mut, Df, DfVertex);
+
+    /// The tables and their sums (empty for another family).
+    pub(crate) fn tables(&self) -> (&[DfTable], &[DfTableSums]) {
+        match self {
+            Self::DfTable { tables, sums } => (tables, sums),
+            _ => (&[], &[]),
+        }
+    }
+
+    /// The table buffers (the lanes switched to tables, emptied, if they
+    /// were another kind).
+    pub(crate) fn tables_mut(&mut self) -> (&mut Vec<DfTable>, &mut Vec<DfTableSums>) {
+        if !matches!(self, Self::DfTable { .. }) {
+            *self = Self::DfTable {
+                tables: Vec::new(),
+                sums: Vec::new(),
+            };
+        }
+        match self {
+            Self::DfTable { tables, sums } => (tables, sums),
+            _ => unreachable!("switched to DfTable above"),
+        }
+    }
+
+    pub(crate) fn len(&self) -> usize {
+        match self {
+            Self::Vmf(v) => v.len(),
+            Self::Nasg(v) => v.len(),
+            Self::Df(v) => v.len(),
+            Self::DfTable { tables, .. } => tables.len(),
+        }
+    }
+
+    /// Empties the lanes, keeping the family and the allocations.
+    fn clear(&mut self) {
+        match self {
+            Self::Vmf(v) => v.clear(),
+            Self::Nasg(v) => v.clear(),
+            Self::Df(v) => v.clear(),
+            Self::DfTable { tables, sums } => {
+                tables.clear();
+                sums.clear();
+            }
+        }
+    }
+}
+
+/// The lanes of a [`crate::batch::DistributionBatch`] or a guide cache, with
+/// their selection probabilities.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct BatchItems {
-    pub(crate) vmf: Vec<VmfMixture<NPM_LOBES>>,
-    pub(crate) nasg: Vec<NasgMixture<NASG_LOBES>>,
-    pub(crate) df: Vec<DfVertex>,
-    /// Tabulated DF lanes of a [`crate::GuideCache`] ([`DfTable`]).
-    pub(crate) df_table: Vec<DfTable>,
-    /// The running sums of `df_table` (one per table).
-    pub(crate) df_sums: Vec<DfTableSums>,
+    pub(crate) lanes: Lanes,
     /// The constant selection probability (NPM, DF).
     pub(crate) selection: f32,
     /// Per-lane selection probabilities overriding `selection` (NPM, DF lanes of a
@@ -85,30 +150,27 @@ pub(crate) struct BatchItems {
 
 impl BatchItems {
     pub(crate) fn clear(&mut self) {
-        self.vmf.clear();
-        self.nasg.clear();
-        self.df.clear();
-        self.df_table.clear();
-        self.df_sums.clear();
+        self.lanes.clear();
         self.lane_selection.clear();
     }
 
     pub(crate) fn len(&self) -> usize {
-        self.vmf
-            .len()
-            .max(self.nasg.len())
-            .max(self.df.len())
-            .max(self.df_table.len())
+        self.lanes.len()
     }
 
     /// Appends `other`'s lanes (same family; the selection constant is
     /// `other`'s).
     pub(crate) fn append(&mut self, other: &BatchItems) {
-        self.vmf.extend_from_slice(&other.vmf);
-        self.nasg.extend_from_slice(&other.nasg);
-        self.df.extend_from_slice(&other.df);
-        self.df_table.extend_from_slice(&other.df_table);
-        self.df_sums.extend_from_slice(&other.df_sums);
+        match &other.lanes {
+            Lanes::Vmf(v) => self.lanes.vmf_mut().extend_from_slice(v),
+            Lanes::Nasg(v) => self.lanes.nasg_mut().extend_from_slice(v),
+            Lanes::Df(v) => self.lanes.df_mut().extend_from_slice(v),
+            Lanes::DfTable { tables, sums } => {
+                let (t, s) = self.lanes.tables_mut();
+                t.extend_from_slice(tables);
+                s.extend_from_slice(sums);
+            }
+        }
         self.selection = other.selection;
     }
 
@@ -139,23 +201,19 @@ impl BatchItems {
                 }
             }));
         }
-        pick(&cells.vmf, &network.vmf, source, flag, &mut self.vmf);
-        pick(&cells.nasg, &network.nasg, source, flag, &mut self.nasg);
-        pick(&cells.df, &network.df, source, flag, &mut self.df);
-        pick(
-            &cells.df_table,
-            &network.df_table,
-            source,
-            flag,
-            &mut self.df_table,
-        );
-        pick(
-            &cells.df_sums,
-            &network.df_sums,
-            source,
-            flag,
-            &mut self.df_sums,
-        );
+        let (c, n) = (&cells.lanes, &network.lanes);
+        // The family of whichever holds lanes (an empty one may be a default).
+        match if cells.len() > 0 { c } else { n } {
+            Lanes::Vmf(_) => pick(c.vmf(), n.vmf(), source, flag, self.lanes.vmf_mut()),
+            Lanes::Nasg(_) => pick(c.nasg(), n.nasg(), source, flag, self.lanes.nasg_mut()),
+            Lanes::Df(_) => pick(c.df(), n.df(), source, flag, self.lanes.df_mut()),
+            Lanes::DfTable { .. } => {
+                let ((ct, cs), (nt, ns)) = (c.tables(), n.tables());
+                let (tables, sums) = self.lanes.tables_mut();
+                pick(ct, nt, source, flag, tables);
+                pick(cs, ns, source, flag, sums);
+            }
+        }
         self.selection = if cells.len() > 0 {
             cells.selection
         } else {
@@ -182,82 +240,37 @@ impl BatchItems {
             .get(i)
             .copied()
             .unwrap_or(self.selection);
-        if let Some(m) = self.vmf.get(i) {
-            return Some(Decoded::Vmf {
-                mixture: *m,
-                selection,
-            });
+        match &self.lanes {
+            Lanes::Vmf(v) => v.get(i).map(|&mixture| Decoded::Vmf { mixture, selection }),
+            Lanes::Nasg(v) => v.get(i).map(|&m| Decoded::Nasg(m)),
+            Lanes::Df(v) => v.get(i).map(|&vertex| Decoded::Df { vertex, selection }),
+            Lanes::DfTable { .. } => None,
         }
-        if let Some(m) = self.nasg.get(i) {
-            return Some(Decoded::Nasg(*m));
-        }
-        self.df.get(i).map(|v| Decoded::Df {
-            vertex: *v,
-            selection,
-        })
     }
 
     /// The guide-selection probability of lane `i` (0 out of range).
     pub(crate) fn selection_probability(&self, i: usize) -> f32 {
-        if let Some(m) = self.nasg.get(i) {
-            return m.selection_probability;
+        if i >= self.len() {
+            return 0.0;
         }
-        if let Some(&c) = self.lane_selection.get(i) {
-            return c;
-        }
-        if i < self.len() {
-            self.selection
-        } else {
-            0.0
+        match &self.lanes {
+            Lanes::Nasg(v) => v[i].selection_probability,
+            _ => self
+                .lane_selection
+                .get(i)
+                .copied()
+                .unwrap_or(self.selection),
         }
     }
 }
 
-/// Decoding of one family of models, per query and per batch. The DF
-/// methods have a default for the mixture families (which never store DF
-/// vertices, so it never runs): the uniform density.
+/// Decoding of one family of models, per query and per batch.
 pub(crate) trait Decode: GuidingModel {
     fn decode_at(&self, params: &[f32], query: &QueryPoint) -> Decoded;
 
     /// Decodes every query into `out` (cleared first), one batched network
     /// pass per chunk.
     fn decode_batch_into(&self, params: &[f32], queries: &[QueryPoint], out: &mut BatchItems);
-
-    /// DF samples of many lanes, the conditional network batched.
-    fn sample_vertices_any(
-        &self,
-        params: &[f32],
-        vertices: &[DfVertex],
-        lanes: &[u32],
-        u: &[Vec2],
-        out: &mut [DirectionSample],
-    ) {
-        let _ = (params, vertices, lanes);
-        for (o, &ub) in out.iter_mut().zip(u) {
-            *o = DirectionSample {
-                direction: guiding_core::factorised::direction_from_square(ub),
-                pdf: guiding_core::math::INV_FOUR_PI,
-            };
-        }
-    }
-
-    /// DF tables of vertices ([`Df::tabulate_vertices`]).
-    fn tabulate_vertices_any(&self, params: &[f32], vertices: &[DfVertex], out: &mut [DfTable]) {
-        let _ = (params, vertices, out);
-    }
-
-    /// DF densities of many lanes, the conditional network batched.
-    fn pdf_vertices_any(
-        &self,
-        params: &[f32],
-        vertices: &[DfVertex],
-        lanes: &[u32],
-        directions: &[Vec3],
-        out: &mut [f32],
-    ) {
-        let _ = (params, vertices, lanes, directions);
-        out.fill(guiding_core::math::INV_FOUR_PI);
-    }
 }
 
 impl<const IN: usize, const W: usize, const H: usize> Decode for Npm<IN, W, H> {
@@ -275,8 +288,9 @@ impl<const IN: usize, const W: usize, const H: usize> Decode for Npm<IN, W, H> {
     fn decode_batch_into(&self, params: &[f32], queries: &[QueryPoint], out: &mut BatchItems) {
         out.clear();
         out.selection = self.constant_selection_probability().unwrap_or(0.0);
-        out.vmf.resize(queries.len(), VmfMixture::ZERO);
-        self.decode_batch(params, queries, &mut out.vmf);
+        let lanes = out.lanes.vmf_mut();
+        lanes.resize(queries.len(), VmfMixture::ZERO);
+        self.decode_batch(params, queries, lanes);
     }
 }
 
@@ -291,8 +305,9 @@ impl<const IN: usize, const W: usize, const H: usize> Decode for Nasg<IN, W, H> 
     fn decode_batch_into(&self, params: &[f32], queries: &[QueryPoint], out: &mut BatchItems) {
         out.clear();
         out.selection = 0.0;
-        out.nasg.resize(queries.len(), NasgMixture::ZERO);
-        self.decode_batch(params, queries, &mut out.nasg);
+        let lanes = out.lanes.nasg_mut();
+        lanes.resize(queries.len(), NasgMixture::ZERO);
+        self.decode_batch(params, queries, lanes);
     }
 }
 
@@ -318,34 +333,9 @@ impl<
     fn decode_batch_into(&self, params: &[f32], queries: &[QueryPoint], out: &mut BatchItems) {
         out.clear();
         out.selection = self.constant_selection_probability().unwrap_or(0.0);
-        out.df.resize(queries.len(), DfVertex::ZERO);
-        self.decode_batch(params, queries, &mut out.df);
-    }
-
-    fn sample_vertices_any(
-        &self,
-        params: &[f32],
-        vertices: &[DfVertex],
-        lanes: &[u32],
-        u: &[Vec2],
-        out: &mut [DirectionSample],
-    ) {
-        self.sample_vertices(params, vertices, lanes, u, out);
-    }
-
-    fn pdf_vertices_any(
-        &self,
-        params: &[f32],
-        vertices: &[DfVertex],
-        lanes: &[u32],
-        directions: &[Vec3],
-        out: &mut [f32],
-    ) {
-        self.pdf_vertices(params, vertices, lanes, directions, out);
-    }
-
-    fn tabulate_vertices_any(&self, params: &[f32], vertices: &[DfVertex], out: &mut [DfTable]) {
-        self.tabulate_vertices(params, vertices, out);
+        let lanes = out.lanes.df_mut();
+        lanes.resize(queries.len(), DfVertex::ZERO);
+        self.decode_batch(params, queries, lanes);
     }
 }
 
@@ -372,6 +362,22 @@ macro_rules! any_field {
             };
         }
         pub(crate) use with_field;
+
+        /// Runs `$body` with `$f` bound to the inner `Field<M>` of a DF
+        /// field (its DF-only kernels), `$otherwise` for the mixtures.
+        macro_rules! with_df_field {
+            ($value:expr, $f:ident => $body:expr, $otherwise:expr) => {
+                match $value {
+                    $(
+                        #[allow(unused_variables)]
+                        crate::models::AnyField::$prefix($f) => {
+                            crate::models::df_only!($family, $body, $otherwise)
+                        }
+                    )*
+                }
+            };
+        }
+        pub(crate) use with_df_field;
 
         /// Builds the field of `config` over `[lo, hi]`, from `state` if
         /// given (a loaded file) or from the model's deterministic
@@ -404,7 +410,7 @@ macro_rules! any_field {
                     && config.size == ModelSize::$size
                     && config.target == Target::$target
                 {
-                    let model = construct!($family, $size, $target, $model, lo, hi, c, interp);
+                    let model = construct!($family, $size, $model, lo, hi, c, interp);
                     return Ok(AnyField::$prefix(make(model, config, state)?));
                 }
             )*
@@ -426,6 +432,18 @@ macro_rules! any_field {
     };
 }
 
+/// `$body` for a DF row, `$otherwise` for a mixture row (whose model has no
+/// DF kernels: `$body` is not compiled for it).
+macro_rules! df_only {
+    (df, $body:expr, $otherwise:expr) => {
+        $body
+    };
+    ($family:ident, $body:expr, $otherwise:expr) => {
+        $otherwise
+    };
+}
+pub(crate) use df_only;
+
 /// Whether a row's family is the configuration's representation.
 macro_rules! family_matches {
     (npm, $rep:expr) => {
@@ -439,36 +457,19 @@ macro_rules! family_matches {
     };
 }
 
-/// The preset value of a row's type: the size's constructor (the compact
-/// grid for `Compact`), NPM's and DF's constant selection probability
-/// `$c`, DF's interpolation `$interp`.
+/// The preset value of a row's type: the size's constructor (named after the
+/// size, [`guiding_core::model::sizes`]), NPM's and DF's constant selection
+/// probability `$c`, DF's interpolation `$interp`.
 macro_rules! construct {
-    (npm, Small, $t:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
-        <$m>::small($lo, $hi).with_selection_probability($c)
+    (npm, $size:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
+        guiding_core::__pastey::paste!(<$m>::[<$size:lower>]($lo, $hi)).with_selection_probability($c)
     };
-    (npm, Compact, $t:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
-        <$m>::new(compact_grid($lo, $hi), Target::$t).with_selection_probability($c)
+    (nasg, $size:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
+        guiding_core::__pastey::paste!(<$m>::[<$size:lower>]($lo, $hi))
     };
-    (npm, Paper, $t:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
-        <$m>::paper($lo, $hi).with_selection_probability($c)
-    };
-    (nasg, Small, $t:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
-        <$m>::small($lo, $hi)
-    };
-    (nasg, Compact, $t:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
-        <$m>::new(compact_grid($lo, $hi), Target::$t)
-    };
-    (nasg, Paper, $t:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
-        <$m>::paper($lo, $hi)
-    };
-    (df, Small, $t:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
-        <$m>::small($lo, $hi, $i).with_selection_probability($c)
-    };
-    (df, Compact, $t:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
-        <$m>::new(compact_grid($lo, $hi), Target::$t, $i).with_selection_probability($c)
-    };
-    (df, Paper, $t:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
-        <$m>::paper($lo, $hi, $i).with_selection_probability($c)
+    (df, $size:ident, $m:path, $lo:ident, $hi:ident, $c:ident, $i:ident) => {
+        guiding_core::__pastey::paste!(<$m>::[<$size:lower>]($lo, $hi, $i))
+            .with_selection_probability($c)
     };
 }
 

@@ -158,9 +158,12 @@ impl Escaped {
 fn propagate<'a>(
     reversed: impl Iterator<Item = &'a PathVertex>,
     escaped: Escaped,
-    samples: &mut Vec<TrainingSample>,
-    mis_radiance: &mut Vec<[f32; 3]>,
+    recorded: &mut RecordedSamples,
 ) -> [f32; 3] {
+    let RecordedSamples {
+        samples,
+        mis_radiance,
+    } = recorded;
     // Incident radiance along the current vertex's `wi`: the training
     // target (emission in full) and the path estimate (MIS-weighted).
     let (mut incident, mut incident_mis) = (escaped.full, escaped.mis);
@@ -190,12 +193,27 @@ fn propagate<'a>(
     incident_mis
 }
 
-/// Hands `samples` to `field` and clears them; returns how many.
-fn hand_over(samples: &mut Vec<TrainingSample>, field: &mut GuidingField) -> usize {
-    let n = samples.len();
-    field.add_samples(samples);
-    samples.clear();
-    n
+/// The training samples of finished paths and, per sample, its MIS-weighted
+/// incident radiance: what both recorders keep between flushes.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct RecordedSamples {
+    pub(crate) samples: Vec<TrainingSample>,
+    pub(crate) mis_radiance: Vec<[f32; 3]>,
+}
+
+impl RecordedSamples {
+    /// Hands the samples to `field` and clears both; returns how many.
+    pub(crate) fn flush_into(&mut self, field: &mut GuidingField) -> usize {
+        let n = self.samples.len();
+        field.add_samples(&self.samples);
+        self.clear();
+        n
+    }
+
+    pub(crate) fn clear(&mut self) {
+        self.samples.clear();
+        self.mis_radiance.clear();
+    }
 }
 
 /// Records paths and turns them into training samples. Use one per render
@@ -205,8 +223,7 @@ fn hand_over(samples: &mut Vec<TrainingSample>, field: &mut GuidingField) -> usi
 pub struct PathRecorder {
     vertices: Vec<PathVertex>,
     escaped: Escaped,
-    samples: Vec<TrainingSample>,
-    mis_radiance: Vec<[f32; 3]>,
+    recorded: RecordedSamples,
 }
 
 impl PathRecorder {
@@ -242,37 +259,30 @@ impl PathRecorder {
     /// Ends the path: propagates radiance back along it (see the [module
     /// docs](self)), appends its training samples and returns `L_o(0)`.
     pub fn end_path(&mut self) -> [f32; 3] {
-        let l0 = propagate(
-            self.vertices.iter().rev(),
-            self.escaped,
-            &mut self.samples,
-            &mut self.mis_radiance,
-        );
+        let l0 = propagate(self.vertices.iter().rev(), self.escaped, &mut self.recorded);
         self.start_path();
         l0
     }
 
     /// Training samples of the finished paths so far.
     pub fn samples(&self) -> &[TrainingSample] {
-        &self.samples
+        &self.recorded.samples
     }
 
     /// The MIS-weighted incident radiance of each of [`Self::samples`] (see
     /// the [module docs](self)).
     pub fn mis_radiance(&self) -> &[[f32; 3]] {
-        &self.mis_radiance
+        &self.recorded.mis_radiance
     }
 
     /// Hands every finished path's samples to `field` and clears them;
     /// returns how many were handed over.
     pub fn flush_into(&mut self, field: &mut GuidingField) -> usize {
-        self.mis_radiance.clear();
-        hand_over(&mut self.samples, field)
+        self.recorded.flush_into(field)
     }
 
     /// Drops the finished paths' samples.
     pub fn clear_samples(&mut self) {
-        self.samples.clear();
-        self.mis_radiance.clear();
+        self.recorded.clear();
     }
 }

@@ -80,8 +80,7 @@ use crate::math::{exp, ln_1p, sanitize, sigmoid, INV_FOUR_PI};
 use crate::mlp::{Mlp, MlpContext};
 use crate::model::npm::{
     all_finite, clean_probability, encode_inputs, grid_param_count, input_dims, mlp_init,
-    network_seed, region_end, small_grid, target_code, target_from_code,
-    NPM_DEFAULT_SELECTION_PROBABILITY,
+    network_seed, region_end, target_code, target_from_code, NPM_DEFAULT_SELECTION_PROBABILITY,
 };
 use crate::model::{GuidingModel, QueryPoint};
 use crate::pdf1d::{Boundary, Interpolation, Pdf1d};
@@ -281,65 +280,14 @@ unsafe impl<
 {
 }
 
+pub use super::sizes::df::*;
+
 /// DF for radiance guiding on NPM's grid: density networks 3 × 64, cache
 /// 3 × 64.
-pub type DfRadiance = Df<32, 44, 48, 64, 3, 64, 3>;
+pub type DfRadiance = DfPaperRadiance;
 /// DF for product guiding on NPM's grid + product inputs.
-pub type DfProduct = Df<64, 76, 48, 64, 3, 64, 3>;
-/// Small radiance model for tests: [`small_grid`], networks 2 × 16.
-pub type DfSmallRadiance = Df<8, 20, 24, 16, 2, 16, 2>;
-/// Small product model for tests: [`small_grid`] + product inputs, networks
-/// 2 × 16.
-pub type DfSmallProduct = Df<40, 52, 24, 16, 2, 16, 2>;
-/// The `guiding` crate's compact DF for radiance (`IN_C = IN_M + 12`, cache
-/// input 16 + 16).
-pub type DfCompactRadiance = Df<16, 28, 32, 32, 2, 32, 2>;
-/// The compact DF for product guiding.
-pub type DfCompactProduct = Df<48, 60, 32, 32, 2, 32, 2>;
+pub type DfProduct = DfPaperProduct;
 
-impl DfRadiance {
-    /// Radiance DF over the scene box with [`GridConfig::npm`]; `Nearest`
-    /// gives DF-N, `Linear` DF-L.
-    #[must_use]
-    pub const fn paper(bbox_min: [f32; 3], bbox_max: [f32; 3], interp: Interpolation) -> Self {
-        Self::new(
-            GridConfig::npm(bbox_min, bbox_max),
-            Target::Radiance,
-            interp,
-        )
-    }
-}
-
-impl DfProduct {
-    /// Product DF over the scene box with [`GridConfig::npm`].
-    #[must_use]
-    pub const fn paper(bbox_min: [f32; 3], bbox_max: [f32; 3], interp: Interpolation) -> Self {
-        Self::new(GridConfig::npm(bbox_min, bbox_max), Target::Product, interp)
-    }
-}
-
-impl DfSmallRadiance {
-    /// The test preset: [`small_grid`], radiance target.
-    #[must_use]
-    pub const fn small(bbox_min: [f32; 3], bbox_max: [f32; 3], interp: Interpolation) -> Self {
-        Self::new(small_grid(bbox_min, bbox_max), Target::Radiance, interp)
-    }
-}
-
-impl DfSmallProduct {
-    /// The test preset: [`small_grid`] + product inputs.
-    #[must_use]
-    pub const fn small(bbox_min: [f32; 3], bbox_max: [f32; 3], interp: Interpolation) -> Self {
-        Self::new(small_grid(bbox_min, bbox_max), Target::Product, interp)
-    }
-}
-
-const _: () = assert!(DfRadiance::paper([0.0; 3], [1.0; 3], Interpolation::Linear).is_consistent());
-const _: () = assert!(DfProduct::paper([0.0; 3], [1.0; 3], Interpolation::Linear).is_consistent());
-const _: () =
-    assert!(DfSmallRadiance::small([0.0; 3], [1.0; 3], Interpolation::Linear).is_consistent());
-const _: () =
-    assert!(DfSmallProduct::small([0.0; 3], [1.0; 3], Interpolation::Linear).is_consistent());
 const _: () = assert!(core::mem::size_of::<DfProduct>() == 80);
 
 impl<

@@ -13,6 +13,7 @@ pub mod df;
 pub mod mixture_batch;
 pub mod nasg;
 pub mod npm;
+pub mod sizes;
 pub mod table;
 #[cfg(feature = "std")]
 pub mod vmf_gradient;

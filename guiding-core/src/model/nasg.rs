@@ -53,7 +53,7 @@ use crate::mixture::nasg::{
 use crate::mlp::{Mlp, MlpContext};
 use crate::model::npm::{
     all_finite, encode_inputs, grid_param_count, input_dims, join_rows, mlp_init, network_seed,
-    region_end, small_grid, split_rows, target_code, target_from_code,
+    region_end, split_rows, target_code, target_from_code,
 };
 use crate::model::{GuidingModel, QueryPoint};
 use crate::sample::TrainingSample;
@@ -104,56 +104,13 @@ unsafe impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Pod
 {
 }
 
+pub use super::sizes::nasg::*;
+
 /// The paper's NASG model (product target): IN = 64, 4 hidden layers × 128.
-pub type NasgProduct = Nasg<64, 128, 4>;
+pub type NasgProduct = NasgPaperProduct;
 /// NASG with a radiance target: IN = 32, 4 hidden layers × 128.
-pub type NasgRadiance = Nasg<32, 128, 4>;
-/// Small product model for tests: IN = 40, 2 hidden × 16.
-pub type NasgSmallProduct = Nasg<40, 16, 2>;
-/// Small radiance model for tests: IN = 8, 2 hidden × 16.
-pub type NasgSmallRadiance = Nasg<8, 16, 2>;
-/// The `guiding` crate's compact NASG for radiance (16 inputs, 2 × 32).
-pub type NasgCompactRadiance = Nasg<16, 32, 2>;
-/// The compact NASG for product guiding (48 inputs, 2 × 32).
-pub type NasgCompactProduct = Nasg<48, 32, 2>;
+pub type NasgRadiance = NasgPaperRadiance;
 
-impl NasgProduct {
-    /// NASG's model: [`GridConfig::npm`] + product inputs, MLP 4 × 128,
-    /// `e = 0.2`.
-    #[must_use]
-    pub const fn paper(bbox_min: [f32; 3], bbox_max: [f32; 3]) -> Self {
-        Self::new(GridConfig::npm(bbox_min, bbox_max), Target::Product)
-    }
-}
-
-impl NasgRadiance {
-    /// [`GridConfig::npm`], MLP 4 × 128, radiance target.
-    #[must_use]
-    pub const fn paper(bbox_min: [f32; 3], bbox_max: [f32; 3]) -> Self {
-        Self::new(GridConfig::npm(bbox_min, bbox_max), Target::Radiance)
-    }
-}
-
-impl NasgSmallProduct {
-    /// The test preset: [`small_grid`] + product inputs, MLP 2 × 16.
-    #[must_use]
-    pub const fn small(bbox_min: [f32; 3], bbox_max: [f32; 3]) -> Self {
-        Self::new(small_grid(bbox_min, bbox_max), Target::Product)
-    }
-}
-
-impl NasgSmallRadiance {
-    /// The test preset: [`small_grid`], MLP 2 × 16, radiance target.
-    #[must_use]
-    pub const fn small(bbox_min: [f32; 3], bbox_max: [f32; 3]) -> Self {
-        Self::new(small_grid(bbox_min, bbox_max), Target::Radiance)
-    }
-}
-
-const _: () = assert!(NasgProduct::paper([0.0; 3], [1.0; 3]).is_consistent());
-const _: () = assert!(NasgRadiance::paper([0.0; 3], [1.0; 3]).is_consistent());
-const _: () = assert!(NasgSmallProduct::small([0.0; 3], [1.0; 3]).is_consistent());
-const _: () = assert!(NasgSmallRadiance::small([0.0; 3], [1.0; 3]).is_consistent());
 const _: () = assert!(core::mem::size_of::<NasgProduct>() == 64);
 
 impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Nasg<IN, WIDTH, HIDDEN> {

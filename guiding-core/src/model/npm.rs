@@ -137,13 +137,6 @@ pub const fn grid_param_count(grid: &GridConfig) -> usize {
     total
 }
 
-/// The small grid of the test presets: 2 levels of 2 and 4 cells per axis,
-/// 4 features (8 outputs, 608 parameters).
-#[must_use]
-pub const fn small_grid(bbox_min: [f32; 3], bbox_max: [f32; 3]) -> GridConfig {
-    GridConfig::new(bbox_min, bbox_max, 2, 2, 2.0, 4)
-}
-
 /// Writes the network input of `query` to `out`: the grid features of the
 /// position at `0..L·F`, then, for [`Target::Product`] (`target` code ≠ 0),
 /// `SH₄(ωo)`, the one-blobs of `½n + ½` (x, y, z) and of the roughness
@@ -351,60 +344,14 @@ unsafe impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Pod
 {
 }
 
+pub use super::sizes::npm::*;
+pub use super::sizes::small_grid;
+
 /// The paper's NPM for radiance guiding: IN = 32, 3 hidden layers × 64.
-pub type NpmRadiance = Npm<32, 64, 3>;
+pub type NpmRadiance = NpmPaperRadiance;
 /// The paper's NPM for product guiding: IN = 64, 3 hidden layers × 64.
-pub type NpmProduct = Npm<64, 64, 3>;
-/// Small radiance model for tests: [`small_grid`] (IN = 8), 2 hidden × 16.
-pub type NpmSmallRadiance = Npm<8, 16, 2>;
-/// Small product model for tests: [`small_grid`] + product inputs (IN = 40),
-/// 2 hidden × 16.
-pub type NpmSmallProduct = Npm<40, 16, 2>;
-/// The `guiding` crate's compact NPM for radiance: 4-level grid (16 features
-/// in), 2 hidden × 32.
-pub type NpmCompactRadiance = Npm<16, 32, 2>;
-/// The compact NPM for product guiding (16 + 32 product inputs).
-pub type NpmCompactProduct = Npm<48, 32, 2>;
+pub type NpmProduct = NpmPaperProduct;
 
-impl NpmRadiance {
-    /// NPM's radiance model over the scene box: [`GridConfig::npm`], MLP
-    /// 3 × 64, selection probability 0.5.
-    #[must_use]
-    pub const fn paper(bbox_min: [f32; 3], bbox_max: [f32; 3]) -> Self {
-        Self::new(GridConfig::npm(bbox_min, bbox_max), Target::Radiance)
-    }
-}
-
-impl NpmProduct {
-    /// NPM's product model over the scene box: [`GridConfig::npm`] + product
-    /// inputs, MLP 3 × 64, selection probability 0.5.
-    #[must_use]
-    pub const fn paper(bbox_min: [f32; 3], bbox_max: [f32; 3]) -> Self {
-        Self::new(GridConfig::npm(bbox_min, bbox_max), Target::Product)
-    }
-}
-
-impl NpmSmallRadiance {
-    /// The test preset: [`small_grid`], MLP 2 × 16, radiance target.
-    #[must_use]
-    pub const fn small(bbox_min: [f32; 3], bbox_max: [f32; 3]) -> Self {
-        Self::new(small_grid(bbox_min, bbox_max), Target::Radiance)
-    }
-}
-
-impl NpmSmallProduct {
-    /// The test preset: [`small_grid`] + product inputs, MLP 2 × 16.
-    #[must_use]
-    pub const fn small(bbox_min: [f32; 3], bbox_max: [f32; 3]) -> Self {
-        Self::new(small_grid(bbox_min, bbox_max), Target::Product)
-    }
-}
-
-// The presets are consistent (the box does not enter the widths).
-const _: () = assert!(NpmRadiance::paper([0.0; 3], [1.0; 3]).is_consistent());
-const _: () = assert!(NpmProduct::paper([0.0; 3], [1.0; 3]).is_consistent());
-const _: () = assert!(NpmSmallRadiance::small([0.0; 3], [1.0; 3]).is_consistent());
-const _: () = assert!(NpmSmallProduct::small([0.0; 3], [1.0; 3]).is_consistent());
 const _: () = assert!(core::mem::size_of::<NpmRadiance>() == 64);
 
 impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Npm<IN, WIDTH, HIDDEN> {

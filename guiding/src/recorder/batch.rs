@@ -50,7 +50,7 @@
 //! estimates it reaches, and [`GuidingField::add_samples`] rejects (and
 //! counts) such samples; a NaN `sample_pdf` ends the path like `0`.
 
-use super::{add, hand_over, propagate, Escaped, PathVertex};
+use super::{add, propagate, Escaped, PathVertex, RecordedSamples};
 use crate::field::GuidingField;
 use guiding_core::sample::TrainingSample;
 
@@ -126,9 +126,7 @@ pub struct BatchRecorder {
     escaped: Vec<Escaped>,
     /// Per slot: `L̃_o(0)` of the block [`Self::end`] finished last.
     estimates: Vec<[f32; 3]>,
-    samples: Vec<TrainingSample>,
-    /// Per sample: its MIS-weighted incident radiance.
-    mis_radiance: Vec<[f32; 3]>,
+    recorded: RecordedSamples,
     ignored: u64,
 }
 
@@ -259,12 +257,8 @@ impl BatchRecorder {
                 prev: &self.prev,
                 at,
             };
-            self.estimates.push(propagate(
-                chain,
-                escaped,
-                &mut self.samples,
-                &mut self.mis_radiance,
-            ));
+            self.estimates
+                .push(propagate(chain, escaped, &mut self.recorded));
         }
         self.vertices.clear();
         self.prev.clear();
@@ -280,30 +274,30 @@ impl BatchRecorder {
 
     /// Training samples of the finished blocks so far.
     pub fn samples(&self) -> &[TrainingSample] {
-        &self.samples
+        &self.recorded.samples
     }
 
     /// Number of training samples of the finished blocks.
     pub fn len(&self) -> usize {
-        self.samples.len()
+        self.recorded.samples.len()
     }
 
     /// Whether there are no training samples.
     pub fn is_empty(&self) -> bool {
-        self.samples.is_empty()
+        self.recorded.samples.is_empty()
     }
 
     /// The MIS-weighted incident radiance of each of [`Self::samples`] (see
     /// [`crate::recorder`]).
     pub fn mis_radiance(&self) -> &[[f32; 3]] {
-        &self.mis_radiance
+        &self.recorded.mis_radiance
     }
 
     /// Removes the training samples and yields them (the buffer keeps its
     /// capacity); their MIS-weighted radiances are dropped.
     pub fn drain_samples(&mut self) -> std::vec::Drain<'_, TrainingSample> {
-        self.mis_radiance.clear();
-        self.samples.drain(..)
+        self.recorded.mis_radiance.clear();
+        self.recorded.samples.drain(..)
     }
 
     /// Moves the training samples and their MIS-weighted incident radiances
@@ -313,21 +307,19 @@ impl BatchRecorder {
         samples: &mut Vec<TrainingSample>,
         mis_radiance: &mut Vec<[f32; 3]>,
     ) {
-        samples.append(&mut self.samples);
-        mis_radiance.append(&mut self.mis_radiance);
+        samples.append(&mut self.recorded.samples);
+        mis_radiance.append(&mut self.recorded.mis_radiance);
     }
 
     /// Hands every finished block's samples to `field` and clears them;
     /// returns how many were handed over.
     pub fn flush_into(&mut self, field: &mut GuidingField) -> usize {
-        self.mis_radiance.clear();
-        hand_over(&mut self.samples, field)
+        self.recorded.flush_into(field)
     }
 
     /// Drops the finished blocks' samples.
     pub fn clear_samples(&mut self) {
-        self.samples.clear();
-        self.mis_radiance.clear();
+        self.recorded.clear();
     }
 
     /// Calls ignored so far (slot out of range, or no vertex to fill in).
