@@ -42,26 +42,45 @@ use std::sync::{Arc, Mutex, PoisonError};
 pub struct DistributionBatch {
     pub(crate) field_id: u64,
     pub(crate) generation: u64,
-    /// The lanes (without `cells`), or the lanes the network decoded
-    /// (with `cells`: a guide cache's misses).
+    /// The lanes ([`LaneLocation::Owned`]), a guide cache's misses
+    /// ([`LaneLocation::Cache`]) or the device lanes' selection
+    /// probabilities ([`LaneLocation::Device`]).
     pub(crate) items: BatchItems,
+    /// Where the lanes live.
+    pub(crate) location: LaneLocation,
+    /// A guide cache's lane sources of an earlier decode, kept for the next
+    /// (no allocation per call in steady state).
+    pub(crate) scratch: Vec<u32>,
+}
+
+/// Where the lanes of a [`DistributionBatch`] live.
+#[derive(Clone, Debug, Default)]
+pub(crate) enum LaneLocation {
+    /// In the batch's `items`.
+    #[default]
+    Owned,
     /// A [`crate::GuideCache`]'s stored lanes, shared rather than copied:
-    /// lane `i` is then `cells[source[i]]`, or `items[source[i] & !CACHE_MISS]`
+    /// lane `i` is `cells[source[i]]`, or `items[source[i] & !CACHE_MISS]`
     /// where `source[i]` has the bit [`CACHE_MISS`].
-    pub(crate) cells: Option<Arc<BatchItems>>,
-    /// Each lane's source with `cells` (see there); also the cache's scratch.
-    pub(crate) source: Vec<u32>,
-    /// Lanes decoded on the field's device ([`crate::device`]): the raw
-    /// outputs stay there; `items` then holds only the selection
-    /// probabilities.
-    pub(crate) device: Option<Arc<Mutex<DeviceLanes>>>,
-    /// Number of device lanes.
-    pub(crate) device_len: usize,
-    /// The decoded family of the device lanes.
-    pub(crate) device_family: Option<Family>,
-    /// Per device lane `[n, 1]` after [`Self::apply_cosine_product`] (NPM),
-    /// else empty.
-    pub(crate) device_normals: Vec<[f32; 4]>,
+    Cache {
+        cells: Arc<BatchItems>,
+        source: Vec<u32>,
+    },
+    /// Decoded on the field's device ([`crate::device`]): the raw outputs
+    /// stay there; `items` holds only the selection probabilities.
+    Device(DeviceBatch),
+}
+
+/// The lanes of a batch decoded on a device.
+#[derive(Clone, Debug)]
+pub(crate) struct DeviceBatch {
+    pub(crate) lanes: Arc<Mutex<DeviceLanes>>,
+    pub(crate) len: usize,
+    /// The decoded family.
+    pub(crate) family: Family,
+    /// Per lane `[n, 1]` after [`DistributionBatch::apply_cosine_product`]
+    /// (NPM), else empty.
+    pub(crate) normals: Vec<[f32; 4]>,
 }
 
 /// Marks a lane of a [`DistributionBatch`] that the network decoded (a guide
@@ -86,49 +105,41 @@ impl DistributionBatch {
     pub(crate) fn reset(&mut self, field: &GuidingField) {
         self.field_id = field.id;
         self.generation = field.generation;
-        self.cells = None;
+        if let LaneLocation::Cache { source, .. } = std::mem::take(&mut self.location) {
+            self.scratch = source;
+        }
         self.items.clear();
-        self.device = None;
-        self.device_len = 0;
-        self.device_family = None;
-        self.device_normals.clear();
     }
 
     /// Number of decoded lanes (the length of the latest decode).
     #[must_use]
     pub fn len(&self) -> usize {
-        if self.device.is_some() {
-            self.device_len
-        } else if self.cells.is_some() {
-            self.source.len()
-        } else {
-            self.items.len()
+        match &self.location {
+            LaneLocation::Owned => self.items.len(),
+            LaneLocation::Cache { source, .. } => source.len(),
+            LaneLocation::Device(d) => d.len,
         }
     }
 
     /// The buffer and index that hold lane `i` (`i` in range).
     fn resolve(&self, i: usize) -> (&BatchItems, usize) {
-        match &self.cells {
-            None => (&self.items, i),
-            Some(cells) => match self.source.get(i) {
+        match &self.location {
+            LaneLocation::Cache { cells, source } => match source.get(i) {
                 Some(&s) if s & CACHE_MISS != 0 => (&self.items, (s & !CACHE_MISS) as usize),
                 Some(&s) => (cells, s as usize),
                 None => (&self.items, usize::MAX),
             },
+            _ => (&self.items, i),
         }
     }
 
     /// Copies the shared cache lanes in (before lanes are changed in place).
     fn materialize(&mut self) {
-        if let Some(cells) = self.cells.take() {
+        if let LaneLocation::Cache { cells, source } = std::mem::take(&mut self.location) {
             let network = std::mem::take(&mut self.items);
-            self.items.gather(
-                &cells,
-                &cells.lane_selection,
-                &network,
-                &self.source,
-                CACHE_MISS,
-            );
+            self.items
+                .gather(&cells, &cells.lane_selection, &network, &source, CACHE_MISS);
+            self.scratch = source;
         }
     }
 
@@ -143,11 +154,11 @@ impl DistributionBatch {
         out: &mut [O],
         eval: impl Fn(&BatchItems, &[u32], &[I], &mut [O]),
     ) {
-        let Some(cells) = &self.cells else {
+        let LaneLocation::Cache { cells, source } = &self.location else {
             eval(&self.items, lanes, inputs, out);
             return;
         };
-        let mapped: Vec<u32> = lanes.iter().map(|&l| self.source[l as usize]).collect();
+        let mapped: Vec<u32> = lanes.iter().map(|&l| source[l as usize]).collect();
         if mapped.iter().all(|&s| s & CACHE_MISS == 0) {
             eval(cells, &mapped, inputs, out);
             return;
@@ -183,7 +194,7 @@ impl DistributionBatch {
         if i >= self.len() {
             return 0.0;
         }
-        if self.device.is_some() {
+        if matches!(self.location, LaneLocation::Device(_)) {
             return self
                 .items
                 .lane_selection
@@ -204,23 +215,24 @@ impl DistributionBatch {
     /// of what is sampled). Returns `false` and changes nothing for NASG and
     /// DF (no closed-form product) or when the lengths differ.
     pub fn apply_cosine_product(&mut self, normals: &[Vec3]) -> bool {
-        if self.device.is_some() {
-            // Device lanes: the lane kernels multiply (NPM only).
-            if self.device_family != Some(Family::Npm) || self.device_len != normals.len() {
-                return false;
+        let has_vmf = match &mut self.location {
+            LaneLocation::Device(d) => {
+                // Device lanes: the lane kernels multiply (NPM only).
+                if d.family != Family::Npm || d.len != normals.len() {
+                    return false;
+                }
+                d.normals.clear();
+                d.normals
+                    .extend(normals.iter().map(|n| [n.x, n.y, n.z, 1.0]));
+                return true;
             }
-            self.device_normals.clear();
-            self.device_normals
-                .extend(normals.iter().map(|n| [n.x, n.y, n.z, 1.0]));
-            return true;
-        }
-        // Checked before the shared cells are copied in: a NASG or DF batch
-        // needs no copy.
-        let has_vmf = !self.items.lanes.vmf().is_empty()
-            || self
-                .cells
-                .as_ref()
-                .is_some_and(|c| !c.lanes.vmf().is_empty());
+            // Checked before the shared cells are copied in: a NASG or DF
+            // batch needs no copy.
+            LaneLocation::Cache { cells, .. } => {
+                !self.items.lanes.vmf().is_empty() || !cells.lanes.vmf().is_empty()
+            }
+            LaneLocation::Owned => !self.items.lanes.vmf().is_empty(),
+        };
         if !has_vmf || self.len() != normals.len() {
             return false;
         }
@@ -235,7 +247,7 @@ impl DistributionBatch {
     /// which stay there).
     #[must_use]
     pub fn get(&self, i: usize) -> Option<DecodedDistribution> {
-        if i >= self.len() || self.device.is_some() {
+        if i >= self.len() || matches!(self.location, LaneLocation::Device(_)) {
             return None;
         }
         let (items, k) = self.resolve(i);
@@ -279,11 +291,12 @@ impl GuidingField {
             return Ok(());
         };
         // The previous decode's device buffer is reused when nobody shares it.
-        let lanes = out
-            .device
-            .take()
-            .and_then(|a| Arc::try_unwrap(a).ok())
-            .map(|m| m.into_inner().unwrap_or_else(PoisonError::into_inner));
+        let lanes = match std::mem::take(&mut out.location) {
+            LaneLocation::Device(d) => Arc::try_unwrap(d.lanes)
+                .ok()
+                .map(|m| m.into_inner().unwrap_or_else(PoisonError::into_inner)),
+            _ => None,
+        };
         let mut lanes = lanes.unwrap_or(DeviceLanes {
             raw: None,
             queries: Vec::new(),
@@ -294,9 +307,12 @@ impl GuidingField {
             Ok(()) => {
                 out.items.selection = models::constant_selection(&self.inner);
                 out.items.lane_selection = selection;
-                out.device_len = queries.len();
-                out.device_family = Some(d.family);
-                out.device = Some(Arc::new(Mutex::new(lanes)));
+                out.location = LaneLocation::Device(DeviceBatch {
+                    lanes: Arc::new(Mutex::new(lanes)),
+                    len: queries.len(),
+                    family: d.family,
+                    normals: Vec::new(),
+                });
                 Ok(())
             }
             Err(e) => {
@@ -323,22 +339,22 @@ impl GuidingField {
     /// fallback after a device failure), with the batch's cosine product.
     fn device_lanes_on_cpu(&self, batch: &DistributionBatch, lanes: &[u32]) -> DistributionBatch {
         let mut cpu = DistributionBatch::new();
-        let Some(device) = &batch.device else {
+        let LaneLocation::Device(device) = &batch.location else {
             return cpu;
         };
         let queries: Vec<QueryPoint> = {
-            let d = device.lock().unwrap_or_else(PoisonError::into_inner);
+            let d = device.lanes.lock().unwrap_or_else(PoisonError::into_inner);
             lanes
                 .iter()
                 .map(|&l| d.queries.get(l as usize).copied().unwrap_or_default())
                 .collect()
         };
         self.decode_batch_cpu(&queries, &mut cpu);
-        if !batch.device_normals.is_empty() {
+        if !device.normals.is_empty() {
             let normals: Vec<Vec3> = lanes
                 .iter()
                 .map(|&l| {
-                    let n = batch.device_normals[l as usize];
+                    let n = device.normals[l as usize];
                     Vec3::new(n[0], n[1], n[2])
                 })
                 .collect();
@@ -357,17 +373,13 @@ impl GuidingField {
         inputs: &[[f32; 4]],
         mut out: DeviceOut<'_>,
     ) -> Result<(), GuidingError> {
-        let Some(device) = &batch.device else {
+        let LaneLocation::Device(device) = &batch.location else {
             return Ok(());
         };
-        let normals: Vec<[f32; 4]> = if batch.device_normals.is_empty() {
-            Vec::new()
-        } else {
-            lanes
-                .iter()
-                .map(|&l| batch.device_normals[l as usize])
-                .collect()
-        };
+        let normals: Vec<[f32; 4]> = lanes
+            .iter()
+            .filter_map(|&l| device.normals.get(l as usize).copied())
+            .collect();
         let failed = |e: GuidingError| -> Result<bool, GuidingError> {
             match &self.device {
                 Some(d) if d.on_failure == crate::DeviceFailure::FallbackToCpu => Ok(true),
@@ -380,7 +392,7 @@ impl GuidingField {
                     .unwrap_or_else(|| GuidingError::Device("the device is gone".into())),
             )?,
             Some(d) => {
-                let lanes_ref = device.lock().unwrap_or_else(PoisonError::into_inner);
+                let lanes_ref = device.lanes.lock().unwrap_or_else(PoisonError::into_inner);
                 let r = match out {
                     DeviceOut::Samples(ref mut o) => {
                         let mut packed = vec![[0.0f32; 4]; lanes.len()];
@@ -531,7 +543,7 @@ impl GuidingField {
             return Ok(());
         }
         self.check_batch(batch, lanes)?;
-        if batch.device.is_some() {
+        if matches!(batch.location, LaneLocation::Device(_)) {
             let packed: Vec<[f32; 4]> = u.iter().map(|v| [v.x, v.y, 0.0, 0.0]).collect();
             return self.device_lanes_call(batch, lanes, &packed, DeviceOut::Samples(out));
         }
@@ -578,7 +590,7 @@ impl GuidingField {
             return Ok(());
         }
         self.check_batch(batch, lanes)?;
-        if batch.device.is_some() {
+        if matches!(batch.location, LaneLocation::Device(_)) {
             let packed: Vec<[f32; 4]> = directions.iter().map(|d| [d.x, d.y, d.z, 0.0]).collect();
             return self.device_lanes_call(batch, lanes, &packed, DeviceOut::Pdfs(out));
         }

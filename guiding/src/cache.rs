@@ -46,7 +46,7 @@
 //! update that changed the parameters, [`GuideCache::refresh`] decodes its
 //! cells again (one batched decode of every cell, a few ms).
 
-use crate::batch::{DistributionBatch, CACHE_MISS as MISS};
+use crate::batch::{DistributionBatch, LaneLocation, CACHE_MISS as MISS};
 use crate::config::Target;
 use crate::error::GuidingError;
 use crate::field::GuidingField;
@@ -456,7 +456,7 @@ impl GuideCache {
         }
         // Source lane per query: a cell's lane, or MISS | index into `missed`
         // (in `out`'s reused scratch: no allocation per call in steady state).
-        let mut source = std::mem::take(&mut out.source);
+        let mut source = std::mem::take(&mut out.scratch);
         source.clear();
         // First the jittered cell of every query (`EMPTY` outside the grid),
         // then the lookups, each fetching the index entry of the query
@@ -512,8 +512,10 @@ impl GuideCache {
         out.items.selection = self.items.selection;
         out.field_id = field.id;
         out.generation = field.generation;
-        out.cells = Some(Arc::clone(&self.items));
-        out.source = source;
+        out.location = LaneLocation::Cache {
+            cells: Arc::clone(&self.items),
+            source,
+        };
         Ok(CacheLookup {
             hits: (queries.len() - missed.len()) as u64,
             misses: missed.len() as u64,
@@ -749,8 +751,10 @@ impl GuideCache {
         batch.field_id = field.id;
         batch.generation = field.generation;
         batch.items.selection = self.items.selection;
-        batch.cells = Some(Arc::clone(&self.items));
-        batch.source = lanes.clone();
+        batch.location = LaneLocation::Cache {
+            cells: Arc::clone(&self.items),
+            source: lanes.clone(),
+        };
         let directions: Vec<Vec3> = kept
             .iter()
             .map(|&i| Vec3::from_array(samples[i].wi))
