@@ -37,6 +37,11 @@ fn load(text: &str, base: &Path) -> Scene {
     xml::load_str(text, "t.xml", base).unwrap_or_else(|e| panic!("loads: {e}"))
 }
 
+/// Loads `text` with a fresh scratch folder `name` as its base.
+fn load_in_scratch(name: &str, text: &str) -> Scene {
+    load(text, &dir(name))
+}
+
 /// The error of a strict load (unknown constructs are errors, see `LoadOptions::strict`).
 fn load_err(text: &str, base: &Path) -> String {
     let opts = xml::LoadOptions {
@@ -497,10 +502,12 @@ fn furnace_body(bsdf: &str, radiance: f32) -> String {
 /// `pt` is noise-free there; `pt-nee` (environment NEE + MIS) must agree by z-test.
 #[test]
 fn constant_environment_furnace() {
-    let d = dir("furnace");
     let bsdf = r#"<bsdf type="diffuse"><rgb name="reflectance" value="0.5, 0.6, 0.7"/></bsdf>"#;
     let body = furnace_body(bsdf, 2.0);
-    let sc = load(&scene_xml("0, -1.8, 0", "0, 0, 0", 20.0, 16, 16, &body), &d);
+    let sc = load_in_scratch(
+        "furnace",
+        &scene_xml("0, -1.8, 0", "0, 0, 0", 20.0, 16, 16, &body),
+    );
     let expect = [1.0f32, 1.2, 1.4];
     let pt = render_scene(&sc, IntegratorKind::Pt, 4, 1);
     for p in &pt.pixels {
@@ -518,12 +525,14 @@ fn constant_environment_furnace() {
 /// and `pt-nee` coincide; only paths still inside at max_depth lose energy (rare, grazing).
 #[test]
 fn glass_sphere_furnace() {
-    let d = dir("glass");
     let body = furnace_body(
         r#"<bsdf type="dielectric"><float name="int_ior" value="1.5"/></bsdf>"#,
         1.5,
     );
-    let sc = load(&scene_xml("0, -4, 0", "0, 0, 0", 40.0, 24, 256, &body), &d);
+    let sc = load_in_scratch(
+        "glass",
+        &scene_xml("0, -4, 0", "0, 0, 0", 40.0, 24, 256, &body),
+    );
     let img = render_scene(&sc, IntegratorKind::PtNee, 16, 3);
     let exact = img
         .pixels
@@ -543,7 +552,6 @@ fn glass_sphere_furnace() {
 /// under a constant environment: `pt` and `pt-nee` agree per block.
 #[test]
 fn constant_environment_pt_vs_nee() {
-    let d = dir("const");
     let body = r#"
   <shape type="rectangle"><transform name="to_world"><scale value="4"/><translate z="-1"/></transform>
     <bsdf type="twosided"><bsdf type="diffuse"><rgb name="reflectance" value="0.6"/></bsdf></bsdf></shape>
@@ -556,7 +564,10 @@ fn constant_environment_pt_vs_nee() {
   <shape type="cube"><transform name="to_world"><scale value="0.3"/><translate x="0" y="-1" z="-0.7"/></transform>
     <bsdf type="roughconductor"><string name="distribution" value="ggx"/><float name="alpha" value="0.3"/></bsdf></shape>
   <emitter type="constant"><rgb name="radiance" value="1, 0.8, 0.6"/></emitter>"#;
-    let sc = load(&scene_xml("0, -5, 2", "0, 0, -0.3", 40.0, 32, 6, body), &d);
+    let sc = load_in_scratch(
+        "const",
+        &scene_xml("0, -5, 2", "0, 0, -0.3", 40.0, 32, 6, body),
+    );
     pt_agrees_with_nee("constant env pt vs pt-nee", &sc, 64, 10);
 }
 
@@ -648,7 +659,6 @@ fn guided_agrees_with_pt_nee(name: &str, sc: &Scene, seed: u64, field_seed: u32)
 /// `phong` n = 300 (specular only) and `balanced` `ward` αu 0.05 / αv 0.3, a `ward` cube, a disk
 /// light and a dim constant environment.
 fn phong_ward_scene(name: &str) -> Scene {
-    let d = dir(name);
     let body = r#"
   <shape type="rectangle"><transform name="to_world"><scale value="3"/><translate z="-0.5"/></transform>
     <bsdf type="ward"><string name="variant" value="ward-duer"/><float name="alphaU" value="0.1"/><float name="alphaV" value="0.3"/></bsdf></shape>
@@ -665,7 +675,7 @@ fn phong_ward_scene(name: &str) -> Scene {
   <shape type="disk"><transform name="to_world"><scale value="0.7"/><rotate x="1" angle="180"/><translate x="0.5" z="2"/></transform>
     <emitter type="area"><rgb name="radiance" value="4"/></emitter></shape>
   <emitter type="constant"><rgb name="radiance" value="0.3, 0.25, 0.2"/></emitter>"#;
-    let sc = load(&scene_xml("0, -4, 1.5", "0, 0, 0", 40.0, 32, 5, body), &d);
+    let sc = load_in_scratch(name, &scene_xml("0, -4, 1.5", "0, 0, 0", 40.0, 32, 5, body));
     assert!(sc.materials.iter().all(|m| matches!(
         m,
         Material::Phong { .. } | Material::Ward { .. } | Material::Diffuse { .. }
@@ -680,13 +690,15 @@ fn phong_ward_scene(name: &str) -> Scene {
 /// light and renders black.
 #[test]
 fn point_light_matches_analytic() {
-    let d = dir("point");
     let body = r#"
   <shape type="rectangle"><transform name="to_world"><scale value="50"/></transform>
     <bsdf type="diffuse"><rgb name="reflectance" value="0.8"/></bsdf></shape>
   <emitter type="point"><point name="position" x="0.3" y="0.2" z="1"/><rgb name="intensity" value="4, 3, 2"/></emitter>"#;
     let res = 16u32;
-    let sc = load(&scene_xml("0, -2, 1.5", "0, 0, 0", 50.0, res, 2, body), &d);
+    let sc = load_in_scratch(
+        "point",
+        &scene_xml("0, -2, 1.5", "0, 0, 0", 50.0, res, 2, body),
+    );
     let img = render_scene(&sc, IntegratorKind::PtNee, 64, 40);
     let light = Vec3::new(0.3, 0.2, 1.0);
     let intensity = Vec3::new(4.0, 3.0, 2.0);
@@ -789,14 +801,13 @@ fn scene_06(body: &str) -> String {
 /// findable by `pt`'s BSDF sampling.
 #[test]
 fn sunsky_pt_vs_nee() {
-    let d = dir("sunsky");
     let body = r#"  <emitter type="sunsky">
     <float name="turbidity" value="4"/><integer name="resolution" value="32"/>
     <float name="hour" value="10.5"/><float name="sunRadiusScale" value="5"/>
     <float name="skyScale" value="5"/>
     <transform name="toWorld"><rotate x="1" angle="90"/></transform>
   </emitter>"#;
-    let sc = load(&scene_06(body), &d);
+    let sc = load_in_scratch("sunsky", &scene_06(body));
     assert_warned(&sc.warnings, &["sunsky", "Preetham"]);
     assert!(sc.env.is_some());
     let b = pt_agrees_with_nee("sunsky pt vs pt-nee", &sc, 1024, 40);
