@@ -16,10 +16,20 @@ fn bin() -> Command {
 
 /// A fresh scratch directory under the target dir (removed at the start of each run).
 fn scratch(name: &str) -> PathBuf {
-    let d = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("cli-{name}"));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).expect("scratch dir");
-    d
+    common::scratch_dir(&format!("cli-{name}"))
+}
+
+/// Writes the scene file `name` in `dir` (an 8 × 8 perspective sensor at fov 40 with `sensor`
+/// inside it, then `body`) and returns its path.
+fn write_scene(dir: &Path, name: &str, sensor: &str, body: &str) -> PathBuf {
+    let path = dir.join(name);
+    let xml = format!(
+        r#"<scene version="3.0.0"><sensor type="perspective"><float name="fov" value="40"/>{sensor}
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film></sensor>
+        {body}</scene>"#
+    );
+    std::fs::write(&path, xml).expect("write");
+    path
 }
 
 fn run_ok(cmd: &mut Command) -> String {
@@ -153,25 +163,15 @@ fn exr_roundtrip_is_exact() {
 #[test]
 fn render_and_compare_end_to_end() {
     let dir = scratch("render");
+    // Both renders' size and threads (compare needs equal sizes).
+    let size = ["--width", "24", "--height", "16", "--threads", "2"];
     let (exr_a, stats_a) = (dir.join("a.exr"), dir.join("a.json"));
     run_ok(
         bin()
             .args(["render", "builtin:cornell-box", "--integrator", "pt-nee"])
-            .args([
-                "--spp",
-                "3",
-                "--width",
-                "24",
-                "--height",
-                "16",
-                "--threads",
-                "2",
-                "--seed",
-                "5",
-                "--max-depth",
-                "4",
-                "--out",
-            ])
+            .args(["--spp", "3"])
+            .args(size)
+            .args(["--seed", "5", "--max-depth", "4", "--out"])
             .arg(&exr_a)
             .arg("--stats")
             .arg(&stats_a),
@@ -201,19 +201,9 @@ fn render_and_compare_end_to_end() {
                 "--integrator",
                 "guided",
             ])
+            .args(["--guide", "npm", "--model-size", "small", "--time", "1.0"])
+            .args(size)
             .args([
-                "--guide",
-                "npm",
-                "--model-size",
-                "small",
-                "--time",
-                "1.0",
-                "--width",
-                "24",
-                "--height",
-                "16",
-                "--threads",
-                "2",
                 "--train-fraction",
                 "0.5",
                 "--batch-size",
@@ -278,14 +268,7 @@ fn render_and_compare_end_to_end() {
 #[test]
 fn stats_report_skipped_nee() {
     let dir = scratch("nolight");
-    let xml = dir.join("dark.xml");
-    std::fs::write(
-        &xml,
-        r#"<scene version="3.0.0"><sensor type="perspective"><float name="fov" value="40"/>
-        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film></sensor>
-        <shape type="sphere"/></scene>"#,
-    )
-    .expect("write");
+    let xml = write_scene(&dir, "dark.xml", "", r#"<shape type="sphere"/>"#);
     let stats = dir.join("s.json");
     run_ok(
         bin()
@@ -310,17 +293,14 @@ fn stats_report_skipped_nee() {
 #[test]
 fn stats_report_skipped_product_inputs_when_all_diffuse() {
     let dir = scratch("product");
-    let glossy = dir.join("glossy.xml");
-    std::fs::write(
-        &glossy,
-        r#"<scene version="3.0.0"><sensor type="perspective"><float name="fov" value="40"/>
-        <transform name="to_world"><lookat origin="0, -5, 0" target="0, 0, 0" up="0, 0, 1"/></transform>
-        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film></sensor>
-        <shape type="sphere"><bsdf type="roughconductor"><string name="distribution" value="ggx"/><float name="alpha" value="0.3"/></bsdf></shape>
+    let glossy = write_scene(
+        &dir,
+        "glossy.xml",
+        r#"<transform name="to_world"><lookat origin="0, -5, 0" target="0, 0, 0" up="0, 0, 1"/></transform>"#,
+        r#"<shape type="sphere"><bsdf type="roughconductor"><string name="distribution" value="ggx"/><float name="alpha" value="0.3"/></bsdf></shape>
         <shape type="rectangle"><transform name="to_world"><translate z="3"/></transform>
-        <emitter type="area"><rgb name="radiance" value="5"/></emitter></shape></scene>"#,
-    )
-    .expect("write");
+        <emitter type="area"><rgb name="radiance" value="5"/></emitter></shape>"#,
+    );
     let glossy = glossy.display().to_string();
     let run = |scene: &str, target: Option<&str>, name: &str| {
         let stats = dir.join(format!("{name}.json"));

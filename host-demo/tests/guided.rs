@@ -10,10 +10,10 @@
 
 mod common;
 
-use guiding::{ModelSize, Representation};
+use common::{guide, npm_guide, training_config};
+use guiding::{GuidingField, ModelSize, Representation};
 use guiding_core::field::FieldConfig;
 use guiding_core::loss::Target;
-use host_demo::render::strategy::guide::build_guide;
 use host_demo::render::{render, Image, IntegratorKind, RenderOptions};
 use host_demo::render::{render_guided, GuidedOptions, GuidedStats, TestHooks};
 use host_demo::scene::builtin::load_builtin;
@@ -79,13 +79,8 @@ fn guided(
     steps: u32,
     batch: usize,
 ) -> (Image, GuidedStats) {
-    let config = FieldConfig::DEFAULT
-        .with_batch_size(batch)
-        .with_steps_per_update(steps)
-        .with_learning_rate(1e-2)
-        .with_threads(o.threads)
-        .with_seed(o.seed as u32);
-    let mut g = build_guide(kind, target, size, scene.bounds(), 0.5, config).expect("guide");
+    let config = training_config(batch, steps, o.seed as u32).with_threads(o.threads);
+    let mut g = guide(kind, target, size, scene, 0.5, config);
     // Every training pass takes `steps` Adam steps (the cap): these tests are about what a
     // trained guide does, not about the step schedule; their pass counts are written for a
     // training fraction of 0.3 (not the default's).
@@ -98,16 +93,20 @@ fn guided(
 }
 
 /// The small NPM radiance guide of the time-budget tests.
-fn small_npm_radiance(scene: &Scene, config: FieldConfig) -> guiding::GuidingField {
-    build_guide(
+fn small_npm_radiance(scene: &Scene, config: FieldConfig) -> GuidingField {
+    npm_guide(Target::Radiance, ModelSize::Small, scene, config)
+}
+
+/// The compact NPM radiance guide of the door and shared-scene tests.
+fn compact_npm_radiance(scene: &Scene, selection: f32, config: FieldConfig) -> GuidingField {
+    guide(
         Representation::Npm,
         Target::Radiance,
-        ModelSize::Small,
-        scene.bounds(),
-        0.5,
+        ModelSize::Compact,
+        scene,
+        selection,
         config,
     )
-    .expect("guide")
 }
 
 /// Asserts that `img`'s mean agrees with `reference`'s within `Z` combined standard errors,
@@ -311,21 +310,8 @@ fn guided_reduces_variance_on_the_door() {
 fn door_ratio(seed: u64) -> (f64, f64) {
     let scene = load_builtin("door").unwrap();
     let (w, h) = (80, 60);
-    let config = FieldConfig::DEFAULT
-        .with_batch_size(8192)
-        .with_steps_per_update(16)
-        .with_learning_rate(1e-2)
-        .with_threads(0)
-        .with_seed(6 + seed as u32);
-    let mut g = build_guide(
-        Representation::Npm,
-        Target::Radiance,
-        ModelSize::Compact,
-        scene.bounds(),
-        0.3,
-        config,
-    )
-    .expect("guide");
+    let config = training_config(8192, 16, 6 + seed as u32);
+    let mut g = compact_npm_radiance(&scene, 0.3, config);
     let train = GuidedOptions {
         nee: true,
         schedule: epochs(1.0, 1.0),
@@ -425,6 +411,15 @@ fn guided_deterministic_across_threads() {
     assert_eq!(a.pixels, b.pixels);
 }
 
+/// The Cornell box at 32 × 32 (less in debug builds) and its 256 spp `pt-nee` reference
+/// (seed 1): the setting of (e) to (g).
+fn cornell_with_reference() -> (Scene, u32, u32, Image) {
+    let scene = load_builtin("cornell-box").unwrap();
+    let (w, h) = (res(32), res(32));
+    let reference = render(&scene, &opts(IntegratorKind::PtNee, 256, w, h, 1, 0));
+    (scene, w, h, reference)
+}
+
 /// (e) The efficiency trial of a time-budget render: after training and one warm-up pass it
 /// runs 4 guided and 4 unguided passes (2 or 3 of each when the case is clear after that many:
 /// the early verdict is checked whenever both arms have `k ≥ 2` passes), and when its verdict is "does not pay" every later
@@ -433,9 +428,7 @@ fn guided_deterministic_across_threads() {
 /// runs it.
 #[test]
 fn efficiency_trial_decides_once_and_keeps_the_image_unbiased() {
-    let scene = load_builtin("cornell-box").unwrap();
-    let (w, h) = (res(32), res(32));
-    let reference = render(&scene, &opts(IntegratorKind::PtNee, 256, w, h, 1, 0));
+    let (scene, w, h, reference) = cornell_with_reference();
     let config = FieldConfig::DEFAULT.with_threads(2).with_seed(3);
     let small_npm = || small_npm_radiance(&scene, config);
     let mut g = small_npm();
@@ -479,9 +472,7 @@ fn efficiency_trial_decides_once_and_keeps_the_image_unbiased() {
 /// combination runs and the image is the plain mean of the same passes.
 #[test]
 fn pass_weights_keep_the_image_unbiased() {
-    let scene = load_builtin("cornell-box").unwrap();
-    let (w, h) = (res(32), res(32));
-    let reference = render(&scene, &opts(IntegratorKind::PtNee, 256, w, h, 1, 0));
+    let (scene, w, h, reference) = cornell_with_reference();
     let config = FieldConfig::DEFAULT.with_threads(2).with_seed(4);
     let o = opts(IntegratorKind::PtNee, 64, w, h, 9, 2);
     let run = |weight_passes: bool| {
@@ -522,9 +513,7 @@ fn pass_weights_keep_the_image_unbiased() {
 /// (a)); with the probe off there is none.
 #[test]
 fn training_probe_abandons_training_and_keeps_the_image_unbiased() {
-    let scene = load_builtin("cornell-box").unwrap();
-    let (w, h) = (res(32), res(32));
-    let reference = render(&scene, &opts(IntegratorKind::PtNee, 256, w, h, 1, 0));
+    let (scene, w, h, reference) = cornell_with_reference();
     // 64 steps per training pass (the epoch rule, capped), so the probe's 256 steps come
     // after the fourth training pass however loaded the machine is.
     let config = FieldConfig::DEFAULT
@@ -597,15 +586,7 @@ fn a_guide_that_does_not_pay_on_the_cornell_box_is_switched_off() {
     }
     let scene = host_demo::load_scene(path).expect("the shared Cornell box loads");
     let config = FieldConfig::DEFAULT.with_threads(2).with_seed(8);
-    let mut g = build_guide(
-        Representation::Npm,
-        Target::Radiance,
-        ModelSize::Compact,
-        scene.bounds(),
-        0.9,
-        config,
-    )
-    .expect("guide");
+    let mut g = compact_npm_radiance(&scene, 0.9, config);
     let o = RenderOptions {
         time_budget: Some(std::time::Duration::from_secs(8)),
         ..opts(IntegratorKind::PtNee, 1, 128, 128, 3, 2)

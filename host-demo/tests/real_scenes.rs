@@ -6,6 +6,9 @@
 //! Render checks are z-tests of region means against their exact values, with each region's
 //! standard error from the per-pixel sample variances and a Šidák-corrected threshold.
 
+mod common;
+
+use common::{assert_mentions, assert_warned};
 use glam::{Vec2, Vec3};
 use host_demo::render::{render, IntegratorKind, RenderOptions};
 use host_demo::scene::bsdf::{Material, Microfacet};
@@ -19,25 +22,13 @@ use std::process::Command;
 const DOWN: Vec3 = Vec3::new(1e-4, 2e-4, -0.999_999_97);
 
 fn dir(name: &str) -> PathBuf {
-    let d = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("real-{name}"));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).expect("scratch dir");
-    d
+    common::scratch_dir(&format!("real-{name}"))
 }
 
 /// Camera at `(0, 0, 5)` looking at the origin (image right = +x, image up = +y), `fov`
 /// degrees, `res²` pixels, and `body`.
 fn scene_xml(fov: f32, res: u32, max_depth: u32, body: &str) -> String {
-    format!(
-        r#"<scene version="3.0.0">
-  <integrator type="path"><integer name="max_depth" value="{max_depth}"/></integrator>
-  <sensor type="perspective"><float name="fov" value="{fov}"/>
-    <transform name="to_world"><lookat origin="0, 0, 5" target="0, 0, 0" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="{res}"/><integer name="height" value="{res}"/></film>
-  </sensor>
-{body}
-</scene>"#
-    )
+    common::scene_doc("0, 0, 5", "0, 0, 0", "0, 1, 0", fov, res, max_depth, body)
 }
 
 fn load_in(text: &str, base: &Path) -> Scene {
@@ -69,20 +60,9 @@ fn srgb(v: u8) -> f32 {
     }) as f32
 }
 
-/// Normal quantile for a two-sided test at family-wise level 1 % over `n` tests (Šidák), by
-/// bisection on erfc.
+/// Normal quantile for a two-sided test at family-wise level 1 % over `n` tests (Šidák).
 fn z_threshold(n: usize) -> f64 {
-    let alpha = 1.0 - (1.0 - 0.01f64).powf(1.0 / n as f64);
-    let (mut lo, mut hi) = (0.0f64, 10.0f64);
-    for _ in 0..100 {
-        let mid = 0.5 * (lo + hi);
-        if libm::erfc(mid / std::f64::consts::SQRT_2) > alpha {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    hi
+    common::z_threshold(common::sidak(0.01, n))
 }
 
 /// A textured quad under a constant white environment (max_depth 2): a one-sided diffuse
@@ -226,7 +206,7 @@ fn texture_lookups_through_the_loader() {
         ),
         &d,
     );
-    assert!(e.contains("nope.png") && e.contains("t.xml:"), "{e}");
+    assert_mentions(&e, &["nope.png", "t.xml:"]);
 }
 
 /// Three instances of a shapegroup are hit by three times the rays that hit one: a grid of
@@ -279,7 +259,7 @@ fn instances_count_through_the_bvh() {
     assert_eq!(three.prims.len(), 3 * one.prims.len());
     // The group alone renders nothing; an unknown group is an error with its line.
     let e = load_err_in(&scene_xml(20.0, 4, 2, &inst(0.0)), Path::new("."));
-    assert!(e.contains("t.xml:7:") && e.contains("shapegroup"), "{e}");
+    assert_mentions(&e, &["t.xml:7:", "shapegroup"]);
 }
 
 /// Writes a `.serialized` file by hand (zlib through flate2): version 4, two shapes, the
@@ -392,10 +372,7 @@ fn serialized_mesh_round_trip() {
         ),
         &d,
     );
-    assert!(
-        e.contains("m.serialized") && e.contains("out of range"),
-        "{e}"
-    );
+    assert_mentions(&e, &["m.serialized", "out of range"]);
 }
 
 /// `<default>` values and `-D` overrides: through the loader and the CLI.
@@ -431,10 +408,7 @@ fn params_and_cli_overrides() {
         &text.replace("<default name=\"refl\" value=\"0.2\"/>", ""),
         &d,
     );
-    assert!(
-        e.contains("$refl") && e.contains("t.xml:8:") && e.contains("-D refl="),
-        "{e}"
-    );
+    assert_mentions(&e, &["$refl", "t.xml:8:", "-D refl="]);
     // Through the CLI: the image mean follows the override (exact: albedo × white sky).
     let mean = |def: &str| {
         let stats = d.join(format!("s{def}.json"));
@@ -504,8 +478,8 @@ fn include_and_cycles() {
         .err()
         .expect("cycle")
         .to_string();
-    assert!(e.contains("include cycle") && e.contains("b.xml:2:"), "{e}");
-    assert!(e.contains("a.xml -> ") && e.contains("b.xml -> "), "{e}");
+    assert_mentions(&e, &["include cycle", "b.xml:2:"]);
+    assert_mentions(&e, &["a.xml -> ", "b.xml -> "]);
 }
 
 /// A Mitsuba 0.6 file (camelCase names, `lookAt`, `<spectrum>` triples, `uoffset`/`uscale`)
@@ -586,13 +560,7 @@ fn approximations_warn_and_refusals_name_the_line() {
         Path::new("."),
     );
     assert_eq!(sc.warnings.len(), 1, "{:?}", sc.warnings); // bumpmap
-    assert!(
-        sc.warnings
-            .iter()
-            .any(|w| w.contains("t.xml:7:") && w.contains("bumpmap")),
-        "{:?}",
-        sc.warnings
-    );
+    assert_warned(&sc.warnings, &["t.xml:7:", "bumpmap"]);
     // Beckmann (Mitsuba's default distribution) is implemented, not approximated.
     assert!(
         !sc.warnings

@@ -11,7 +11,7 @@
 
 mod common;
 
-use common::{sidak, z_threshold};
+use common::{assert_mentions, assert_warned, npm_guide, sidak, training_config, z_threshold};
 use glam::Vec3;
 use host_demo::render::{render, Image, IntegratorKind, RenderOptions};
 use host_demo::scene::bsdf::{Material, Microfacet};
@@ -20,28 +20,26 @@ use host_demo::scene::{Prim, Scene};
 use std::path::{Path, PathBuf};
 
 fn dir(name: &str) -> PathBuf {
-    let d = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("features-{name}"));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).expect("scratch dir");
-    d
+    common::scratch_dir(&format!("features-{name}"))
 }
 
 /// A scene document: path integrator, a `fov` camera at `origin` looking at `target`, and `body`.
 fn scene_xml(origin: &str, target: &str, fov: f32, res: u32, max_depth: u32, body: &str) -> String {
-    format!(
-        r#"<scene version="3.0.0">
-  <integrator type="path"><integer name="max_depth" value="{max_depth}"/></integrator>
-  <sensor type="perspective"><float name="fov" value="{fov}"/>
-    <transform name="to_world"><lookat origin="{origin}" target="{target}" up="0, 0, 1"/></transform>
-    <film type="hdrfilm"><integer name="width" value="{res}"/><integer name="height" value="{res}"/></film>
-  </sensor>
-{body}
-</scene>"#
-    )
+    common::scene_doc(origin, target, "0, 0, 1", fov, res, max_depth, body)
+}
+
+/// The loader tests' scene document: 8 × 8 pixels, a camera at `(0, −10, 0)`, and `body`.
+fn loader_xml(body: &str) -> String {
+    scene_xml("0, -10, 0", "0, 0, 0", 40.0, 8, 4, body)
 }
 
 fn load(text: &str, base: &Path) -> Scene {
     xml::load_str(text, "t.xml", base).unwrap_or_else(|e| panic!("loads: {e}"))
+}
+
+/// Loads `text` with a fresh scratch folder `name` as its base.
+fn load_in_scratch(name: &str, text: &str) -> Scene {
+    load(text, &dir(name))
 }
 
 /// The error of a strict load (unknown constructs are errors, see `LoadOptions::strict`).
@@ -72,6 +70,15 @@ fn render_scene(sc: &Scene, kind: IntegratorKind, spp: u32, seed: u64) -> Image 
     let img = render(sc, &o);
     assert!(img.all_finite_non_negative());
     img
+}
+
+/// Renders `sc` with `pt` (`pt_spp`, seed `seed`) and `pt-nee` (64 spp, seed `seed + 1`),
+/// block-z-tests the two (4 × 4 blocks) and returns the `pt-nee` image.
+fn pt_agrees_with_nee(name: &str, sc: &Scene, pt_spp: u32, seed: u64) -> Image {
+    let a = render_scene(sc, IntegratorKind::Pt, pt_spp, seed);
+    let b = render_scene(sc, IntegratorKind::PtNee, 64, seed + 1);
+    block_ztest(name, &a, &b, 4);
+    b
 }
 
 /// Block means and their variances (from the per-pixel variances of the mean).
@@ -189,7 +196,7 @@ fn ply_cube_disk_shapes_load() {
   <shape type="cube"><transform name="to_world"><scale value="0.5"/><translate z="-5"/></transform></shape>
   <shape type="disk"><transform name="to_world"><scale value="2"/><translate z="3"/></transform>
     <emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>"#;
-    let sc = load(&scene_xml("0, -10, 0", "0, 0, 0", 40.0, 8, 4, body), &d);
+    let sc = load(&loader_xml(body), &d);
     let (mut tris, mut disks) = (Vec::new(), 0);
     for p in &sc.prims {
         match p {
@@ -228,14 +235,7 @@ fn ply_cube_disk_shapes_load() {
 
     // Errors name the file / element.
     let e = load_err(
-        &scene_xml(
-            "0, -10, 0",
-            "0, 0, 0",
-            40.0,
-            8,
-            4,
-            r#"<shape type="ply"><string name="filename" value="missing.ply"/></shape>"#,
-        ),
+        &loader_xml(r#"<shape type="ply"><string name="filename" value="missing.ply"/></shape>"#),
         &d,
     );
     assert!(e.contains("missing.ply"), "{e}");
@@ -245,17 +245,10 @@ fn ply_cube_disk_shapes_load() {
     )
     .expect("write");
     let e = load_err(
-        &scene_xml(
-            "0, -10, 0",
-            "0, 0, 0",
-            40.0,
-            8,
-            4,
-            r#"<shape type="ply"><string name="filename" value="bad.ply"/></shape>"#,
-        ),
+        &loader_xml(r#"<shape type="ply"><string name="filename" value="bad.ply"/></shape>"#),
         &d,
     );
-    assert!(e.contains("bad.ply") && e.contains("big_endian"), "{e}");
+    assert_mentions(&e, &["bad.ply", "big_endian"]);
 }
 
 #[test]
@@ -274,7 +267,7 @@ fn bsdfs_and_emitters_load() {
   <emitter type="point"><point name="position" x="1" y="2" z="3"/><rgb name="intensity" value="5"/></emitter>
   <emitter type="envmap"><string name="filename" value="env.exr"/><float name="scale" value="2"/>
     <transform name="to_world"><rotate x="1" angle="90"/></transform></emitter>"#;
-    let sc = load(&scene_xml("0, -10, 0", "0, 0, 0", 40.0, 8, 4, body), &d);
+    let sc = load(&loader_xml(body), &d);
     let m = &sc.materials;
     assert!(matches!(m[0], Material::Conductor { .. }));
     assert!(matches!(m[1], Material::Dielectric { eta, .. } if (eta - 1.5).abs() < 1e-6));
@@ -294,19 +287,13 @@ fn bsdfs_and_emitters_load() {
     assert!(sc.env.is_some());
     assert_eq!(sc.emitter_count(), 2);
 
-    let e = |b: &str| load_err(&scene_xml("0, -10, 0", "0, 0, 0", 40.0, 8, 4, b), &d);
+    let e = |b: &str| load_err(&loader_xml(b), &d);
     let err = e("<shape type=\"sphere\"/>\n<emitter type=\"spot\"/>");
-    assert!(
-        err.contains("spot") && err.contains("emitter") && err.contains("t.xml:"),
-        "{err}"
-    );
+    assert_mentions(&err, &["spot", "emitter", "t.xml:"]);
     let err = e("<emitter type=\"constant\"/>\n<emitter type=\"constant\"/>");
     assert!(err.contains("only one environment"), "{err}");
     let err = e("<bsdf type=\"twosided\" id=\"x\">\n<bsdf type=\"dielectric\"/></bsdf>");
-    assert!(
-        err.contains("twosided") && err.contains("t.xml:8:"),
-        "{err}"
-    );
+    assert_mentions(&err, &["twosided", "t.xml:8:"]);
     let err =
         e("<emitter type=\"envmap\"><string name=\"filename\" value=\"nope.exr\"/></emitter>");
     assert!(err.contains("nope.exr"), "{err}");
@@ -314,13 +301,7 @@ fn bsdfs_and_emitters_load() {
     assert!(err.contains("rotation"), "{err}");
     // Anisotropic roughness: approximated (isotropic geometric mean) with a warning.
     let aniso = load(
-        &scene_xml(
-            "0, -10, 0",
-            "0, 0, 0",
-            40.0,
-            8,
-            4,
-            "<shape type=\"sphere\"><bsdf type=\"roughdielectric\"><float name=\"alpha_u\" value=\"0.1\"/><float name=\"alpha_v\" value=\"0.4\"/></bsdf></shape>",
+        &loader_xml("<shape type=\"sphere\"><bsdf type=\"roughdielectric\"><float name=\"alpha_u\" value=\"0.1\"/><float name=\"alpha_v\" value=\"0.4\"/></bsdf></shape>",
         ),
         &d,
     );
@@ -330,11 +311,7 @@ fn bsdfs_and_emitters_load() {
         "{:?}",
         aniso.materials
     );
-    assert!(
-        aniso.warnings.iter().any(|w| w.contains("alpha_u")),
-        "{:?}",
-        aniso.warnings
-    );
+    assert_warned(&aniso.warnings, &["alpha_u"]);
     let err = e(
         "<bsdf type=\"plastic\" id=\"x\"><string name=\"int_ior\" value=\"unobtainium\"/></bsdf>",
     );
@@ -342,12 +319,7 @@ fn bsdfs_and_emitters_load() {
     // The microfacet distribution: `beckmann` (also when absent, as in Mitsuba) and `ggx`, on
     // every rough BSDF, without a warning; anything else is an error naming it.
     let dist = load(
-        &scene_xml(
-            "0, -10, 0",
-            "0, 0, 0",
-            40.0,
-            8,
-            4,
+        &loader_xml(
             r#"<bsdf type="roughconductor" id="a"/>
   <bsdf type="roughconductor" id="b"><string name="distribution" value="beckmann"/></bsdf>
   <bsdf type="roughplastic" id="c"/>
@@ -389,10 +361,7 @@ fn bsdfs_and_emitters_load() {
     ));
     // (Mitsuba 0.6's "phong" loads as Beckmann: `published_constructs.rs`.)
     let err = e("<bsdf type=\"roughconductor\" id=\"x\"><string name=\"distribution\" value=\"trowbridge\"/></bsdf>");
-    assert!(
-        err.contains("trowbridge") && err.contains("distribution"),
-        "{err}"
-    );
+    assert_mentions(&err, &["trowbridge", "distribution"]);
 }
 
 /// Mitsuba 0.6's `phong` and `ward` in 0.6 spelling (camelCase names, `<spectrum>`, `<srgb>`):
@@ -413,7 +382,7 @@ fn phong_and_ward_load() {
     <rgb name="color0" value="0.9, 0.2, 0.1"/><rgb name="color1" value="0.1"/></texture></bsdf>
   <bsdf type="phong" id="def"/>
   <shape type="sphere"><ref id="ph"/></shape>"##;
-    let sc = load(&scene_xml("0, -10, 0", "0, 0, 0", 40.0, 8, 4, body), &d);
+    let sc = load(&loader_xml(body), &d);
     let m = &sc.materials;
     assert_eq!(
         m[0],
@@ -444,20 +413,8 @@ fn phong_and_ward_load() {
     assert!(
         matches!(m[3], Material::Phong { scale, diffuse, .. } if (scale - 0.66).abs() < 1e-6 && diffuse == Vec3::ONE)
     );
-    assert!(
-        sc.warnings
-            .iter()
-            .any(|w| w.contains("phong") && w.contains("scaled")),
-        "{:?}",
-        sc.warnings
-    );
-    assert!(
-        sc.warnings
-            .iter()
-            .any(|w| w.contains("t.xml:10:") && w.contains("anisotropic")),
-        "{:?}",
-        sc.warnings
-    );
+    assert_warned(&sc.warnings, &["phong", "scaled"]);
+    assert_warned(&sc.warnings, &["t.xml:10:", "anisotropic"]);
     assert!(matches!(m[4], Material::Ward { scale, .. } if scale == 1.0));
     // Textured diffuse: the scale comes from the texture's per-channel maximum (0.9 + 0.2).
     assert!(matches!(m[5], Material::Phong { scale, .. } if (scale - 0.9).abs() < 1e-6));
@@ -478,7 +435,7 @@ fn phong_and_ward_load() {
         assert!(!m[i].is_delta() && !m[i].is_diffuse());
     }
 
-    let e = |b: &str| load_err(&scene_xml("0, -10, 0", "0, 0, 0", 40.0, 8, 4, b), &d);
+    let e = |b: &str| load_err(&loader_xml(b), &d);
     for (b, want) in [
         (
             r#"<bsdf type="phong" id="x"><float name="exponent" value="-1"/></bsdf>"#,
@@ -531,16 +488,26 @@ fn phong_and_ward_load() {
 // Render checks
 // ---------------------------------------------------------------------------------------
 
+/// A furnace: a unit sphere with `bsdf` under a constant environment of `radiance`.
+fn furnace_body(bsdf: &str, radiance: f32) -> String {
+    format!(
+        r#"<shape type="sphere"><float name="radius" value="1"/>
+    {bsdf}</shape>
+  <emitter type="constant"><rgb name="radiance" value="{radiance}"/></emitter>"#
+    )
+}
+
 /// A diffuse sphere of albedo ρ filling the view under a constant environment L: every path
 /// leaves after one bounce (a convex object does not see itself), so each pixel is exactly ρL.
 /// `pt` is noise-free there; `pt-nee` (environment NEE + MIS) must agree by z-test.
 #[test]
 fn constant_environment_furnace() {
-    let d = dir("furnace");
-    let body = r#"<shape type="sphere"><float name="radius" value="1"/>
-    <bsdf type="diffuse"><rgb name="reflectance" value="0.5, 0.6, 0.7"/></bsdf></shape>
-  <emitter type="constant"><rgb name="radiance" value="2"/></emitter>"#;
-    let sc = load(&scene_xml("0, -1.8, 0", "0, 0, 0", 20.0, 16, 16, body), &d);
+    let bsdf = r#"<bsdf type="diffuse"><rgb name="reflectance" value="0.5, 0.6, 0.7"/></bsdf>"#;
+    let body = furnace_body(bsdf, 2.0);
+    let sc = load_in_scratch(
+        "furnace",
+        &scene_xml("0, -1.8, 0", "0, 0, 0", 20.0, 16, 16, &body),
+    );
     let expect = [1.0f32, 1.2, 1.4];
     let pt = render_scene(&sc, IntegratorKind::Pt, 4, 1);
     for p in &pt.pixels {
@@ -558,11 +525,14 @@ fn constant_environment_furnace() {
 /// and `pt-nee` coincide; only paths still inside at max_depth lose energy (rare, grazing).
 #[test]
 fn glass_sphere_furnace() {
-    let d = dir("glass");
-    let body = r#"<shape type="sphere"><float name="radius" value="1"/>
-    <bsdf type="dielectric"><float name="int_ior" value="1.5"/></bsdf></shape>
-  <emitter type="constant"><rgb name="radiance" value="1.5"/></emitter>"#;
-    let sc = load(&scene_xml("0, -4, 0", "0, 0, 0", 40.0, 24, 256, body), &d);
+    let body = furnace_body(
+        r#"<bsdf type="dielectric"><float name="int_ior" value="1.5"/></bsdf>"#,
+        1.5,
+    );
+    let sc = load_in_scratch(
+        "glass",
+        &scene_xml("0, -4, 0", "0, 0, 0", 40.0, 24, 256, &body),
+    );
     let img = render_scene(&sc, IntegratorKind::PtNee, 16, 3);
     let exact = img
         .pixels
@@ -582,7 +552,6 @@ fn glass_sphere_furnace() {
 /// under a constant environment: `pt` and `pt-nee` agree per block.
 #[test]
 fn constant_environment_pt_vs_nee() {
-    let d = dir("const");
     let body = r#"
   <shape type="rectangle"><transform name="to_world"><scale value="4"/><translate z="-1"/></transform>
     <bsdf type="twosided"><bsdf type="diffuse"><rgb name="reflectance" value="0.6"/></bsdf></bsdf></shape>
@@ -595,17 +564,25 @@ fn constant_environment_pt_vs_nee() {
   <shape type="cube"><transform name="to_world"><scale value="0.3"/><translate x="0" y="-1" z="-0.7"/></transform>
     <bsdf type="roughconductor"><string name="distribution" value="ggx"/><float name="alpha" value="0.3"/></bsdf></shape>
   <emitter type="constant"><rgb name="radiance" value="1, 0.8, 0.6"/></emitter>"#;
-    let sc = load(&scene_xml("0, -5, 2", "0, 0, -0.3", 40.0, 32, 6, body), &d);
-    let a = render_scene(&sc, IntegratorKind::Pt, 64, 10);
-    let b = render_scene(&sc, IntegratorKind::PtNee, 64, 11);
-    block_ztest("constant env pt vs pt-nee", &a, &b, 4);
+    let sc = load_in_scratch(
+        "const",
+        &scene_xml("0, -5, 2", "0, 0, -0.3", 40.0, 32, 6, body),
+    );
+    pt_agrees_with_nee("constant env pt vs pt-nee", &sc, 64, 10);
 }
 
 /// Envmap lighting of diffuse, plastic and smooth-conductor objects: `pt` and `pt-nee`
 /// (envmap importance sampling + MIS) agree per block.
 #[test]
 fn envmap_pt_vs_nee() {
-    let d = dir("envmap");
+    let sc = envmap_scene("envmap");
+    pt_agrees_with_nee("envmap pt vs pt-nee", &sc, 64, 20);
+}
+
+/// A ground plane, a rough plastic and a smooth conductor sphere under an envmap (in the
+/// scratch folder `name`).
+fn envmap_scene(name: &str) -> Scene {
+    let d = dir(name);
     write_envmap(&d.join("env.exr"));
     let body = r#"
   <shape type="rectangle"><transform name="to_world"><scale value="3"/><translate z="-0.5"/></transform>
@@ -616,10 +593,7 @@ fn envmap_pt_vs_nee() {
     <bsdf type="conductor"/></shape>
   <emitter type="envmap"><string name="filename" value="env.exr"/>
     <transform name="to_world"><rotate x="1" angle="90"/></transform></emitter>"#;
-    let sc = load(&scene_xml("0, -4, 1.5", "0, 0, 0", 35.0, 32, 5, body), &d);
-    let a = render_scene(&sc, IntegratorKind::Pt, 64, 20);
-    let b = render_scene(&sc, IntegratorKind::PtNee, 64, 21);
-    block_ztest("envmap pt vs pt-nee", &a, &b, 4);
+    load(&scene_xml("0, -4, 1.5", "0, 0, 0", 35.0, 32, 5, body), &d)
 }
 
 /// A disk area light over a cube and a plastic-coated PLY quad: `pt` and `pt-nee` agree.
@@ -636,9 +610,7 @@ fn disk_light_pt_vs_nee() {
   <shape type="disk"><transform name="to_world"><scale value="0.8"/><rotate x="1" angle="180"/><translate z="2"/></transform>
     <emitter type="area"><rgb name="radiance" value="3"/></emitter></shape>"#;
     let sc = load(&scene_xml("0, -4, 2.5", "0, 0, 0.3", 45.0, 32, 5, body), &d);
-    let a = render_scene(&sc, IntegratorKind::Pt, 128, 30);
-    let b = render_scene(&sc, IntegratorKind::PtNee, 64, 31);
-    block_ztest("disk light pt vs pt-nee", &a, &b, 4);
+    pt_agrees_with_nee("disk light pt vs pt-nee", &sc, 128, 30);
 }
 
 /// Mitsuba 0.6 `phong` (exponents 40 and 300, with and without a diffuse part) and `ward`
@@ -647,11 +619,9 @@ fn disk_light_pt_vs_nee() {
 #[test]
 fn phong_ward_pt_vs_nee() {
     let sc = phong_ward_scene("phong-ward-render");
-    let a = render_scene(&sc, IntegratorKind::Pt, 256, 40);
-    let b = render_scene(&sc, IntegratorKind::PtNee, 64, 41);
+    let b = pt_agrees_with_nee("phong/ward pt vs pt-nee", &sc, 256, 40);
     let mean = b.mean();
     assert!(mean.iter().all(|&c| c > 0.05), "{mean:?}");
-    block_ztest("phong/ward pt vs pt-nee", &a, &b, 4);
 }
 
 /// The guided integrator (NPM, product target) on the phong / ward scene: its phong / ward
@@ -667,28 +637,14 @@ fn guided_phong_ward_agrees_with_pt_nee() {
 /// 64 spp and block-z-tests the guided image against `pt-nee` (seed `seed`; the guided render
 /// uses `seed + 1`).
 fn guided_agrees_with_pt_nee(name: &str, sc: &Scene, seed: u64, field_seed: u32) {
-    use guiding::{ModelSize, Representation};
-    use guiding_core::field::FieldConfig;
+    use guiding::ModelSize;
     use guiding_core::loss::Target;
-    use host_demo::render::strategy::guide::build_guide;
     use host_demo::render::{render_guided, GuidedOptions};
     let reference = render_scene(sc, IntegratorKind::PtNee, 64, seed);
     let mut o = opts(IntegratorKind::PtNee, 64, seed + 1);
     o.max_depth = sc.settings.max_depth;
-    let config = FieldConfig::DEFAULT
-        .with_batch_size(1024)
-        .with_steps_per_update(2)
-        .with_learning_rate(1e-2)
-        .with_seed(field_seed);
-    let mut g = build_guide(
-        Representation::Npm,
-        Target::Product,
-        ModelSize::Small,
-        sc.bounds(),
-        0.5,
-        config,
-    )
-    .expect("guide");
+    let config = training_config(1024, 2, field_seed);
+    let mut g = npm_guide(Target::Product, ModelSize::Small, sc, config);
     let (img, st) =
         render_guided(sc, &o, &GuidedOptions::default(), &mut g).expect("guided render");
     assert!(img.all_finite_non_negative());
@@ -703,7 +659,6 @@ fn guided_agrees_with_pt_nee(name: &str, sc: &Scene, seed: u64, field_seed: u32)
 /// `phong` n = 300 (specular only) and `balanced` `ward` αu 0.05 / αv 0.3, a `ward` cube, a disk
 /// light and a dim constant environment.
 fn phong_ward_scene(name: &str) -> Scene {
-    let d = dir(name);
     let body = r#"
   <shape type="rectangle"><transform name="to_world"><scale value="3"/><translate z="-0.5"/></transform>
     <bsdf type="ward"><string name="variant" value="ward-duer"/><float name="alphaU" value="0.1"/><float name="alphaV" value="0.3"/></bsdf></shape>
@@ -720,7 +675,7 @@ fn phong_ward_scene(name: &str) -> Scene {
   <shape type="disk"><transform name="to_world"><scale value="0.7"/><rotate x="1" angle="180"/><translate x="0.5" z="2"/></transform>
     <emitter type="area"><rgb name="radiance" value="4"/></emitter></shape>
   <emitter type="constant"><rgb name="radiance" value="0.3, 0.25, 0.2"/></emitter>"#;
-    let sc = load(&scene_xml("0, -4, 1.5", "0, 0, 0", 40.0, 32, 5, body), &d);
+    let sc = load_in_scratch(name, &scene_xml("0, -4, 1.5", "0, 0, 0", 40.0, 32, 5, body));
     assert!(sc.materials.iter().all(|m| matches!(
         m,
         Material::Phong { .. } | Material::Ward { .. } | Material::Diffuse { .. }
@@ -735,13 +690,15 @@ fn phong_ward_scene(name: &str) -> Scene {
 /// light and renders black.
 #[test]
 fn point_light_matches_analytic() {
-    let d = dir("point");
     let body = r#"
   <shape type="rectangle"><transform name="to_world"><scale value="50"/></transform>
     <bsdf type="diffuse"><rgb name="reflectance" value="0.8"/></bsdf></shape>
   <emitter type="point"><point name="position" x="0.3" y="0.2" z="1"/><rgb name="intensity" value="4, 3, 2"/></emitter>"#;
     let res = 16u32;
-    let sc = load(&scene_xml("0, -2, 1.5", "0, 0, 0", 50.0, res, 2, body), &d);
+    let sc = load_in_scratch(
+        "point",
+        &scene_xml("0, -2, 1.5", "0, 0, 0", 50.0, res, 2, body),
+    );
     let img = render_scene(&sc, IntegratorKind::PtNee, 64, 40);
     let light = Vec3::new(0.3, 0.2, 1.0);
     let intensity = Vec3::new(4.0, 3.0, 2.0);
@@ -788,18 +745,7 @@ fn point_light_matches_analytic() {
 /// agrees with `pt-nee` per block.
 #[test]
 fn guided_envmap_agrees_with_pt_nee() {
-    let d = dir("guided-env");
-    write_envmap(&d.join("env.exr"));
-    let body = r#"
-  <shape type="rectangle"><transform name="to_world"><scale value="3"/><translate z="-0.5"/></transform>
-    <bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf></shape>
-  <shape type="sphere"><point name="center" x="-0.6" y="0" z="0"/><float name="radius" value="0.45"/>
-    <bsdf type="roughplastic"><string name="distribution" value="ggx"/><float name="alpha" value="0.25"/></bsdf></shape>
-  <shape type="sphere"><point name="center" x="0.6" y="0" z="0"/><float name="radius" value="0.45"/>
-    <bsdf type="conductor"/></shape>
-  <emitter type="envmap"><string name="filename" value="env.exr"/>
-    <transform name="to_world"><rotate x="1" angle="90"/></transform></emitter>"#;
-    let sc = load(&scene_xml("0, -4, 1.5", "0, 0, 0", 35.0, 32, 5, body), &d);
+    let sc = envmap_scene("guided-env");
     guided_agrees_with_pt_nee("guided envmap vs pt-nee", &sc, 50, 3);
 }
 
@@ -855,26 +801,17 @@ fn scene_06(body: &str) -> String {
 /// findable by `pt`'s BSDF sampling.
 #[test]
 fn sunsky_pt_vs_nee() {
-    let d = dir("sunsky");
     let body = r#"  <emitter type="sunsky">
     <float name="turbidity" value="4"/><integer name="resolution" value="32"/>
     <float name="hour" value="10.5"/><float name="sunRadiusScale" value="5"/>
     <float name="skyScale" value="5"/>
     <transform name="toWorld"><rotate x="1" angle="90"/></transform>
   </emitter>"#;
-    let sc = load(&scene_06(body), &d);
-    assert!(
-        sc.warnings
-            .iter()
-            .any(|w| w.contains("sunsky") && w.contains("Preetham")),
-        "{:?}",
-        sc.warnings
-    );
+    let sc = load_in_scratch("sunsky", &scene_06(body));
+    assert_warned(&sc.warnings, &["sunsky", "Preetham"]);
     assert!(sc.env.is_some());
-    let a = render_scene(&sc, IntegratorKind::Pt, 1024, 40);
-    let b = render_scene(&sc, IntegratorKind::PtNee, 64, 41);
+    let b = pt_agrees_with_nee("sunsky pt vs pt-nee", &sc, 1024, 40);
     assert!(b.mean().iter().all(|c| *c > 0.0));
-    block_ztest("sunsky pt vs pt-nee", &a, &b, 4);
 }
 
 /// Mitsuba 3 spelling (`sun_direction`, z-up frame, no to_world) and the 0.6 `sun` / `sky`
@@ -893,10 +830,8 @@ fn sunsky_sun_direction_pt_vs_nee() {
     <float name="sun_aperture" value="3"/><float name="sky_scale" value="5"/>
   </emitter>"#;
     let sc = load(&scene_xml("0, -2, 6", "0, 0, 0", 40.0, 32, 3, body), &d);
-    assert!(sc.warnings.iter().any(|w| w.contains("Preetham")));
-    let a = render_scene(&sc, IntegratorKind::Pt, 1024, 50);
-    let b = render_scene(&sc, IntegratorKind::PtNee, 64, 51);
-    block_ztest("sunsky (sun_direction) pt vs pt-nee", &a, &b, 4);
+    assert_warned(&sc.warnings, &["Preetham"]);
+    pt_agrees_with_nee("sunsky (sun_direction) pt vs pt-nee", &sc, 1024, 50);
 
     // The 0.6 parts, sun from the world direction (0, 0.5, 1) (z up through toWorld).
     let part = |ty: &str| {
@@ -922,15 +857,9 @@ fn sunsky_errors_and_night() {
     let d = dir("sunsky-err");
     let e = |em: &str| load_err(&scene_06(em), &d);
     let err = e(r#"<emitter type="sunsky"><float name="turbidity" value="12"/></emitter>"#);
-    assert!(
-        err.contains("t.xml:11:") && err.contains("turbidity"),
-        "{err}"
-    );
+    assert_mentions(&err, &["t.xml:11:", "turbidity"]);
     let err = e(r#"<emitter type="sky"><vector name="sunDirection" x="0" y="0" z="0"/></emitter>"#);
-    assert!(
-        err.contains("sun_direction") && err.contains("non-zero"),
-        "{err}"
-    );
+    assert_mentions(&err, &["sun_direction", "non-zero"]);
     let err = e(
         r#"<emitter type="sun"><vector name="sunDirection" x="0" y="1" z="0"/><float name="hour" value="9"/></emitter>"#,
     );
@@ -945,9 +874,5 @@ fn sunsky_errors_and_night() {
         &d,
     );
     assert!(sc.env.is_none());
-    assert!(
-        sc.warnings.iter().any(|w| w.contains("below the horizon")),
-        "{:?}",
-        sc.warnings
-    );
+    assert_warned(&sc.warnings, &["below the horizon"]);
 }

@@ -30,11 +30,9 @@
 
 mod common;
 
-use common::sidak;
+use common::{guide, npm_guide, sidak, training_config};
 use guiding::{ModelSize, Representation};
-use guiding_core::field::FieldConfig;
 use guiding_core::loss::Target;
-use host_demo::render::strategy::guide::build_guide;
 use host_demo::render::{render, Image, IntegratorKind, RenderOptions};
 use host_demo::render::{render_guided, CacheMode, GuidedOptions, GuidedStats, TestHooks};
 use host_demo::scene::builtin::load_builtin;
@@ -215,21 +213,8 @@ fn guided_with(
     guide_pdf_scale: f32,
 ) -> Image {
     let o = opts(IntegratorKind::PtNee, SPP, 1000 + seed);
-    let config = FieldConfig::DEFAULT
-        .with_batch_size(1024)
-        .with_steps_per_update(2)
-        .with_learning_rate(1e-2)
-        .with_threads(0)
-        .with_seed(seed as u32 + 7);
-    let mut g = build_guide(
-        kind,
-        Target::Product,
-        ModelSize::Small,
-        scene.bounds(),
-        0.5,
-        config,
-    )
-    .expect("guide");
+    let config = training_config(1024, 2, seed as u32 + 7);
+    let mut g = guide(kind, Target::Product, ModelSize::Small, scene, 0.5, config);
     let gopts = GuidedOptions {
         nee,
         test_hooks: TestHooks {
@@ -434,21 +419,8 @@ fn guided_cached(
     seed: u64,
 ) -> (Image, GuidedStats) {
     let o = opts(IntegratorKind::PtNee, SPP, 1000 + seed);
-    let config = FieldConfig::DEFAULT
-        .with_batch_size(1024)
-        .with_steps_per_update(2)
-        .with_learning_rate(1e-2)
-        .with_threads(0)
-        .with_seed(seed as u32 + 7);
-    let mut g = build_guide(
-        Representation::Npm,
-        Target::Radiance,
-        ModelSize::Small,
-        scene.bounds(),
-        0.5,
-        config,
-    )
-    .expect("guide");
+    let config = training_config(1024, 2, seed as u32 + 7);
+    let mut g = npm_guide(Target::Radiance, ModelSize::Small, scene, config);
     let gopts = GuidedOptions {
         nee: true,
         cache: mode,
@@ -616,21 +588,8 @@ fn sharp_frozen_guides_agree_per_block() {
     let level = sidak(ALPHA, guides.len() * reference.len() * 3);
     let mut failures = Vec::new();
     for (i, (name, target)) in guides.into_iter().enumerate() {
-        let config = FieldConfig::DEFAULT
-            .with_batch_size(4096)
-            .with_steps_per_update(4)
-            .with_learning_rate(1e-2)
-            .with_threads(0)
-            .with_seed(11 + i as u32);
-        let mut g = build_guide(
-            Representation::Npm,
-            target,
-            ModelSize::Small,
-            scene.bounds(),
-            0.5,
-            config,
-        )
-        .expect("guide");
+        let config = training_config(4096, 4, 11 + i as u32);
+        let mut g = npm_guide(target, ModelSize::Small, &scene, config);
         let train = RenderOptions {
             spp: 64,
             width: 32,

@@ -128,26 +128,32 @@ fn models(quick: bool) -> Result<Vec<MicroResult>, guiding::GuidingError> {
                 }
                 black_box(acc);
             });
-            out.push(MicroResult {
+            let result = |what: &str, value: f64, unit: &'static str, note: String| MicroResult {
                 group: "model",
-                name: format!("{rep:?} {size:?} product: decode+sample+pdf"),
-                value: nq as f64 / secs,
-                unit: "queries/s (1 thread)",
+                name: format!("{rep:?} {size:?} product: {what}"),
+                value,
+                unit,
                 ratio: None,
-                note: format!("{} parameters", field.param_count()),
-            });
+                note,
+            };
+            let params = format!("{} parameters", field.param_count());
+            out.push(result(
+                "decode+sample+pdf",
+                nq as f64 / secs,
+                "queries/s (1 thread)",
+                params,
+            ));
             let secs = median_secs(repeats, || {
                 field.add_samples(&samples);
                 field.update();
             });
-            out.push(MicroResult {
-                group: "model",
-                name: format!("{rep:?} {size:?} product: training"),
-                value: batch as f64 / secs,
-                unit: "samples/s (1 thread)",
-                ratio: None,
-                note: format!("batch {batch}, one Adam step"),
-            });
+            let note = format!("batch {batch}, one Adam step");
+            out.push(result(
+                "training",
+                batch as f64 / secs,
+                "samples/s (1 thread)",
+                note,
+            ));
         }
     }
     Ok(out)
@@ -414,56 +420,52 @@ impl VertexTimes {
     /// cache, the small cache, then the batched decode (with the per-query path in its note).
     fn results(&self, model: &VertexModel, ray: Option<f64>) -> Vec<MicroResult> {
         let VertexModel { rep, size, target } = model;
+        // One entry: what answered the vertex, its ns per vertex, and the note.
+        let result = |what: &str, ns: f64, note: String| MicroResult {
+            group: "vertex",
+            name: format!("{rep:?} {size:?} {target:?}: guided vertex ({what})"),
+            value: ns,
+            unit: "ns (1 thread)",
+            ratio: ray.map(|r| ns / r),
+            note,
+        };
         let mut out = Vec::new();
         if let Some((cells, secs)) = self.large {
             let ns_l = secs * 1e9 / N as f64;
-            out.push(MicroResult {
-                group: "vertex",
-                name: format!(
-                    "{rep:?} {size:?} {target:?}: guided vertex (guide cache of {cells} cells)"
-                ),
-                value: ns_l,
-                unit: "ns (1 thread)",
-                ratio: ray.map(|r| ns_l / r),
-                note: format!(
+            let what = format!("guide cache of {cells} cells");
+            out.push(result(
+                &what,
+                ns_l,
+                format!(
                     "× one ray; {N} scattered lookups in a cache built from \
                      {LARGE_CACHE_POINTS} points (a real scene's size)"
                 ),
-            });
+            ));
         }
         let ns = self.batched * 1e9 / N as f64;
         let ns_q = self.per_query * 1e9 / N as f64;
         if let Some(c) = self.cached {
             let ns_c = c * 1e9 / N as f64;
-            out.push(MicroResult {
-                group: "vertex",
-                name: format!("{rep:?} {size:?} {target:?}: guided vertex (guide cache)"),
-                value: ns_c,
-                unit: "ns (1 thread)",
-                ratio: ray.map(|r| ns_c / r),
-                note: format!(
-                    "× one ray; jittered lookup in a {N}-cell cache (resolution 64{}), \
+            let tabulated = if matches!(rep, Representation::DfNearest | Representation::DfLinear) {
+                ", tabulated DF cells"
+            } else {
+                ""
+            };
+            out.push(result(
+                "guide cache",
+                ns_c,
+                format!(
+                    "× one ray; jittered lookup in a {N}-cell cache (resolution 64{tabulated}), \
                      {:.1}× faster than the batched decode",
-                    if matches!(rep, Representation::DfNearest | Representation::DfLinear) {
-                        ", tabulated DF cells"
-                    } else {
-                        ""
-                    },
                     ns / ns_c
                 ),
-            });
+            ));
         }
-        out.push(MicroResult {
-            group: "vertex",
-            name: format!("{rep:?} {size:?} {target:?}: guided vertex (batched)"),
-            value: ns,
-            unit: "ns (1 thread)",
-            ratio: ray.map(|r| ns / r),
-            note: format!(
-                "× one ray; per-query path {ns_q:.0} ns ({:.1}× the batched)",
-                ns_q / ns
-            ),
-        });
+        let note = format!(
+            "× one ray; per-query path {ns_q:.0} ns ({:.1}× the batched)",
+            ns_q / ns
+        );
+        out.push(result("batched", ns, note));
         out
     }
 }

@@ -1975,11 +1975,43 @@ mod tests {
         }
     }
 
+    /// `u` at 0, just above it, inside, and at the largest value below 1.
+    const EDGE_US: [f32; 6] = [0.0, 1e-7, 0.25, 0.5, 0.75, 1.0 - f32::EPSILON / 2.0];
+
+    /// Asserts that `m`'s samples for `wi` (each `u0` in `u0s`, `u1` and `u2` in [`EDGE_US`])
+    /// are finite with a positive pdf and a non-negative weight (and above the surface where
+    /// `upper`), and that `eval(wi, wo)` is finite with a non-negative pdf for each `wo` in
+    /// `wos`.
+    fn assert_finite_at(m: &Material, wi: Vec3, u0s: &[f32], wos: &[Vec3], upper: bool) {
+        for &u0 in u0s {
+            for &u1 in &EDGE_US {
+                for &u2 in &EDGE_US {
+                    let Some(s) = m.sample(wi, u0, u1, u2) else {
+                        continue;
+                    };
+                    assert!(
+                        s.wo.is_finite() && s.weight.is_finite() && s.pdf.is_finite(),
+                        "{m:?} wi {wi} u {u0} {u1} {u2}: {s:?}"
+                    );
+                    assert!(
+                        s.pdf > 0.0 && (s.wo.z > 0.0 || !upper) && s.weight.min_element() >= 0.0
+                    );
+                }
+            }
+        }
+        for &wo in wos {
+            let (f, pdf) = m.eval(wi, wo);
+            assert!(
+                f.is_finite() && pdf.is_finite() && pdf >= 0.0,
+                "{m:?} {wi} {wo}"
+            );
+        }
+    }
+
     /// No NaN or infinity escapes at the edges of the domain: grazing and normal `wi`, `u` at
     /// 0 and at the largest value below 1, huge exponents, extreme alphas.
     #[test]
     fn phong_ward_finite_at_extremes() {
-        let us = [0.0f32, 1e-7, 0.25, 0.5, 0.75, 1.0 - f32::EPSILON / 2.0];
         let wis = [
             Vec3::Z,
             Vec3::new(1.0, 0.0, 1e-7).normalize(),
@@ -2013,27 +2045,7 @@ mod tests {
         }
         for m in &mats {
             for wi in wis {
-                for &u0 in &[0.0f32, 0.99] {
-                    for &u1 in &us {
-                        for &u2 in &us {
-                            let Some(s) = m.sample(wi, u0, u1, u2) else {
-                                continue;
-                            };
-                            assert!(
-                                s.wo.is_finite() && s.weight.is_finite() && s.pdf.is_finite(),
-                                "{m:?} wi {wi} u {u0} {u1} {u2}: {s:?}"
-                            );
-                            assert!(s.pdf > 0.0 && s.wo.z > 0.0 && s.weight.min_element() >= 0.0);
-                        }
-                    }
-                }
-                for wo in wis {
-                    let (f, pdf) = m.eval(wi, wo);
-                    assert!(
-                        f.is_finite() && pdf.is_finite() && pdf >= 0.0,
-                        "{m:?} {wi} {wo}"
-                    );
-                }
+                assert_finite_at(m, wi, &[0.0, 0.99], &wis, true);
                 let (f, pdf) = m.eval(wi, Vec3::new(0.0, 0.6, -0.8));
                 assert!(f == Vec3::ZERO && pdf == 0.0);
             }
@@ -2320,7 +2332,6 @@ mod tests {
     /// normal `wi` from both sides, `u` at 0 and just below 1; GGX and Beckmann.
     #[test]
     fn microfacet_finite_at_extremes() {
-        let us = [0.0f32, 1e-7, 0.25, 0.5, 0.75, 1.0 - f32::EPSILON / 2.0];
         let wis = [
             Vec3::Z,
             Vec3::new(1.0, 0.0, 1e-7).normalize(),
@@ -2359,30 +2370,10 @@ mod tests {
         }
         for m in &mats {
             for wi in wis {
-                for &u0 in &[0.0f32, 0.5, 0.99] {
-                    for &u1 in &us {
-                        for &u2 in &us {
-                            let Some(s) = m.sample(wi, u0, u1, u2) else {
-                                continue;
-                            };
-                            assert!(
-                                s.wo.is_finite() && s.weight.is_finite() && s.pdf.is_finite(),
-                                "{m:?} wi {wi} u {u0} {u1} {u2}: {s:?}"
-                            );
-                            assert!(s.pdf > 0.0 && s.weight.min_element() >= 0.0);
-                        }
-                    }
-                }
-                for wo in wis {
-                    let (f, pdf) = m.eval(wi, wo);
-                    assert!(
-                        f.is_finite() && pdf.is_finite() && pdf >= 0.0,
-                        "{m:?} {wi} {wo}"
-                    );
-                }
+                assert_finite_at(m, wi, &[0.0, 0.5, 0.99], &wis, false);
             }
-            for &u1 in &us {
-                for &u2 in &us {
+            for &u1 in &EDGE_US {
+                for &u2 in &EDGE_US {
                     for wi in wis.iter().filter(|w| w.z >= 0.0) {
                         let (dist, alpha) = match *m {
                             Material::RoughConductor {

@@ -94,6 +94,11 @@ fn disk_coords(q: Vec3, a: Vec3, b: Vec3) -> (f32, f32) {
     ((bb * qa - ab * qb) / det, (aa * qb - ab * qa) / det)
 }
 
+/// The triangles `a b c` and `a c d` of the quad `[a, b, c, d]` (corners or their uvs).
+pub(crate) fn quad_triangles<T: Copy>(q: [T; 4]) -> [[T; 3]; 2] {
+    [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]
+}
+
 impl Prim {
     fn aabb(&self) -> Aabb {
         match *self {
@@ -551,20 +556,8 @@ impl SceneBuilder {
 
     /// Adds a quad `a b c d` (counter-clockwise seen from the side its normal points to).
     pub fn quad(&mut self, q: [Vec3; 4], material: u32, emission: Option<Vec3>) {
-        self.shape(
-            vec![
-                Prim::Tri {
-                    p: [q[0], q[1], q[2]],
-                    n: None,
-                },
-                Prim::Tri {
-                    p: [q[0], q[2], q[3]],
-                    n: None,
-                },
-            ],
-            material,
-            emission,
-        );
+        let tris = quad_triangles(q).map(|p| Prim::Tri { p, n: None });
+        self.shape(tris.to_vec(), material, emission);
     }
 
     /// Builds the BVH and light tables.

@@ -2,6 +2,11 @@
 
 #![allow(dead_code)] // each test binary uses a subset
 
+use guiding::{GuidingField, ModelSize, Representation};
+use guiding_core::field::FieldConfig;
+use guiding_core::loss::Target;
+use host_demo::render::strategy::guide::build_guide;
+use host_demo::scene::Scene;
 use std::path::{Path, PathBuf};
 
 /// The shared Mitsuba 3 scenes with published references, `shared/scenes/` beside the
@@ -17,6 +22,37 @@ pub fn shared_scenes() -> PathBuf {
         probe.display()
     );
     dir
+}
+
+/// A fresh, empty scratch folder `name` under the tests' target temporary directory.
+pub fn scratch_dir(name: &str) -> PathBuf {
+    let d = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).expect("scratch dir");
+    d
+}
+
+/// A Mitsuba 3 document: the path integrator to `max_depth`, a `fov` camera at `origin`
+/// looking at `target` (`up`) with `res²` pixels, and `body` (from line 7).
+pub fn scene_doc(
+    origin: &str,
+    target: &str,
+    up: &str,
+    fov: f32,
+    res: u32,
+    max_depth: u32,
+    body: &str,
+) -> String {
+    format!(
+        r#"<scene version="3.0.0">
+  <integrator type="path"><integer name="max_depth" value="{max_depth}"/></integrator>
+  <sensor type="perspective"><float name="fov" value="{fov}"/>
+    <transform name="to_world"><lookat origin="{origin}" target="{target}" up="{up}"/></transform>
+    <film type="hdrfilm"><integer name="width" value="{res}"/><integer name="height" value="{res}"/></film>
+  </sensor>
+{body}
+</scene>"#
+    )
 }
 
 /// Two-sided normal quantile: `z` with `erfc(z/√2) = alpha` (bisection, exact to f64).
@@ -55,6 +91,53 @@ pub fn csv_rows(path: &Path, fields: usize) -> Vec<Vec<String>> {
 /// `s` as a number (panics naming it otherwise).
 pub fn number(s: &str) -> f64 {
     s.parse().unwrap_or_else(|_| panic!("not a number: {s}"))
+}
+
+/// Asserts that `text` (an error message) contains every one of `parts`.
+pub fn assert_mentions(text: &str, parts: &[&str]) {
+    for part in parts {
+        assert!(text.contains(part), "{part:?} missing from: {text}");
+    }
+}
+
+/// Asserts that one of `warnings` (a scene's) contains every one of `parts`.
+pub fn assert_warned(warnings: &[String], parts: &[&str]) {
+    assert!(
+        warnings.iter().any(|w| parts.iter().all(|p| w.contains(p))),
+        "no warning with {parts:?}: {warnings:?}"
+    );
+}
+
+/// The guided tests' training: `FieldConfig::DEFAULT` with learning rate 1e-2, `batch`
+/// samples per step, `steps` Adam steps per update and `seed` (on all cores).
+pub fn training_config(batch: usize, steps: u32, seed: u32) -> FieldConfig {
+    FieldConfig::DEFAULT
+        .with_batch_size(batch)
+        .with_steps_per_update(steps)
+        .with_learning_rate(1e-2)
+        .with_seed(seed)
+}
+
+/// [`build_guide`] over `scene`'s bounds (panics on an invalid configuration).
+pub fn guide(
+    kind: Representation,
+    target: Target,
+    size: ModelSize,
+    scene: &Scene,
+    selection: f32,
+    config: FieldConfig,
+) -> GuidingField {
+    build_guide(kind, target, size, scene.bounds(), selection, config).expect("guide")
+}
+
+/// An NPM [`guide`] with selection probability 0.5.
+pub fn npm_guide(
+    target: Target,
+    size: ModelSize,
+    scene: &Scene,
+    config: FieldConfig,
+) -> GuidingField {
+    guide(Representation::Npm, target, size, scene, 0.5, config)
 }
 
 /// A Vulkan context for the `--device gpu` tests, or a skip: the workspace's one rule,

@@ -41,7 +41,7 @@ use crate::scene::load::obj::parse_obj;
 use crate::scene::load::ply::parse_ply;
 use crate::scene::load::serialized::parse_serialized;
 use crate::scene::texture::{Filter, ImageCache, Param, Texture, UvMap, Wrap};
-use crate::scene::{Camera, MaterialTextures, Prim, Scene, SceneBuilder, Settings};
+use crate::scene::{quad_triangles, Camera, MaterialTextures, Prim, Scene, SceneBuilder, Settings};
 use glam::{Mat4, Vec2, Vec3};
 use roxmltree::{Document, Node};
 use std::borrow::Cow;
@@ -539,15 +539,38 @@ impl Ctx<'_> {
         Ok(v)
     }
 
+    /// The upper 3 × 3 of `to_world` on the `ty` emitter `n`, which must be a rotation: the
+    /// environment samplers' pdfs have no Jacobian for scale, shear or mirroring.
+    fn rotation(&self, n: Node, ty: &str, to_world: Mat4) -> Result<glam::Mat3> {
+        let m = glam::Mat3::from_mat4(to_world);
+        let rigid = (m.transpose() * m - glam::Mat3::IDENTITY)
+            .to_cols_array()
+            .iter()
+            .all(|x| x.abs() < 1e-3)
+            && m.determinant() > 0.0;
+        if !rigid {
+            return Err(self.err(
+                n,
+                format!("{ty} to_world must be a rotation (no scale, shear or mirroring)"),
+            ));
+        }
+        Ok(m)
+    }
+
+    /// `value="x, y, z"` (or one number for all three) of element `n`.
+    fn value_vec3(&self, n: Node, value: &str) -> Result<Vec3> {
+        let v = self.floats(n, value)?;
+        match v.len() {
+            1 => Ok(Vec3::splat(v[0])),
+            3 => Ok(Vec3::new(v[0], v[1], v[2])),
+            _ => Err(self.err(n, "expected 1 or 3 numbers")),
+        }
+    }
+
     /// `<point x= y= z=/>` or `value="x, y, z"`.
     fn vec3(&self, n: Node) -> Result<Vec3> {
         if let Some(v) = n.attribute("value") {
-            let v = self.floats(n, v)?;
-            return match v.len() {
-                1 => Ok(Vec3::splat(v[0])),
-                3 => Ok(Vec3::new(v[0], v[1], v[2])),
-                _ => Err(self.err(n, "expected 1 or 3 numbers")),
-            };
+            return self.value_vec3(n, v);
         }
         let mut out = Vec3::ZERO;
         for (i, k) in ["x", "y", "z"].iter().enumerate() {
@@ -656,12 +679,7 @@ impl Ctx<'_> {
     /// `x= y= z=` attributes (missing ones default to `def`) or `value="..."`.
     fn vec3_xyz(&self, n: Node, def: f32) -> Result<Vec3> {
         if let Some(v) = n.attribute("value") {
-            let v = self.floats(n, v)?;
-            return match v.len() {
-                1 => Ok(Vec3::splat(v[0])),
-                3 => Ok(Vec3::new(v[0], v[1], v[2])),
-                _ => Err(self.err(n, "expected 1 or 3 numbers")),
-            };
+            return self.value_vec3(n, v);
         }
         let mut out = Vec3::splat(def);
         for (i, k) in ["x", "y", "z"].iter().enumerate() {
@@ -1278,16 +1296,16 @@ impl Ctx<'_> {
         self.builder.textured_material(m, tex)
     }
 
-    /// Splits a colour parameter into the constant stored in the material (0.5 grey for a
-    /// texture: it only serves as a placeholder) and the texture slot.
-    fn split(p: Param, slot: &mut Option<u32>) -> Vec3 {
-        match p {
+    /// A colour [`Self::param`] split into the constant stored in the material (0.5 grey for a
+    /// texture: it only serves as a placeholder) and the texture `slot`.
+    fn color_param(&mut self, p: Node, slot: &mut Option<u32>) -> Result<Vec3> {
+        Ok(match self.param(p)? {
             Param::Const(c) => c,
             Param::Tex(t) => {
                 *slot = Some(t);
                 Vec3::splat(0.5)
             }
-        }
+        })
     }
 
     /// True if material `idx` (looking through blends) is one-sided and no twosided itself.
@@ -1390,10 +1408,7 @@ impl Ctx<'_> {
         let mut reflectance = Vec3::splat(0.5);
         for p in elements(n) {
             match self.name(p)?.as_ref() {
-                "reflectance" => {
-                    let v = self.param(p)?;
-                    reflectance = Self::split(v, &mut tex.diffuse);
-                }
+                "reflectance" => reflectance = self.color_param(p, &mut tex.diffuse)?,
                 _ => self.ignore(p, "diffuse property")?,
             }
         }
@@ -1409,8 +1424,7 @@ impl Ctx<'_> {
         for p in elements(n) {
             match (p.tag_name().name(), self.name(p)?.as_ref()) {
                 (_, "reflectance" | "diffuse_reflectance") => {
-                    let v = self.param(p)?;
-                    reflectance = Self::split(v, &mut tex.diffuse);
+                    reflectance = self.color_param(p, &mut tex.diffuse)?
                 }
                 ("float", "alpha") => alpha = self.float(p)?,
                 ("texture" | "ref", "alpha") => tex.scalar = Some(self.texture_param(p)?),
@@ -1469,10 +1483,7 @@ impl Ctx<'_> {
                 (_, "k") => k = self.unbounded_color(p)?,
                 // Mitsuba 0.6: the exterior medium's real IOR (a float or a name).
                 (_, "ext_eta") => ext_eta = self.ior(p)?,
-                (_, "specular_reflectance") => {
-                    let v = self.param(p)?;
-                    specular = Self::split(v, &mut tex.specular);
-                }
+                (_, "specular_reflectance") => specular = self.color_param(p, &mut tex.specular)?,
                 // Research forks of 0.6 put a roughness on smooth conductors; 0.6
                 // itself ignores it.
                 (_, "alpha" | "alpha_u" | "alpha_v" | "distribution") if ty == "conductor" => {
@@ -1516,14 +1527,8 @@ impl Ctx<'_> {
             match self.name(p)?.as_ref() {
                 "int_ior" => int_ior = self.ior(p)?,
                 "ext_ior" => ext_ior = self.ior(p)?,
-                "specular_reflectance" => {
-                    let v = self.param(p)?;
-                    reflectance = Self::split(v, &mut tex.specular);
-                }
-                "specular_transmittance" => {
-                    let v = self.param(p)?;
-                    transmittance = Self::split(v, &mut tex.transmittance);
-                }
+                "specular_reflectance" => reflectance = self.color_param(p, &mut tex.specular)?,
+                "specular_transmittance" => transmittance = self.color_param(p, &mut tex.transmittance)?,
                 "alpha" | "alpha_u" | "alpha_v" | "distribution" if ty != "roughdielectric" => {
                     self.warn(p, format!("a roughness on {ty} is ignored (as Mitsuba 0.6 does); use roughdielectric"))
                 }
@@ -1578,14 +1583,8 @@ impl Ctx<'_> {
             match (p.tag_name().name(), self.name(p)?.as_ref()) {
                 (_, "int_ior") => int_ior = self.ior(p)?,
                 (_, "ext_ior") => ext_ior = self.ior(p)?,
-                (_, "diffuse_reflectance") => {
-                    let v = self.param(p)?;
-                    diffuse = Self::split(v, &mut tex.diffuse);
-                }
-                (_, "specular_reflectance") => {
-                    let v = self.param(p)?;
-                    specular = Self::split(v, &mut tex.specular);
-                }
+                (_, "diffuse_reflectance") => diffuse = self.color_param(p, &mut tex.diffuse)?,
+                (_, "specular_reflectance") => specular = self.color_param(p, &mut tex.specular)?,
                 ("boolean", "nonlinear") => nonlinear = self.boolean(p)?,
                 _ => self.ignore(p, &format!("{ty} property"))?,
             }
@@ -1748,14 +1747,8 @@ impl Ctx<'_> {
         let mut conserve = true;
         for p in elements(n) {
             match (p.tag_name().name(), self.name(p)?.as_ref()) {
-                (_, "diffuse_reflectance") => {
-                    let v = self.param(p)?;
-                    diffuse = Self::split(v, &mut tex.diffuse);
-                }
-                (_, "specular_reflectance") => {
-                    let v = self.param(p)?;
-                    specular = Self::split(v, &mut tex.specular);
-                }
+                (_, "diffuse_reflectance") => diffuse = self.color_param(p, &mut tex.diffuse)?,
+                (_, "specular_reflectance") => specular = self.color_param(p, &mut tex.specular)?,
                 ("boolean", "ensure_energy_conservation") => conserve = self.boolean(p)?,
                 ("float", "exponent") if ty == "phong" => exponent = self.float(p)?,
                 ("string", "variant") if ty == "ward" => {
@@ -1905,19 +1898,7 @@ impl Ctx<'_> {
                 let img = read_exr(&path)?;
                 let map = EnvMap::new(img.width, img.height, &img.pixels, scale)
                     .map_err(|e| self.err(n, format!("envmap {}: {e}", path.display())))?;
-                let m = glam::Mat3::from_mat4(to_world.unwrap_or(Mat4::IDENTITY));
-                // The sampler's pdf assumes a rigid rotation (no Jacobian for scale or shear).
-                let rigid = (m.transpose() * m - glam::Mat3::IDENTITY)
-                    .to_cols_array()
-                    .iter()
-                    .all(|x| x.abs() < 1e-3)
-                    && m.determinant() > 0.0;
-                if !rigid {
-                    return Err(self.err(
-                        n,
-                        "envmap to_world must be a rotation (no scale, shear or mirroring)",
-                    ));
-                }
+                let m = self.rotation(n, ty, to_world.unwrap_or(Mat4::IDENTITY))?;
                 Environment::Map {
                     map: Box::new(map),
                     to_world: m,
@@ -1953,21 +1934,7 @@ impl Ctx<'_> {
             let f = |s: &Self| s.float(p).map(f64::from);
             match (p.tag_name().name(), pname.as_ref()) {
                 ("transform", "to_world") => {
-                    let m = glam::Mat3::from_mat4(self.transform(p)?);
-                    let rigid = (m.transpose() * m - glam::Mat3::IDENTITY)
-                        .to_cols_array()
-                        .iter()
-                        .all(|x| x.abs() < 1e-3)
-                        && m.determinant() > 0.0;
-                    if !rigid {
-                        return Err(self.err(
-                            p,
-                            format!(
-                                "{ty} to_world must be a rotation (no scale, shear or mirroring)"
-                            ),
-                        ));
-                    }
-                    sp.to_world = m;
+                    sp.to_world = self.rotation(p, ty, self.transform(p)?)?
                 }
                 (_, "sun_direction") => sp.sun_direction = Some(self.vec3(p)?),
                 (_, "turbidity") => sp.turbidity = f(self)?,
@@ -2381,18 +2348,8 @@ fn rectangle_prims(to_world: Mat4) -> (Vec<Prim>, Vec<[Vec2; 3]>) {
     let c = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
         .map(|(x, y)| to_world.transform_point3(Vec3::new(x, y, 0.0)));
     let nz = normal_transform(to_world)(Vec3::Z);
-    let mut tris = vec![
-        Prim::Tri {
-            p: [c[0], c[1], c[2]],
-            n: None,
-        },
-        Prim::Tri {
-            p: [c[0], c[2], c[3]],
-            n: None,
-        },
-    ];
-    let q = [Vec2::ZERO, Vec2::X, Vec2::ONE, Vec2::Y];
-    let mut uv = vec![[q[0], q[1], q[2]], [q[0], q[2], q[3]]];
+    let mut tris = quad_triangles(c).map(|p| Prim::Tri { p, n: None }).to_vec();
+    let mut uv = quad_triangles([Vec2::ZERO, Vec2::X, Vec2::ONE, Vec2::Y]).to_vec();
     if (c[1] - c[0]).cross(c[2] - c[0]).dot(nz) < 0.0 {
         for (t, u) in tris.iter_mut().zip(&mut uv) {
             if let Prim::Tri { p, .. } = t {
