@@ -3,7 +3,7 @@
 
 use crate::field::{check_unit_square, read, unit_directions};
 use crate::ptr::{self, disjoint, region, times};
-use crate::status::{guard, guard_void, Failure, PgStatus};
+use crate::status::{guard, Failure, PgStatus};
 use guiding::{DirectionSample, DistributionBatch, GuidingField, QueryPoint};
 use guiding_core::glam::{Vec2, Vec3};
 use std::sync::{Arc, RwLock};
@@ -88,10 +88,8 @@ impl PgDistributions {
 /// `out` must be NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn pg_distributions_new(out: *mut *mut PgDistributions) -> PgStatus {
-    guard("pg_distributions_new", || {
-        let out = unsafe { ptr::as_mut(out, "out") }?;
-        *out = Box::into_raw(Box::default());
-        Ok(())
+    guard("pg_distributions_new", || unsafe {
+        ptr::new_handle(out, || Ok(PgDistributions::default()))
     })
 }
 
@@ -103,12 +101,7 @@ pub unsafe extern "C" fn pg_distributions_new(out: *mut *mut PgDistributions) ->
 /// `pg_distributions_new` that no other call is using.
 #[no_mangle]
 pub unsafe extern "C" fn pg_distributions_release(distributions: *mut PgDistributions) {
-    guard_void("pg_distributions_release", || {
-        if !distributions.is_null() {
-            // SAFETY: made by Box::into_raw (caller's contract).
-            drop(unsafe { Box::from_raw(distributions) });
-        }
-    });
+    unsafe { ptr::release("pg_distributions_release", distributions) }
 }
 
 /// Writes the number of distributions held (the `n` of the latest
@@ -121,11 +114,8 @@ pub unsafe extern "C" fn pg_distributions_len(
     distributions: *const PgDistributions,
     out: *mut usize,
 ) -> PgStatus {
-    guard("pg_distributions_len", || {
-        let d = unsafe { ptr::as_ref(distributions, "distributions") }?;
-        let out = unsafe { ptr::as_mut(out, "out") }?;
-        *out = d.len;
-        Ok(())
+    guard("pg_distributions_len", || unsafe {
+        ptr::read_into(distributions, "distributions", out, |d| Ok(d.len))
     })
 }
 

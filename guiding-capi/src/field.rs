@@ -3,7 +3,7 @@
 
 use crate::distributions::PgDistributions;
 use crate::ptr::{self, disjoint, region, times};
-use crate::status::{guard, guard_void, Failure, PgStatus};
+use crate::status::{guard, Failure, PgStatus};
 use crate::types::{
     as_query_points, as_training_samples, PgFieldArgs, PgFieldStats, PgQueryPoint,
     PgRepresentation, PgTrainingSample, PgUpdateReport, PG_DEVICE_CPU, PG_DEVICE_FAILURE_ERROR,
@@ -11,8 +11,8 @@ use crate::types::{
     PG_TARGET_RADIANCE,
 };
 use guiding::{
-    DeviceFailure, DeviceSelection, DirectionSample, GuidingConfig, GuidingField, ModelSize,
-    PlateauConfig, Representation, Target,
+    DeviceFailure, DeviceSelection, DirectionSample, GuidingConfig, GuidingError, GuidingField,
+    ModelSize, PlateauConfig, Representation, Target, UpdateReport,
 };
 use guiding_core::glam::{Vec2, Vec3};
 use guiding_core::sample::UNIT_TOLERANCE;
@@ -45,22 +45,19 @@ pub(crate) fn write(
         .map_err(|_| Failure::new(PgStatus::PG_POISONED, POISONED))
 }
 
-impl PgField {
-    fn into_raw(field: GuidingField) -> *mut PgField {
-        Box::into_raw(Box::new(PgField {
+impl From<GuidingField> for PgField {
+    fn from(field: GuidingField) -> Self {
+        PgField {
             inner: Arc::new(RwLock::new(field)),
-        }))
+        }
     }
 }
 
 /// The radiance-target preset of a representation: the library's defaults
 /// (`GuidingConfig::for_representation`).
 fn preset(code: PgRepresentation) -> Result<GuidingConfig, Failure> {
-    let rep = Representation::from_code(code).ok_or_else(|| {
-        Failure::invalid(format!(
-            "representation {code} is not a PG_REPRESENTATION_* code (0 to 3)"
-        ))
-    })?;
+    let rep = Representation::from_code(code)
+        .ok_or_else(|| Failure::unknown_code("representation", code, "REPRESENTATION", "0 to 3"))?;
     Ok(GuidingConfig::for_representation(rep, Target::Radiance))
 }
 
@@ -94,20 +91,19 @@ fn device_of(args: &PgFieldArgs) -> Result<Option<(DeviceSelection, DeviceFailur
         PG_DEVICE_FAILURE_ERROR => DeviceFailure::Error,
         PG_DEVICE_FALLBACK_CPU => DeviceFailure::FallbackToCpu,
         f => {
-            return Err(Failure::invalid(format!(
-                "device_failure {f} is not a PG_DEVICE_FAILURE_* code (0 or 1)"
-            )))
+            return Err(Failure::unknown_code(
+                "device_failure",
+                f,
+                "DEVICE_FAILURE",
+                "0 or 1",
+            ))
         }
     };
     Ok(match args.device {
         PG_DEVICE_CPU => None,
         PG_DEVICE_VULKAN => Some((DeviceSelection::Auto, failure)),
         PG_DEVICE_VULKAN_GPU => Some((DeviceSelection::Gpu, failure)),
-        d => {
-            return Err(Failure::invalid(format!(
-                "device {d} is not a PG_DEVICE_* code (0 to 2)"
-            )))
-        }
+        d => return Err(Failure::unknown_code("device", d, "DEVICE", "0 to 2")),
     })
 }
 
@@ -116,11 +112,7 @@ fn config_of(args: &PgFieldArgs) -> Result<GuidingConfig, Failure> {
     let target = match args.target {
         PG_TARGET_RADIANCE => Target::Radiance,
         PG_TARGET_PRODUCT => Target::Product,
-        t => {
-            return Err(Failure::invalid(format!(
-                "target {t} is not a PG_TARGET_* code (0 or 1)"
-            )))
-        }
+        t => return Err(Failure::unknown_code("target", t, "TARGET", "0 or 1")),
     };
     let size = ModelSize::from_code(args.size).ok_or_else(|| {
         Failure::invalid(format!(
@@ -218,18 +210,10 @@ pub unsafe extern "C" fn pg_field_args_set_defaults(
     args: *mut PgFieldArgs,
     representation: PgRepresentation,
 ) -> PgStatus {
-    guard("pg_field_args_set_defaults", || {
-        // The target may be uninitialised: write it whole, never read it.
-        if args.is_null() {
-            return Err(Failure::null("args"));
-        }
-        if !args.is_aligned() {
-            return Err(Failure::invalid("args is misaligned"));
-        }
-        let value = args_of(&preset(representation)?, ([0.0; 3], [0.0; 3]));
-        // SAFETY: non-NULL, aligned, writable by contract.
-        unsafe { args.write(value) };
-        Ok(())
+    guard("pg_field_args_set_defaults", || unsafe {
+        ptr::write_whole(args, "args", || {
+            Ok(args_of(&preset(representation)?, ([0.0; 3], [0.0; 3])))
+        })
     })
 }
 
@@ -246,18 +230,17 @@ pub unsafe extern "C" fn pg_field_new(
     args: *const PgFieldArgs,
     out: *mut *mut PgField,
 ) -> PgStatus {
-    guard("pg_field_new", || {
-        let out = unsafe { ptr::as_mut(out, "out") }?;
-        *out = std::ptr::null_mut();
-        let args = unsafe { ptr::as_ref(args, "args") }?;
-        let config = config_of(args)?;
-        let device = device_of(args)?;
-        let mut field = GuidingField::new(config, args.bounds_min, args.bounds_max)?;
-        if let Some((selection, on_failure)) = device {
-            field.use_device(selection, on_failure)?;
-        }
-        *out = PgField::into_raw(field);
-        Ok(())
+    guard("pg_field_new", || unsafe {
+        ptr::new_handle(out, || {
+            let args = ptr::as_ref(args, "args")?;
+            let config = config_of(args)?;
+            let device = device_of(args)?;
+            let mut field = GuidingField::new(config, args.bounds_min, args.bounds_max)?;
+            if let Some((selection, on_failure)) = device {
+                field.use_device(selection, on_failure)?;
+            }
+            Ok(field.into())
+        })
     })
 }
 
@@ -270,12 +253,7 @@ pub unsafe extern "C" fn pg_field_new(
 /// yet released, and no other call may be using it.
 #[no_mangle]
 pub unsafe extern "C" fn pg_field_release(field: *mut PgField) {
-    guard_void("pg_field_release", || {
-        if !field.is_null() {
-            // SAFETY: a live handle made by Box::into_raw (caller's contract).
-            drop(unsafe { Box::from_raw(field) });
-        }
-    });
+    unsafe { ptr::release("pg_field_release", field) }
 }
 
 /// Writes the arguments the field was created with (its configuration and
@@ -288,12 +266,11 @@ pub unsafe extern "C" fn pg_field_get_args(
     field: *const PgField,
     out: *mut PgFieldArgs,
 ) -> PgStatus {
-    guard("pg_field_get_args", || {
-        let field = unsafe { ptr::as_ref(field, "field") }?;
-        let out = unsafe { ptr::as_mut(out, "out") }?;
-        let f = read(&field.inner)?;
-        *out = args_of(f.config(), f.bounds());
-        Ok(())
+    guard("pg_field_get_args", || unsafe {
+        ptr::read_into(field, "field", out, |field| {
+            let f = read(&field.inner)?;
+            Ok(args_of(f.config(), f.bounds()))
+        })
     })
 }
 
@@ -320,6 +297,25 @@ pub unsafe extern "C" fn pg_field_add_samples(
     })
 }
 
+/// The body of `pg_field_update*`: runs `train` on the field taken
+/// exclusively and writes its report to `*report` unless that is NULL.
+///
+/// # Safety
+/// `field` NULL or a live handle; `report` NULL or writable.
+unsafe fn update(
+    field: *const PgField,
+    report: *mut PgUpdateReport,
+    train: impl FnOnce(&mut GuidingField) -> Result<UpdateReport, GuidingError>,
+) -> Result<(), Failure> {
+    let field = unsafe { ptr::as_ref(field, "field") }?;
+    let report = unsafe { ptr::as_mut_opt(report, "report") }?;
+    let r = train(&mut *write(&field.inner)?)?;
+    if let Some(out) = report {
+        *out = r.into();
+    }
+    Ok(())
+}
+
 /// Runs one training iteration on the buffered samples (`steps_per_update`
 /// Adam steps), then clears the buffer. Does nothing once converged. A
 /// render that should train as the library's schedule does calls
@@ -337,14 +333,8 @@ pub unsafe extern "C" fn pg_field_update(
     field: *mut PgField,
     report: *mut PgUpdateReport,
 ) -> PgStatus {
-    guard("pg_field_update", || {
-        let field = unsafe { ptr::as_ref(field, "field") }?;
-        let report = unsafe { ptr::as_mut_opt(report, "report") }?;
-        let r = write(&field.inner)?.try_update()?;
-        if let Some(out) = report {
-            *out = r.into();
-        }
-        Ok(())
+    guard("pg_field_update", || unsafe {
+        update(field, report, GuidingField::try_update)
     })
 }
 
@@ -362,14 +352,8 @@ pub unsafe extern "C" fn pg_field_update_proportional(
     epochs: f32,
     report: *mut PgUpdateReport,
 ) -> PgStatus {
-    guard("pg_field_update_proportional", || {
-        let field = unsafe { ptr::as_ref(field, "field") }?;
-        let report = unsafe { ptr::as_mut_opt(report, "report") }?;
-        let r = write(&field.inner)?.try_update_proportional(epochs)?;
-        if let Some(out) = report {
-            *out = r.into();
-        }
-        Ok(())
+    guard("pg_field_update_proportional", || unsafe {
+        update(field, report, |f| f.try_update_proportional(epochs))
     })
 }
 
@@ -380,11 +364,8 @@ pub unsafe extern "C" fn pg_field_update_proportional(
 /// `field` must be NULL or a live handle; `out` NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn pg_field_is_converged(field: *const PgField, out: *mut bool) -> PgStatus {
-    guard("pg_field_is_converged", || {
-        let field = unsafe { ptr::as_ref(field, "field") }?;
-        let out = unsafe { ptr::as_mut(out, "out") }?;
-        *out = read(&field.inner)?.is_converged();
-        Ok(())
+    guard("pg_field_is_converged", || unsafe {
+        ptr::read_into(field, "field", out, |f| Ok(read(&f.inner)?.is_converged()))
     })
 }
 
@@ -409,11 +390,8 @@ pub unsafe extern "C" fn pg_field_stop_training(field: *mut PgField) -> PgStatus
 /// `field` must be NULL or a live handle; `out` NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn pg_field_stats(field: *const PgField, out: *mut PgFieldStats) -> PgStatus {
-    guard("pg_field_stats", || {
-        let field = unsafe { ptr::as_ref(field, "field") }?;
-        let out = unsafe { ptr::as_mut(out, "out") }?;
-        *out = read(&field.inner)?.stats().into();
-        Ok(())
+    guard("pg_field_stats", || unsafe {
+        ptr::read_into(field, "field", out, |f| Ok(read(&f.inner)?.stats().into()))
     })
 }
 
@@ -443,12 +421,10 @@ pub unsafe extern "C" fn pg_field_save(field: *const PgField, path: *const c_cha
 /// `path` must be NULL or a NUL-terminated string; `out` NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn pg_field_load(path: *const c_char, out: *mut *mut PgField) -> PgStatus {
-    guard("pg_field_load", || {
-        let out = unsafe { ptr::as_mut(out, "out") }?;
-        *out = std::ptr::null_mut();
-        let path = unsafe { ptr::path(path, "path") }?;
-        *out = PgField::into_raw(GuidingField::load(path)?);
-        Ok(())
+    guard("pg_field_load", || unsafe {
+        ptr::new_handle(out, || {
+            Ok(GuidingField::load(ptr::path(path, "path")?)?.into())
+        })
     })
 }
 

@@ -2,7 +2,7 @@
 //! misalignment, sizes beyond `isize::MAX` and overlapping outputs are
 //! reported as a [`Failure`] before any reference is made.
 
-use crate::status::{Failure, PgStatus};
+use crate::status::{guard_void, Failure, PgStatus};
 use std::ffi::{c_char, CStr};
 use std::mem::{align_of, size_of};
 
@@ -72,6 +72,79 @@ pub(crate) unsafe fn as_mut_opt<'a, T>(
     }
     // SAFETY: the caller's contract.
     unsafe { as_mut(p, what) }.map(Some)
+}
+
+/// Writes `value()` to `*p` whole, never reading or referencing the old
+/// contents (the caller's struct may be uninitialised, as with the
+/// `*_set_defaults` functions); `*p` is unchanged when `value` fails.
+///
+/// # Safety
+/// A non-NULL, aligned `p` must be writable for a `T`.
+pub(crate) unsafe fn write_whole<T>(
+    p: *mut T,
+    what: &str,
+    value: impl FnOnce() -> Result<T, Failure>,
+) -> Result<(), Failure> {
+    if p.is_null() {
+        return Err(Failure::null(what));
+    }
+    if !p.is_aligned() {
+        return Err(Failure::invalid(format!("{what} is misaligned")));
+    }
+    let value = value()?;
+    // SAFETY: non-NULL, aligned (checked), writable by the caller's contract.
+    unsafe { p.write(value) };
+    Ok(())
+}
+
+/// The body of an entry point that reads the handle `*handle` (named
+/// `what`) and writes one result to `*out`: `handle` is checked first, then
+/// `out`, then `value` runs; `*out` is written only when it succeeds.
+///
+/// # Safety
+/// As [`as_ref`] for `handle` and [`as_mut`] for `out`.
+pub(crate) unsafe fn read_into<H, T>(
+    handle: *const H,
+    what: &str,
+    out: *mut T,
+    value: impl FnOnce(&H) -> Result<T, Failure>,
+) -> Result<(), Failure> {
+    // SAFETY: the caller's contract.
+    let (handle, out) = unsafe { (as_ref(handle, what)?, as_mut(out, "out")?) };
+    *out = value(handle)?;
+    Ok(())
+}
+
+/// Stores a new handle, `make()` boxed, in `*out`; `*out` is NULL whenever
+/// `make` fails (or panics). The handle is the caller's, released once with
+/// [`release`].
+///
+/// # Safety
+/// As [`as_mut`] for `out`.
+pub(crate) unsafe fn new_handle<T>(
+    out: *mut *mut T,
+    make: impl FnOnce() -> Result<T, Failure>,
+) -> Result<(), Failure> {
+    // SAFETY: the caller's contract.
+    let out = unsafe { as_mut(out, "out") }?;
+    *out = std::ptr::null_mut();
+    *out = Box::into_raw(Box::new(make()?));
+    Ok(())
+}
+
+/// The body of the `*_release` entry point `name`: drops the handle made by
+/// [`new_handle`] (NULL: no-op) inside [`guard_void`].
+///
+/// # Safety
+/// `handle` must be NULL or a live handle from [`new_handle`] of this `T`
+/// that nothing uses afterwards.
+pub(crate) unsafe fn release<T>(name: &str, handle: *mut T) {
+    guard_void(name, || {
+        if !handle.is_null() {
+            // SAFETY: made by Box::into_raw (caller's contract).
+            drop(unsafe { Box::from_raw(handle) });
+        }
+    });
 }
 
 /// The `n` values at `p`; `p` may be NULL when `n == 0`.

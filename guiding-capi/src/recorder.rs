@@ -4,7 +4,7 @@
 
 use crate::field::{write, PgField};
 use crate::ptr;
-use crate::status::{guard, guard_void, PgStatus};
+use crate::status::{guard, PgStatus};
 use crate::types::PgPathVertex;
 use guiding::PathRecorder;
 
@@ -34,10 +34,8 @@ pub unsafe extern "C" fn pg_path_vertex_set_defaults(vertex: *mut PgPathVertex) 
 /// `out` must be NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn pg_recorder_new(out: *mut *mut PgRecorder) -> PgStatus {
-    guard("pg_recorder_new", || {
-        let out = unsafe { ptr::as_mut(out, "out") }?;
-        *out = Box::into_raw(Box::default());
-        Ok(())
+    guard("pg_recorder_new", || unsafe {
+        ptr::new_handle(out, || Ok(PgRecorder::default()))
     })
 }
 
@@ -47,12 +45,7 @@ pub unsafe extern "C" fn pg_recorder_new(out: *mut *mut PgRecorder) -> PgStatus 
 /// `recorder` must be NULL or a live handle that no other call is using.
 #[no_mangle]
 pub unsafe extern "C" fn pg_recorder_release(recorder: *mut PgRecorder) {
-    guard_void("pg_recorder_release", || {
-        if !recorder.is_null() {
-            // SAFETY: made by Box::into_raw (caller's contract).
-            drop(unsafe { Box::from_raw(recorder) });
-        }
-    });
+    unsafe { ptr::release("pg_recorder_release", recorder) }
 }
 
 /// Starts a new path (an unfinished previous path is discarded).
@@ -83,7 +76,7 @@ pub unsafe extern "C" fn pg_recorder_add_vertex(
     guard("pg_recorder_add_vertex", || {
         let r = unsafe { ptr::as_mut(recorder, "recorder") }?;
         let v = unsafe { ptr::as_ref(vertex, "vertex") }?;
-        r.inner.add_vertex(v.to_vertex());
+        r.inner.add_vertex((*v).into());
         Ok(())
     })
 }
@@ -146,10 +139,8 @@ pub unsafe extern "C" fn pg_recorder_sample_count(
     recorder: *const PgRecorder,
     out: *mut usize,
 ) -> PgStatus {
-    guard("pg_recorder_sample_count", || {
-        let r = unsafe { ptr::as_ref(recorder, "recorder") }?;
-        *unsafe { ptr::as_mut(out, "out") }? = r.inner.samples().len();
-        Ok(())
+    guard("pg_recorder_sample_count", || unsafe {
+        ptr::read_into(recorder, "recorder", out, |r| Ok(r.inner.samples().len()))
     })
 }
 

@@ -5,7 +5,7 @@
 
 use crate::field::{write, PgField};
 use crate::ptr;
-use crate::status::{guard, guard_void, Failure, PgStatus};
+use crate::status::{guard, Failure, PgStatus};
 use crate::types::PgUpdateReport;
 use guiding::{Budget, ScheduleOptions, StepRule, TrainingSchedule};
 use std::time::Instant;
@@ -107,11 +107,7 @@ fn options_of(args: &PgScheduleArgs) -> Result<(ScheduleOptions, Budget), Failur
     let steps = match args.step_rule {
         PG_STEP_RULE_TIME_SHARE => StepRule::TimeShare(args.step_value),
         PG_STEP_RULE_EPOCHS => StepRule::Epochs(args.step_value),
-        r => {
-            return Err(Failure::invalid(format!(
-                "step_rule {r} is not a PG_STEP_RULE_* code (0 or 1)"
-            )))
-        }
+        r => return Err(Failure::unknown_code("step_rule", r, "STEP_RULE", "0 or 1")),
     };
     let budget = match args.budget_kind {
         PG_BUDGET_SECONDS => Budget::Seconds(args.budget),
@@ -125,11 +121,7 @@ fn options_of(args: &PgScheduleArgs) -> Result<(ScheduleOptions, Budget), Failur
             }
             Budget::Spp(b as u32)
         }
-        k => {
-            return Err(Failure::invalid(format!(
-                "budget_kind {k} is not a PG_BUDGET_* code (0 or 1)"
-            )))
-        }
+        k => return Err(Failure::unknown_code("budget_kind", k, "BUDGET", "0 or 1")),
     };
     let options = ScheduleOptions {
         train_fraction: args.train_fraction,
@@ -152,17 +144,8 @@ fn options_of(args: &PgScheduleArgs) -> Result<(ScheduleOptions, Budget), Failur
 /// `args` must be NULL or point to writable memory for a `PgScheduleArgs`.
 #[no_mangle]
 pub unsafe extern "C" fn pg_schedule_args_set_defaults(args: *mut PgScheduleArgs) -> PgStatus {
-    guard("pg_schedule_args_set_defaults", || {
-        // The target may be uninitialised: write it whole, never read it.
-        if args.is_null() {
-            return Err(Failure::null("args"));
-        }
-        if !args.is_aligned() {
-            return Err(Failure::invalid("args is misaligned"));
-        }
-        // SAFETY: non-NULL, aligned, writable by contract.
-        unsafe { args.write(args_of(&ScheduleOptions::DEFAULT)) };
-        Ok(())
+    guard("pg_schedule_args_set_defaults", || unsafe {
+        ptr::write_whole(args, "args", || Ok(args_of(&ScheduleOptions::DEFAULT)))
     })
 }
 
@@ -179,14 +162,12 @@ pub unsafe extern "C" fn pg_schedule_new(
     args: *const PgScheduleArgs,
     out: *mut *mut PgSchedule,
 ) -> PgStatus {
-    guard("pg_schedule_new", || {
-        let out = unsafe { ptr::as_mut(out, "out") }?;
-        *out = std::ptr::null_mut();
-        let args = unsafe { ptr::as_ref(args, "args") }?;
-        let (options, budget) = options_of(args)?;
-        let inner = TrainingSchedule::new(options, budget)?;
-        *out = Box::into_raw(Box::new(PgSchedule { inner }));
-        Ok(())
+    guard("pg_schedule_new", || unsafe {
+        ptr::new_handle(out, || {
+            let (options, budget) = options_of(ptr::as_ref(args, "args")?)?;
+            let inner = TrainingSchedule::new(options, budget)?;
+            Ok(PgSchedule { inner })
+        })
     })
 }
 
@@ -196,12 +177,7 @@ pub unsafe extern "C" fn pg_schedule_new(
 /// `schedule` must be NULL or a live handle that no other call is using.
 #[no_mangle]
 pub unsafe extern "C" fn pg_schedule_release(schedule: *mut PgSchedule) {
-    guard_void("pg_schedule_release", || {
-        if !schedule.is_null() {
-            // SAFETY: made by Box::into_raw (caller's contract).
-            drop(unsafe { Box::from_raw(schedule) });
-        }
-    });
+    unsafe { ptr::release("pg_schedule_release", schedule) }
 }
 
 /// Writes to `*out` whether work that starts now belongs to the training phase:
@@ -294,14 +270,13 @@ pub unsafe extern "C" fn pg_schedule_paths_before_update(
     pass_paths: u64,
     out: *mut u64,
 ) -> PgStatus {
-    guard("pg_schedule_paths_before_update", || {
-        let s = unsafe { ptr::as_ref(schedule, "schedule") }?;
-        let out = unsafe { ptr::as_mut(out, "out") }?;
-        if pass_paths == 0 {
-            return Err(Failure::invalid("pass_paths is 0 (a pass has >= 1 path)"));
-        }
-        *out = s.inner.paths_before_update(pass_paths);
-        Ok(())
+    guard("pg_schedule_paths_before_update", || unsafe {
+        ptr::read_into(schedule, "schedule", out, |s| {
+            if pass_paths == 0 {
+                return Err(Failure::invalid("pass_paths is 0 (a pass has >= 1 path)"));
+            }
+            Ok(s.inner.paths_before_update(pass_paths))
+        })
     })
 }
 
@@ -314,21 +289,20 @@ pub unsafe extern "C" fn pg_schedule_report(
     schedule: *const PgSchedule,
     out: *mut PgScheduleReport,
 ) -> PgStatus {
-    guard("pg_schedule_report", || {
-        let s = unsafe { ptr::as_ref(schedule, "schedule") }?;
-        let out = unsafe { ptr::as_mut(out, "out") }?;
-        let r = s.inner.report();
-        *out = PgScheduleReport {
-            traced_seconds: r.traced_seconds,
-            trained_seconds: r.trained_seconds,
-            steps: r.steps,
-            updates: r.updates,
-            seconds_per_step: r.seconds_per_step,
-            training_share: r.training_share(),
-            training_over: u32::from(s.inner.training_over()),
-            pad: 0,
-        };
-        Ok(())
+    guard("pg_schedule_report", || unsafe {
+        ptr::read_into(schedule, "schedule", out, |s| {
+            let r = s.inner.report();
+            Ok(PgScheduleReport {
+                traced_seconds: r.traced_seconds,
+                trained_seconds: r.trained_seconds,
+                steps: r.steps,
+                updates: r.updates,
+                seconds_per_step: r.seconds_per_step,
+                training_share: r.training_share(),
+                training_over: u32::from(s.inner.training_over()),
+                pad: 0,
+            })
+        })
     })
 }
 

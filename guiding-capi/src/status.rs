@@ -66,6 +66,14 @@ impl Failure {
     pub fn invalid(message: impl Into<String>) -> Self {
         Self::new(PgStatus::PG_INVALID_ARGUMENT, message)
     }
+
+    /// An argument `what` whose value `code` is none of the `PG_<family>_*`
+    /// codes (`codes`: their range, e.g. "0 or 1").
+    pub fn unknown_code(what: &str, code: u32, family: &str, codes: &str) -> Self {
+        Self::invalid(format!(
+            "{what} {code} is not a PG_{family}_* code ({codes})"
+        ))
+    }
 }
 
 impl From<GuidingError> for Failure {

@@ -274,10 +274,13 @@ impl PgPathVertex {
     /// The defaults of the Rust `PathVertex` (zeros, roughness, MIS weight
     /// and continuation scale 1).
     pub(crate) fn defaults() -> Self {
-        Self::from_vertex(&PathVertex::default())
+        PathVertex::default().into()
     }
+}
 
-    fn from_vertex(v: &PathVertex) -> Self {
+impl From<PathVertex> for PgPathVertex {
+    /// `is_delta` becomes 0 or 1.
+    fn from(v: PathVertex) -> Self {
         Self {
             position: v.position,
             roughness: v.roughness,
@@ -295,22 +298,25 @@ impl PgPathVertex {
             pad: 0.0,
         }
     }
+}
 
-    pub(crate) fn to_vertex(self) -> PathVertex {
-        PathVertex {
-            position: self.position,
-            normal: self.normal,
-            wo: self.wo,
-            roughness: self.roughness,
-            emitted: self.emitted,
-            emitted_mis_weight: self.emitted_mis_weight,
-            direct: self.direct,
-            wi: self.wi,
-            sample_pdf: self.sample_pdf,
-            bsdf_pdf: self.bsdf_pdf,
-            bsdf_cos: self.bsdf_cos,
-            continuation_scale: self.continuation_scale,
-            is_delta: self.is_delta != 0,
+impl From<PgPathVertex> for PathVertex {
+    /// Any non-zero `is_delta` is a delta vertex.
+    fn from(v: PgPathVertex) -> Self {
+        Self {
+            position: v.position,
+            normal: v.normal,
+            wo: v.wo,
+            roughness: v.roughness,
+            emitted: v.emitted,
+            emitted_mis_weight: v.emitted_mis_weight,
+            direct: v.direct,
+            wi: v.wi,
+            sample_pdf: v.sample_pdf,
+            bsdf_pdf: v.bsdf_pdf,
+            bsdf_cos: v.bsdf_cos,
+            continuation_scale: v.continuation_scale,
+            is_delta: v.is_delta != 0,
         }
     }
 }

@@ -44,6 +44,12 @@ fn expect(status: PgStatus, want: PgStatus, function: &str, needle: &str) {
     }
 }
 
+/// [`expect`] of `PG_OK` (and an empty message).
+#[track_caller]
+fn expect_ok(status: PgStatus) {
+    expect(status, PG_OK, "", "");
+}
+
 fn args(representation: PgRepresentation) -> PgFieldArgs {
     let mut a = std::mem::MaybeUninit::<PgFieldArgs>::uninit();
     // SAFETY: set_defaults writes the whole struct.
@@ -93,6 +99,32 @@ fn new_distributions() -> *mut PgDistributions {
     // SAFETY: valid pointer.
     assert_eq!(unsafe { pg_distributions_new(&mut d) }, PG_OK);
     d
+}
+
+/// A field of the given arguments and an empty distributions handle, both
+/// released on drop (also when an assertion fails).
+struct FieldAndDistributions {
+    field: *mut PgField,
+    d: *mut PgDistributions,
+}
+
+impl FieldAndDistributions {
+    fn new(a: &PgFieldArgs) -> Self {
+        Self {
+            field: new_field(a),
+            d: new_distributions(),
+        }
+    }
+}
+
+impl Drop for FieldAndDistributions {
+    fn drop(&mut self) {
+        // SAFETY: live handles, released once.
+        unsafe {
+            pg_distributions_release(self.d);
+            pg_field_release(self.field);
+        }
+    }
 }
 
 fn random_query(rng: &mut Pcg32) -> PgQueryPoint {
@@ -157,6 +189,57 @@ fn stats(field: *const PgField) -> PgFieldStats {
     s
 }
 
+/// `pg_field_sample` on these arrays; `n` may exceed them only where the
+/// call must refuse it before any access.
+unsafe fn field_sample(
+    f: *const PgField,
+    n: usize,
+    q: &[PgQueryPoint],
+    u: &[f32],
+    d: &mut [f32],
+    p: &mut [f32],
+) -> PgStatus {
+    // SAFETY: the caller's contract.
+    unsafe { pg_field_sample(f, n, q.as_ptr(), u.as_ptr(), d.as_mut_ptr(), p.as_mut_ptr()) }
+}
+
+/// `pg_distributions_sample` on these arrays, as [`field_sample`].
+unsafe fn dist_sample(
+    d: *const PgDistributions,
+    n: usize,
+    u: &[f32],
+    dirs: &mut [f32],
+    pdfs: &mut [f32],
+) -> PgStatus {
+    // SAFETY: the caller's contract.
+    unsafe { pg_distributions_sample(d, n, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()) }
+}
+
+/// Asserts that the three `pg_distributions_*` readers on the first `n` of
+/// `d` fail with `want` and a message containing `needle`, outputs untouched.
+unsafe fn expect_readers_refuse(d: *const PgDistributions, n: usize, want: PgStatus, needle: &str) {
+    let (u, unit) = (vec![0.5f32; 2 * n], [0.0f32, 0.0, 1.0].repeat(n));
+    let (mut dirs, mut pdfs) = (vec![0.0f32; 3 * n], vec![0.0f32; n]);
+    // SAFETY: arrays of the stated lengths; `d` is the caller's.
+    unsafe {
+        let sample = dist_sample(d, n, &u, &mut dirs, &mut pdfs);
+        expect(sample, want, "pg_distributions_sample", needle);
+        let pdf = pg_distributions_pdf(d, n, unit.as_ptr(), pdfs.as_mut_ptr());
+        expect(pdf, want, "pg_distributions_pdf", needle);
+        let selection = pg_distributions_selection_probability(d, n, pdfs.as_mut_ptr());
+        expect(
+            selection,
+            want,
+            "pg_distributions_selection_probability",
+            needle,
+        );
+    }
+    assert!(
+        dirs.iter().chain(&pdfs).all(|&x| x == 0.0),
+        "outputs untouched"
+    );
+}
+
 #[test]
 fn version_and_last_error() {
     // SAFETY: static NUL-terminated string.
@@ -200,8 +283,8 @@ macro_rules! refuses_null {
 #[test]
 fn every_null_pointer_is_refused_and_releases_accept_null() {
     let a = args(PG_REPRESENTATION_NPM);
-    let field = new_field(&a);
-    let d = new_distributions();
+    let handles = FieldAndDistributions::new(&a);
+    let (field, d) = (handles.field, handles.d);
     let mut rec = null_mut();
     let path = CString::new("unused.guide").unwrap();
     let (mut out_f, mut flag, mut len) = (null_mut(), false, 0usize);
@@ -306,123 +389,67 @@ fn every_null_pointer_is_refused_and_releases_accept_null() {
         pg_distributions_release(null_mut());
         pg_recorder_release(null_mut());
         pg_recorder_release(rec);
-        pg_distributions_release(d);
-        pg_field_release(field);
     }
 }
 
 #[test]
 fn zero_counts_accept_null_arrays() {
-    let field = new_field(&args(PG_REPRESENTATION_NPM));
-    let d = new_distributions();
+    let handles = FieldAndDistributions::new(&args(PG_REPRESENTATION_NPM));
+    let (field, d) = (handles.field, handles.d);
     let mut len = 7;
     // SAFETY: n = 0 with NULL arrays is allowed.
     unsafe {
-        expect(pg_field_add_samples(field, null(), 0), PG_OK, "", "");
-        expect(pg_field_query(field, 0, null(), d), PG_OK, "", "");
+        expect_ok(pg_field_add_samples(field, null(), 0));
+        expect_ok(pg_field_query(field, 0, null(), d));
         assert_eq!(pg_distributions_len(d, &mut len), PG_OK);
         assert_eq!(len, 0);
-        expect(
-            pg_field_sample(field, 0, null(), null(), null_mut(), null_mut()),
-            PG_OK,
-            "",
-            "",
-        );
-        expect(
-            pg_field_pdf(field, 0, null(), null(), null_mut()),
-            PG_OK,
-            "",
-            "",
-        );
-        expect(
-            pg_field_selection_probability(field, 0, null(), null_mut()),
-            PG_OK,
-            "",
-            "",
-        );
-        expect(
-            pg_distributions_sample(d, 0, null(), null_mut(), null_mut()),
-            PG_OK,
-            "",
-            "",
-        );
-        expect(
-            pg_distributions_pdf(d, 0, null(), null_mut()),
-            PG_OK,
-            "",
-            "",
-        );
-        expect(
-            pg_distributions_selection_probability(d, 0, null_mut()),
-            PG_OK,
-            "",
-            "",
-        );
+        expect_ok(pg_field_sample(
+            field,
+            0,
+            null(),
+            null(),
+            null_mut(),
+            null_mut(),
+        ));
+        expect_ok(pg_field_pdf(field, 0, null(), null(), null_mut()));
+        expect_ok(pg_field_selection_probability(field, 0, null(), null_mut()));
+        expect_ok(pg_distributions_sample(
+            d,
+            0,
+            null(),
+            null_mut(),
+            null_mut(),
+        ));
+        expect_ok(pg_distributions_pdf(d, 0, null(), null_mut()));
+        expect_ok(pg_distributions_selection_probability(d, 0, null_mut()));
         // Nothing was buffered, nothing trained: no step, no new generation.
         let mut report = PgUpdateReport::default();
         assert_eq!(pg_field_update(field, &mut report), PG_OK);
         assert_eq!(report.steps, 0);
         assert_eq!(stats(field).generation, 0);
-        pg_distributions_release(d);
-        pg_field_release(field);
     }
 }
 
 #[test]
 fn counts_beyond_a_handle_or_memory_are_refused() {
-    let field = new_field(&args(PG_REPRESENTATION_NPM));
-    let d = new_distributions();
+    let handles = FieldAndDistributions::new(&args(PG_REPRESENTATION_NPM));
+    let (field, d) = (handles.field, handles.d);
     let mut rng = Pcg32::new(1, 1);
     let q: Vec<_> = (0..4).map(|_| random_query(&mut rng)).collect();
     let (u, mut dirs, mut pdfs) = ([0.5f32; 10], [0.0f32; 15], [0.0f32; 5]);
-    let unit = [0.0f32, 0.0, 1.0].repeat(5);
     // SAFETY: arrays hold at least n elements where a call may read them.
     unsafe {
         // A fresh handle holds nothing.
-        expect(
-            pg_distributions_sample(d, 1, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
-            PG_SIZE_MISMATCH,
-            "pg_distributions_sample",
-            "hold 0",
-        );
+        expect_readers_refuse(d, 1, PG_SIZE_MISMATCH, "n = 1 but the distributions hold 0");
         assert_eq!(pg_field_query(field, 4, q.as_ptr(), d), PG_OK);
-        expect(
-            pg_distributions_sample(d, 5, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
-            PG_SIZE_MISMATCH,
-            "pg_distributions_sample",
-            "n = 5 but the distributions hold 4",
-        );
-        expect(
-            pg_distributions_pdf(d, 5, unit.as_ptr(), pdfs.as_mut_ptr()),
-            PG_SIZE_MISMATCH,
-            "pg_distributions_pdf",
-            "hold 4",
-        );
-        expect(
-            pg_distributions_selection_probability(d, 5, pdfs.as_mut_ptr()),
-            PG_SIZE_MISMATCH,
-            "pg_distributions_selection_probability",
-            "hold 4",
-        );
-        // The outputs were not touched.
-        assert!(pdfs.iter().all(|&p| p == 0.0));
+        expect_readers_refuse(d, 5, PG_SIZE_MISMATCH, "n = 5 but the distributions hold 4");
         // Fewer than held is fine.
-        assert_eq!(
-            pg_distributions_sample(d, 3, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
-            PG_OK
-        );
+        assert_eq!(dist_sample(d, 3, &u, &mut dirs, &mut pdfs), PG_OK);
         assert!(pdfs[..3].iter().all(|&p| p > 0.0) && pdfs[3] == 0.0);
         // Counts whose byte size overflows are refused before any access.
         for n in [usize::MAX, usize::MAX / 2, usize::MAX / 8] {
             expect(
-                pg_field_sample(
-                    field,
-                    n,
-                    q.as_ptr(),
-                    u.as_ptr(),
-                    dirs.as_mut_ptr(),
-                    pdfs.as_mut_ptr(),
-                ),
+                field_sample(field, n, &q, &u, &mut dirs, &mut pdfs),
                 PG_INVALID_ARGUMENT,
                 "pg_field_sample",
                 "",
@@ -434,8 +461,6 @@ fn counts_beyond_a_handle_or_memory_are_refused() {
                 "do not fit in memory",
             );
         }
-        pg_distributions_release(d);
-        pg_field_release(field);
     }
 }
 
@@ -555,8 +580,8 @@ fn invalid_arguments_are_refused_with_messages() {
             "invalid scene bounds",
         );
 
-        let field = new_field(&a);
-        let d = new_distributions();
+        let handles = FieldAndDistributions::new(&a);
+        let (field, d) = (handles.field, handles.d);
         let mut rng = Pcg32::new(2, 2);
         let mut q: Vec<_> = (0..3).map(|_| random_query(&mut rng)).collect();
         let (mut u, mut dirs, mut pdfs) = ([0.5f32; 6], [0.0f32; 9], [0.0f32; 3]);
@@ -574,14 +599,7 @@ fn invalid_arguments_are_refused_with_messages() {
         q[2].position[1] = 0.0;
         q[0].wo[2] = f32::INFINITY;
         expect(
-            pg_field_sample(
-                field,
-                3,
-                q.as_ptr(),
-                u.as_ptr(),
-                dirs.as_mut_ptr(),
-                pdfs.as_mut_ptr(),
-            ),
+            field_sample(field, 3, &q, &u, &mut dirs, &mut pdfs),
             PG_INVALID_ARGUMENT,
             "pg_field_sample",
             "queries[0]",
@@ -591,14 +609,7 @@ fn invalid_arguments_are_refused_with_messages() {
         for bad in [f32::NAN, -0.1, 1.5] {
             u[3] = bad;
             expect(
-                pg_field_sample(
-                    field,
-                    3,
-                    q.as_ptr(),
-                    u.as_ptr(),
-                    dirs.as_mut_ptr(),
-                    pdfs.as_mut_ptr(),
-                ),
+                field_sample(field, 3, &q, &u, &mut dirs, &mut pdfs),
                 PG_INVALID_ARGUMENT,
                 "pg_field_sample",
                 "u[3]",
@@ -606,14 +617,7 @@ fn invalid_arguments_are_refused_with_messages() {
         }
         u[3] = 1.0; // the closed end is accepted
         assert_eq!(
-            pg_field_sample(
-                field,
-                3,
-                q.as_ptr(),
-                u.as_ptr(),
-                dirs.as_mut_ptr(),
-                pdfs.as_mut_ptr()
-            ),
+            field_sample(field, 3, &q, &u, &mut dirs, &mut pdfs),
             PG_OK,
             "{}",
             last()
@@ -664,20 +668,18 @@ fn invalid_arguments_are_refused_with_messages() {
             PG_OK
         );
         // Paths: empty, and a directory that does not exist.
-        let empty = CString::new("").unwrap();
-        expect(
-            pg_field_save(field, empty.as_ptr()),
-            PG_INVALID_ARGUMENT,
-            "pg_field_save",
-            "empty",
-        );
-        let nowhere = CString::new("/nonexistent/dir/field.guide").unwrap();
-        expect(
-            pg_field_save(field, nowhere.as_ptr()),
-            PG_IO,
-            "pg_field_save",
-            "nonexistent",
-        );
+        let nowhere = c"/nonexistent/dir/field.guide";
+        for (path, want, needle) in [
+            (c"", PG_INVALID_ARGUMENT, "empty"),
+            (nowhere, PG_IO, "nonexistent"),
+        ] {
+            expect(
+                pg_field_save(field, path.as_ptr()),
+                want,
+                "pg_field_save",
+                needle,
+            );
+        }
         let mut loaded = std::ptr::NonNull::<PgField>::dangling().as_ptr();
         expect(
             pg_field_load(nowhere.as_ptr(), &mut loaded),
@@ -686,8 +688,6 @@ fn invalid_arguments_are_refused_with_messages() {
             "",
         );
         assert!(loaded.is_null());
-        pg_distributions_release(d);
-        pg_field_release(field);
     }
 }
 
@@ -703,12 +703,7 @@ fn invalid_training_samples_are_counted_not_errors() {
     s[4].wi = [0.0, 0.0, 2.0]; // non-unit
                                // SAFETY: valid arrays.
     unsafe {
-        expect(
-            pg_field_add_samples(field, s.as_ptr(), s.len()),
-            PG_OK,
-            "",
-            "",
-        );
+        expect_ok(pg_field_add_samples(field, s.as_ptr(), s.len()));
     }
     let st = stats(field);
     assert_eq!(st.rejected_samples, [2, 1, 1, 1]);
@@ -750,17 +745,7 @@ fn invalid_training_samples_are_counted_not_errors() {
         assert_eq!((report.steps, report.skipped_steps), (2, 0));
         let q = [random_query(&mut rng)];
         let (u, mut dir, mut pdf) = ([0.3f32, 0.6], [0.0f32; 3], [0.0f32]);
-        assert_eq!(
-            pg_field_sample(
-                field,
-                1,
-                q.as_ptr(),
-                u.as_ptr(),
-                dir.as_mut_ptr(),
-                pdf.as_mut_ptr()
-            ),
-            PG_OK
-        );
+        assert_eq!(field_sample(field, 1, &q, &u, &mut dir, &mut pdf), PG_OK);
         assert!(pdf[0].is_finite() && pdf[0] > 0.0);
         pg_recorder_release(rec);
         pg_field_release(field);
@@ -808,17 +793,7 @@ fn c_results_equal_the_rust_api_for_every_representation() {
         let d = new_distributions();
         // SAFETY: arrays of the stated lengths.
         unsafe {
-            assert_eq!(
-                pg_field_sample(
-                    field,
-                    n,
-                    q.as_ptr(),
-                    u.as_ptr(),
-                    dirs.as_mut_ptr(),
-                    pdfs.as_mut_ptr()
-                ),
-                PG_OK
-            );
+            assert_eq!(field_sample(field, n, &q, &u, &mut dirs, &mut pdfs), PG_OK);
             assert_eq!(
                 pg_field_pdf(field, n, q.as_ptr(), dirs.as_ptr(), f_eval.as_mut_ptr()),
                 PG_OK
@@ -828,10 +803,7 @@ fn c_results_equal_the_rust_api_for_every_representation() {
                 PG_OK
             );
             assert_eq!(pg_field_query(field, n, q.as_ptr(), d), PG_OK);
-            assert_eq!(
-                pg_distributions_sample(d, n, u.as_ptr(), d_dirs.as_mut_ptr(), d_pdfs.as_mut_ptr()),
-                PG_OK
-            );
+            assert_eq!(dist_sample(d, n, &u, &mut d_dirs, &mut d_pdfs), PG_OK);
             assert_eq!(
                 pg_distributions_pdf(d, n, dirs.as_ptr(), d_eval.as_mut_ptr()),
                 PG_OK
@@ -946,20 +918,8 @@ fn recorder_matches_the_rust_path_recorder() {
             }
             for v in &vertices {
                 let c = PgPathVertex {
-                    position: v.position,
-                    roughness: v.roughness,
-                    normal: v.normal,
-                    sample_pdf: v.sample_pdf,
-                    wo: v.wo,
-                    bsdf_pdf: v.bsdf_pdf,
-                    wi: v.wi,
-                    emitted_mis_weight: v.emitted_mis_weight,
-                    emitted: v.emitted,
-                    continuation_scale: v.continuation_scale,
-                    direct: v.direct,
                     is_delta: u32::from(v.is_delta) * 5, // any non-zero
-                    bsdf_cos: v.bsdf_cos,
-                    pad: 0.0,
+                    ..PgPathVertex::from(*v)
                 };
                 assert_eq!(pg_recorder_add_vertex(rec, &c), PG_OK);
             }
@@ -1067,33 +1027,10 @@ fn stale_distributions_training_stop_and_field_lifetime() {
         let mut report = PgUpdateReport::default();
         assert_eq!(pg_field_update(field, &mut report), PG_OK);
         assert_eq!(report.steps, 0);
-        assert_eq!(
-            pg_distributions_sample(d, 8, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
-            PG_OK
-        );
+        assert_eq!(dist_sample(d, 8, &u, &mut dirs, &mut pdfs), PG_OK);
         // An update that applies steps makes them stale: every reader says so.
         assert_eq!(train(field, &mut rng, 200).steps, 2);
-        pdfs = [0.0; 8];
-        expect(
-            pg_distributions_sample(d, 8, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
-            PG_STALE,
-            "pg_distributions_sample",
-            "stale",
-        );
-        assert_eq!(pdfs, [0.0; 8], "outputs untouched");
-        let unit = [0.0f32, 0.0, 1.0].repeat(8);
-        expect(
-            pg_distributions_pdf(d, 8, unit.as_ptr(), pdfs.as_mut_ptr()),
-            PG_STALE,
-            "pg_distributions_pdf",
-            "stale",
-        );
-        expect(
-            pg_distributions_selection_probability(d, 8, pdfs.as_mut_ptr()),
-            PG_STALE,
-            "pg_distributions_selection_probability",
-            "stale",
-        );
+        expect_readers_refuse(d, 8, PG_STALE, "stale");
         // n = 0 on stale distributions is still fine (nothing is read).
         assert_eq!(
             pg_distributions_sample(d, 0, null(), null_mut(), null_mut()),
@@ -1106,22 +1043,13 @@ fn stale_distributions_training_stop_and_field_lifetime() {
         let mut len = 0;
         assert_eq!(pg_distributions_len(d, &mut len), PG_OK);
         assert_eq!(len, 3);
-        assert_eq!(
-            pg_distributions_sample(d, 3, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
-            PG_OK
-        );
+        assert_eq!(dist_sample(d, 3, &u, &mut dirs, &mut pdfs), PG_OK);
         assert_eq!(pg_field_query(other, 8, q.as_ptr(), d), PG_OK);
-        assert_eq!(
-            pg_distributions_sample(d, 8, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
-            PG_OK
-        );
+        assert_eq!(dist_sample(d, 8, &u, &mut dirs, &mut pdfs), PG_OK);
         // Releasing the field first: the distributions keep it alive.
         let before = pdfs;
         pg_field_release(other);
-        assert_eq!(
-            pg_distributions_sample(d, 8, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
-            PG_OK
-        );
+        assert_eq!(dist_sample(d, 8, &u, &mut dirs, &mut pdfs), PG_OK);
         assert_eq!(pdfs, before);
         // Stopping training: samples are ignored (counted), updates do
         // nothing, queries go on.
@@ -1145,10 +1073,7 @@ fn stale_distributions_training_stop_and_field_lifetime() {
             (100, gen, 1)
         );
         assert_eq!(pg_field_query(field, 8, q.as_ptr(), d), PG_OK);
-        assert_eq!(
-            pg_distributions_sample(d, 8, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
-            PG_OK
-        );
+        assert_eq!(dist_sample(d, 8, &u, &mut dirs, &mut pdfs), PG_OK);
         pg_field_release(field);
         pg_distributions_release(d);
     }
@@ -1172,24 +1097,15 @@ fn save_load_round_trip_and_corrupt_files() {
     let sample = |f: *const PgField| {
         let (mut dirs, mut pdfs) = (vec![0.0f32; 3 * n], vec![0.0f32; n]);
         // SAFETY: arrays of the stated lengths.
-        let s = unsafe {
-            pg_field_sample(
-                f,
-                n,
-                q.as_ptr(),
-                u.as_ptr(),
-                dirs.as_mut_ptr(),
-                pdfs.as_mut_ptr(),
-            )
-        };
+        let s = unsafe { field_sample(f, n, &q, &u, &mut dirs, &mut pdfs) };
         assert_eq!(s, PG_OK);
         (dirs, pdfs)
     };
     // SAFETY: live handles, NUL-terminated path.
     unsafe {
-        expect(pg_field_save(field, cpath.as_ptr()), PG_OK, "", "");
+        expect_ok(pg_field_save(field, cpath.as_ptr()));
         let mut loaded = null_mut();
-        expect(pg_field_load(cpath.as_ptr(), &mut loaded), PG_OK, "", "");
+        expect_ok(pg_field_load(cpath.as_ptr(), &mut loaded));
         assert_eq!(sample(field), sample(loaded));
         let mut back = a;
         assert_eq!(pg_field_get_args(loaded, &mut back), PG_OK);
@@ -1261,23 +1177,10 @@ fn queries_from_many_threads_during_updates() {
                     for _ in 0..20 {
                         // SAFETY: live handles, arrays of the stated lengths.
                         unsafe {
-                            let s = pg_field_sample(
-                                field.0,
-                                64,
-                                q.as_ptr(),
-                                u.as_ptr(),
-                                dirs.as_mut_ptr(),
-                                pdfs.as_mut_ptr(),
-                            );
+                            let s = field_sample(field.0, 64, q, u, &mut dirs, &mut pdfs);
                             assert_eq!(s, PG_OK, "{}", last());
                             assert!(pdfs.iter().all(|p| p.is_finite() && *p > 0.0));
-                            match pg_distributions_sample(
-                                d.0,
-                                64,
-                                u.as_ptr(),
-                                dirs.as_mut_ptr(),
-                                pdfs.as_mut_ptr(),
-                            ) {
+                            match dist_sample(d.0, 64, u, &mut dirs, &mut pdfs) {
                                 PG_OK => counts.0 += 1,
                                 PG_STALE => counts.1 += 1,
                                 other => panic!("{other:?}: {}", last()),
@@ -1307,10 +1210,7 @@ fn queries_from_many_threads_during_updates() {
     let (mut dirs, mut pdfs) = (vec![0.0f32; 192], vec![0.0f32; 64]);
     // SAFETY: live handles.
     unsafe {
-        assert_eq!(
-            pg_distributions_sample(d.0, 64, u.as_ptr(), dirs.as_mut_ptr(), pdfs.as_mut_ptr()),
-            PG_STALE
-        );
+        assert_eq!(dist_sample(d.0, 64, &u, &mut dirs, &mut pdfs), PG_STALE);
         pg_distributions_release(d.0);
         pg_field_release(field.0);
     }
@@ -1760,12 +1660,7 @@ fn schedule_arguments_out_of_range_are_refused() {
         assert_eq!(n, 7, "out untouched on failure");
         let r = schedule_report(s);
         assert_eq!((r.traced_seconds, r.training_over), (0.0, 0));
-        expect(
-            pg_schedule_in_training_phase(s, 1.0, 0, &mut flag),
-            PG_OK,
-            "",
-            "",
-        );
+        expect_ok(pg_schedule_in_training_phase(s, 1.0, 0, &mut flag));
         assert!(flag, "1 s of 10 at a training fraction of 0.2");
         // Misaligned args.
         let mut raw = [0u64; 16];
@@ -1908,17 +1803,7 @@ fn scheduled_c_loop_equals_the_rust_schedule() {
     let (mut dirs, mut pdfs) = ([0.0f32; 48], [0.0f32; 16]);
     // SAFETY: arrays of the stated lengths.
     unsafe {
-        assert_eq!(
-            pg_field_sample(
-                field,
-                16,
-                q.as_ptr(),
-                u.as_ptr(),
-                dirs.as_mut_ptr(),
-                pdfs.as_mut_ptr()
-            ),
-            PG_OK
-        );
+        assert_eq!(field_sample(field, 16, &q, &u, &mut dirs, &mut pdfs), PG_OK);
         pg_schedule_release(sched);
         pg_field_release(field);
     }

@@ -583,22 +583,41 @@ fn directions(r: &mut ByteReader<'_>, n: usize) -> (Vec<f32>, bool) {
     (d, valid)
 }
 
+/// The output arrays of a sampling call on `n` lanes, NaN until the call
+/// writes them.
+struct SampleOutputs {
+    dirs: Vec<f32>,
+    pdfs: Vec<f32>,
+}
+
+impl SampleOutputs {
+    fn new(n: usize) -> Self {
+        Self {
+            dirs: vec![f32::NAN; 3 * n],
+            pdfs: vec![f32::NAN; n],
+        }
+    }
+
+    /// The call's outcome `st`: random numbers `u` outside `[0, 1]` are
+    /// never accepted, and on success every lane holds a valid sample.
+    fn check(&self, what: &str, st: PgStatus, u: &[f32], valid_u: bool) {
+        if !valid_u {
+            assert_ne!(st, PgStatus::PG_OK, "{what}: invalid u accepted: {u:?}");
+        }
+        if st == PgStatus::PG_OK {
+            check_samples(what, &self.dirs, &self.pdfs);
+        }
+    }
+}
+
 fn op_dist_sample(r: &mut ByteReader<'_>, s: &State, slot: usize, dist: *mut PgDistributions) {
     let n = usize::from(r.byte()) % (MAX_N + 2);
     let (u, valid) = random_numbers(r, 2 * n);
     let null_pdfs = r.byte() % 16 == 0;
-    let mut dirs = vec![f32::NAN; 3 * n];
-    let mut pdfs = vec![f32::NAN; n];
+    let mut out = SampleOutputs::new(n);
+    let (dirs, pdfs) = (out.dirs.as_mut_ptr(), mut_or_null(&mut out.pdfs, null_pdfs));
     let st = check(
-        unsafe {
-            pg_distributions_sample(
-                dist,
-                n,
-                u.as_ptr(),
-                dirs.as_mut_ptr(),
-                mut_or_null(&mut pdfs, null_pdfs),
-            )
-        },
+        unsafe { pg_distributions_sample(dist, n, u.as_ptr(), dirs, pdfs) },
         "pg_distributions_sample",
     );
     let null_array = null_pdfs && n > 0;
@@ -607,12 +626,7 @@ fn op_dist_sample(r: &mut ByteReader<'_>, s: &State, slot: usize, dist: *mut PgD
         return;
     }
     expect_size(st, dist, n, s.held[slot], valid);
-    if !valid && !dist.is_null() {
-        assert_ne!(st, PgStatus::PG_OK, "invalid u accepted: {u:?}");
-    }
-    if st == PgStatus::PG_OK {
-        check_samples("distributions", &dirs, &pdfs);
-    }
+    out.check("distributions", st, &u, valid);
 }
 
 fn op_dist_pdf(r: &mut ByteReader<'_>, s: &State, slot: usize, dist: *mut PgDistributions) {
@@ -633,28 +647,14 @@ fn op_field_sample(r: &mut ByteReader<'_>, field: *mut PgField) {
     let n = usize::from(r.byte()) % (MAX_N + 1);
     let q: Vec<_> = (0..n).map(|_| r.c_query()).collect();
     let (u, valid_u) = random_numbers(r, 2 * n);
-    let mut dirs = vec![f32::NAN; 3 * n];
-    let mut pdfs = vec![f32::NAN; n];
+    let mut out = SampleOutputs::new(n);
+    let (dirs, pdfs) = (out.dirs.as_mut_ptr(), out.pdfs.as_mut_ptr());
     let st = check(
-        unsafe {
-            pg_field_sample(
-                field,
-                n,
-                q.as_ptr(),
-                u.as_ptr(),
-                dirs.as_mut_ptr(),
-                pdfs.as_mut_ptr(),
-            )
-        },
+        unsafe { pg_field_sample(field, n, q.as_ptr(), u.as_ptr(), dirs, pdfs) },
         "pg_field_sample",
     );
     expect_null(st, field.is_null());
-    if !valid_u {
-        assert_ne!(st, PgStatus::PG_OK, "invalid u accepted: {u:?}");
-    }
-    if st == PgStatus::PG_OK {
-        check_samples("field", &dirs, &pdfs);
-    }
+    out.check("field", st, &u, valid_u);
 }
 
 fn op_field_pdf(r: &mut ByteReader<'_>, field: *mut PgField) {
