@@ -3,20 +3,136 @@
 pub mod nasg;
 pub mod vmf;
 
-use crate::math::{exp, ONE_MINUS_EPSILON};
+use crate::lobe::DirectionSample;
+use crate::math::{exp, ln, sanitize, ONE_MINUS_EPSILON};
+use glam::{Vec2, Vec3};
+use nasg::NasgMixture;
+use vmf::VmfMixture;
+
+/// A decoded mixture of lobes, as the generic model kernels
+/// ([`crate::model::mixture_model`]) sample and evaluate it.
+pub trait LobeMixture: Copy {
+    /// Draws a direction from `u ∈ [0, 1)²` with the mixture density there.
+    fn sample(&self, u: Vec2) -> DirectionSample;
+    /// Density of `direction` in solid angle.
+    fn pdf(&self, direction: Vec3) -> f32;
+}
+
+/// [`LobeMixture`] for mixture types that have inherent `sample` and `pdf`
+/// of that signature (generic over the lobe count `K`).
+macro_rules! lobe_mixture_by_inherent_methods {
+    ($($mixture:ident),*) => {$(
+        impl<const K: usize> LobeMixture for $mixture<K> {
+            #[inline]
+            fn sample(&self, u: Vec2) -> DirectionSample {
+                Self::sample(self, u)
+            }
+
+            #[inline]
+            fn pdf(&self, direction: Vec3) -> f32 {
+                Self::pdf(self, direction)
+            }
+        }
+    )*};
+}
+lobe_mixture_by_inherent_methods!(VmfMixture, NasgMixture);
+
+/// The weight logits (column 0) of raw rows of `R` outputs per lobe, each
+/// passed through [`sanitize`] with `limit`.
+#[inline]
+#[must_use]
+pub(crate) fn weight_logits<const K: usize, const R: usize>(
+    raw: &[[f32; R]; K],
+    limit: f32,
+) -> [f32; K] {
+    let mut logits = [0.0; K];
+    let mut k = 0;
+    while k < K {
+        logits[k] = sanitize(raw[k][0], limit);
+        k += 1;
+    }
+    logits
+}
+
+/// The largest of `values` (`f32::MIN` for none; NaN entries are skipped).
+#[inline]
+#[must_use]
+pub fn max_of<const K: usize>(values: &[f32; K]) -> f32 {
+    let mut max = f32::MIN;
+    let mut k = 0;
+    while k < K {
+        max = max.max(values[k]);
+        k += 1;
+    }
+    max
+}
+
+/// `(m, ln Σ_k e^{v_k − m})` with `m` = [`max_of`]`(v)`, so that
+/// `ln Σ_k e^{v_k} = m + ln Σ …` without overflow (log-softmax,
+/// log-sum-exp).
+#[inline]
+#[must_use]
+pub fn log_sum_exp_parts<const K: usize>(values: &[f32; K]) -> (f32, f32) {
+    let max = max_of(values);
+    let mut sum = 0.0;
+    let mut k = 0;
+    while k < K {
+        sum += exp(values[k] - max);
+        k += 1;
+    }
+    (max, ln(sum))
+}
+
+/// Weights normalised to sum to one: negative, infinite or NaN weights count
+/// as zero, and all-zero weights become uniform (`1 / K`).
+#[inline]
+#[must_use]
+pub fn normalized_weights<const K: usize>(weights: &[f32; K]) -> [f32; K] {
+    let mut out = [0.0f32; K];
+    let mut sum = 0.0;
+    let mut k = 0;
+    while k < K {
+        let w = if weights[k] > 0.0 && weights[k] <= f32::MAX {
+            weights[k]
+        } else {
+            0.0
+        };
+        out[k] = w;
+        sum += w;
+        k += 1;
+    }
+    k = 0;
+    while k < K {
+        out[k] = if sum > 0.0 && sum <= f32::MAX {
+            out[k] / sum
+        } else {
+            1.0 / K as f32
+        };
+        k += 1;
+    }
+    out
+}
+
+/// [`select_component`] of a mixture's lobe by `u.x` (lobe 0 if every
+/// weight is zero, which the decoders never produce), with `u.x` rescaled
+/// for reuse by the lobe's own sampling.
+#[inline]
+#[must_use]
+pub fn select_lobe<const K: usize>(weights: &[f32; K], u: Vec2) -> (usize, Vec2) {
+    let (k, u_lobe) = match select_component(weights, u.x) {
+        Some(sel) => sel,
+        None => (0, u.x),
+    };
+    (k, Vec2::new(u_lobe, u.y))
+}
 
 /// Numerically stable softmax of `logits` into `weights` (the largest logit is
 /// subtracted first, so ±10³⁰ inputs are fine).
 #[inline]
 pub fn softmax<const K: usize>(logits: &[f32; K], weights: &mut [f32; K]) {
-    let mut max = f32::MIN;
-    let mut k = 0;
-    while k < K {
-        max = max.max(logits[k]);
-        k += 1;
-    }
+    let max = max_of(logits);
     let mut sum = 0.0;
-    k = 0;
+    let mut k = 0;
     while k < K {
         let w = exp(logits[k] - max);
         weights[k] = w;

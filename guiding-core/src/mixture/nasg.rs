@@ -26,7 +26,9 @@ use crate::lobe::nasg::{
 };
 use crate::lobe::DirectionSample;
 use crate::math::{exp, ln, sanitize, sigmoid, sin_cos, PI, TWO_PI};
-use crate::mixture::{pairwise_sum, select_component, softmax};
+use crate::mixture::{
+    log_sum_exp_parts, normalized_weights, pairwise_sum, select_lobe, softmax, weight_logits,
+};
 use bytemuck::{Pod, Zeroable};
 use glam::{Vec2, Vec3};
 
@@ -153,17 +155,6 @@ fn decode_lobe(raw: &[f32; NASG_RAW_PER_LOBE]) -> DecodedLobe {
     }
 }
 
-/// Sanitised weight logits of `raw`.
-fn weight_logits<const K: usize>(raw: &[[f32; NASG_RAW_PER_LOBE]; K]) -> [f32; K] {
-    let mut logits = [0.0; K];
-    let mut k = 0;
-    while k < K {
-        logits[k] = sanitize(raw[k][0], NASG_RAW_LIMIT);
-        k += 1;
-    }
-    logits
-}
-
 /// Decodes the raw selection output: `c = clamp(sigmoid(r), NASG_SELECTION_MIN,
 /// NASG_SELECTION_MAX)` and `dc/dr` (`s (1 − s)` inside the clamp, 0 outside).
 ///
@@ -211,26 +202,10 @@ impl<const K: usize> NasgMixture<K> {
     #[must_use]
     pub fn from_lobes(lobes: &[NasgLobe; K], weights: &[f32; K]) -> Self {
         let mut m = Self::ZERO;
-        let mut sum = 0.0;
+        m.weight = normalized_weights(weights);
         let mut k = 0;
         while k < K {
-            let w = if weights[k] > 0.0 && weights[k] <= f32::MAX {
-                weights[k]
-            } else {
-                0.0
-            };
-            m.weight[k] = w;
-            sum += w;
             m.set_lobe(k, &lobes[k]);
-            k += 1;
-        }
-        k = 0;
-        while k < K {
-            m.weight[k] = if sum > 0.0 && sum <= f32::MAX {
-                m.weight[k] / sum
-            } else {
-                1.0 / K as f32
-            };
             k += 1;
         }
         m.selection_probability = NASG_SELECTION_DEFAULT;
@@ -254,7 +229,7 @@ impl<const K: usize> NasgMixture<K> {
     #[must_use]
     pub fn decode(raw: &[[f32; NASG_RAW_PER_LOBE]; K], selection_raw: f32) -> Self {
         let mut m = Self::ZERO;
-        softmax(&weight_logits(raw), &mut m.weight);
+        softmax(&weight_logits(raw, NASG_RAW_LIMIT), &mut m.weight);
         let mut k = 0;
         while k < K {
             let d = decode_lobe(&raw[k]);
@@ -396,12 +371,8 @@ impl<const K: usize> NasgMixture<K> {
     #[inline]
     #[must_use]
     pub fn sample_direction(&self, u: Vec2) -> Vec3 {
-        let (k, u_lobe) = match select_component(&self.weight, u.x) {
-            Some(sel) => sel,
-            // Unreachable for mixtures built by this module (weights sum to 1).
-            None => (0, u.x),
-        };
-        self.lobe(k).sample(Vec2::new(u_lobe, u.y)).direction
+        let (k, u_lobe) = select_lobe(&self.weight, u);
+        self.lobe(k).sample(u_lobe).direction
     }
 
     /// Draws a direction: `u.x` selects the lobe by the weights and is then
@@ -446,25 +417,12 @@ impl<const K: usize> NasgMixture<K> {
         grad: &mut [[f32; NASG_RAW_PER_LOBE]; K],
     ) -> f32 {
         let (u, valid) = unit_direction(direction);
-        let logits = weight_logits(raw);
-        let mut max_logit = f32::MIN;
-        let mut k = 0;
-        while k < K {
-            max_logit = max_logit.max(logits[k]);
-            k += 1;
-        }
-        let mut sum = 0.0;
-        k = 0;
-        while k < K {
-            sum += exp(logits[k] - max_logit);
-            k += 1;
-        }
-        let log_sum = ln(sum);
+        let logits = weight_logits(raw, NASG_RAW_LIMIT);
+        let (max_logit, log_sum) = log_sum_exp_parts(&logits);
 
         // ln(w_k p_k) per lobe.
         let mut log_terms = [0.0; K];
-        let mut max_term = f32::MIN;
-        k = 0;
+        let mut k = 0;
         while k < K {
             let lobe = decode_lobe(&raw[k]).lobe;
             let l = local_coords(
@@ -478,16 +436,10 @@ impl<const K: usize> NasgMixture<K> {
             log_terms[k] = log_w
                 + log_eval(lobe.lambda, lobe.a, lobe.epsilon, l.ln_t, l.cos2_phi)
                 + lobe.log_norm;
-            max_term = max_term.max(log_terms[k]);
             k += 1;
         }
-        let mut total = 0.0;
-        k = 0;
-        while k < K {
-            total += exp(log_terms[k] - max_term);
-            k += 1;
-        }
-        let log_pdf = max_term + ln(total);
+        let (max_term, ln_total) = log_sum_exp_parts(&log_terms);
+        let log_pdf = max_term + ln_total;
 
         k = 0;
         while k < K {

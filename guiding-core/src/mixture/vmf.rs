@@ -9,7 +9,9 @@ use crate::math::{
     exp, exp_nonpositive, expm1_nonpositive, ln, sanitize, sigmoid, sin_cos_turns, sqrt,
     INV_FOUR_PI, PI, TWO_PI,
 };
-use crate::mixture::{pairwise_sum, select_component, softmax};
+use crate::mixture::{
+    log_sum_exp_parts, normalized_weights, pairwise_sum, select_lobe, softmax, weight_logits,
+};
 use crate::sphere::one_minus_cos_angle;
 use bytemuck::{Pod, Zeroable};
 use glam::{Vec2, Vec3};
@@ -94,17 +96,6 @@ fn decode_lobe(raw: &[f32; VMF_RAW_PER_LOBE]) -> DecodedLobe {
     }
 }
 
-/// Sanitised weight logits of `raw`.
-fn weight_logits<const K: usize>(raw: &[[f32; VMF_RAW_PER_LOBE]; K]) -> [f32; K] {
-    let mut logits = [0.0; K];
-    let mut k = 0;
-    while k < K {
-        logits[k] = sanitize(raw[k][0], VMF_RAW_LIMIT);
-        k += 1;
-    }
-    logits
-}
-
 impl<const K: usize> VmfMixture<K> {
     /// All-zero mixture (the starting value of the constructors; written
     /// out because `Zeroable::zeroed` goes through `MaybeUninit`, which
@@ -126,26 +117,10 @@ impl<const K: usize> VmfMixture<K> {
     #[must_use]
     pub fn from_lobes(lobes: &[VmfLobe; K], weights: &[f32; K]) -> Self {
         let mut m = Self::ZERO;
-        let mut sum = 0.0;
+        m.weight = normalized_weights(weights);
         let mut k = 0;
         while k < K {
-            let w = if weights[k] > 0.0 && weights[k] <= f32::MAX {
-                weights[k]
-            } else {
-                0.0
-            };
-            m.weight[k] = w;
-            sum += w;
             m.set_lobe(k, &lobes[k]);
-            k += 1;
-        }
-        k = 0;
-        while k < K {
-            m.weight[k] = if sum > 0.0 && sum <= f32::MAX {
-                m.weight[k] / sum
-            } else {
-                1.0 / K as f32
-            };
             k += 1;
         }
         m
@@ -166,7 +141,7 @@ impl<const K: usize> VmfMixture<K> {
     #[must_use]
     pub fn decode(raw: &[[f32; VMF_RAW_PER_LOBE]; K]) -> Self {
         let mut m = Self::ZERO;
-        softmax(&weight_logits(raw), &mut m.weight);
+        softmax(&weight_logits(raw, VMF_RAW_LIMIT), &mut m.weight);
         // Transposed first, so every loop below runs over contiguous arrays.
         let (mut r_kappa, mut r_theta, mut r_phi) = ([0.0f32; K], [0.0f32; K], [0.0f32; K]);
         let mut k = 0;
@@ -281,12 +256,8 @@ impl<const K: usize> VmfMixture<K> {
     #[inline]
     #[must_use]
     pub fn sample_direction(&self, u: Vec2) -> Vec3 {
-        let (k, u_lobe) = match select_component(&self.weight, u.x) {
-            Some(sel) => sel,
-            // Unreachable for mixtures built by this module (weights sum to 1).
-            None => (0, u.x),
-        };
-        self.lobe(k).sample_direction(Vec2::new(u_lobe, u.y))
+        let (k, u_lobe) = select_lobe(&self.weight, u);
+        self.lobe(k).sample_direction(u_lobe)
     }
 
     /// Draws a direction: `u.x` selects the lobe by the weights and is then
@@ -371,41 +342,22 @@ impl<const K: usize> VmfMixture<K> {
         grad: &mut [[f32; VMF_RAW_PER_LOBE]; K],
     ) -> f32 {
         let direction = crate::frame::normalize_or(direction, Vec3::Z);
-        let logits = weight_logits(raw);
-        let mut max_logit = f32::MIN;
-        let mut k = 0;
-        while k < K {
-            max_logit = max_logit.max(logits[k]);
-            k += 1;
-        }
-        let mut sum = 0.0;
-        k = 0;
-        while k < K {
-            sum += exp(logits[k] - max_logit);
-            k += 1;
-        }
-        let log_sum = ln(sum);
+        let logits = weight_logits(raw, VMF_RAW_LIMIT);
+        let (max_logit, log_sum) = log_sum_exp_parts(&logits);
 
         // log(w_k f_k) per lobe.
         let mut log_terms = [0.0; K];
-        let mut max_term = f32::MIN;
-        k = 0;
+        let mut k = 0;
         while k < K {
             let d = decode_lobe(&raw[k]);
             let lobe = VmfLobe::new(d.mean, d.kappa);
             let t = one_minus_cos_angle(lobe.mean(), direction);
             let log_w = logits[k] - max_logit - log_sum;
             log_terms[k] = log_w + ln(lobe.norm) - lobe.kappa * t;
-            max_term = max_term.max(log_terms[k]);
             k += 1;
         }
-        let mut total = 0.0;
-        k = 0;
-        while k < K {
-            total += exp(log_terms[k] - max_term);
-            k += 1;
-        }
-        let log_pdf = max_term + ln(total);
+        let (max_term, ln_total) = log_sum_exp_parts(&log_terms);
+        let log_pdf = max_term + ln_total;
 
         k = 0;
         while k < K {

@@ -31,17 +31,14 @@
 //! and reuses them for every chunk of the batch.
 
 use super::df::{Df, DfVertex, DF_CONDITIONAL_BINS, DF_MARGINAL_BINS, DF_MAX_BASE};
-use super::nasg::{Nasg, NASG_LOBES, NASG_OUTPUTS, NASG_SELECTION_OUTPUT};
-use super::npm::{
-    all_finite, encode_inputs_fast, encode_inputs_traced, join_rows, split_rows, Npm, NPM_LOBES,
-    NPM_OUTPUTS,
-};
-use super::vmf_gradient::grad_log_pdf_vmf_batch;
+use super::mixture_model::{MixtureFamily, MixtureModel};
+use super::nasg::{NASG_LOBES, NASG_OUTPUTS, NASG_SELECTION_OUTPUT};
+use super::npm::{all_finite, encode_inputs_fast, encode_inputs_traced, NPM_LOBES, NPM_OUTPUTS};
 use super::{GuidingModel, QueryPoint};
 use crate::encoding::{grid_backward_traced, GridTrace};
 use crate::factorised::{self, direction_from_square, square_from_direction};
 use crate::lobe::DirectionSample;
-use crate::loss::{kl_weight, nasg_mis_loss};
+use crate::loss::{kl_weight, Target};
 use crate::math::INV_FOUR_PI;
 use crate::mixture::nasg::{decode_selection, NasgMixture, NASG_RAW_PER_LOBE};
 use crate::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
@@ -114,18 +111,16 @@ fn infer_and_decode<const IN: usize, const W: usize, const OUT: usize, const H: 
     }
 }
 
-impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Npm<IN, WIDTH, HIDDEN> {
+impl<F: MixtureFamily<OUT>, const IN: usize, const W: usize, const H: usize, const OUT: usize>
+    MixtureModel<F, IN, W, H, OUT>
+{
     /// [`Self::decode`] of every query, written to `out` (same length): one
-    /// batched network pass per chunk (module docs).
+    /// batched network pass per chunk (module docs), decoded lane-parallel
+    /// ([`MixtureFamily::decode_batch`]).
     ///
     /// # Panics
     /// If `queries` and `out` differ in length.
-    pub fn decode_batch(
-        &self,
-        params: &[f32],
-        queries: &[QueryPoint],
-        out: &mut [VmfMixture<NPM_LOBES>],
-    ) {
+    pub fn decode_batch(&self, params: &[f32], queries: &[QueryPoint], out: &mut [F::Decoded]) {
         assert_eq!(queries.len(), out.len(), "one output per query");
         if !self.fits(params) {
             for (o, q) in out.iter_mut().zip(queries) {
@@ -133,21 +128,26 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Npm<IN, WIDTH, HI
             }
             return;
         }
-        infer_and_decode::<IN, WIDTH, NPM_OUTPUTS, HIDDEN, _>(
+        infer_and_decode::<IN, W, OUT, H, _>(
             params,
             &self.grid,
             self.target,
             self.mlp_offset as usize,
             queries,
             out,
-            decode_vmf_batch,
+            F::decode_batch,
         );
     }
 
     /// The batched form of `accumulate_gradient` over `samples` (module
-    /// docs); returns the summed loss. Samples the per-query kernel would
-    /// skip (invalid, zero weight, non-finite output or gradient) add
-    /// nothing here either.
+    /// docs); returns the summed loss. Per chunk of [`TRAIN_CHUNK`] samples,
+    /// the samples with a usable weight are encoded, run forward through
+    /// the network in one batched call, given their output gradients by
+    /// [`MixtureFamily::output_gradients`] (which may vectorise over the
+    /// chunk), taken out again if anything is not finite (as the per-query
+    /// kernel does: such samples add nothing here either), run backward in
+    /// one batched call and scattered into the grid.
+    #[allow(clippy::useless_vec)] // chunk buffers on the heap: too large for a worker's stack
     pub(crate) fn gradient_batch(
         &self,
         params: &[f32],
@@ -158,120 +158,109 @@ impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Npm<IN, WIDTH, HI
             return 0.0;
         }
         let target = self.target();
-        mixture_gradient_batch::<IN, WIDTH, NPM_OUTPUTS, HIDDEN>(
-            params,
-            &self.grid,
-            self.target,
-            self.mlp_offset as usize,
-            samples,
-            grad,
-            |chunk, live, ys, dys, losses| {
-                // NPM eq. 9: ℓ = −w ln q(ωᵢ), ∂ℓ/∂y = −w ∇_y ln q, the
-                // gradient of ln q vectorised over the chunk.
-                let m = ys.len();
-                let mut dirs = [Vec3::Z; TRAIN_CHUNK];
-                let mut log_q = [0.0f32; TRAIN_CHUNK];
-                for k in 0..m {
-                    dirs[k] = chunk[live[k]].wi();
+        let offset = self.mlp_offset as usize;
+        let mut xs = vec![[0.0f32; IN]; TRAIN_CHUNK];
+        let mut ys = vec![[0.0f32; OUT]; TRAIN_CHUNK];
+        let mut dys = vec![[0.0f32; OUT]; TRAIN_CHUNK];
+        let mut dxs = vec![[0.0f32; IN]; TRAIN_CHUNK];
+        let mut ctxs = vec![MlpContext::<W, H>::ZERO; TRAIN_CHUNK];
+        let mut live = vec![0usize; TRAIN_CHUNK];
+        let mut losses = vec![0.0f32; TRAIN_CHUNK];
+        let mut ok = vec![false; TRAIN_CHUNK];
+        let mut traces = vec![GridTrace::EMPTY; TRAIN_CHUNK];
+        let mut total = 0.0f64;
+        for chunk in samples.chunks(TRAIN_CHUNK) {
+            // Samples with a usable weight, encoded.
+            let mut m = 0;
+            for (j, s) in chunk.iter().enumerate() {
+                if s.validate().is_err() || kl_weight(s, target) == 0.0 {
+                    continue;
                 }
-                grad_log_pdf_vmf_batch(ys, &dirs[..m], dys, &mut log_q[..m]);
-                for k in 0..m {
-                    let w = kl_weight(&chunk[live[k]], target);
-                    for d in dys[k].iter_mut() {
-                        *d *= -w;
-                    }
-                    losses[k] = -w * log_q[k];
+                live[m] = j;
+                xs[m] = [0.0; IN];
+                encode_inputs_traced(
+                    params,
+                    &self.grid,
+                    self.target,
+                    &QueryPoint::of_sample(s),
+                    &mut xs[m],
+                    &mut traces[m],
+                );
+                m += 1;
+            }
+            if m == 0 {
+                continue;
+            }
+            Mlp::<IN, W, OUT, H>::forward_batch(
+                params,
+                offset,
+                &xs[..m],
+                &mut ys[..m],
+                &mut ctxs[..m],
+            );
+            for dy in &mut dys[..m] {
+                *dy = [0.0; OUT];
+            }
+            self.family.output_gradients(ChunkOutputs {
+                target,
+                chunk,
+                live: &live[..m],
+                ys: &ys[..m],
+                dys: &mut dys[..m],
+                losses: &mut losses[..m],
+            });
+            for k in 0..m {
+                ok[k] = losses[k].is_finite() && all_finite(&ys[k]) && all_finite(&dys[k]);
+                if !ok[k] {
+                    exclude(&mut dys[k], &mut xs[k], &mut ctxs[k], &mut losses[k]);
                 }
-            },
-        )
+            }
+            Mlp::<IN, W, OUT, H>::backward_batch(
+                params,
+                offset,
+                &xs[..m],
+                &ctxs[..m],
+                &dys[..m],
+                grad,
+                &mut dxs[..m],
+            );
+            for k in 0..m {
+                if ok[k] {
+                    let position = chunk[live[k]].position();
+                    grid_backward_traced(&self.grid, position, &traces[k], &dxs[k], 0, grad);
+                    total += f64::from(losses[k]);
+                }
+            }
+        }
+        total
     }
 }
 
-/// The batched gradient of the mixture models (NPM, NASG): per chunk of
-/// [`TRAIN_CHUNK`] samples, the samples with a usable weight are encoded,
-/// run forward through the network at `offset` in one batched call, given
-/// their output gradient by `output_grad(sample, y, dy) -> loss`, taken
-/// out again if anything is not finite (as the per-query kernels do), run
-/// backward in one batched call and scattered into the grid. Returns the
-/// summed loss.
-///
-/// `output_grads(chunk, live, ys, dys, losses)` gets the chunk, the indices
-/// of its live samples and their outputs, and writes each live sample's
-/// output gradient (into a zeroed row) and loss, so a model can vectorise
-/// its loss over the chunk.
-#[allow(clippy::too_many_arguments)] // the model's layout plus the loss
-#[allow(clippy::useless_vec)] // chunk buffers on the heap: too large for a worker's stack
-fn mixture_gradient_batch<const IN: usize, const W: usize, const OUT: usize, const H: usize>(
-    params: &[f32],
-    grid: &crate::encoding::GridConfig,
-    target: u32,
-    offset: usize,
-    samples: &[TrainingSample],
-    grad: &mut [f32],
-    output_grads: impl Fn(&[TrainingSample], &[usize], &[[f32; OUT]], &mut [[f32; OUT]], &mut [f32]),
-) -> f64 {
-    let t = super::npm::target_from_code(target);
-    let mut xs = vec![[0.0f32; IN]; TRAIN_CHUNK];
-    let mut ys = vec![[0.0f32; OUT]; TRAIN_CHUNK];
-    let mut dys = vec![[0.0f32; OUT]; TRAIN_CHUNK];
-    let mut dxs = vec![[0.0f32; IN]; TRAIN_CHUNK];
-    let mut ctxs = vec![MlpContext::<W, H>::ZERO; TRAIN_CHUNK];
-    let mut live = vec![0usize; TRAIN_CHUNK];
-    let mut losses = vec![0.0f32; TRAIN_CHUNK];
-    let mut ok = vec![false; TRAIN_CHUNK];
-    let mut traces = vec![GridTrace::EMPTY; TRAIN_CHUNK];
-    let mut total = 0.0f64;
-    for chunk in samples.chunks(TRAIN_CHUNK) {
-        // Samples with a usable weight, encoded.
-        let mut m = 0;
-        for (j, s) in chunk.iter().enumerate() {
-            if s.validate().is_err() || kl_weight(s, t) == 0.0 {
-                continue;
-            }
-            live[m] = j;
-            xs[m] = [0.0; IN];
-            encode_inputs_traced(
-                params,
-                grid,
-                target,
-                &QueryPoint::of_sample(s),
-                &mut xs[m],
-                &mut traces[m],
-            );
-            m += 1;
-        }
-        if m == 0 {
-            continue;
-        }
-        Mlp::<IN, W, OUT, H>::forward_batch(params, offset, &xs[..m], &mut ys[..m], &mut ctxs[..m]);
-        for dy in &mut dys[..m] {
-            *dy = [0.0; OUT];
-        }
-        output_grads(chunk, &live[..m], &ys[..m], &mut dys[..m], &mut losses[..m]);
-        for k in 0..m {
-            ok[k] = losses[k].is_finite() && all_finite(&ys[k]) && all_finite(&dys[k]);
-            if !ok[k] {
-                exclude(&mut dys[k], &mut xs[k], &mut ctxs[k], &mut losses[k]);
-            }
-        }
-        Mlp::<IN, W, OUT, H>::backward_batch(
-            params,
-            offset,
-            &xs[..m],
-            &ctxs[..m],
-            &dys[..m],
-            grad,
-            &mut dxs[..m],
-        );
-        for k in 0..m {
-            if ok[k] {
-                let position = chunk[live[k]].position();
-                grid_backward_traced(grid, position, &traces[k], &dxs[k], 0, grad);
-                total += f64::from(losses[k]);
-            }
-        }
+/// The live samples of a training chunk and their network outputs, and
+/// where [`MixtureFamily::output_gradients`] writes their output gradients
+/// (zeroed rows) and losses: `chunk[live[k]]` has outputs `ys[k]`.
+pub struct ChunkOutputs<'a, const OUT: usize> {
+    /// The model's training target.
+    pub target: Target,
+    /// The chunk of samples.
+    pub chunk: &'a [TrainingSample],
+    /// Indices into `chunk` of the live samples.
+    pub live: &'a [usize],
+    /// Network outputs of the live samples.
+    pub ys: &'a [[f32; OUT]],
+    /// Their output gradients.
+    pub dys: &'a mut [[f32; OUT]],
+    /// Their losses.
+    pub losses: &'a mut [f32],
+}
+
+impl<const OUT: usize> ChunkOutputs<'_, OUT> {
+    /// The `k`-th live sample.
+    #[inline]
+    #[must_use]
+    pub fn sample(&self, k: usize) -> &TrainingSample {
+        &self.chunk[self.live[k]]
     }
-    total
 }
 
 /// Queries decoded together by [`decode_vmf_block`]: `8 × 8 = 64` lobes,
@@ -290,13 +279,92 @@ const BLOCK_LOBES: usize = DECODE_BLOCK * NPM_LOBES;
 /// If `ys` and `out` differ in length.
 pub fn decode_vmf_batch(ys: &[[f32; NPM_OUTPUTS]], out: &mut [VmfMixture<NPM_LOBES>]) {
     assert_eq!(ys.len(), out.len(), "one output per raw row");
+    run_blocks(ys, out, decode_vmf_block);
+}
+
+/// Runs `block` over the blocks of [`DECODE_BLOCK`] lanes of `ins` and
+/// `outs` (as far as both go), compiled for AVX2 where this CPU has it: the
+/// wider vectors change no bits (Rust never contracts into FMA).
+#[inline(always)]
+fn run_blocks<I, O>(ins: &[I], outs: &mut [O], block: impl Fn(&[I], &mut [O]) + Copy) {
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") {
         // SAFETY: AVX2 support was just checked.
-        unsafe { decode_vmf_avx2(ys, out) };
+        unsafe { run_blocks_avx2(ins, outs, block) };
         return;
     }
-    decode_vmf_batch_portable(ys, out);
+    run_blocks_portable(ins, outs, block);
+}
+
+/// [`run_blocks`] for the target's baseline features.
+#[inline(always)]
+fn run_blocks_portable<I, O>(ins: &[I], outs: &mut [O], block: impl Fn(&[I], &mut [O])) {
+    for (i, o) in ins.chunks(DECODE_BLOCK).zip(outs.chunks_mut(DECODE_BLOCK)) {
+        block(i, o);
+    }
+}
+
+/// [`run_blocks_portable`] compiled for AVX2.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn run_blocks_avx2<I, O>(ins: &[I], outs: &mut [O], block: impl Fn(&[I], &mut [O])) {
+    run_blocks_portable(ins, outs, block);
+}
+
+/// The raw outputs of up to [`DECODE_BLOCK`] queries (rows of `R` values
+/// per lobe), transposed lobe-major: `lanes[r][k · DECODE_BLOCK + b] =
+/// ys[b][k R + r]`; lanes past `ys.len()` stay 0.
+#[inline(always)]
+fn transpose_block<const R: usize, const N: usize>(ys: &[[f32; N]]) -> [[f32; BLOCK_LOBES]; R] {
+    let n = ys.len().min(DECODE_BLOCK);
+    let mut lanes = [[0.0f32; BLOCK_LOBES]; R];
+    for (b, y) in ys[..n].iter().enumerate() {
+        for k in 0..BLOCK_LOBES / DECODE_BLOCK {
+            for (r, lane) in lanes.iter_mut().enumerate() {
+                lane[k * DECODE_BLOCK + b] = y[k * R + r];
+            }
+        }
+    }
+    lanes
+}
+
+/// The mixture weights of a block: per query, the softmax of the logits
+/// (lane `raw_logits`, sanitised with `limit`), the max and the sum in lobe
+/// order as [`crate::mixture::softmax`], so the same bits.
+#[inline(always)]
+fn block_softmax(raw_logits: &[f32; BLOCK_LOBES], limit: f32) -> [f32; BLOCK_LOBES] {
+    use crate::math::{exp, sanitize};
+    let mut logit = *raw_logits;
+    for l in &mut logit {
+        *l = sanitize(*l, limit);
+    }
+    let mut max = [f32::MIN; DECODE_BLOCK];
+    for k in 0..BLOCK_LOBES / DECODE_BLOCK {
+        for (m, &l) in max.iter_mut().zip(&logit[k * DECODE_BLOCK..]) {
+            *m = m.max(l);
+        }
+    }
+    let mut w = [0.0f32; BLOCK_LOBES];
+    for (i, (wi, &l)) in w.iter_mut().zip(&logit).enumerate() {
+        *wi = exp(l - max[i % DECODE_BLOCK]);
+    }
+    let mut sum = [0.0f32; DECODE_BLOCK];
+    for k in 0..BLOCK_LOBES / DECODE_BLOCK {
+        for (s, &wi) in sum.iter_mut().zip(&w[k * DECODE_BLOCK..]) {
+            *s += wi;
+        }
+    }
+    let mut inv_sum = [0.0f32; DECODE_BLOCK];
+    for (v, &s) in inv_sum.iter_mut().zip(&sum) {
+        *v = 1.0 / s;
+    }
+    for (i, wi) in w.iter_mut().enumerate() {
+        *wi *= inv_sum[i % DECODE_BLOCK];
+    }
+    w
 }
 
 /// [`decode_vmf_batch`] compiled for the target's baseline features (the
@@ -307,19 +375,7 @@ pub fn decode_vmf_batch(ys: &[[f32; NPM_OUTPUTS]], out: &mut [VmfMixture<NPM_LOB
 #[inline(always)]
 pub fn decode_vmf_batch_portable(ys: &[[f32; NPM_OUTPUTS]], out: &mut [VmfMixture<NPM_LOBES>]) {
     assert_eq!(ys.len(), out.len(), "one output per raw row");
-    for (y, o) in ys.chunks(DECODE_BLOCK).zip(out.chunks_mut(DECODE_BLOCK)) {
-        decode_vmf_block(y, o);
-    }
-}
-
-/// [`decode_vmf_batch_portable`] compiled for AVX2.
-///
-/// # Safety
-/// The CPU must support AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn decode_vmf_avx2(ys: &[[f32; NPM_OUTPUTS]], out: &mut [VmfMixture<NPM_LOBES>]) {
-    decode_vmf_batch_portable(ys, out);
+    run_blocks_portable(ys, out, decode_vmf_block);
 }
 
 /// [`VmfMixture::decode`] of up to [`DECODE_BLOCK`] queries at once, the
@@ -331,39 +387,8 @@ fn decode_vmf_block(ys: &[[f32; NPM_OUTPUTS]], out: &mut [VmfMixture<NPM_LOBES>]
     use crate::math::{exp, expm1_nonpositive, sanitize, sigmoid, sin_cos_turns};
     use crate::mixture::vmf::{VMF_LOG_KAPPA_MAX, VMF_LOG_KAPPA_MIN, VMF_RAW_LIMIT};
     let n = ys.len().min(DECODE_BLOCK);
-    let mut raw = [[0.0f32; BLOCK_LOBES]; VMF_RAW_PER_LOBE];
-    for (b, y) in ys[..n].iter().enumerate() {
-        for k in 0..NPM_LOBES {
-            for (r, lane) in raw.iter_mut().enumerate() {
-                lane[k * DECODE_BLOCK + b] = y[k * VMF_RAW_PER_LOBE + r];
-            }
-        }
-    }
-    // Weights: softmax per query (max and sum in lobe order, as `softmax`).
-    let mut logit = raw[0];
-    for l in &mut logit {
-        *l = sanitize(*l, VMF_RAW_LIMIT);
-    }
-    let mut max = [f32::MIN; DECODE_BLOCK];
-    for k in 0..NPM_LOBES {
-        for (m, &l) in max.iter_mut().zip(&logit[k * DECODE_BLOCK..]) {
-            *m = m.max(l);
-        }
-    }
-    let mut w = [0.0f32; BLOCK_LOBES];
-    for (i, (wi, &l)) in w.iter_mut().zip(&logit).enumerate() {
-        *wi = exp(l - max[i % DECODE_BLOCK]);
-    }
-    let mut sum = [0.0f32; DECODE_BLOCK];
-    for k in 0..NPM_LOBES {
-        for (s, &wi) in sum.iter_mut().zip(&w[k * DECODE_BLOCK..]) {
-            *s += wi;
-        }
-    }
-    let mut inv_sum = [0.0f32; DECODE_BLOCK];
-    for (v, &s) in inv_sum.iter_mut().zip(&sum) {
-        *v = 1.0 / s;
-    }
+    let raw = transpose_block::<VMF_RAW_PER_LOBE, NPM_OUTPUTS>(ys);
+    let w = block_softmax(&raw[0], VMF_RAW_LIMIT);
     // Lobes: κ, mean, normaliser.
     let (mut kappa, mut mx, mut my, mut mz) = (
         [0.0f32; BLOCK_LOBES],
@@ -392,7 +417,7 @@ fn decode_vmf_block(ys: &[[f32; NPM_OUTPUTS]], out: &mut [VmfMixture<NPM_LOBES>]
     for (b, o) in out[..n].iter_mut().enumerate() {
         for k in 0..NPM_LOBES {
             let i = k * DECODE_BLOCK + b;
-            o.weight[k] = w[i] * inv_sum[b];
+            o.weight[k] = w[i];
             o.kappa[k] = kappa[i];
             o.mean_x[k] = mx[i];
             o.mean_y[k] = my[i];
@@ -416,37 +441,11 @@ fn decode_vmf_block(ys: &[[f32; NPM_OUTPUTS]], out: &mut [VmfMixture<NPM_LOBES>]
 /// If `mixtures` and `normals` differ in length.
 pub fn cosine_product_batch(mixtures: &mut [VmfMixture<NPM_LOBES>], normals: &[Vec3]) {
     assert_eq!(mixtures.len(), normals.len(), "one normal per mixture");
-    #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: AVX2 support was just checked.
-        unsafe { cosine_product_avx2(mixtures, normals) };
-        return;
-    }
-    cosine_product_portable(mixtures, normals);
+    run_blocks(normals, mixtures, cosine_product_block);
 }
 
 #[inline(always)]
-fn cosine_product_portable(mixtures: &mut [VmfMixture<NPM_LOBES>], normals: &[Vec3]) {
-    for (m, n) in mixtures
-        .chunks_mut(DECODE_BLOCK)
-        .zip(normals.chunks(DECODE_BLOCK))
-    {
-        cosine_product_block(m, n);
-    }
-}
-
-/// [`cosine_product_portable`] compiled for AVX2.
-///
-/// # Safety
-/// The CPU must support AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn cosine_product_avx2(mixtures: &mut [VmfMixture<NPM_LOBES>], normals: &[Vec3]) {
-    cosine_product_portable(mixtures, normals);
-}
-
-#[inline(always)]
-fn cosine_product_block(ms: &mut [VmfMixture<NPM_LOBES>], normals: &[Vec3]) {
+fn cosine_product_block(normals: &[Vec3], ms: &mut [VmfMixture<NPM_LOBES>]) {
     use crate::lobe::vmf::{VMF_KAPPA_MAX, VMF_KAPPA_UNIFORM};
     use crate::math::{exp, expm1_nonpositive};
     use crate::mixture::vmf::CLAMPED_COSINE_KAPPA as KC;
@@ -540,30 +539,7 @@ fn cosine_product_block(ms: &mut [VmfMixture<NPM_LOBES>], normals: &[Vec3]) {
 /// If `ys` and `out` differ in length.
 pub fn decode_nasg_batch(ys: &[[f32; NASG_OUTPUTS]], out: &mut [NasgMixture<NASG_LOBES>]) {
     assert_eq!(ys.len(), out.len(), "one output per raw row");
-    #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: AVX2 support was just checked.
-        unsafe { decode_nasg_avx2(ys, out) };
-        return;
-    }
-    decode_nasg_portable(ys, out);
-}
-
-#[inline(always)]
-fn decode_nasg_portable(ys: &[[f32; NASG_OUTPUTS]], out: &mut [NasgMixture<NASG_LOBES>]) {
-    for (y, o) in ys.chunks(DECODE_BLOCK).zip(out.chunks_mut(DECODE_BLOCK)) {
-        decode_nasg_block(y, o);
-    }
-}
-
-/// [`decode_nasg_portable`] compiled for AVX2.
-///
-/// # Safety
-/// The CPU must support AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn decode_nasg_avx2(ys: &[[f32; NASG_OUTPUTS]], out: &mut [NasgMixture<NASG_LOBES>]) {
-    decode_nasg_portable(ys, out);
+    run_blocks(ys, out, decode_nasg_block);
 }
 
 #[inline(always)]
@@ -576,35 +552,8 @@ fn decode_nasg_block(ys: &[[f32; NASG_OUTPUTS]], out: &mut [NasgMixture<NASG_LOB
         NASG_LN_A_MAX, NASG_LN_A_MIN, NASG_LN_LAMBDA_MAX, NASG_LN_LAMBDA_MIN, NASG_RAW_LIMIT,
     };
     let n = ys.len().min(DECODE_BLOCK);
-    let mut raw = [[0.0f32; BLOCK_LOBES]; NASG_RAW_PER_LOBE];
-    for (b, y) in ys[..n].iter().enumerate() {
-        for k in 0..NASG_LOBES {
-            for (r, lane) in raw.iter_mut().enumerate() {
-                lane[k * DECODE_BLOCK + b] = y[k * NASG_RAW_PER_LOBE + r];
-            }
-        }
-    }
-    // Weights: softmax per query, as `softmax` (max and sum in lobe order).
-    let mut logit = raw[0];
-    for l in &mut logit {
-        *l = sanitize(*l, NASG_RAW_LIMIT);
-    }
-    let mut max = [f32::MIN; DECODE_BLOCK];
-    for k in 0..NASG_LOBES {
-        for (m, &l) in max.iter_mut().zip(&logit[k * DECODE_BLOCK..]) {
-            *m = m.max(l);
-        }
-    }
-    let mut w = [0.0f32; BLOCK_LOBES];
-    for (i, (wi, &l)) in w.iter_mut().zip(&logit).enumerate() {
-        *wi = exp(l - max[i % DECODE_BLOCK]);
-    }
-    let mut sum = [0.0f32; DECODE_BLOCK];
-    for k in 0..NASG_LOBES {
-        for (s, &wi) in sum.iter_mut().zip(&w[k * DECODE_BLOCK..]) {
-            *s += wi;
-        }
-    }
+    let raw = transpose_block::<NASG_RAW_PER_LOBE, NASG_OUTPUTS>(ys);
+    let w = block_softmax(&raw[0], NASG_RAW_LIMIT);
     let log_eps = 0.5 * ln_1p_inline(NASG_EPSILON) - ln_inline(FOUR_PI);
     let mut f = [[0.0f32; BLOCK_LOBES]; 14];
     for i in 0..BLOCK_LOBES {
@@ -638,10 +587,9 @@ fn decode_nasg_block(ys: &[[f32; NASG_OUTPUTS]], out: &mut [NasgMixture<NASG_LOB
         f[12][i] = one_minus;
     }
     for (b, o) in out[..n].iter_mut().enumerate() {
-        let inv = 1.0 / sum[b];
         for k in 0..NASG_LOBES {
             let i = k * DECODE_BLOCK + b;
-            o.weight[k] = w[i] * inv;
+            o.weight[k] = w[i];
             o.x_x[k] = f[0][i];
             o.x_y[k] = f[1][i];
             o.x_z[k] = f[2][i];
@@ -674,77 +622,6 @@ fn exclude<const IN: usize, const OUT: usize, const W: usize, const H: usize>(
     *x = [0.0; IN];
     *ctx = MlpContext::ZERO;
     *loss = 0.0;
-}
-
-impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Nasg<IN, WIDTH, HIDDEN> {
-    /// [`Self::decode`] of every query (mixture and learned selection
-    /// probability), written to `out`: one batched network pass per chunk.
-    ///
-    /// # Panics
-    /// If `queries` and `out` differ in length.
-    pub fn decode_batch(
-        &self,
-        params: &[f32],
-        queries: &[QueryPoint],
-        out: &mut [NasgMixture<NASG_LOBES>],
-    ) {
-        assert_eq!(queries.len(), out.len(), "one output per query");
-        if !self.fits(params) {
-            for (o, q) in out.iter_mut().zip(queries) {
-                *o = self.decode(params, q);
-            }
-            return;
-        }
-        infer_and_decode::<IN, WIDTH, NASG_OUTPUTS, HIDDEN, _>(
-            params,
-            &self.grid,
-            self.target,
-            self.mlp_offset as usize,
-            queries,
-            out,
-            decode_nasg_batch,
-        );
-    }
-
-    /// The batched form of `accumulate_gradient` (see
-    /// [`Npm::gradient_batch`]); returns the summed loss.
-    pub(crate) fn gradient_batch(
-        &self,
-        params: &[f32],
-        samples: &[TrainingSample],
-        grad: &mut [f32],
-    ) -> f64 {
-        if params.len() < self.param_count() || grad.len() < self.param_count() {
-            return 0.0;
-        }
-        let (target, blend) = (self.target(), self.blend());
-        mixture_gradient_batch::<IN, WIDTH, NASG_OUTPUTS, HIDDEN>(
-            params,
-            &self.grid,
-            self.target,
-            self.mlp_offset as usize,
-            samples,
-            grad,
-            |chunk, live, ys, dys, losses| {
-                // NASG eq. 18 on the lobes and the selection output.
-                for (k, (y, dy)) in ys.iter().zip(dys.iter_mut()).enumerate() {
-                    let s = &chunk[live[k]];
-                    let w = kl_weight(s, target);
-                    let raw: [[f32; NASG_RAW_PER_LOBE]; NASG_LOBES] = split_rows(y);
-                    let mut g = [[0.0f32; NASG_RAW_PER_LOBE]; NASG_LOBES];
-                    let log_q = NasgMixture::grad_log_pdf(&raw, s.wi(), &mut g);
-                    let (c, dc_dr) = decode_selection(y[NASG_SELECTION_OUTPUT]);
-                    let terms = nasg_mis_loss(w, log_q, c, s.bsdf_pdf, blend);
-                    join_rows(&g, dy);
-                    for d in &mut dy[..NASG_SELECTION_OUTPUT] {
-                        *d *= terms.dloss_dlog_guide;
-                    }
-                    dy[NASG_SELECTION_OUTPUT] = terms.dloss_dselection * dc_dr;
-                    losses[k] = terms.loss;
-                }
-            },
-        )
-    }
 }
 
 impl<

@@ -47,10 +47,11 @@ const _: () = assert!(
 const VMF_LANES: usize = PAIRS * NPM_LOBES;
 
 /// Defines `$name` (runtime dispatch: AVX-512F, else AVX2, else the
-/// baseline) over the `#[inline(always)]` body `$portable`, with one
-/// `#[target_feature]` copy per instruction set.
+/// baseline) over the `#[inline(always)]` body `$portable` (which calls the
+/// generic kernel `$kernel`), with one `#[target_feature]` copy per
+/// instruction set.
 macro_rules! dispatch {
-    ($(#[$doc:meta])* $name:ident, $portable:ident, $avx512:ident, $avx2:ident,
+    ($(#[$doc:meta])* $name:ident, $portable:ident = $kernel:ident, $avx512:ident, $avx2:ident,
      ($($arg:ident: $ty:ty),*)) => {
         $(#[$doc])*
         pub fn $name($($arg: $ty),*) {
@@ -70,6 +71,16 @@ macro_rules! dispatch {
                 }
             }
             $portable($($arg),*);
+        }
+
+        #[doc = concat!("[`", stringify!($name), "`] for the baseline instruction set ")]
+        /// (public so the tests compare every variant).
+        ///
+        /// # Panics
+        #[doc = concat!("As [`", stringify!($name), "`].")]
+        #[inline(always)]
+        pub fn $portable($($arg: $ty),*) {
+            $kernel($($arg),*);
         }
 
         /// The AVX-512F copy of the baseline body (public so the tests run
@@ -102,7 +113,7 @@ dispatch!(
     /// # Panics
     /// If the slices differ in length or a lane is out of range.
     nasg_pdf_batch,
-    nasg_pdf_portable,
+    nasg_pdf_portable = pdf_blocks,
     nasg_pdf_avx512,
     nasg_pdf_avx2,
     (mixtures: &[NasgMixture<NASG_LOBES>], lanes: &[u32], directions: &[Vec3], out: &mut [f32])
@@ -115,7 +126,7 @@ dispatch!(
     /// # Panics
     /// If the slices differ in length or a lane is out of range.
     nasg_sample_batch,
-    nasg_sample_portable,
+    nasg_sample_portable = sample_blocks,
     nasg_sample_avx512,
     nasg_sample_avx2,
     (mixtures: &[NasgMixture<NASG_LOBES>], lanes: &[u32], u: &[Vec2], out: &mut [DirectionSample])
@@ -127,7 +138,7 @@ dispatch!(
     /// # Panics
     /// If the slices differ in length or a lane is out of range.
     vmf_pdf_batch,
-    vmf_pdf_portable,
+    vmf_pdf_portable = pdf_blocks,
     vmf_pdf_avx512,
     vmf_pdf_avx2,
     (mixtures: &[VmfMixture<NPM_LOBES>], lanes: &[u32], directions: &[Vec3], out: &mut [f32])
@@ -139,7 +150,7 @@ dispatch!(
     /// # Panics
     /// If the slices differ in length or a lane is out of range.
     vmf_sample_batch,
-    vmf_sample_portable,
+    vmf_sample_portable = sample_blocks,
     vmf_sample_avx512,
     vmf_sample_avx2,
     (mixtures: &[VmfMixture<NPM_LOBES>], lanes: &[u32], u: &[Vec2], out: &mut [DirectionSample])
@@ -431,63 +442,6 @@ impl Blocked for VmfMixture<NPM_LOBES> {
         }
         sum_pairs(terms, &mut out[..n]);
     }
-}
-
-/// [`nasg_pdf_batch`] for the baseline instruction set (public so the tests
-/// compare every variant).
-///
-/// # Panics
-/// As [`nasg_pdf_batch`].
-#[inline(always)]
-pub fn nasg_pdf_portable(
-    mixtures: &[NasgMixture<NASG_LOBES>],
-    lanes: &[u32],
-    directions: &[Vec3],
-    out: &mut [f32],
-) {
-    pdf_blocks(mixtures, lanes, directions, out);
-}
-
-/// [`nasg_sample_batch`] for the baseline instruction set.
-///
-/// # Panics
-/// As [`nasg_sample_batch`].
-#[inline(always)]
-pub fn nasg_sample_portable(
-    mixtures: &[NasgMixture<NASG_LOBES>],
-    lanes: &[u32],
-    u: &[Vec2],
-    out: &mut [DirectionSample],
-) {
-    sample_blocks(mixtures, lanes, u, out);
-}
-
-/// [`vmf_pdf_batch`] for the baseline instruction set.
-///
-/// # Panics
-/// As [`vmf_pdf_batch`].
-#[inline(always)]
-pub fn vmf_pdf_portable(
-    mixtures: &[VmfMixture<NPM_LOBES>],
-    lanes: &[u32],
-    directions: &[Vec3],
-    out: &mut [f32],
-) {
-    pdf_blocks(mixtures, lanes, directions, out);
-}
-
-/// [`vmf_sample_batch`] for the baseline instruction set.
-///
-/// # Panics
-/// As [`vmf_sample_batch`].
-#[inline(always)]
-pub fn vmf_sample_portable(
-    mixtures: &[VmfMixture<NPM_LOBES>],
-    lanes: &[u32],
-    u: &[Vec2],
-    out: &mut [DirectionSample],
-) {
-    sample_blocks(mixtures, lanes, u, out);
 }
 
 /// Lanes a table batch fetches ahead.

@@ -11,6 +11,7 @@ pub mod batched;
 pub mod df;
 #[cfg(feature = "std")]
 pub mod mixture_batch;
+pub mod mixture_model;
 pub mod nasg;
 pub mod npm;
 pub mod sizes;

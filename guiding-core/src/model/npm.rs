@@ -22,7 +22,7 @@
 //! the one-blob encoding with 4 bins (NPM §5.1: "the surface normal and
 //! roughness are encoded with one-blob"), `p̂` the target
 //! ([`Target::Radiance`]: `L_i`, [`Target::Product`]: `f L_i |cos|`, see
-//! [`kl_weight`]) and `p_s` the renderer's sampling density.
+//! [`kl_weight`](crate::loss::kl_weight)) and `p_s` the renderer's sampling density.
 //!
 //! ## Parameter layout (one flat `f32` buffer)
 //!
@@ -47,19 +47,18 @@
 //! - A zero normal (unknown) encodes as three one-blobs of `½`; a zero `ωo`
 //!   encodes as `+z` (see `sh_encode`).
 
+use super::mixture_model::{MixtureFamily, MixtureModel};
 use crate::encoding::grid::{resolution_at, GRID_MAX_FEATURES, GRID_MAX_LEVELS};
 use crate::encoding::GridConfig;
-use crate::encoding::{grid_backward, grid_forward, grid_init, one_blob_encode4, sh_encode};
-use crate::gradient::GradientSink;
-use crate::lobe::DirectionSample;
-use crate::loss::{kl_weight, Target};
+use crate::encoding::{grid_forward, one_blob_encode4, sh_encode};
+use crate::loss::Target;
 use crate::mixture::vmf::{VmfMixture, VMF_LOG_KAPPA_MIN, VMF_RAW_PER_LOBE};
-use crate::mlp::{Mlp, MlpContext};
-use crate::model::{GuidingModel, QueryPoint};
+use crate::mlp::Mlp;
+use crate::model::QueryPoint;
 use crate::rng::hash2;
 use crate::sample::TrainingSample;
 use bytemuck::{Pod, Zeroable};
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 
 /// Number of vMF lobes NPM decodes (the paper's K = 8).
 pub const NPM_LOBES: usize = 8;
@@ -303,45 +302,38 @@ pub(crate) fn join_rows<const K: usize, const R: usize, const N: usize>(
     }
 }
 
+/// [`join_rows`] into a new array.
+#[inline]
+#[must_use]
+pub(crate) fn flat_rows<const K: usize, const R: usize, const N: usize>(
+    rows: &[[f32; R]; K],
+) -> [f32; N] {
+    let mut y = [0.0; N];
+    join_rows(rows, &mut y);
+    y
+}
+
 /// A Neural Parametric Mixtures model: `[grid | product inputs]` →
 /// `Mlp<IN, WIDTH, 32, HIDDEN>` → [`VmfMixture<8>`] (formula, layout and
-/// deviations in the [module docs](self)).
+/// deviations in the [module docs](self)): the [`MixtureModel`] of the
+/// vMF family ([`NpmFamily`]).
 ///
 /// `IN` must equal [`input_dims`]`(grid, target)` (32 for the paper's
-/// radiance model, 64 for its product model); [`Self::is_consistent`] checks
-/// it and the presets are checked at compile time. An inconsistent
-/// configuration still never panics or produces NaN (the encoding is
-/// truncated or zero-padded), it is merely not the model described here.
-///
-/// `repr(C)`, [`Pod`], 64 bytes: the plain data a GPU kernel reads from a
-/// uniform buffer.
+/// radiance model, 64 for its product model); see
+/// [`MixtureModel::is_consistent`].
+pub type Npm<const IN: usize, const WIDTH: usize, const HIDDEN: usize> =
+    MixtureModel<NpmFamily, IN, WIDTH, HIDDEN, NPM_OUTPUTS>;
+
+/// NPM's setting in a [`Npm`] model: the constant probability of sampling
+/// the guide rather than the BSDF (NPM learns none).
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Npm<const IN: usize, const WIDTH: usize, const HIDDEN: usize> {
-    /// The grid; its `offset` is 0 (the grid leads the flat buffer).
-    pub grid: GridConfig,
-    /// Offset of the MLP in the flat buffer: `grid_param_count(grid)`.
-    pub mlp_offset: u32,
-    /// [`Target`] code (see [`target_code`]).
-    pub target: u32,
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct NpmFamily {
     /// Constant probability of sampling the guide rather than the BSDF
     /// (clamped to `[0, 1]` when read; NaN reads as 0.5).
     pub selection_probability: f32,
     /// Padding.
     pub pad: u32,
-}
-
-// SAFETY: `repr(C)` struct of a `Pod` `GridConfig` (48 bytes, align 4) and
-// four 4-byte scalars: no padding, every bit pattern valid, zero valid. The
-// const parameters do not affect the layout.
-unsafe impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Zeroable
-    for Npm<IN, WIDTH, HIDDEN>
-{
-}
-// SAFETY: see above; `Copy + 'static` holds for every parameter.
-unsafe impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Pod
-    for Npm<IN, WIDTH, HIDDEN>
-{
 }
 
 pub use super::sizes::npm::*;
@@ -355,202 +347,97 @@ pub type NpmProduct = NpmPaperProduct;
 const _: () = assert!(core::mem::size_of::<NpmRadiance>() == 64);
 
 impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> Npm<IN, WIDTH, HIDDEN> {
-    /// Parameters of the MLP, `Mlp<IN, WIDTH, 32, HIDDEN>::PARAM_COUNT`.
-    pub const MLP_PARAMS: usize = Mlp::<IN, WIDTH, NPM_OUTPUTS, HIDDEN>::PARAM_COUNT;
-
-    /// Model with `grid` (moved to offset 0) followed by the MLP, for
-    /// `target`, selection probability [`NPM_DEFAULT_SELECTION_PROBABILITY`].
-    /// See [`Self::is_consistent`] for the required `IN`.
-    #[must_use]
-    pub const fn new(grid: GridConfig, target: Target) -> Self {
-        let grid = grid.with_offset(0);
-        Self {
-            grid,
-            mlp_offset: grid_param_count(&grid) as u32,
-            target: target_code(target),
-            selection_probability: NPM_DEFAULT_SELECTION_PROBABILITY,
-            pad: 0,
-        }
-    }
-
     /// The same model with a different constant selection probability.
     #[must_use]
-    pub const fn with_selection_probability(mut self, p: f32) -> Self {
-        self.selection_probability = p;
-        self
-    }
-
-    /// Whether `IN` equals [`input_dims`]`(grid, target)` and the MLP follows
-    /// the grid.
-    #[must_use]
-    pub const fn is_consistent(&self) -> bool {
-        IN == input_dims(&self.grid, target_from_code(self.target))
-            && self.mlp_offset as usize == grid_param_count(&self.grid) + self.grid.offset as usize
-    }
-
-    /// The training target.
-    #[inline]
-    #[must_use]
-    pub const fn target(&self) -> Target {
-        target_from_code(self.target)
-    }
-
-    /// Whether `params` holds the whole model (the MLP is read unchecked).
-    #[inline]
-    pub(crate) fn fits(&self, params: &[f32]) -> bool {
-        params.len() >= region_end(self.mlp_offset, Self::MLP_PARAMS)
-    }
-
-    /// Raw network outputs for `query`; when `params` is too short, the
-    /// outputs of a near-uniform mixture (`ln κ` at its lower clamp).
-    fn raw(&self, params: &[f32], query: &QueryPoint) -> [[f32; VMF_RAW_PER_LOBE]; NPM_LOBES] {
-        if !self.fits(params) {
-            return [[0.0, VMF_LOG_KAPPA_MIN, 0.0, 0.0]; NPM_LOBES];
-        }
-        let mut input = [0.0f32; IN];
-        encode_inputs(params, &self.grid, self.target, query, &mut input);
-        let y =
-            Mlp::<IN, WIDTH, NPM_OUTPUTS, HIDDEN>::infer(params, self.mlp_offset as usize, &input);
-        split_rows(&y)
-    }
-
-    /// The vMF mixture at `query`, for renderers that keep the decoded
-    /// distribution per path vertex (MIS, NEE, the cosine product) instead
-    /// of calling the network again. A too short `params` gives a
-    /// near-uniform mixture.
-    #[must_use]
-    pub fn decode(&self, params: &[f32], query: &QueryPoint) -> VmfMixture<NPM_LOBES> {
-        VmfMixture::decode(&self.raw(params, query))
+    pub const fn with_selection_probability(self, p: f32) -> Self {
+        self.with_family(NpmFamily::new(p))
     }
 }
 
-impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> GuidingModel
-    for Npm<IN, WIDTH, HIDDEN>
-{
+impl NpmFamily {
+    /// The setting with selection probability `p`.
+    #[must_use]
+    pub const fn new(p: f32) -> Self {
+        Self {
+            selection_probability: p,
+            pad: 0,
+        }
+    }
+}
+
+impl MixtureFamily<NPM_OUTPUTS> for NpmFamily {
     const FAMILY: super::Family = super::Family::Npm;
+    const DEFAULT: Self = Self::new(NPM_DEFAULT_SELECTION_PROBABILITY);
+    const UNFIT_SELECTION_PROBABILITY: f32 = NPM_DEFAULT_SELECTION_PROBABILITY; // never asked
 
-    /// The batched kernels of [`super::batched`].
-    #[cfg(feature = "std")]
-    fn accumulate_gradient_batch(
-        &self,
-        params: &[f32],
-        samples: &[TrainingSample],
-        grad: &mut [f32],
-    ) -> f64 {
-        self.gradient_batch(params, samples, grad)
+    type Decoded = VmfMixture<NPM_LOBES>;
+
+    /// `ln κ` at its lower clamp, everything else 0.
+    fn uniform_raw() -> [f32; NPM_OUTPUTS] {
+        flat_rows(&[[0.0, VMF_LOG_KAPPA_MIN, 0.0, 0.0]; NPM_LOBES])
     }
 
-    /// `mlp_offset + MLP_PARAMS`.
-    fn param_count(&self) -> usize {
-        region_end(self.mlp_offset, Self::MLP_PARAMS)
-    }
-
-    /// Grid: [`grid_init`] with `seed` (`U(−10⁻⁴, 10⁻⁴)`); MLP:
-    /// [`Mlp::init`] with a seed derived from `seed`. Parameters past
-    /// `params.len()` are skipped.
-    fn init(&self, params: &mut [f32], seed: u32) {
-        grid_init(params, &self.grid, seed);
-        mlp_init::<IN, WIDTH, NPM_OUTPUTS, HIDDEN>(
-            params,
-            self.mlp_offset as usize,
-            network_seed(seed, 1),
-        );
-    }
-
-    /// [`VmfMixture::sample`] of [`Self::decode`]: the pdf is the mixture
-    /// density of the returned direction.
-    fn sample(&self, params: &[f32], query: &QueryPoint, u: Vec2) -> DirectionSample {
-        self.decode(params, query).sample(u)
-    }
-
-    fn pdf(&self, params: &[f32], query: &QueryPoint, direction: Vec3) -> f32 {
-        self.decode(params, query).pdf(direction)
+    /// [`VmfMixture::decode`] of the rows `[logit, ln κ, θ, φ]` of `y`.
+    fn decode(y: &[f32; NPM_OUTPUTS]) -> VmfMixture<NPM_LOBES> {
+        VmfMixture::decode(&split_rows(y))
     }
 
     fn constant_selection_probability(&self) -> Option<f32> {
         Some(clean_probability(self.selection_probability))
     }
 
-    /// The configuration's constant (NPM learns none).
-    fn selection_probability(&self, _params: &[f32], _query: &QueryPoint) -> f32 {
-        clean_probability(self.selection_probability)
+    /// The constant (never asked: NPM learns none).
+    fn learned_selection_probability(_y: &[f32; NPM_OUTPUTS]) -> f32 {
+        NPM_DEFAULT_SELECTION_PROBABILITY
     }
 
-    /// `ℓ = −w ln q(ωᵢ)` with `w` = [`kl_weight`] (NPM eq. 9); the gradient
-    /// `−w ∇ ln q` ([`VmfMixture::grad_log_pdf`]) is pushed through the MLP
-    /// and into the 8 corners of each grid level. Adds nothing and returns 0
-    /// for an invalid sample, a zero weight, a too short `params`/`grad`, or
-    /// a non-finite loss, network output or output gradient (a finite output
-    /// implies finite hidden activations, so the backward pass sees no NaN).
-    fn accumulate_gradient<G: GradientSink + ?Sized>(
+    /// `ℓ = −w ln q(ωᵢ)` (NPM eq. 9), `∂ℓ/∂y = −w ∇ ln q`
+    /// ([`VmfMixture::grad_log_pdf`]).
+    fn output_gradient(
         &self,
-        params: &[f32],
+        y: &[f32; NPM_OUTPUTS],
         sample: &TrainingSample,
-        grad: &mut G,
+        w: f32,
+        d_y: &mut [f32; NPM_OUTPUTS],
     ) -> f32 {
-        let count = self.param_count();
-        if sample.validate().is_err() || params.len() < count || grad.len() < count {
-            return 0.0;
-        }
-        let w = kl_weight(sample, self.target());
-        if w == 0.0 {
-            return 0.0;
-        }
-        let query = QueryPoint::of_sample(sample);
-        let mut input = [0.0f32; IN];
-        encode_inputs(params, &self.grid, self.target, &query, &mut input);
-        let offset = self.mlp_offset as usize;
-        let mut ctx = MlpContext::<WIDTH, HIDDEN>::ZERO;
-        let y = Mlp::<IN, WIDTH, NPM_OUTPUTS, HIDDEN>::forward(params, offset, &input, &mut ctx);
-        let raw: [[f32; VMF_RAW_PER_LOBE]; NPM_LOBES] = split_rows(&y);
+        let raw: [[f32; VMF_RAW_PER_LOBE]; NPM_LOBES] = split_rows(y);
         let mut g = [[0.0f32; VMF_RAW_PER_LOBE]; NPM_LOBES];
         let log_q = VmfMixture::grad_log_pdf(&raw, sample.wi(), &mut g);
         let loss = -w * log_q;
-        let mut d_y = [0.0f32; NPM_OUTPUTS];
-        join_rows(&g, &mut d_y);
+        join_rows(&g, d_y);
         let mut i = 0;
         while i < NPM_OUTPUTS {
             d_y[i] *= -w;
             i += 1;
         }
-        if !(loss.is_finite() && all_finite(&y) && all_finite(&d_y)) {
-            return 0.0;
-        }
-        let mut d_input = [0.0f32; IN];
-        Mlp::<IN, WIDTH, NPM_OUTPUTS, HIDDEN>::backward(
-            params,
-            offset,
-            &input,
-            &ctx,
-            &d_y,
-            grad,
-            &mut d_input,
-        );
-        grid_backward(&self.grid, sample.position(), &d_input, 0, grad);
         loss
     }
-}
 
-impl<const IN: usize, const WIDTH: usize, const HIDDEN: usize> super::RawOutputs
-    for Npm<IN, WIDTH, HIDDEN>
-{
-    const RAW_OUTPUTS: usize = NPM_OUTPUTS;
+    /// [`super::batched::decode_vmf_batch`].
+    #[cfg(feature = "std")]
+    fn decode_batch(ys: &[[f32; NPM_OUTPUTS]], out: &mut [VmfMixture<NPM_LOBES>]) {
+        super::batched::decode_vmf_batch(ys, out);
+    }
 
-    /// The rows of [`Self::decode`]'s input, flattened row-major
-    /// (`out[base + 4k + r]`).
-    fn write_raw(&self, params: &[f32], query: &QueryPoint, out: &mut [f32], base: usize) {
-        let rows = self.raw(params, query);
-        let mut k = 0;
-        while k < NPM_LOBES {
-            let mut r = 0;
-            while r < VMF_RAW_PER_LOBE {
-                let i = crate::math::add_saturating(base, k * VMF_RAW_PER_LOBE + r);
-                if i < out.len() {
-                    out[i] = rows[k][r];
-                }
-                r += 1;
+    /// NPM eq. 9 as [`Self::output_gradient`], the gradient of `ln q`
+    /// vectorised over the chunk
+    /// ([`super::vmf_gradient::grad_log_pdf_vmf_batch`]).
+    #[cfg(feature = "std")]
+    fn output_gradients(&self, c: super::batched::ChunkOutputs<'_, NPM_OUTPUTS>) {
+        use super::batched::TRAIN_CHUNK;
+        let m = c.ys.len();
+        let mut dirs = [Vec3::Z; TRAIN_CHUNK];
+        let mut log_q = [0.0f32; TRAIN_CHUNK];
+        for (k, d) in dirs[..m].iter_mut().enumerate() {
+            *d = c.sample(k).wi();
+        }
+        super::vmf_gradient::grad_log_pdf_vmf_batch(c.ys, &dirs[..m], c.dys, &mut log_q[..m]);
+        for (k, &log_q) in log_q[..m].iter().enumerate() {
+            let w = crate::loss::kl_weight(c.sample(k), c.target);
+            for d in c.dys[k].iter_mut() {
+                *d *= -w;
             }
-            k += 1;
+            c.losses[k] = -w * log_q;
         }
     }
 }
