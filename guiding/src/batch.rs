@@ -24,7 +24,7 @@
 //! [`GuidingError::StaleDistribution`].
 
 use crate::device::DeviceLanes;
-use crate::error::GuidingError;
+use crate::error::{same_lengths, GuidingError};
 use crate::field::{DecodedDistribution, GuidingField};
 use crate::models::{self, with_df_field, with_field, BatchItems, Decode, Lanes};
 use glam::{Vec2, Vec3};
@@ -529,16 +529,11 @@ impl GuidingField {
         u: &[Vec2],
         out: &mut [DirectionSample],
     ) -> Result<(), GuidingError> {
-        if lanes.len() != u.len() || lanes.len() != out.len() {
-            return Err(GuidingError::LengthMismatch {
-                what: format!(
-                    "{} lanes, {} random pairs, {} outputs",
-                    lanes.len(),
-                    u.len(),
-                    out.len()
-                ),
-            });
-        }
+        same_lengths(&[
+            (lanes.len(), "lanes"),
+            (u.len(), "random pairs"),
+            (out.len(), "outputs"),
+        ])?;
         if lanes.is_empty() {
             return Ok(());
         }
@@ -576,16 +571,11 @@ impl GuidingField {
         directions: &[Vec3],
         out: &mut [f32],
     ) -> Result<(), GuidingError> {
-        if lanes.len() != directions.len() || lanes.len() != out.len() {
-            return Err(GuidingError::LengthMismatch {
-                what: format!(
-                    "{} lanes, {} directions, {} outputs",
-                    lanes.len(),
-                    directions.len(),
-                    out.len()
-                ),
-            });
-        }
+        same_lengths(&[
+            (lanes.len(), "lanes"),
+            (directions.len(), "directions"),
+            (out.len(), "outputs"),
+        ])?;
         if lanes.is_empty() {
             return Ok(());
         }

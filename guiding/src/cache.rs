@@ -48,7 +48,7 @@
 
 use crate::batch::{DistributionBatch, LaneLocation, CACHE_MISS as MISS};
 use crate::config::Target;
-use crate::error::GuidingError;
+use crate::error::{same_lengths, GuidingError};
 use crate::field::GuidingField;
 use crate::models::{with_df_field, with_field, BatchItems, Decode, Lanes};
 use glam::Vec3;
@@ -449,11 +449,7 @@ impl GuideCache {
         out.reset(field);
         missed.clear();
         self.check(field)?;
-        if jitter.len() != queries.len() {
-            return Err(GuidingError::LengthMismatch {
-                what: format!("{} queries, {} jitters", queries.len(), jitter.len()),
-            });
-        }
+        same_lengths(&[(queries.len(), "queries"), (jitter.len(), "jitters")])?;
         // Source lane per query: a cell's lane, or MISS | index into `missed`
         // (in `out`'s reused scratch: no allocation per call in steady state).
         let mut source = std::mem::take(&mut out.scratch);

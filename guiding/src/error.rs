@@ -64,3 +64,20 @@ pub enum GuidingError {
         reason: String,
     },
 }
+
+/// `Ok` if every named length equals the first; else
+/// [`GuidingError::LengthMismatch`] listing them all (`"3 queries, 2 random
+/// pairs, 3 outputs"`).
+pub(crate) fn same_lengths(named: &[(usize, &str)]) -> Result<(), GuidingError> {
+    let first = named.first().map_or(0, |&(n, _)| n);
+    if named.iter().all(|&(n, _)| n == first) {
+        return Ok(());
+    }
+    let what: Vec<String> = named
+        .iter()
+        .map(|(n, name)| format!("{n} {name}"))
+        .collect();
+    Err(GuidingError::LengthMismatch {
+        what: what.join(", "),
+    })
+}

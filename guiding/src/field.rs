@@ -3,7 +3,7 @@
 
 use crate::config::GuidingConfig;
 use crate::device::{DeviceFailure, DeviceField, DeviceSelection, GpuContext};
-use crate::error::GuidingError;
+use crate::error::{same_lengths, GuidingError};
 use crate::models::{self, with_df_field, with_field, AnyField, Decode, Decoded};
 use glam::{Vec2, Vec3};
 use guiding_core::field::{FieldState, UpdateReport};
@@ -442,16 +442,11 @@ impl GuidingField {
         u: &[Vec2],
         out: &mut [DirectionSample],
     ) -> Result<(), GuidingError> {
-        if queries.len() != u.len() || queries.len() != out.len() {
-            return Err(GuidingError::LengthMismatch {
-                what: format!(
-                    "{} queries, {} random pairs, {} outputs",
-                    queries.len(),
-                    u.len(),
-                    out.len()
-                ),
-            });
-        }
+        same_lengths(&[
+            (queries.len(), "queries"),
+            (u.len(), "random pairs"),
+            (out.len(), "outputs"),
+        ])?;
         let batches = self.decode_chunks(queries);
         for ((b, u), out) in batches
             .iter()
@@ -475,16 +470,11 @@ impl GuidingField {
         directions: &[Vec3],
         out: &mut [f32],
     ) -> Result<(), GuidingError> {
-        if queries.len() != directions.len() || queries.len() != out.len() {
-            return Err(GuidingError::LengthMismatch {
-                what: format!(
-                    "{} queries, {} directions, {} outputs",
-                    queries.len(),
-                    directions.len(),
-                    out.len()
-                ),
-            });
-        }
+        same_lengths(&[
+            (queries.len(), "queries"),
+            (directions.len(), "directions"),
+            (out.len(), "outputs"),
+        ])?;
         let batches = self.decode_chunks(queries);
         for ((b, d), out) in batches
             .iter()
@@ -506,11 +496,7 @@ impl GuidingField {
         queries: &[QueryPoint],
         out: &mut [f32],
     ) -> Result<(), GuidingError> {
-        if queries.len() != out.len() {
-            return Err(GuidingError::LengthMismatch {
-                what: format!("{} queries, {} outputs", queries.len(), out.len()),
-            });
-        }
+        same_lengths(&[(queries.len(), "queries"), (out.len(), "outputs")])?;
         let batches = self.decode_chunks(queries);
         for (b, out) in batches.iter().zip(out.chunks_mut(QUERY_CHUNK)) {
             for (i, o) in out.iter_mut().enumerate() {
