@@ -31,66 +31,40 @@ use bytemuck::{Pod, Zeroable};
 /// softmax, so that any network output gives a valid density.
 pub const PDF1D_LOGIT_LIMIT: f32 = 1e30;
 
-/// How the bin values are reconstructed into a density.
-#[repr(u32)]
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Interpolation {
-    /// Piecewise constant: `p(x) = v_⌊xN⌋`.
-    Nearest = 0,
-    /// Piecewise linear between bin centres (Figueiredo et al. 2025, §3.1).
-    Linear = 1,
-}
-
-impl Interpolation {
-    /// The `u32` code stored in GPU-visible structs.
-    #[inline]
-    #[must_use]
-    pub fn code(self) -> u32 {
-        self as u32
-    }
-
-    /// Reads a code: `0` is [`Interpolation::Nearest`], every other value
-    /// [`Interpolation::Linear`] (so a corrupt code still names a valid mode).
-    #[inline]
-    #[must_use]
-    pub fn from_code(code: u32) -> Self {
-        if code == 0 {
-            Self::Nearest
-        } else {
-            Self::Linear
-        }
+two_mode_enum! {
+    /// How the bin values are reconstructed into a density.
+    pub enum Interpolation {
+        /// Piecewise constant: `p(x) = v_⌊xN⌋`.
+        Nearest = 0,
+        /// Piecewise linear between bin centres (Figueiredo et al. 2025, §3.1).
+        Linear = 1,
     }
 }
 
-/// How the ends of `[0, 1]` are treated.
-#[repr(u32)]
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Boundary {
-    /// Periodic (the azimuth φ): `0` and `1` are the same point; linear
-    /// interpolation crosses the seam.
-    Wrap = 0,
-    /// Clamped (the polar angle θ): the end half bins are constant.
-    Clamp = 1,
+two_mode_enum! {
+    /// How the ends of `[0, 1]` are treated.
+    pub enum Boundary {
+        /// Periodic (the azimuth φ): `0` and `1` are the same point; linear
+        /// interpolation crosses the seam.
+        Wrap = 0,
+        /// Clamped (the polar angle θ): the end half bins are constant.
+        Clamp = 1,
+    }
 }
 
-impl Boundary {
-    /// The `u32` code stored in GPU-visible structs.
-    #[inline]
-    #[must_use]
-    pub fn code(self) -> u32 {
-        self as u32
-    }
-
-    /// Reads a code: `0` is [`Boundary::Wrap`], every other value
-    /// [`Boundary::Clamp`].
-    #[inline]
-    #[must_use]
-    pub fn from_code(code: u32) -> Self {
-        if code == 0 {
-            Self::Wrap
-        } else {
-            Self::Clamp
-        }
+/// The end values `a`, `b` of a linear piece for [`sample_linear`] and
+/// [`linear_cdf`]: negative and NaN values taken as 0, then both divided by
+/// their maximum (so their squares can neither overflow nor underflow to a
+/// wrong ratio); `None` when that maximum is 0 or infinite.
+#[inline]
+fn normalised_ends(a: f32, b: f32) -> Option<(f32, f32)> {
+    let a = if a > 0.0 { a } else { 0.0 };
+    let b = if b > 0.0 { b } else { 0.0 };
+    let m = a.max(b);
+    if m > 0.0 && m <= f32::MAX {
+        Some((a / m, b / m))
+    } else {
+        None
     }
 }
 
@@ -112,14 +86,9 @@ impl Boundary {
 #[must_use]
 pub fn sample_linear(u: f32, a: f32, b: f32) -> f32 {
     let u = clamp_unit(u);
-    let a = if a > 0.0 { a } else { 0.0 };
-    let b = if b > 0.0 { b } else { 0.0 };
-    let m = a.max(b);
-    if !(m > 0.0 && m <= f32::MAX) {
+    let Some((a, b)) = normalised_ends(a, b) else {
         return u;
-    }
-    let a = a / m;
-    let b = b / m;
+    };
     if u == 0.0 {
         return 0.0;
     }
@@ -134,14 +103,9 @@ pub fn sample_linear(u: f32, a: f32, b: f32) -> f32 {
 #[must_use]
 pub fn linear_cdf(t: f32, a: f32, b: f32) -> f32 {
     let t = if t > 0.0 { t.min(1.0) } else { 0.0 };
-    let a = if a > 0.0 { a } else { 0.0 };
-    let b = if b > 0.0 { b } else { 0.0 };
-    let m = a.max(b);
-    if !(m > 0.0 && m <= f32::MAX) {
+    let Some((a, b)) = normalised_ends(a, b) else {
         return t;
-    }
-    let a = a / m;
-    let b = b / m;
+    };
     (t * (a * (2.0 - t) + b * t) / (a + b)).clamp(0.0, 1.0)
 }
 
@@ -248,7 +212,7 @@ fn stencil<const N: usize>(
 
 /// `⌊s⌋` clamped to `[0, N − 1]` (NaN to 0).
 #[inline]
-fn bin_index<const N: usize>(s: f32) -> usize {
+pub(crate) fn bin_index<const N: usize>(s: f32) -> usize {
     if s > 0.0 {
         // Through u32: the same saturating truncation for every s > 0 that
         // can index a bin, and a cheaper conversion than f32 → u64.
@@ -333,18 +297,9 @@ impl<const N: usize> Pdf1d<N> {
             clean[k] = sanitize(logits[k], PDF1D_LOGIT_LIMIT);
             k += 1;
         }
-        let mut pdf = Self {
-            values: [0.0; N],
-            interpolation: interpolation.code(),
-            boundary: boundary.code(),
-        };
+        let mut pdf = Self::zeroed(interpolation, boundary);
         softmax(&clean, &mut pdf.values);
-        let n = N as f32;
-        k = 0;
-        while k < N {
-            pdf.values[k] *= n;
-            k += 1;
-        }
+        pdf.scale(N as f32);
         pdf
     }
 
@@ -358,11 +313,7 @@ impl<const N: usize> Pdf1d<N> {
         interpolation: Interpolation,
         boundary: Boundary,
     ) -> Self {
-        let mut pdf = Self {
-            values: [0.0; N],
-            interpolation: interpolation.code(),
-            boundary: boundary.code(),
-        };
+        let mut pdf = Self::zeroed(interpolation, boundary);
         let mut max = 0.0f32;
         let mut k = 0;
         while k < N {
@@ -388,13 +339,26 @@ impl<const N: usize> Pdf1d<N> {
             k += 1;
         }
         // sum ∈ [1, N].
-        let scale = N as f32 / sum;
-        k = 0;
+        pdf.scale(N as f32 / sum);
+        pdf
+    }
+
+    /// All-zero values (not yet a density) with the given modes.
+    fn zeroed(interpolation: Interpolation, boundary: Boundary) -> Self {
+        Self {
+            values: [0.0; N],
+            interpolation: interpolation.code(),
+            boundary: boundary.code(),
+        }
+    }
+
+    /// Multiplies every value by `factor`.
+    fn scale(&mut self, factor: f32) {
+        let mut k = 0;
         while k < N {
-            pdf.values[k] *= scale;
+            self.values[k] *= factor;
             k += 1;
         }
-        pdf
     }
 
     /// The interpolation mode.
