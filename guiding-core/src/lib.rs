@@ -100,6 +100,24 @@ macro_rules! two_mode_enum {
     };
 }
 
+/// `const` builder methods that return `self` with some fields replaced:
+/// `$method($field: $ty, …)` is `pub const fn $method(self, $field: $ty, …)
+/// -> Self { Self { $field, …, ..self } }`.
+macro_rules! with_fields {
+    ($($(#[$doc:meta])* $method:ident($($field:ident: $ty:ty),+);)+) => {
+        $(
+            $(#[$doc])*
+            #[must_use]
+            pub const fn $method(self, $($field: $ty),+) -> Self {
+                Self {
+                    $($field,)+
+                    ..self
+                }
+            }
+        )+
+    };
+}
+
 pub mod batch;
 pub mod encoding;
 pub mod factorised;
