@@ -1149,9 +1149,10 @@ mod batch {
         }
     }
 
-    /// The arguments of [`Mlp::backward_batch`], handed on by the blocked
-    /// backward pass.
-    struct BackwardArgs<
+    /// What the blocked backward pass reads (the inputs of
+    /// [`Mlp::backward_batch`]; it writes `grad` and `d_inputs`).
+    #[derive(Clone, Copy)]
+    struct BackwardInputs<
         'a,
         const IN: usize,
         const WIDTH: usize,
@@ -1163,16 +1164,19 @@ mod batch {
         inputs: &'a [[f32; IN]],
         ctxs: &'a [MlpContext<WIDTH, HIDDEN>],
         d_outputs: &'a [[f32; OUT]],
-        grad: &'a mut [f32],
-        d_inputs: &'a mut [[f32; IN]],
     }
 
     impl<const IN: usize, const WIDTH: usize, const OUT: usize, const HIDDEN: usize>
-        BackwardArgs<'_, IN, WIDTH, OUT, HIDDEN>
+        BackwardInputs<'_, IN, WIDTH, OUT, HIDDEN>
     {
         /// Per-query [`Mlp::backward`] of the queries `range` (the exact
         /// fallback for non-finite parameters or activations).
-        fn per_query(&mut self, range: core::ops::Range<usize>) {
+        fn per_query(
+            &self,
+            grad: &mut [f32],
+            d_inputs: &mut [[f32; IN]],
+            range: core::ops::Range<usize>,
+        ) {
             for q in range {
                 Mlp::<IN, WIDTH, OUT, HIDDEN>::backward(
                     self.params,
@@ -1180,8 +1184,8 @@ mod batch {
                     &self.inputs[q],
                     &self.ctxs[q],
                     &self.d_outputs[q],
-                    self.grad,
-                    &mut self.d_inputs[q],
+                    grad,
+                    &mut d_inputs[q],
                 );
             }
         }
@@ -1479,23 +1483,27 @@ mod batch {
         /// The blocked backward pass (see [`Self::backward_batch`]).
         #[allow(clippy::too_many_lines)]
         #[inline(always)]
-        fn backward_impl<S: Simd>(s: S, mut args: BackwardArgs<'_, IN, WIDTH, OUT, HIDDEN>) {
+        fn backward_impl<S: Simd>(
+            s: S,
+            read: BackwardInputs<'_, IN, WIDTH, OUT, HIDDEN>,
+            grad: &mut [f32],
+            d_inputs: &mut [[f32; IN]],
+        ) {
             let () = Self::VALID;
-            let BackwardArgs {
+            let BackwardInputs {
                 params,
                 offset,
                 inputs,
                 ctxs,
                 d_outputs,
-                ..
-            } = args;
+            } = read;
             let n = inputs.len();
             assert!(
-                ctxs.len() == n && d_outputs.len() == n && args.d_inputs.len() == n,
+                ctxs.len() == n && d_outputs.len() == n && d_inputs.len() == n,
                 "one context, output gradient and input gradient per input"
             );
             let net = &params[offset..offset + Self::PARAM_COUNT];
-            let _ = &args.grad[offset..offset + Self::PARAM_COUNT];
+            let _ = &grad[offset..offset + Self::PARAM_COUNT];
             if n == 0 {
                 return;
             }
@@ -1503,13 +1511,13 @@ mod batch {
             // NaN, where the per-query kernel skips the unit: such inputs take
             // the per-query path.
             if !net.iter().fold(true, |ok, v| ok & v.is_finite()) {
-                args.per_query(0..n);
+                read.per_query(grad, d_inputs, 0..n);
                 return;
             }
             let lanes = S::LANES;
             let (ip, wp) = (pad(IN, lanes), pad(WIDTH, lanes));
             let mut layers = Self::back_layers(net, offset, lanes);
-            BackLayer::load_all(&mut layers, args.grad);
+            BackLayer::load_all(&mut layers, grad);
             // The block's inputs and hidden activations are read in place
             // when their widths are multiples of the vector width, else from
             // padded query-major copies (hidden layer j at j · BLOCK · wp);
@@ -1535,9 +1543,9 @@ mod batch {
                     .chain(h_blk)
                     .fold(true, |ok, v| ok & v.is_finite())
                 {
-                    BackLayer::save_all(&layers, args.grad);
-                    args.per_query(start..start + nb);
-                    BackLayer::load_all(&mut layers, args.grad);
+                    BackLayer::save_all(&layers, grad);
+                    read.per_query(grad, d_inputs, start..start + nb);
+                    BackLayer::load_all(&mut layers, grad);
                     start += nb;
                     continue;
                 }
@@ -1560,7 +1568,7 @@ mod batch {
                     // δ ← (Wᵀ δ) ⊙ [h > 0], or the input gradient.
                     let (c, ldc): (&mut [f32], usize) = match (layer, direct_in) {
                         (0, true) => (
-                            &mut args.d_inputs.as_flattened_mut()[start * IN..(start + nb) * IN],
+                            &mut d_inputs.as_flattened_mut()[start * IN..(start + nb) * IN],
                             IN,
                         ),
                         (0, false) => (&mut dxin, ip),
@@ -1591,7 +1599,7 @@ mod batch {
                     }
                 }
                 // Padded input gradients (empty when written in place) back to their rows.
-                for (dst, src) in args.d_inputs[start..start + nb]
+                for (dst, src) in d_inputs[start..start + nb]
                     .iter_mut()
                     .zip(dxin.chunks_exact(ip))
                 {
@@ -1599,7 +1607,7 @@ mod batch {
                 }
                 start += nb;
             }
-            BackLayer::save_all(&layers, args.grad);
+            BackLayer::save_all(&layers, grad);
         }
 
         /// [`Self::backward`] for every query, in order: **adds** the
@@ -1652,16 +1660,14 @@ mod batch {
             grad: &mut [f32],
             d_inputs: &mut [[f32; IN]],
         ) {
-            let args = BackwardArgs {
+            let read = BackwardInputs {
                 params,
                 offset,
                 inputs,
                 ctxs,
                 d_outputs,
-                grad,
-                d_inputs,
             };
-            with_simd!(kernel, |s| Self::backward_impl(s, args));
+            with_simd!(kernel, |s| Self::backward_impl(s, read, grad, d_inputs));
         }
     }
 }
