@@ -23,7 +23,7 @@
 //! struct stays `N` floats and two codes) and inverts the quadratic CDF of a
 //! linear piece in the cancellation-free form of [`sample_linear`].
 
-use crate::math::{exp, ln, sanitize, sqrt, ONE_MINUS_EPSILON};
+use crate::math::{exp, ln, log_sum_exp_parts, sanitize, sqrt, unit_interval, ONE_MINUS_EPSILON};
 use crate::mixture::softmax;
 use bytemuck::{Pod, Zeroable};
 
@@ -85,7 +85,7 @@ fn normalised_ends(a: f32, b: f32) -> Option<(f32, f32)> {
 #[inline]
 #[must_use]
 pub fn sample_linear(u: f32, a: f32, b: f32) -> f32 {
-    let u = clamp_unit(u);
+    let u = unit_interval(u);
     let Some((a, b)) = normalised_ends(a, b) else {
         return u;
     };
@@ -131,16 +131,6 @@ pub const PDF1D_SAMPLE_CUT: f32 = 1.0 / 16_777_216.0;
 fn sampled_mass(m: f32) -> f32 {
     if m > PDF1D_SAMPLE_CUT {
         m
-    } else {
-        0.0
-    }
-}
-
-/// `u` clamped to `[0, 1)`, NaN to 0.
-#[inline]
-fn clamp_unit(u: f32) -> f32 {
-    if u > 0.0 {
-        u.min(ONE_MINUS_EPSILON)
     } else {
         0.0
     }
@@ -208,6 +198,19 @@ fn stencil<const N: usize>(
             }
         }
     }
+}
+
+/// The logits with NaN replaced by 0 and clamped to
+/// ±[`PDF1D_LOGIT_LIMIT`].
+#[inline]
+fn sanitized_logits<const N: usize>(logits: &[f32; N]) -> [f32; N] {
+    let mut clean = [0.0; N];
+    let mut k = 0;
+    while k < N {
+        clean[k] = sanitize(logits[k], PDF1D_LOGIT_LIMIT);
+        k += 1;
+    }
+    clean
 }
 
 /// `⌊s⌋` clamped to `[0, N − 1]` (NaN to 0).
@@ -291,14 +294,8 @@ impl<const N: usize> Pdf1d<N> {
         interpolation: Interpolation,
         boundary: Boundary,
     ) -> Self {
-        let mut clean = [0.0; N];
-        let mut k = 0;
-        while k < N {
-            clean[k] = sanitize(logits[k], PDF1D_LOGIT_LIMIT);
-            k += 1;
-        }
         let mut pdf = Self::zeroed(interpolation, boundary);
-        softmax(&clean, &mut pdf.values);
+        softmax(&sanitized_logits(logits), &mut pdf.values);
         pdf.scale(N as f32);
         pdf
     }
@@ -563,7 +560,7 @@ impl<const N: usize> Pdf1d<N> {
     /// (the same result, bit for bit, when `sums` are this density's).
     #[must_use]
     pub fn sample_with_sums(&self, sums: &RunningSums<N>, u: f32, margin: f32) -> (f32, f32) {
-        let u = clamp_unit(u);
+        let u = unit_interval(u);
         let linear = self.interpolation() == Interpolation::Linear;
         let ends = &sums.ends;
         let total = sums.total;
@@ -595,7 +592,7 @@ impl<const N: usize> Pdf1d<N> {
             }
         }
         let below = if chosen > 0 { ends[chosen - 1] } else { 0.0 };
-        let local = clamp_unit((target - below) / self.piece_mass(chosen));
+        let local = unit_interval((target - below) / self.piece_mass(chosen));
         let (start, width, a, b) = self.piece(chosen);
         let t = if linear {
             sample_linear(local, a, b)
@@ -603,7 +600,7 @@ impl<const N: usize> Pdf1d<N> {
             // A flat piece: `sample_linear(local, a, a)` is exactly `local`.
             local
         };
-        let mut x = clamp_unit(start + width * t);
+        let mut x = unit_interval(start + width * t);
         if margin > 0.0 {
             let m = margin.min(0.25 * width);
             x = x.clamp(start + m, start + width - m);
@@ -617,14 +614,14 @@ impl<const N: usize> Pdf1d<N> {
             } else {
                 x + (x * f32::EPSILON).max(f32::MIN_POSITIVE)
             };
-            x = clamp_unit(x);
+            x = unit_interval(x);
             p = self.pdf_in_unit_interval(x);
             step += 1;
         }
         // … and if the density there still underflows, 2⁻¹⁰ of the width.
         if p <= 0.0 || p.is_nan() {
             let t = t.clamp(1.0 / 1024.0, 1.0 - 1.0 / 1024.0);
-            x = clamp_unit(start + width * t);
+            x = unit_interval(start + width * t);
             p = self.pdf_in_unit_interval(x);
         }
         (x, p)
@@ -637,7 +634,7 @@ impl<const N: usize> Pdf1d<N> {
         let x = reduce(x, self.boundary());
         let total = self.total_mass();
         if !(total > 0.0 && total <= f32::MAX) {
-            return clamp_unit(x);
+            return unit_interval(x);
         }
         let n = N as f32;
         let count = self.piece_count();
@@ -666,7 +663,7 @@ impl<const N: usize> Pdf1d<N> {
         let (start, width, a, b) = self.piece(piece);
         let t = (x - start) / width;
         cum += self.piece_mass(piece) * linear_cdf(t, a, b);
-        clamp_unit(cum / total)
+        unit_interval(cum / total)
     }
 
     /// `ln p(x)` of the density [`Self::from_logits`] builds from `logits`,
@@ -695,23 +692,9 @@ impl<const N: usize> Pdf1d<N> {
         boundary: Boundary,
         grad: &mut [f32; N],
     ) -> f32 {
-        let mut l = [0.0; N];
-        let mut max = f32::MIN;
+        let l = sanitized_logits(logits);
+        let (max, log_sum) = log_sum_exp_parts(&l);
         let mut k = 0;
-        while k < N {
-            l[k] = sanitize(logits[k], PDF1D_LOGIT_LIMIT);
-            max = max.max(l[k]);
-            k += 1;
-        }
-        let mut sum = 0.0;
-        k = 0;
-        while k < N {
-            sum += exp(l[k] - max);
-            k += 1;
-        }
-        // sum ≥ 1.
-        let log_sum = ln(sum);
-        k = 0;
         while k < N {
             grad[k] = -exp(l[k] - max - log_sum);
             k += 1;
