@@ -234,24 +234,45 @@ pub fn adam_element(
     updated
 }
 
+/// `raw[i]`, or 0 for a missing slot.
+#[inline]
+fn raw_at(raw: &[f32], i: usize) -> f32 {
+    if i < raw.len() {
+        raw[i]
+    } else {
+        0.0
+    }
+}
+
+/// The row `raw[base .. base + R]`; missing slots read as 0.
+#[inline]
+fn raw_row<const R: usize>(raw: &[f32], base: usize) -> [f32; R] {
+    let mut row = [0.0f32; R];
+    let mut r = 0;
+    while r < R {
+        row[r] = raw_at(raw, base + r);
+        r += 1;
+    }
+    row
+}
+
+/// `K` consecutive rows of `R` raw outputs from `raw[base]` ([`raw_row`]).
+#[inline]
+fn raw_rows<const K: usize, const R: usize>(raw: &[f32], base: usize) -> [[f32; R]; K] {
+    let mut rows = [[0.0f32; R]; K];
+    let mut k = 0;
+    while k < K {
+        rows[k] = raw_row::<R>(raw, base + k * R);
+        k += 1;
+    }
+    rows
+}
+
 /// The NPM mixture of the raw outputs `raw[base .. base + 32]` (8 rows of
 /// `[w, ln κ, θ, φ]`, [`VmfMixture::decode`]); missing slots read as 0.
 #[must_use]
 pub fn vmf_mixture_from_raw(raw: &[f32], base: usize) -> VmfMixture<NPM_LOBES> {
-    let mut rows = [[0.0f32; VMF_RAW_PER_LOBE]; NPM_LOBES];
-    let mut k = 0;
-    while k < NPM_LOBES {
-        let mut r = 0;
-        while r < VMF_RAW_PER_LOBE {
-            let i = base + k * VMF_RAW_PER_LOBE + r;
-            if i < raw.len() {
-                rows[k][r] = raw[i];
-            }
-            r += 1;
-        }
-        k += 1;
-    }
-    VmfMixture::decode(&rows)
+    VmfMixture::decode(&raw_rows::<NPM_LOBES, VMF_RAW_PER_LOBE>(raw, base))
 }
 
 /// The NASG mixture (with its selection probability) of the raw outputs
@@ -259,22 +280,8 @@ pub fn vmf_mixture_from_raw(raw: &[f32], base: usize) -> VmfMixture<NPM_LOBES> {
 /// as 0.
 #[must_use]
 pub fn nasg_mixture_from_raw(raw: &[f32], base: usize) -> NasgMixture<NASG_LOBES> {
-    let mut rows = [[0.0f32; NASG_RAW_PER_LOBE]; NASG_LOBES];
-    let mut k = 0;
-    while k < NASG_LOBES {
-        let mut r = 0;
-        while r < NASG_RAW_PER_LOBE {
-            let i = base + k * NASG_RAW_PER_LOBE + r;
-            if i < raw.len() {
-                rows[k][r] = raw[i];
-            }
-            r += 1;
-        }
-        k += 1;
-    }
-    let s = base + NASG_SELECTION_OUTPUT;
-    let selection = if s < raw.len() { raw[s] } else { 0.0 };
-    NasgMixture::decode(&rows, selection)
+    let rows = raw_rows::<NASG_LOBES, NASG_RAW_PER_LOBE>(raw, base);
+    NasgMixture::decode(&rows, raw_at(raw, base + NASG_SELECTION_OUTPUT))
 }
 
 /// The DF table of the logits `raw[base .. base + DF_TABLE_LOGITS]`
@@ -285,24 +292,9 @@ pub fn df_table_from_raw(
     base: usize,
     interpolation: Interpolation,
 ) -> FactorisedTable<DF_MARGINAL_BINS, DF_CONDITIONAL_BINS> {
-    let mut marginal = [0.0f32; DF_MARGINAL_BINS];
-    let mut conditional = [[0.0f32; DF_CONDITIONAL_BINS]; DF_MARGINAL_BINS];
-    let mut i = 0;
-    while i < DF_MARGINAL_BINS {
-        let k = base + i;
-        if k < raw.len() {
-            marginal[i] = raw[k];
-        }
-        let mut j = 0;
-        while j < DF_CONDITIONAL_BINS {
-            let k = base + DF_MARGINAL_BINS + i * DF_CONDITIONAL_BINS + j;
-            if k < raw.len() {
-                conditional[i][j] = raw[k];
-            }
-            j += 1;
-        }
-        i += 1;
-    }
+    let marginal = raw_row::<DF_MARGINAL_BINS>(raw, base);
+    let conditional =
+        raw_rows::<DF_MARGINAL_BINS, DF_CONDITIONAL_BINS>(raw, base + DF_MARGINAL_BINS);
     FactorisedTable::from_logits(&marginal, &conditional, interpolation)
 }
 
@@ -494,7 +486,7 @@ pub fn lane_pdf_element<D: RawRowDistribution>(
 pub fn nasg_selection_element(raw: &[f32], out: &mut [f32], i: usize) {
     if i < out.len() {
         let s = i * NASG_OUTPUTS + NASG_SELECTION_OUTPUT;
-        out[i] = decode_selection(if s < raw.len() { raw[s] } else { 0.0 }).0;
+        out[i] = decode_selection(raw_at(raw, s)).0;
     }
 }
 

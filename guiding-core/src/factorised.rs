@@ -23,7 +23,7 @@
 
 use crate::lobe::DirectionSample;
 use crate::math::INV_FOUR_PI;
-use crate::pdf1d::{Boundary, Interpolation, Pdf1d, RunningSums};
+use crate::pdf1d::{bin_index, Boundary, Interpolation, Pdf1d, RunningSums};
 use crate::sphere::{square_to_uniform_sphere, uniform_sphere_to_square};
 use bytemuck::{Pod, Zeroable};
 use glam::{Vec2, Vec3};
@@ -250,17 +250,7 @@ impl<const M: usize, const N: usize> FactorisedTable<M, N> {
     #[inline]
     #[must_use]
     pub fn row(eps1: f32) -> usize {
-        let s = eps1 * M as f32;
-        if s > 0.0 {
-            let i = s as u32 as usize;
-            if i < M {
-                i
-            } else {
-                M - 1
-            }
-        } else {
-            0
-        }
+        bin_index::<M>(eps1 * M as f32)
     }
 
     /// Density of the square point `eps ∈ [0, 1]²`: `p(ε₁) p(ε₂ | row(ε₁))`.

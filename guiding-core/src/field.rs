@@ -207,12 +207,6 @@ impl FieldConfig {
         max_gradient_magnitude: DEFAULT_MAX_GRADIENT_MAGNITUDE,
     };
 
-    /// `self` with other Adam hyper-parameters.
-    #[must_use]
-    pub const fn with_adam(self, adam: AdamConfig) -> Self {
-        Self { adam, ..self }
-    }
-
     /// `self` with another learning rate (other Adam settings kept).
     #[must_use]
     pub const fn with_learning_rate(self, learning_rate: f32) -> Self {
@@ -220,12 +214,6 @@ impl FieldConfig {
             adam: self.adam.with_learning_rate(learning_rate),
             ..self
         }
-    }
-
-    /// `self` with another batch size.
-    #[must_use]
-    pub const fn with_batch_size(self, batch_size: usize) -> Self {
-        Self { batch_size, ..self }
     }
 
     /// Adam steps for `epochs` passes over `buffered` samples, capped:
@@ -249,70 +237,29 @@ impl FieldConfig {
         }
     }
 
-    /// `self` with another number of steps per update.
-    #[must_use]
-    pub const fn with_steps_per_update(self, steps_per_update: u32) -> Self {
-        Self {
-            steps_per_update,
-            ..self
-        }
-    }
-
-    /// `self` with another EMA decay.
-    #[must_use]
-    pub const fn with_ema_decay(self, ema_decay: f32) -> Self {
-        Self { ema_decay, ..self }
-    }
-
-    /// `self` with another thread count (`0` = all available).
-    #[must_use]
-    pub const fn with_threads(self, threads: usize) -> Self {
-        Self { threads, ..self }
-    }
-
-    /// `self` with another number of gradient chunks.
-    #[must_use]
-    pub const fn with_gradient_chunks(self, gradient_chunks: usize) -> Self {
-        Self {
-            gradient_chunks,
-            ..self
-        }
-    }
-
-    /// `self` with another seed.
-    #[must_use]
-    pub const fn with_seed(self, seed: u32) -> Self {
-        Self { seed, ..self }
-    }
-
-    /// `self` with another step limit.
-    #[must_use]
-    pub const fn with_max_steps(self, max_steps: u64) -> Self {
-        Self { max_steps, ..self }
-    }
-
-    /// `self` with another plateau criterion.
-    #[must_use]
-    pub const fn with_plateau(self, plateau: PlateauConfig) -> Self {
-        Self { plateau, ..self }
-    }
-
-    /// `self` with another sample-buffer capacity.
-    #[must_use]
-    pub const fn with_max_buffered_samples(self, max_buffered_samples: usize) -> Self {
-        Self {
-            max_buffered_samples,
-            ..self
-        }
-    }
-
-    /// `self` with another gradient clip.
-    #[must_use]
-    pub const fn with_max_gradient_magnitude(self, max_gradient_magnitude: f32) -> Self {
-        Self {
-            max_gradient_magnitude,
-            ..self
-        }
+    with_fields! {
+        /// `self` with other Adam hyper-parameters.
+        with_adam(adam: AdamConfig);
+        /// `self` with another batch size.
+        with_batch_size(batch_size: usize);
+        /// `self` with another number of steps per update.
+        with_steps_per_update(steps_per_update: u32);
+        /// `self` with another EMA decay.
+        with_ema_decay(ema_decay: f32);
+        /// `self` with another thread count (`0` = all available).
+        with_threads(threads: usize);
+        /// `self` with another number of gradient chunks.
+        with_gradient_chunks(gradient_chunks: usize);
+        /// `self` with another seed.
+        with_seed(seed: u32);
+        /// `self` with another step limit.
+        with_max_steps(max_steps: u64);
+        /// `self` with another plateau criterion.
+        with_plateau(plateau: PlateauConfig);
+        /// `self` with another sample-buffer capacity.
+        with_max_buffered_samples(max_buffered_samples: usize);
+        /// `self` with another gradient clip.
+        with_max_gradient_magnitude(max_gradient_magnitude: f32);
     }
 
     /// Checks every field; [`Field::new`] calls this.
@@ -1135,15 +1082,8 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
     /// # Panics
     /// If the three lengths differ.
     pub fn sample_batch(&self, queries: &[QueryPoint], u: &[Vec2], out: &mut [DirectionSample]) {
-        assert!(
-            queries.len() == u.len() && queries.len() == out.len(),
-            "sample_batch: {} queries, {} random pairs, {} outputs",
-            queries.len(),
-            u.len(),
-            out.len()
-        );
-        let (model, params) = (&self.model, &self.state.ema[..]);
-        parallel_fill(self.pool.as_deref(), out, |i| {
+        assert_batch_lengths("sample_batch", queries, (u, "random pairs"), out);
+        self.fill_with_ema(out, |model, params, i| {
             model.sample(params, &queries[i], u[i])
         });
     }
@@ -1154,15 +1094,8 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
     /// # Panics
     /// If the three lengths differ.
     pub fn pdf_batch(&self, queries: &[QueryPoint], directions: &[Vec3], out: &mut [f32]) {
-        assert!(
-            queries.len() == directions.len() && queries.len() == out.len(),
-            "pdf_batch: {} queries, {} directions, {} outputs",
-            queries.len(),
-            directions.len(),
-            out.len()
-        );
-        let (model, params) = (&self.model, &self.state.ema[..]);
-        parallel_fill(self.pool.as_deref(), out, |i| {
+        assert_batch_lengths("pdf_batch", queries, (directions, "directions"), out);
+        self.fill_with_ema(out, |model, params, i| {
             model.pdf(params, &queries[i], directions[i])
         });
     }
@@ -1174,11 +1107,33 @@ impl<M: GuidingModel + Send + Sync> Field<M> {
     /// If the lengths differ.
     pub fn selection_probability_batch(&self, queries: &[QueryPoint], out: &mut [f32]) {
         assert_eq!(queries.len(), out.len(), "one output per query");
-        let (model, params) = (&self.model, &self.state.ema[..]);
-        parallel_fill(self.pool.as_deref(), out, |i| {
+        self.fill_with_ema(out, |model, params, i| {
             model.selection_probability(params, &queries[i])
         });
     }
+
+    /// `out[i] = f(model, EMA parameters, i)` for every `i`, spread over the
+    /// threads.
+    fn fill_with_ema<O: Send>(&self, out: &mut [O], f: impl Fn(&M, &[f32], usize) -> O + Sync) {
+        let (model, params) = (&self.model, &self.state.ema[..]);
+        parallel_fill(self.pool.as_deref(), out, |i| f(model, params, i));
+    }
+}
+
+/// Panics unless a batch's `queries`, other inputs and `outputs` are
+/// equally long; the message gives the three lengths.
+#[track_caller]
+fn assert_batch_lengths<I, O>(
+    what: &str,
+    queries: &[QueryPoint],
+    (inputs, inputs_name): (&[I], &str),
+    outputs: &[O],
+) {
+    let (q, i, o) = (queries.len(), inputs.len(), outputs.len());
+    assert!(
+        q == i && q == o,
+        "{what}: {q} queries, {i} {inputs_name}, {o} outputs"
+    );
 }
 
 /// Checks a training state's vectors against a model of `n` parameters:

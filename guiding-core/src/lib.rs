@@ -50,6 +50,74 @@
 #[cfg(feature = "std")]
 extern crate std;
 
+/// Declares a two-mode setting stored as a `u32` code in GPU-visible
+/// structs: the `repr(u32)` enum (`$first = 0`, `$second = 1`), `code()`,
+/// and `from_code()`, which reads `0` as `$first` and every other value as
+/// `$second` (so a corrupt code still names a valid mode).
+macro_rules! two_mode_enum {
+    (
+        $(#[$doc:meta])*
+        pub enum $name:ident {
+            $(#[$first_doc:meta])*
+            $first:ident = 0,
+            $(#[$second_doc:meta])*
+            $second:ident = 1,
+        }
+    ) => {
+        $(#[$doc])*
+        #[repr(u32)]
+        #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+        pub enum $name {
+            $(#[$first_doc])*
+            $first = 0,
+            $(#[$second_doc])*
+            $second = 1,
+        }
+
+        impl $name {
+            /// The `u32` code stored in GPU-visible structs.
+            #[inline]
+            #[must_use]
+            pub const fn code(self) -> u32 {
+                self as u32
+            }
+
+            #[doc = concat!(
+                "Reads a code: `0` is [`", stringify!($name), "::", stringify!($first),
+                "`], every other value [`", stringify!($name), "::", stringify!($second),
+                "`] (so a corrupt code still names a valid mode)."
+            )]
+            #[inline]
+            #[must_use]
+            pub const fn from_code(code: u32) -> Self {
+                if code == 0 {
+                    Self::$first
+                } else {
+                    Self::$second
+                }
+            }
+        }
+    };
+}
+
+/// `const` builder methods that return `self` with some fields replaced:
+/// `$method($field: $ty, …)` is `pub const fn $method(self, $field: $ty, …)
+/// -> Self { Self { $field, …, ..self } }`.
+macro_rules! with_fields {
+    ($($(#[$doc:meta])* $method:ident($($field:ident: $ty:ty),+);)+) => {
+        $(
+            $(#[$doc])*
+            #[must_use]
+            pub const fn $method(self, $($field: $ty),+) -> Self {
+                Self {
+                    $($field,)+
+                    ..self
+                }
+            }
+        )+
+    };
+}
+
 pub mod batch;
 pub mod encoding;
 pub mod factorised;

@@ -625,6 +625,50 @@ pub fn sigmoid(x: f32) -> f32 {
     }
 }
 
+/// `x` clamped to `[0, ONE_MINUS_EPSILON]`, NaN to 0 (the identity on
+/// `[0, 1)`): a random number kept inside `[0, 1)`.
+#[inline]
+#[must_use]
+pub fn unit_interval(x: f32) -> f32 {
+    if x > 0.0 {
+        x.min(ONE_MINUS_EPSILON)
+    } else {
+        0.0
+    }
+}
+
+/// `max(…max(max(f32::MIN, x₀), x₁)…)`: the largest entry of `x`, in index
+/// order (`f32::max` skips NaN entries; `f32::MIN` for none).
+#[inline]
+#[must_use]
+pub fn max_entry<const N: usize>(x: &[f32; N]) -> f32 {
+    let mut max = f32::MIN;
+    let mut k = 0;
+    while k < N {
+        max = max.max(x[k]);
+        k += 1;
+    }
+    max
+}
+
+/// The stable log-sum-exp of `x` in two parts, `(m, ln Σ_k e^{x_k − m})`
+/// with `m = max_k x_k` (from `f32::MIN`, each sum in index order):
+/// `ln Σ_k e^{x_k} = m + ln Σ_k e^{x_k − m}`, the parts kept apart so that
+/// `x_k − m − lse` (a log-softmax) subtracts the large `m` first. The sum is
+/// `≥ 1`, so the logarithm is finite for finite `x`.
+#[inline]
+#[must_use]
+pub fn log_sum_exp_parts<const N: usize>(x: &[f32; N]) -> (f32, f32) {
+    let max = max_entry(x);
+    let mut sum = 0.0;
+    let mut k = 0;
+    while k < N {
+        sum += exp(x[k] - max);
+        k += 1;
+    }
+    (max, ln(sum))
+}
+
 /// Replaces NaN by `0` and clamps to `[-limit, limit]`.
 ///
 /// Used on raw network outputs before any activation, so that a corrupt

@@ -906,156 +906,161 @@ mod batch {
             _mm512_max_ps, _mm512_set1_ps, _mm512_setzero_ps, _mm512_storeu_ps, _CMP_NLE_UQ,
         };
 
-        /// AVX2 + FMA; only constructed when both are detected.
-        #[derive(Clone, Copy)]
-        pub(in super::super) struct Avx2Fma(());
-
-        impl Avx2Fma {
-            pub(in super::super) fn new() -> Option<Self> {
-                (std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma"))
-                    .then_some(Self(()))
-            }
-
-            /// # Safety
-            /// As [`Simd::kernel`]; `self` proves AVX2 and FMA.
-            /// Runs `f` compiled with this set's features (`f` is inlined).
-            #[target_feature(enable = "avx2,fma")]
-            fn vectorize_tf<R>(self, f: impl FnOnce() -> R) -> R {
-                f()
-            }
-
-            #[target_feature(enable = "avx2,fma")]
-            unsafe fn kernel_tf<const INIT: u8, const EPI: u8>(self, g: &mut Gemm<'_>) {
-                gemm_body::<Self, 6, 2, INIT, EPI>(self, g);
-            }
-        }
-
-        // SAFETY (every `unsafe` block below): an `Avx2Fma` exists only when
-        // AVX2 and FMA were detected, so the intrinsics' target features are
-        // available; pointer validity is the caller's contract.
-        impl Simd for Avx2Fma {
-            const LANES: usize = 8;
-            type V = __m256;
-            #[inline(always)]
-            fn zero(self) -> __m256 {
-                // SAFETY: see the impl.
-                unsafe { _mm256_setzero_ps() }
-            }
-            #[inline(always)]
-            unsafe fn load(self, p: *const f32) -> __m256 {
-                _mm256_loadu_ps(p)
-            }
-            #[inline(always)]
-            unsafe fn store(self, p: *mut f32, v: __m256) {
-                _mm256_storeu_ps(p, v);
-            }
-            #[inline(always)]
-            unsafe fn splat(self, p: *const f32) -> __m256 {
-                _mm256_broadcast_ss(&*p)
-            }
-            #[inline(always)]
-            fn mul_add(self, a: __m256, b: __m256, c: __m256) -> __m256 {
-                // SAFETY: see the impl.
-                unsafe { _mm256_fmadd_ps(a, b, c) }
-            }
-            #[inline(always)]
-            fn relu(self, v: __m256) -> __m256 {
-                // SAFETY: see the impl. `max(v, 0)` returns the second
-                // operand (0) when `v` is NaN or ±0.
-                unsafe { _mm256_max_ps(v, _mm256_setzero_ps()) }
-            }
-            #[inline(always)]
-            fn mask(self, v: __m256, h: __m256) -> __m256 {
-                // SAFETY: see the impl. Keeps `v` where `!(h ≤ 0)`.
-                unsafe { _mm256_and_ps(v, _mm256_cmp_ps::<_CMP_NLE_UQ>(h, _mm256_setzero_ps())) }
-            }
-            unsafe fn kernel<const INIT: u8, const EPI: u8>(self, g: &mut Gemm<'_>) {
-                self.kernel_tf::<INIT, EPI>(g);
-            }
-            #[inline(always)]
-            fn vectorize<R>(self, f: impl FnOnce() -> R) -> R {
-                // SAFETY: see the impl.
-                unsafe { self.vectorize_tf(f) }
-            }
-        }
-
-        /// AVX-512F + AVX2 + FMA; only constructed when all are detected.
-        #[derive(Clone, Copy)]
-        pub(in super::super) struct Avx512(());
-
-        impl Avx512 {
-            pub(in super::super) fn new() -> Option<Self> {
-                (std::is_x86_feature_detected!("avx512f")
-                    && std::is_x86_feature_detected!("avx2")
-                    && std::is_x86_feature_detected!("fma"))
-                .then_some(Self(()))
-            }
-
-            /// # Safety
-            /// As [`Simd::kernel`]; `self` proves AVX-512F, AVX2 and FMA.
-            /// Runs `f` compiled with this set's features (`f` is inlined).
-            #[target_feature(enable = "avx512f,avx2,fma")]
-            fn vectorize_tf<R>(self, f: impl FnOnce() -> R) -> R {
-                f()
-            }
-
-            #[target_feature(enable = "avx512f,avx2,fma")]
-            unsafe fn kernel_tf<const INIT: u8, const EPI: u8>(self, g: &mut Gemm<'_>) {
-                gemm_body::<Self, 8, 2, INIT, EPI>(self, g);
-            }
-        }
-
-        // SAFETY (every `unsafe` block below): an `Avx512` exists only when
-        // AVX-512F was detected; pointer validity is the caller's contract.
-        impl Simd for Avx512 {
-            const LANES: usize = 16;
-            type V = __m512;
-            #[inline(always)]
-            fn zero(self) -> __m512 {
-                // SAFETY: see the impl.
-                unsafe { _mm512_setzero_ps() }
-            }
-            #[inline(always)]
-            unsafe fn load(self, p: *const f32) -> __m512 {
-                _mm512_loadu_ps(p)
-            }
-            #[inline(always)]
-            unsafe fn store(self, p: *mut f32, v: __m512) {
-                _mm512_storeu_ps(p, v);
-            }
-            #[inline(always)]
-            unsafe fn splat(self, p: *const f32) -> __m512 {
-                _mm512_set1_ps(*p)
-            }
-            #[inline(always)]
-            fn mul_add(self, a: __m512, b: __m512, c: __m512) -> __m512 {
-                // SAFETY: see the impl.
-                unsafe { _mm512_fmadd_ps(a, b, c) }
-            }
-            #[inline(always)]
-            fn relu(self, v: __m512) -> __m512 {
-                // SAFETY: see the impl; NaN and ±0 give the second operand.
-                unsafe { _mm512_max_ps(v, _mm512_setzero_ps()) }
-            }
-            #[inline(always)]
-            fn mask(self, v: __m512, h: __m512) -> __m512 {
-                // SAFETY: see the impl. Keeps `v` where `!(h ≤ 0)`.
-                unsafe {
-                    _mm512_maskz_mov_ps(
-                        _mm512_cmp_ps_mask::<_CMP_NLE_UQ>(h, _mm512_setzero_ps()),
-                        v,
-                    )
+        /// Declares an instruction set `$name`: a type constructed only when
+        /// every one of `$feature` is detected, its `#[target_feature]` entry
+        /// points (the kernel with register tiles of `$rows` rows × 2
+        /// vectors, and `vectorize`), and its [`Simd`] impl on `$lanes`
+        /// lanes of `$v` from the set's intrinsics. A macro because
+        /// `#[target_feature]` takes a literal, not a generic parameter.
+        macro_rules! simd_set {
+            (
+                $(#[$doc:meta])*
+                $name:ident: [$($feature:tt),+], rows $rows:literal, $lanes:literal x $v:ty {
+                    zero: $zero:path,
+                    load: $load:path,
+                    store: $store:path,
+                    splat: |$sp:ident| $splat:expr,
+                    fmadd: $fmadd:path,
+                    max: $max:path,
+                    mask: |$mv:ident, $mh:ident| $mask:expr $(,)?
                 }
-            }
-            unsafe fn kernel<const INIT: u8, const EPI: u8>(self, g: &mut Gemm<'_>) {
-                self.kernel_tf::<INIT, EPI>(g);
-            }
-            #[inline(always)]
-            fn vectorize<R>(self, f: impl FnOnce() -> R) -> R {
-                // SAFETY: see the impl.
-                unsafe { self.vectorize_tf(f) }
+            ) => {
+                $(#[$doc])*
+                #[derive(Clone, Copy)]
+                pub(in super::super) struct $name(());
+
+                impl $name {
+                    pub(in super::super) fn new() -> Option<Self> {
+                        ($(std::is_x86_feature_detected!($feature))&&+).then_some(Self(()))
+                    }
+
+                    /// Runs `f` compiled with this set's features (`f` is inlined).
+                    $(#[target_feature(enable = $feature)])+
+                    fn vectorize_tf<R>(self, f: impl FnOnce() -> R) -> R {
+                        f()
+                    }
+
+                    /// # Safety
+                    /// As [`Simd::kernel`]; `self` proves the features.
+                    $(#[target_feature(enable = $feature)])+
+                    unsafe fn kernel_tf<const INIT: u8, const EPI: u8>(self, g: &mut Gemm<'_>) {
+                        gemm_body::<Self, $rows, 2, INIT, EPI>(self, g);
+                    }
+                }
+
+                // SAFETY (every `unsafe` block below): a `$name` exists only
+                // when its features were detected, so the intrinsics' target
+                // features are available; pointer validity is the caller's
+                // contract.
+                impl Simd for $name {
+                    const LANES: usize = $lanes;
+                    type V = $v;
+                    #[inline(always)]
+                    fn zero(self) -> $v {
+                        // SAFETY: see the impl.
+                        unsafe { $zero() }
+                    }
+                    #[inline(always)]
+                    unsafe fn load(self, p: *const f32) -> $v {
+                        $load(p)
+                    }
+                    #[inline(always)]
+                    unsafe fn store(self, p: *mut f32, v: $v) {
+                        $store(p, v);
+                    }
+                    #[inline(always)]
+                    unsafe fn splat(self, $sp: *const f32) -> $v {
+                        $splat
+                    }
+                    #[inline(always)]
+                    fn mul_add(self, a: $v, b: $v, c: $v) -> $v {
+                        // SAFETY: see the impl.
+                        unsafe { $fmadd(a, b, c) }
+                    }
+                    #[inline(always)]
+                    fn relu(self, v: $v) -> $v {
+                        // SAFETY: see the impl. `max(v, 0)` returns the
+                        // second operand (0) when `v` is NaN or ±0.
+                        unsafe { $max(v, $zero()) }
+                    }
+                    #[inline(always)]
+                    fn mask(self, $mv: $v, $mh: $v) -> $v {
+                        // SAFETY: see the impl.
+                        unsafe { $mask }
+                    }
+                    unsafe fn kernel<const INIT: u8, const EPI: u8>(self, g: &mut Gemm<'_>) {
+                        self.kernel_tf::<INIT, EPI>(g);
+                    }
+                    #[inline(always)]
+                    fn vectorize<R>(self, f: impl FnOnce() -> R) -> R {
+                        // SAFETY: see the impl.
+                        unsafe { self.vectorize_tf(f) }
+                    }
+                }
+            };
+        }
+
+        // `mask` keeps `v` where `!(h ≤ 0)` (NaN `h` included).
+        simd_set! {
+            /// AVX2 + FMA; only constructed when both are detected.
+            Avx2Fma: ["avx2", "fma"], rows 6, 8 x __m256 {
+                zero: _mm256_setzero_ps,
+                load: _mm256_loadu_ps,
+                store: _mm256_storeu_ps,
+                splat: |p| _mm256_broadcast_ss(&*p),
+                fmadd: _mm256_fmadd_ps,
+                max: _mm256_max_ps,
+                mask: |v, h| _mm256_and_ps(v, _mm256_cmp_ps::<_CMP_NLE_UQ>(h, _mm256_setzero_ps())),
             }
         }
+
+        simd_set! {
+            /// AVX-512F + AVX2 + FMA; only constructed when all are detected.
+            Avx512: ["avx512f", "avx2", "fma"], rows 8, 16 x __m512 {
+                zero: _mm512_setzero_ps,
+                load: _mm512_loadu_ps,
+                store: _mm512_storeu_ps,
+                splat: |p| _mm512_set1_ps(*p),
+                fmadd: _mm512_fmadd_ps,
+                max: _mm512_max_ps,
+                mask: |v, h| _mm512_maskz_mov_ps(
+                    _mm512_cmp_ps_mask::<_CMP_NLE_UQ>(h, _mm512_setzero_ps()),
+                    v,
+                ),
+            }
+        }
+    }
+
+    /// Runs `$body` with `$s` bound to the instruction set of `$kernel`
+    /// (inside its [`Simd::vectorize`]); a macro, as `$body` is
+    /// monomorphised for each set.
+    ///
+    /// # Panics
+    /// If this CPU does not support `$kernel`.
+    macro_rules! with_simd {
+        ($kernel:expr, |$s:ident| $body:expr) => {{
+            let kernel: BatchKernel = $kernel;
+            let unsupported =
+                || -> ! { panic!("batch kernel {kernel:?} is not supported by this CPU") };
+            match kernel {
+                BatchKernel::Portable => {
+                    let $s = Portable;
+                    $body
+                }
+                #[cfg(target_arch = "x86_64")]
+                BatchKernel::Avx2Fma => {
+                    let $s = x86::Avx2Fma::new().unwrap_or_else(|| unsupported());
+                    $s.vectorize(|| $body)
+                }
+                #[cfg(target_arch = "x86_64")]
+                BatchKernel::Avx512 => {
+                    let $s = x86::Avx512::new().unwrap_or_else(|| unsupported());
+                    $s.vectorize(|| $body)
+                }
+                #[cfg(not(target_arch = "x86_64"))]
+                _ => unsupported(),
+            }
+        }};
     }
 
     /// `n` rounded up to a multiple of `lanes`.
@@ -1144,9 +1149,60 @@ mod batch {
         }
     }
 
+    /// What the blocked backward pass reads (the inputs of
+    /// [`Mlp::backward_batch`]; it writes `grad` and `d_inputs`).
+    #[derive(Clone, Copy)]
+    struct BackwardInputs<
+        'a,
+        const IN: usize,
+        const WIDTH: usize,
+        const OUT: usize,
+        const HIDDEN: usize,
+    > {
+        params: &'a [f32],
+        offset: usize,
+        inputs: &'a [[f32; IN]],
+        ctxs: &'a [MlpContext<WIDTH, HIDDEN>],
+        d_outputs: &'a [[f32; OUT]],
+    }
+
+    impl<const IN: usize, const WIDTH: usize, const OUT: usize, const HIDDEN: usize>
+        BackwardInputs<'_, IN, WIDTH, OUT, HIDDEN>
+    {
+        /// Per-query [`Mlp::backward`] of the queries `range` (the exact
+        /// fallback for non-finite parameters or activations).
+        fn per_query(
+            &self,
+            grad: &mut [f32],
+            d_inputs: &mut [[f32; IN]],
+            range: core::ops::Range<usize>,
+        ) {
+            for q in range {
+                Mlp::<IN, WIDTH, OUT, HIDDEN>::backward(
+                    self.params,
+                    self.offset,
+                    &self.inputs[q],
+                    &self.ctxs[q],
+                    &self.d_outputs[q],
+                    grad,
+                    &mut d_inputs[q],
+                );
+            }
+        }
+    }
+
     impl<const IN: usize, const WIDTH: usize, const OUT: usize, const HIDDEN: usize>
         Mlp<IN, WIDTH, OUT, HIDDEN>
     {
+        /// `(layer_offset, fan_in, fan_out)` of layer `layer`.
+        const fn layer_shape(layer: usize) -> (usize, usize, usize) {
+            (
+                Self::layer_offset(layer),
+                Self::fan_in(layer),
+                Self::fan_out(layer),
+            )
+        }
+
         /// The blocked forward pass; stores hidden activations when `ctxs`
         /// is non-empty (then it has one entry per query).
         ///
@@ -1181,11 +1237,7 @@ mod batch {
             // Per layer: Wᵀ as [fan_in][fan_out padded], then the padded bias.
             let packed: Vec<(Vec<f32>, Vec<f32>)> = (0..=HIDDEN)
                 .map(|layer| {
-                    let (o, fi, fo) = (
-                        Self::layer_offset(layer),
-                        Self::fan_in(layer),
-                        Self::fan_out(layer),
-                    );
+                    let (o, fi, fo) = Self::layer_shape(layer);
                     let fo_pad = pad(fo, lanes);
                     let mut wt = vec![0.0; fi * fo_pad];
                     for (j, row) in net[o..o + fi * fo].chunks_exact(fi).enumerate() {
@@ -1296,25 +1348,9 @@ mod batch {
             outputs: &mut [[f32; OUT]],
             ctxs: &mut [MlpContext<WIDTH, HIDDEN>],
         ) {
-            let unsupported =
-                || -> ! { panic!("batch kernel {kernel:?} is not supported by this CPU") };
-            match kernel {
-                BatchKernel::Portable => {
-                    Self::forward_impl(Portable, params, offset, inputs, outputs, ctxs);
-                }
-                #[cfg(target_arch = "x86_64")]
-                BatchKernel::Avx2Fma => {
-                    let s = x86::Avx2Fma::new().unwrap_or_else(|| unsupported());
-                    s.vectorize(|| Self::forward_impl(s, params, offset, inputs, outputs, ctxs));
-                }
-                #[cfg(target_arch = "x86_64")]
-                BatchKernel::Avx512 => {
-                    let s = x86::Avx512::new().unwrap_or_else(|| unsupported());
-                    s.vectorize(|| Self::forward_impl(s, params, offset, inputs, outputs, ctxs));
-                }
-                #[cfg(not(target_arch = "x86_64"))]
-                _ => unsupported(),
-            }
+            with_simd!(kernel, |s| Self::forward_impl(
+                s, params, offset, inputs, outputs, ctxs
+            ));
         }
 
         /// [`Self::infer`] for every query of `inputs`, written to `outputs`,
@@ -1392,43 +1428,13 @@ mod batch {
             Self::forward_dispatch(kernel, params, offset, inputs, outputs, ctxs);
         }
 
-        /// Per-query [`Self::backward`] of the queries `range` (the exact
-        /// fallback for non-finite parameters or activations).
-        #[allow(clippy::too_many_arguments)]
-        fn backward_per_query(
-            params: &[f32],
-            offset: usize,
-            inputs: &[[f32; IN]],
-            ctxs: &[MlpContext<WIDTH, HIDDEN>],
-            d_outputs: &[[f32; OUT]],
-            grad: &mut [f32],
-            d_inputs: &mut [[f32; IN]],
-            range: core::ops::Range<usize>,
-        ) {
-            for q in range {
-                Self::backward(
-                    params,
-                    offset,
-                    &inputs[q],
-                    &ctxs[q],
-                    &d_outputs[q],
-                    grad,
-                    &mut d_inputs[q],
-                );
-            }
-        }
-
         /// The layers of the network `net` (at `offset` in the parameter
         /// buffer) for the blocked backward pass: weights with rows padded to
         /// the vector width `lanes`, zeroed gradient accumulators.
         fn back_layers(net: &[f32], offset: usize, lanes: usize) -> Vec<BackLayer> {
             (0..=HIDDEN)
                 .map(|layer| {
-                    let (off, fan_in, fan_out) = (
-                        Self::layer_offset(layer),
-                        Self::fan_in(layer),
-                        Self::fan_out(layer),
-                    );
+                    let (off, fan_in, fan_out) = Self::layer_shape(layer);
                     let in_pad = pad(fan_in, lanes);
                     let mut w = vec![0.0; fan_out * in_pad];
                     for (dst, src) in w
@@ -1475,20 +1481,22 @@ mod batch {
         }
 
         /// The blocked backward pass (see [`Self::backward_batch`]).
-        #[allow(clippy::too_many_arguments)]
         #[allow(clippy::too_many_lines)]
         #[inline(always)]
         fn backward_impl<S: Simd>(
             s: S,
-            params: &[f32],
-            offset: usize,
-            inputs: &[[f32; IN]],
-            ctxs: &[MlpContext<WIDTH, HIDDEN>],
-            d_outputs: &[[f32; OUT]],
+            read: BackwardInputs<'_, IN, WIDTH, OUT, HIDDEN>,
             grad: &mut [f32],
             d_inputs: &mut [[f32; IN]],
         ) {
             let () = Self::VALID;
+            let BackwardInputs {
+                params,
+                offset,
+                inputs,
+                ctxs,
+                d_outputs,
+            } = read;
             let n = inputs.len();
             assert!(
                 ctxs.len() == n && d_outputs.len() == n && d_inputs.len() == n,
@@ -1503,16 +1511,7 @@ mod batch {
             // NaN, where the per-query kernel skips the unit: such inputs take
             // the per-query path.
             if !net.iter().fold(true, |ok, v| ok & v.is_finite()) {
-                Self::backward_per_query(
-                    params,
-                    offset,
-                    inputs,
-                    ctxs,
-                    d_outputs,
-                    grad,
-                    d_inputs,
-                    0..n,
-                );
+                read.per_query(grad, d_inputs, 0..n);
                 return;
             }
             let lanes = S::LANES;
@@ -1545,16 +1544,7 @@ mod batch {
                     .fold(true, |ok, v| ok & v.is_finite())
                 {
                     BackLayer::save_all(&layers, grad);
-                    Self::backward_per_query(
-                        params,
-                        offset,
-                        inputs,
-                        ctxs,
-                        d_outputs,
-                        grad,
-                        d_inputs,
-                        start..start + nb,
-                    );
+                    read.per_query(grad, d_inputs, start..start + nb);
                     BackLayer::load_all(&mut layers, grad);
                     start += nb;
                     continue;
@@ -1670,33 +1660,14 @@ mod batch {
             grad: &mut [f32],
             d_inputs: &mut [[f32; IN]],
         ) {
-            let unsupported =
-                || -> ! { panic!("batch kernel {kernel:?} is not supported by this CPU") };
-            match kernel {
-                BatchKernel::Portable => Self::backward_impl(
-                    Portable, params, offset, inputs, ctxs, d_outputs, grad, d_inputs,
-                ),
-                #[cfg(target_arch = "x86_64")]
-                BatchKernel::Avx2Fma => {
-                    let s = x86::Avx2Fma::new().unwrap_or_else(|| unsupported());
-                    s.vectorize(|| {
-                        Self::backward_impl(
-                            s, params, offset, inputs, ctxs, d_outputs, grad, d_inputs,
-                        );
-                    });
-                }
-                #[cfg(target_arch = "x86_64")]
-                BatchKernel::Avx512 => {
-                    let s = x86::Avx512::new().unwrap_or_else(|| unsupported());
-                    s.vectorize(|| {
-                        Self::backward_impl(
-                            s, params, offset, inputs, ctxs, d_outputs, grad, d_inputs,
-                        );
-                    });
-                }
-                #[cfg(not(target_arch = "x86_64"))]
-                _ => unsupported(),
-            }
+            let read = BackwardInputs {
+                params,
+                offset,
+                inputs,
+                ctxs,
+                d_outputs,
+            };
+            with_simd!(kernel, |s| Self::backward_impl(s, read, grad, d_inputs));
         }
     }
 }

@@ -66,38 +66,15 @@ impl AdamConfig {
         }
     }
 
-    /// `self` with another learning rate.
-    #[must_use]
-    pub const fn with_learning_rate(self, learning_rate: f32) -> Self {
-        Self {
-            learning_rate,
-            ..self
-        }
-    }
-
-    /// `self` with other moment decays.
-    #[must_use]
-    pub const fn with_betas(self, beta1: f32, beta2: f32) -> Self {
-        Self {
-            beta1,
-            beta2,
-            ..self
-        }
-    }
-
-    /// `self` with another `ε`.
-    #[must_use]
-    pub const fn with_epsilon(self, epsilon: f32) -> Self {
-        Self { epsilon, ..self }
-    }
-
-    /// `self` with another L2 regularisation.
-    #[must_use]
-    pub const fn with_l2_regularization(self, l2_regularization: f32) -> Self {
-        Self {
-            l2_regularization,
-            ..self
-        }
+    with_fields! {
+        /// `self` with another learning rate.
+        with_learning_rate(learning_rate: f32);
+        /// `self` with other moment decays.
+        with_betas(beta1: f32, beta2: f32);
+        /// `self` with another `ε`.
+        with_epsilon(epsilon: f32);
+        /// `self` with another L2 regularisation.
+        with_l2_regularization(l2_regularization: f32);
     }
 }
 

@@ -23,7 +23,7 @@
 //! struct stays `N` floats and two codes) and inverts the quadratic CDF of a
 //! linear piece in the cancellation-free form of [`sample_linear`].
 
-use crate::math::{exp, ln, sanitize, sqrt, ONE_MINUS_EPSILON};
+use crate::math::{exp, ln, log_sum_exp_parts, sanitize, sqrt, unit_interval, ONE_MINUS_EPSILON};
 use crate::mixture::softmax;
 use bytemuck::{Pod, Zeroable};
 
@@ -31,66 +31,40 @@ use bytemuck::{Pod, Zeroable};
 /// softmax, so that any network output gives a valid density.
 pub const PDF1D_LOGIT_LIMIT: f32 = 1e30;
 
-/// How the bin values are reconstructed into a density.
-#[repr(u32)]
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Interpolation {
-    /// Piecewise constant: `p(x) = v_⌊xN⌋`.
-    Nearest = 0,
-    /// Piecewise linear between bin centres (Figueiredo et al. 2025, §3.1).
-    Linear = 1,
-}
-
-impl Interpolation {
-    /// The `u32` code stored in GPU-visible structs.
-    #[inline]
-    #[must_use]
-    pub fn code(self) -> u32 {
-        self as u32
-    }
-
-    /// Reads a code: `0` is [`Interpolation::Nearest`], every other value
-    /// [`Interpolation::Linear`] (so a corrupt code still names a valid mode).
-    #[inline]
-    #[must_use]
-    pub fn from_code(code: u32) -> Self {
-        if code == 0 {
-            Self::Nearest
-        } else {
-            Self::Linear
-        }
+two_mode_enum! {
+    /// How the bin values are reconstructed into a density.
+    pub enum Interpolation {
+        /// Piecewise constant: `p(x) = v_⌊xN⌋`.
+        Nearest = 0,
+        /// Piecewise linear between bin centres (Figueiredo et al. 2025, §3.1).
+        Linear = 1,
     }
 }
 
-/// How the ends of `[0, 1]` are treated.
-#[repr(u32)]
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Boundary {
-    /// Periodic (the azimuth φ): `0` and `1` are the same point; linear
-    /// interpolation crosses the seam.
-    Wrap = 0,
-    /// Clamped (the polar angle θ): the end half bins are constant.
-    Clamp = 1,
+two_mode_enum! {
+    /// How the ends of `[0, 1]` are treated.
+    pub enum Boundary {
+        /// Periodic (the azimuth φ): `0` and `1` are the same point; linear
+        /// interpolation crosses the seam.
+        Wrap = 0,
+        /// Clamped (the polar angle θ): the end half bins are constant.
+        Clamp = 1,
+    }
 }
 
-impl Boundary {
-    /// The `u32` code stored in GPU-visible structs.
-    #[inline]
-    #[must_use]
-    pub fn code(self) -> u32 {
-        self as u32
-    }
-
-    /// Reads a code: `0` is [`Boundary::Wrap`], every other value
-    /// [`Boundary::Clamp`].
-    #[inline]
-    #[must_use]
-    pub fn from_code(code: u32) -> Self {
-        if code == 0 {
-            Self::Wrap
-        } else {
-            Self::Clamp
-        }
+/// The end values `a`, `b` of a linear piece for [`sample_linear`] and
+/// [`linear_cdf`]: negative and NaN values taken as 0, then both divided by
+/// their maximum (so their squares can neither overflow nor underflow to a
+/// wrong ratio); `None` when that maximum is 0 or infinite.
+#[inline]
+fn normalised_ends(a: f32, b: f32) -> Option<(f32, f32)> {
+    let a = if a > 0.0 { a } else { 0.0 };
+    let b = if b > 0.0 { b } else { 0.0 };
+    let m = a.max(b);
+    if m > 0.0 && m <= f32::MAX {
+        Some((a / m, b / m))
+    } else {
+        None
     }
 }
 
@@ -111,15 +85,10 @@ impl Boundary {
 #[inline]
 #[must_use]
 pub fn sample_linear(u: f32, a: f32, b: f32) -> f32 {
-    let u = clamp_unit(u);
-    let a = if a > 0.0 { a } else { 0.0 };
-    let b = if b > 0.0 { b } else { 0.0 };
-    let m = a.max(b);
-    if !(m > 0.0 && m <= f32::MAX) {
+    let u = unit_interval(u);
+    let Some((a, b)) = normalised_ends(a, b) else {
         return u;
-    }
-    let a = a / m;
-    let b = b / m;
+    };
     if u == 0.0 {
         return 0.0;
     }
@@ -134,14 +103,9 @@ pub fn sample_linear(u: f32, a: f32, b: f32) -> f32 {
 #[must_use]
 pub fn linear_cdf(t: f32, a: f32, b: f32) -> f32 {
     let t = if t > 0.0 { t.min(1.0) } else { 0.0 };
-    let a = if a > 0.0 { a } else { 0.0 };
-    let b = if b > 0.0 { b } else { 0.0 };
-    let m = a.max(b);
-    if !(m > 0.0 && m <= f32::MAX) {
+    let Some((a, b)) = normalised_ends(a, b) else {
         return t;
-    }
-    let a = a / m;
-    let b = b / m;
+    };
     (t * (a * (2.0 - t) + b * t) / (a + b)).clamp(0.0, 1.0)
 }
 
@@ -167,16 +131,6 @@ pub const PDF1D_SAMPLE_CUT: f32 = 1.0 / 16_777_216.0;
 fn sampled_mass(m: f32) -> f32 {
     if m > PDF1D_SAMPLE_CUT {
         m
-    } else {
-        0.0
-    }
-}
-
-/// `u` clamped to `[0, 1)`, NaN to 0.
-#[inline]
-fn clamp_unit(u: f32) -> f32 {
-    if u > 0.0 {
-        u.min(ONE_MINUS_EPSILON)
     } else {
         0.0
     }
@@ -246,9 +200,22 @@ fn stencil<const N: usize>(
     }
 }
 
+/// The logits with NaN replaced by 0 and clamped to
+/// ±[`PDF1D_LOGIT_LIMIT`].
+#[inline]
+fn sanitized_logits<const N: usize>(logits: &[f32; N]) -> [f32; N] {
+    let mut clean = [0.0; N];
+    let mut k = 0;
+    while k < N {
+        clean[k] = sanitize(logits[k], PDF1D_LOGIT_LIMIT);
+        k += 1;
+    }
+    clean
+}
+
 /// `⌊s⌋` clamped to `[0, N − 1]` (NaN to 0).
 #[inline]
-fn bin_index<const N: usize>(s: f32) -> usize {
+pub(crate) fn bin_index<const N: usize>(s: f32) -> usize {
     if s > 0.0 {
         // Through u32: the same saturating truncation for every s > 0 that
         // can index a bin, and a cheaper conversion than f32 → u64.
@@ -327,24 +294,9 @@ impl<const N: usize> Pdf1d<N> {
         interpolation: Interpolation,
         boundary: Boundary,
     ) -> Self {
-        let mut clean = [0.0; N];
-        let mut k = 0;
-        while k < N {
-            clean[k] = sanitize(logits[k], PDF1D_LOGIT_LIMIT);
-            k += 1;
-        }
-        let mut pdf = Self {
-            values: [0.0; N],
-            interpolation: interpolation.code(),
-            boundary: boundary.code(),
-        };
-        softmax(&clean, &mut pdf.values);
-        let n = N as f32;
-        k = 0;
-        while k < N {
-            pdf.values[k] *= n;
-            k += 1;
-        }
+        let mut pdf = Self::zeroed(interpolation, boundary);
+        softmax(&sanitized_logits(logits), &mut pdf.values);
+        pdf.scale(N as f32);
         pdf
     }
 
@@ -358,11 +310,7 @@ impl<const N: usize> Pdf1d<N> {
         interpolation: Interpolation,
         boundary: Boundary,
     ) -> Self {
-        let mut pdf = Self {
-            values: [0.0; N],
-            interpolation: interpolation.code(),
-            boundary: boundary.code(),
-        };
+        let mut pdf = Self::zeroed(interpolation, boundary);
         let mut max = 0.0f32;
         let mut k = 0;
         while k < N {
@@ -388,13 +336,26 @@ impl<const N: usize> Pdf1d<N> {
             k += 1;
         }
         // sum ∈ [1, N].
-        let scale = N as f32 / sum;
-        k = 0;
+        pdf.scale(N as f32 / sum);
+        pdf
+    }
+
+    /// All-zero values (not yet a density) with the given modes.
+    fn zeroed(interpolation: Interpolation, boundary: Boundary) -> Self {
+        Self {
+            values: [0.0; N],
+            interpolation: interpolation.code(),
+            boundary: boundary.code(),
+        }
+    }
+
+    /// Multiplies every value by `factor`.
+    fn scale(&mut self, factor: f32) {
+        let mut k = 0;
         while k < N {
-            pdf.values[k] *= scale;
+            self.values[k] *= factor;
             k += 1;
         }
-        pdf
     }
 
     /// The interpolation mode.
@@ -599,7 +560,7 @@ impl<const N: usize> Pdf1d<N> {
     /// (the same result, bit for bit, when `sums` are this density's).
     #[must_use]
     pub fn sample_with_sums(&self, sums: &RunningSums<N>, u: f32, margin: f32) -> (f32, f32) {
-        let u = clamp_unit(u);
+        let u = unit_interval(u);
         let linear = self.interpolation() == Interpolation::Linear;
         let ends = &sums.ends;
         let total = sums.total;
@@ -631,7 +592,7 @@ impl<const N: usize> Pdf1d<N> {
             }
         }
         let below = if chosen > 0 { ends[chosen - 1] } else { 0.0 };
-        let local = clamp_unit((target - below) / self.piece_mass(chosen));
+        let local = unit_interval((target - below) / self.piece_mass(chosen));
         let (start, width, a, b) = self.piece(chosen);
         let t = if linear {
             sample_linear(local, a, b)
@@ -639,7 +600,7 @@ impl<const N: usize> Pdf1d<N> {
             // A flat piece: `sample_linear(local, a, a)` is exactly `local`.
             local
         };
-        let mut x = clamp_unit(start + width * t);
+        let mut x = unit_interval(start + width * t);
         if margin > 0.0 {
             let m = margin.min(0.25 * width);
             x = x.clamp(start + m, start + width - m);
@@ -653,14 +614,14 @@ impl<const N: usize> Pdf1d<N> {
             } else {
                 x + (x * f32::EPSILON).max(f32::MIN_POSITIVE)
             };
-            x = clamp_unit(x);
+            x = unit_interval(x);
             p = self.pdf_in_unit_interval(x);
             step += 1;
         }
         // … and if the density there still underflows, 2⁻¹⁰ of the width.
         if p <= 0.0 || p.is_nan() {
             let t = t.clamp(1.0 / 1024.0, 1.0 - 1.0 / 1024.0);
-            x = clamp_unit(start + width * t);
+            x = unit_interval(start + width * t);
             p = self.pdf_in_unit_interval(x);
         }
         (x, p)
@@ -673,7 +634,7 @@ impl<const N: usize> Pdf1d<N> {
         let x = reduce(x, self.boundary());
         let total = self.total_mass();
         if !(total > 0.0 && total <= f32::MAX) {
-            return clamp_unit(x);
+            return unit_interval(x);
         }
         let n = N as f32;
         let count = self.piece_count();
@@ -702,7 +663,7 @@ impl<const N: usize> Pdf1d<N> {
         let (start, width, a, b) = self.piece(piece);
         let t = (x - start) / width;
         cum += self.piece_mass(piece) * linear_cdf(t, a, b);
-        clamp_unit(cum / total)
+        unit_interval(cum / total)
     }
 
     /// `ln p(x)` of the density [`Self::from_logits`] builds from `logits`,
@@ -731,23 +692,9 @@ impl<const N: usize> Pdf1d<N> {
         boundary: Boundary,
         grad: &mut [f32; N],
     ) -> f32 {
-        let mut l = [0.0; N];
-        let mut max = f32::MIN;
+        let l = sanitized_logits(logits);
+        let (max, log_sum) = log_sum_exp_parts(&l);
         let mut k = 0;
-        while k < N {
-            l[k] = sanitize(logits[k], PDF1D_LOGIT_LIMIT);
-            max = max.max(l[k]);
-            k += 1;
-        }
-        let mut sum = 0.0;
-        k = 0;
-        while k < N {
-            sum += exp(l[k] - max);
-            k += 1;
-        }
-        // sum ≥ 1.
-        let log_sum = ln(sum);
-        k = 0;
         while k < N {
             grad[k] = -exp(l[k] - max - log_sum);
             k += 1;

@@ -68,3 +68,17 @@ pub(crate) fn write_clamped<const N: usize>(out: &mut [f32; N], index: usize, va
         out[index] = value;
     }
 }
+
+/// How many of the `count` slots `offset, offset + 1, …` of an `N`-slot
+/// array lie inside it: the slots an encoding writes (or reads) from
+/// `offset` on.
+#[inline]
+pub(crate) fn slots_inside<const N: usize>(offset: usize, count: u32) -> u32 {
+    if offset >= N {
+        0
+    } else if (count as usize) < N - offset {
+        count
+    } else {
+        (N - offset) as u32
+    }
+}

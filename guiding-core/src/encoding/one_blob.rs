@@ -19,7 +19,7 @@
 //! periodic wrap-around; this follows the paper's text (a Gaussian with
 //! `σ = 1/k`, "discretised into the bins" = sampled at the bin centres).
 
-use crate::encoding::{clamp_unit, write_clamped};
+use crate::encoding::{clamp_unit, slots_inside, write_clamped};
 use crate::math::exp;
 
 /// Bins NPM uses per encoded scalar.
@@ -39,22 +39,15 @@ pub fn one_blob_encode<const N: usize>(
     out: &mut [f32; N],
     out_offset: usize,
 ) -> usize {
-    let end = out_offset.wrapping_add(bins as usize);
-    if out_offset >= N {
-        return end;
-    }
+    let n = slots_inside::<N>(out_offset, bins);
     let kx = bins as f32 * clamp_unit(x);
     let mut i = 0u32;
-    while i < bins {
-        let o = out_offset + i as usize;
-        if o >= N {
-            break;
-        }
+    while i < n {
         let d = (i as f32 + 0.5) - kx;
-        write_clamped(out, o, exp(-0.5 * d * d));
+        out[out_offset + i as usize] = exp(-0.5 * d * d);
         i += 1;
     }
-    end
+    out_offset.wrapping_add(bins as usize)
 }
 
 /// Bins of [`one_blob_encode4`].

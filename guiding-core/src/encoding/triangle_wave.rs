@@ -23,7 +23,7 @@
 //! library keeps tiny-cuda-nn's encoding, which the published models were
 //! trained with.
 
-use crate::encoding::write_clamped;
+use crate::encoding::slots_inside;
 use crate::math::floor;
 
 /// Frequencies Figueiredo et al. 2025 use for `ε1`.
@@ -62,6 +62,16 @@ fn phase(p: f32, x: f32, i: u32) -> f32 {
     g - 0.5
 }
 
+/// The factor of the next frequency: `2p`, until it reaches [`MAX_FACTOR`].
+#[inline]
+fn next_factor(p: f32) -> f32 {
+    if p < MAX_FACTOR {
+        p * 2.0
+    } else {
+        p
+    }
+}
+
 /// Writes `tw_i(x)` for `i < frequencies` (formula in the
 /// [module docs](self)) to `out[out_offset ..]` and returns
 /// `out_offset + frequencies`.
@@ -75,25 +85,16 @@ pub fn triangle_wave_encode<const N: usize>(
     out: &mut [f32; N],
     out_offset: usize,
 ) -> usize {
-    let end = out_offset.wrapping_add(frequencies as usize);
-    if out_offset >= N {
-        return end;
-    }
+    let n = slots_inside::<N>(out_offset, frequencies);
     let x = sanitize_input(x);
     let mut p = 0.5f32;
     let mut i = 0u32;
-    while i < frequencies {
-        let o = out_offset + i as usize;
-        if o >= N {
-            break;
-        }
-        write_clamped(out, o, 4.0 * phase(p, x, i).abs() - 1.0);
-        if p < MAX_FACTOR {
-            p *= 2.0;
-        }
+    while i < n {
+        out[out_offset + i as usize] = 4.0 * phase(p, x, i).abs() - 1.0;
+        p = next_factor(p);
         i += 1;
     }
-    end
+    out_offset.wrapping_add(frequencies as usize)
 }
 
 /// `∂loss/∂x = Σ_i d_out[d_out_offset + i] · d tw_i/dx` (derivative in the
@@ -109,26 +110,21 @@ pub fn triangle_wave_backward<const N: usize>(
     d_out: &[f32; N],
     d_out_offset: usize,
 ) -> f32 {
-    if d_out_offset >= N || x.is_nan() || x.abs() > TWO_POW_24 {
+    if x.is_nan() || x.abs() > TWO_POW_24 {
         return 0.0;
     }
-    let mut p = 0.5f32;
     let mut sum = 0.0;
+    let mut p = 0.5f32;
+    let n = slots_inside::<N>(d_out_offset, frequencies);
     let mut i = 0u32;
-    while i < frequencies {
-        let o = d_out_offset + i as usize;
-        if o >= N {
-            break;
-        }
+    while i < n {
         let slope = if phase(p, x, i) < 0.0 {
             -4.0 * p
         } else {
             4.0 * p
         };
-        sum += d_out[o] * slope;
-        if p < MAX_FACTOR {
-            p *= 2.0;
-        }
+        sum += d_out[d_out_offset + i as usize] * slope;
+        p = next_factor(p);
         i += 1;
     }
     sum
