@@ -18,7 +18,7 @@
 use crate::frame::{normalize_or, Frame};
 use crate::lobe::DirectionSample;
 use crate::math::{atan2_turns, exp, exp_nonpositive, expm1, expm1_inline, safe_sqrt};
-use crate::math::{ln_1p, x_over_one_minus_exp_neg, INV_FOUR_PI, ONE_MINUS_EPSILON};
+use crate::math::{ln_1p, unit_interval, x_over_one_minus_exp_neg, INV_FOUR_PI, ONE_MINUS_EPSILON};
 use crate::sphere::{one_minus_cos_angle, spherical_direction_turns};
 use bytemuck::{Pod, Zeroable};
 use glam::{Vec2, Vec3};
@@ -183,17 +183,6 @@ impl VmfLobe {
             phi.clamp(0.0, ONE_MINUS_EPSILON),
             (1.0 - one_minus_u).clamp(0.0, ONE_MINUS_EPSILON),
         )
-    }
-}
-
-/// `x` clamped to `[0, ONE_MINUS_EPSILON]`, NaN to 0 (the identity on
-/// `[0, 1)`).
-#[inline]
-fn unit_interval(x: f32) -> f32 {
-    if x > 0.0 {
-        x.min(ONE_MINUS_EPSILON)
-    } else {
-        0.0
     }
 }
 

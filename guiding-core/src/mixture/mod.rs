@@ -4,7 +4,7 @@ pub mod nasg;
 pub mod vmf;
 
 use crate::lobe::DirectionSample;
-use crate::math::{exp, ln, sanitize, ONE_MINUS_EPSILON};
+use crate::math::{exp, sanitize, ONE_MINUS_EPSILON};
 use glam::{Vec2, Vec3};
 use nasg::NasgMixture;
 use vmf::VmfMixture;
@@ -54,34 +54,7 @@ pub(crate) fn weight_logits<const K: usize, const R: usize>(
     logits
 }
 
-/// The largest of `values` (`f32::MIN` for none; NaN entries are skipped).
-#[inline]
-#[must_use]
-pub fn max_of<const K: usize>(values: &[f32; K]) -> f32 {
-    let mut max = f32::MIN;
-    let mut k = 0;
-    while k < K {
-        max = max.max(values[k]);
-        k += 1;
-    }
-    max
-}
-
-/// `(m, ln Σ_k e^{v_k − m})` with `m` = [`max_of`]`(v)`, so that
-/// `ln Σ_k e^{v_k} = m + ln Σ …` without overflow (log-softmax,
-/// log-sum-exp).
-#[inline]
-#[must_use]
-pub fn log_sum_exp_parts<const K: usize>(values: &[f32; K]) -> (f32, f32) {
-    let max = max_of(values);
-    let mut sum = 0.0;
-    let mut k = 0;
-    while k < K {
-        sum += exp(values[k] - max);
-        k += 1;
-    }
-    (max, ln(sum))
-}
+pub use crate::math::log_sum_exp_parts;
 
 /// Weights normalised to sum to one: negative, infinite or NaN weights count
 /// as zero, and all-zero weights become uniform (`1 / K`).
@@ -130,7 +103,7 @@ pub fn select_lobe<const K: usize>(weights: &[f32; K], u: Vec2) -> (usize, Vec2)
 /// subtracted first, so ±10³⁰ inputs are fine).
 #[inline]
 pub fn softmax<const K: usize>(logits: &[f32; K], weights: &mut [f32; K]) {
-    let max = max_of(logits);
+    let max = crate::math::max_entry(logits);
     let mut sum = 0.0;
     let mut k = 0;
     while k < K {
