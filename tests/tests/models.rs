@@ -891,12 +891,8 @@ fn layouts_and_presets() {
     check("NasgRadiance::paper", &nasg_r, &nasg_r.layout());
     check("DfRadiance::paper", &df_r, &df_r.layout());
     check("DfProduct::paper", &df_p, &df_p.layout());
-    check("NPM small radiance", &NPM_R, &NPM_R.layout());
-    check("NPM small product", &NPM_P, &NPM_P.layout());
-    check("NASG small product", &NASG_P, &NASG_P.layout());
-    check("NASG small radiance", &NASG_R, &NASG_R.layout());
-    check("DF small product", &DF_N, &DF_N.layout());
-    check("DF small radiance", &DF_L, &DF_L.layout());
+    for_each_small_model!(|name, model, layout, _| check(name, model, layout));
+    check("NASG radiance", &NASG_R, &NASG_R.layout());
     assert!(npm_r.is_consistent() && npm_p.is_consistent());
     assert!(nasg_p.is_consistent() && nasg_r.is_consistent());
     assert!(df_r.is_consistent() && df_p.is_consistent());
