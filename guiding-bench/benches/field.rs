@@ -73,16 +73,19 @@ fn warm_field<M: GuidingModel + Send + Sync>(model: M) -> Field<M> {
         .expect("finite parameters")
 }
 
+/// An output buffer for [`QUERIES`] samples.
+fn sample_buffer() -> Vec<DirectionSample> {
+    let unset = DirectionSample {
+        direction: Vec3::Z,
+        pdf: 0.0,
+    };
+    vec![unset; QUERIES]
+}
+
 fn bench_inference<M: GuidingModel + Send + Sync>(c: &mut Criterion, name: &str, model: M) {
     let f = warm_field(model);
     let (qs, us, ds) = queries(1);
-    let mut out = vec![
-        DirectionSample {
-            direction: Vec3::Z,
-            pdf: 0.0
-        };
-        QUERIES
-    ];
+    let mut out = sample_buffer();
     let mut pdfs = vec![0.0f32; QUERIES];
     let mut group = c.benchmark_group("field_inference");
     group.throughput(Throughput::Elements(QUERIES as u64));
@@ -131,13 +134,7 @@ fn bench_training<M: GuidingModel + Send + Sync>(c: &mut Criterion, name: &str, 
 fn summary_row<M: GuidingModel + Send + Sync>(name: &str, model: M, macs: usize) {
     let f = warm_field(model);
     let (qs, us, _) = queries(2);
-    let mut out = vec![
-        DirectionSample {
-            direction: Vec3::Z,
-            pdf: 0.0
-        };
-        QUERIES
-    ];
+    let mut out = sample_buffer();
     let s = median_secs(7, || f.sample_batch(black_box(&qs), &us, &mut out));
     let qps = QUERIES as f64 / s;
     let gflops = qps * (2 * macs) as f64 * 1e-9;
@@ -183,30 +180,25 @@ fn summary() {
 fn main() {
     if std::env::var_os("FIELD_BENCH_SUMMARY_ONLY").is_none() {
         let mut c = Criterion::default().configure_from_args();
-        bench_inference(&mut c, "npm", NpmRadiance::paper(LO, HI));
-        bench_inference(&mut c, "nasg", NasgProduct::paper(LO, HI));
-        bench_inference(
-            &mut c,
-            "df_n",
-            DfRadiance::paper(LO, HI, Interpolation::Nearest),
-        );
-        bench_inference(
-            &mut c,
-            "df_l",
-            DfRadiance::paper(LO, HI, Interpolation::Linear),
-        );
-        bench_training(&mut c, "npm", NpmRadiance::paper(LO, HI));
-        bench_training(&mut c, "nasg", NasgProduct::paper(LO, HI));
-        bench_training(
-            &mut c,
-            "df_n",
-            DfRadiance::paper(LO, HI, Interpolation::Nearest),
-        );
-        bench_training(
-            &mut c,
-            "df_l",
-            DfRadiance::paper(LO, HI, Interpolation::Linear),
-        );
+        // `bench(c, name, model)` for each paper model (distinct types).
+        macro_rules! each_model {
+            ($bench:ident) => {
+                $bench(&mut c, "npm", NpmRadiance::paper(LO, HI));
+                $bench(&mut c, "nasg", NasgProduct::paper(LO, HI));
+                $bench(
+                    &mut c,
+                    "df_n",
+                    DfRadiance::paper(LO, HI, Interpolation::Nearest),
+                );
+                $bench(
+                    &mut c,
+                    "df_l",
+                    DfRadiance::paper(LO, HI, Interpolation::Linear),
+                );
+            };
+        }
+        each_model!(bench_inference);
+        each_model!(bench_training);
         c.final_summary();
     }
     summary();

@@ -102,28 +102,23 @@ impl DistributionCase {
             }
             acc
         }
+        // `d`'s sample at `u` and its density there (the distributions
+        // share no trait).
+        macro_rules! sampled {
+            ($d:expr) => {
+                |u| {
+                    let s = $d.sample(u);
+                    (s.direction, $d.pdf(s.direction))
+                }
+            };
+        }
         match self {
             Self::UniformSphere => run(us, |u| (square_to_uniform_sphere(u), UNIFORM_SPHERE_PDF)),
-            Self::VmfLobe(l) => run(us, |u| {
-                let s = l.sample(u);
-                (s.direction, l.pdf(s.direction))
-            }),
-            Self::NasgLobe(l) => run(us, |u| {
-                let s = l.sample(u);
-                (s.direction, l.pdf(s.direction))
-            }),
-            Self::VmfMixture(m) => run(us, |u| {
-                let s = m.sample(u);
-                (s.direction, m.pdf(s.direction))
-            }),
-            Self::NasgMixture(m) => run(us, |u| {
-                let s = m.sample(u);
-                (s.direction, m.pdf(s.direction))
-            }),
-            Self::Factorised(t, _) => run(us, |u| {
-                let s = t.sample(u);
-                (s.direction, t.pdf(s.direction))
-            }),
+            Self::VmfLobe(l) => run(us, sampled!(l)),
+            Self::NasgLobe(l) => run(us, sampled!(l)),
+            Self::VmfMixture(m) => run(us, sampled!(m)),
+            Self::NasgMixture(m) => run(us, sampled!(m)),
+            Self::Factorised(t, _) => run(us, sampled!(t)),
         }
     }
 }

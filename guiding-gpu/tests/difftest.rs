@@ -30,6 +30,8 @@ use guiding_core::glam::{Quat, Vec2, Vec3};
 use guiding_core::gradient::GradientSink;
 use guiding_core::lobe::nasg::NasgLobe;
 use guiding_core::lobe::vmf::VmfLobe;
+use guiding_core::lobe::DirectionSample;
+use guiding_core::loss::Target;
 use guiding_core::mixture::nasg::NasgMixture;
 use guiding_core::mixture::vmf::VmfMixture;
 use guiding_core::model::df::{DfCompactProduct, DfSmallProduct, DfSmallRadiance};
@@ -698,113 +700,52 @@ fn family_of<M: GuidingModel>(_: &M) -> Family {
     M::FAMILY
 }
 
+/// One `#[test]` per model: upload, `infer` (mixtures: `raw`) or its absence
+/// (DF: `df`), then sample, pdf and a training step against the CPU; the
+/// test's name is the shader prefix.
 macro_rules! model_difftest {
-    ($name:ident, $model:expr, $prefix:literal, raw) => {
+    ($kind:ident $name:ident = $model:expr) => {
         #[test]
         fn $name() {
             let Some(ctx) = test_context() else { return };
+            let prefix = stringify!($name);
             let model = $model;
             let params = parameters(&model, 3);
-            let mut gpu = upload(ctx, &model, $prefix, family_of(&model), &params).expect("upload");
+            let mut gpu = upload(ctx, &model, prefix, family_of(&model), &params).expect("upload");
             let q = queries(1000, 5);
-            check_infer(&mut gpu, &model, &params, &q, $prefix);
-            model_difftest!(@common gpu, model, params, q, $prefix, MIXTURE_PDF_REL);
+            let rel = model_difftest!(@infer $kind, gpu, model, params, q, prefix);
+            check_sample(&mut gpu, &model, &params, &q, prefix, rel);
+            check_pdf(&mut gpu, &model, &params, &q, prefix, rel);
+            check_train_step(&mut gpu, &model, &params, prefix);
         }
     };
-    ($name:ident, $model:expr, $prefix:literal) => {
-        #[test]
-        fn $name() {
-            let Some(ctx) = test_context() else { return };
-            let model = $model;
-            let params = parameters(&model, 3);
-            let mut gpu = upload(ctx, &model, $prefix, family_of(&model), &params).expect("upload");
-            let q = queries(1000, 5);
-            assert!(gpu.infer(&q, &mut []).is_err(), "DF has no infer kernel");
-            model_difftest!(@common gpu, model, params, q, $prefix, DF_PDF_REL);
-        }
-    };
-    (@common $gpu:ident, $model:ident, $params:ident, $q:ident, $prefix:literal, $rel:expr) => {
-        check_sample(&mut $gpu, &$model, &$params, &$q, $prefix, $rel);
-        check_pdf(&mut $gpu, &$model, &$params, &$q, $prefix, $rel);
-        check_train_step(&mut $gpu, &$model, &$params, $prefix);
-    };
+    (@infer raw, $gpu:ident, $model:ident, $params:ident, $q:ident, $prefix:ident) => {{
+        check_infer(&mut $gpu, &$model, &$params, &$q, $prefix);
+        MIXTURE_PDF_REL
+    }};
+    (@infer df, $gpu:ident, $model:ident, $params:ident, $q:ident, $prefix:ident) => {{
+        assert!($gpu.infer(&$q, &mut []).is_err(), "DF has no infer kernel");
+        DF_PDF_REL
+    }};
 }
 
+/// The compact grid of `[LO, HI]`.
+fn compact() -> guiding_core::encoding::GridConfig {
+    guiding::config::compact_grid(LO, HI)
+}
+
+model_difftest!(raw npm_small_radiance = NpmSmallRadiance::small(LO, HI));
+model_difftest!(raw npm_small_product = NpmSmallProduct::small(LO, HI));
+model_difftest!(raw npm_compact_radiance = NpmCompactRadiance::new(compact(), Target::Radiance));
+model_difftest!(raw npm_compact_product = NpmCompactProduct::new(compact(), Target::Product));
+model_difftest!(raw npm_paper_radiance = NpmRadiance::paper(LO, HI));
+model_difftest!(raw nasg_small_radiance = NasgSmallRadiance::small(LO, HI));
+model_difftest!(raw nasg_small_product = NasgSmallProduct::small(LO, HI));
+model_difftest!(raw nasg_compact_product = NasgCompactProduct::new(compact(), Target::Product));
+model_difftest!(df df_small_radiance = DfSmallRadiance::small(LO, HI, Interpolation::Linear));
+model_difftest!(df df_small_product = DfSmallProduct::small(LO, HI, Interpolation::Nearest));
 model_difftest!(
-    npm_small_radiance,
-    NpmSmallRadiance::small(LO, HI),
-    "npm_small_radiance",
-    raw
-);
-model_difftest!(
-    npm_small_product,
-    NpmSmallProduct::small(LO, HI),
-    "npm_small_product",
-    raw
-);
-model_difftest!(
-    npm_compact_radiance,
-    NpmCompactRadiance::new(
-        guiding::config::compact_grid(LO, HI),
-        guiding_core::loss::Target::Radiance
-    ),
-    "npm_compact_radiance",
-    raw
-);
-model_difftest!(
-    npm_compact_product,
-    NpmCompactProduct::new(
-        guiding::config::compact_grid(LO, HI),
-        guiding_core::loss::Target::Product
-    ),
-    "npm_compact_product",
-    raw
-);
-model_difftest!(
-    npm_paper_radiance,
-    NpmRadiance::paper(LO, HI),
-    "npm_paper_radiance",
-    raw
-);
-model_difftest!(
-    nasg_small_radiance,
-    NasgSmallRadiance::small(LO, HI),
-    "nasg_small_radiance",
-    raw
-);
-model_difftest!(
-    nasg_small_product,
-    NasgSmallProduct::small(LO, HI),
-    "nasg_small_product",
-    raw
-);
-model_difftest!(
-    nasg_compact_product,
-    NasgCompactProduct::new(
-        guiding::config::compact_grid(LO, HI),
-        guiding_core::loss::Target::Product
-    ),
-    "nasg_compact_product",
-    raw
-);
-model_difftest!(
-    df_small_radiance,
-    DfSmallRadiance::small(LO, HI, Interpolation::Linear),
-    "df_small_radiance"
-);
-model_difftest!(
-    df_small_product,
-    DfSmallProduct::small(LO, HI, Interpolation::Nearest),
-    "df_small_product"
-);
-model_difftest!(
-    df_compact_product,
-    DfCompactProduct::new(
-        guiding::config::compact_grid(LO, HI),
-        guiding_core::loss::Target::Product,
-        Interpolation::Linear
-    ),
-    "df_compact_product"
+    df df_compact_product = DfCompactProduct::new(compact(), Target::Product, Interpolation::Linear)
 );
 
 /// Negative control of the gradient bound (CPU only, no device needed):
@@ -920,6 +861,25 @@ struct CpuDecoded<'a> {
     /// the logits (no angles, no clamped exponentials), which the raw
     /// probes of [`check_decode`] cover.
     lobe_sensitivity: Box<dyn Fn(Vec3) -> f32 + 'a>,
+}
+
+impl<'a> CpuDecoded<'a> {
+    /// `dist` decoded on the CPU, with its `sample` at the element's `u`,
+    /// its `density` and its `lobe_sensitivity`.
+    fn of<D: Copy + 'a>(
+        dist: D,
+        sample: impl Fn(&D) -> DirectionSample,
+        density: fn(&D, Vec3) -> f32,
+        lobe_sensitivity: fn(&D, Vec3) -> f32,
+    ) -> Self {
+        let s = sample(&dist);
+        CpuDecoded {
+            direction: s.direction,
+            pdf: s.pdf,
+            density: Box::new(move |d| density(&dist, d)),
+            lobe_sensitivity: Box::new(move |d| lobe_sensitivity(&dist, d)),
+        }
+    }
 }
 
 /// The CPU decode of element `i` of a raw batch.
@@ -1252,14 +1212,12 @@ fn decode_kernels_match_the_cpu_on_ordinary_and_extreme_parameters() {
         0,
         MIXTURE_PDF_REL,
         Box::new(|raw, i| {
-            let m = batch::vmf_mixture_from_raw(raw, i * 32);
-            let s = m.sample(uv(i));
-            CpuDecoded {
-                direction: s.direction,
-                pdf: s.pdf,
-                density: Box::new(move |d| m.pdf(d)),
-                lobe_sensitivity: Box::new(move |d| vmf_lobe_sensitivity(&m, d)),
-            }
+            CpuDecoded::of(
+                batch::vmf_mixture_from_raw(raw, i * 32),
+                |m| m.sample(uv(i)),
+                |m, d| m.pdf(d),
+                vmf_lobe_sensitivity,
+            )
         }),
     );
     check_decode(
@@ -1269,14 +1227,12 @@ fn decode_kernels_match_the_cpu_on_ordinary_and_extreme_parameters() {
         0,
         MIXTURE_PDF_REL,
         Box::new(|raw, i| {
-            let m = batch::nasg_mixture_from_raw(raw, i * 49);
-            let s = m.sample(uv(i));
-            CpuDecoded {
-                direction: s.direction,
-                pdf: s.pdf,
-                density: Box::new(move |d| m.pdf(d)),
-                lobe_sensitivity: Box::new(move |d| nasg_lobe_sensitivity(&m, d)),
-            }
+            CpuDecoded::of(
+                batch::nasg_mixture_from_raw(raw, i * 49),
+                |m| m.sample(uv(i)),
+                |m, d| m.pdf(d),
+                nasg_lobe_sensitivity,
+            )
         }),
     );
     let per = DF_MARGINAL_BINS + DF_MARGINAL_BINS * DF_CONDITIONAL_BINS;
@@ -1288,14 +1244,12 @@ fn decode_kernels_match_the_cpu_on_ordinary_and_extreme_parameters() {
             code,
             DF_PDF_REL,
             Box::new(move |raw, i| {
-                let t = batch::df_table_from_raw(raw, i * per, interp);
-                let s = t.sample(uv(i));
-                CpuDecoded {
-                    direction: s.direction,
-                    pdf: s.pdf,
-                    density: Box::new(move |d| t.pdf(d)),
-                    lobe_sensitivity: Box::new(|_| 0.0),
-                }
+                CpuDecoded::of(
+                    batch::df_table_from_raw(raw, i * per, interp),
+                    |t| t.sample(uv(i)),
+                    |t, d| t.pdf(d),
+                    |_, _| 0.0,
+                )
             }),
         );
     }
@@ -1311,10 +1265,7 @@ fn decode_kernels_match_the_cpu_on_ordinary_and_extreme_parameters() {
 #[test]
 fn lane_kernels_match_the_cpu_on_resident_outputs() {
     let Some(ctx) = test_context() else { return };
-    let npm = NpmCompactRadiance::new(
-        guiding::config::compact_grid(LO, HI),
-        guiding_core::loss::Target::Radiance,
-    );
+    let npm = NpmCompactRadiance::new(compact(), Target::Radiance);
     let nasg = NasgSmallRadiance::small(LO, HI);
     check_lanes(&ctx, &npm, "npm_compact_radiance", true);
     check_lanes(&ctx, &nasg, "nasg_small_radiance", false);
@@ -1478,11 +1429,7 @@ fn df_vertex_kernels_match_the_cpu() {
     ] {
         check_vertices(&ctx, &model, prefix);
     }
-    let product = DfCompactProduct::new(
-        guiding::config::compact_grid(LO, HI),
-        guiding_core::loss::Target::Product,
-        Interpolation::Linear,
-    );
+    let product = DfCompactProduct::new(compact(), Target::Product, Interpolation::Linear);
     check_vertices(&ctx, &product, "df_compact_product");
 
     fn check_vertices<M: guiding_core::model::df::VertexModel + bytemuck::Pod>(

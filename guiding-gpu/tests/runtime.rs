@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::assert_validation_clean;
+use common::{assert_validation_clean, staging_context};
 use guiding_gpu::test_support::is_absent;
 use guiding_gpu::*;
 
@@ -154,14 +154,9 @@ fn buffers_round_trip() {
 
 #[test]
 fn buffers_round_trip_through_staging() {
-    let options = ContextOptions {
-        force_staging: true,
-        ..ContextOptions::default()
-    };
-    let Some(ctx) = device_context(&options) else {
+    let Some(ctx) = staging_context(TestNeeds::Device) else {
         return;
     };
-    assert!(!ctx.mapped_buffers());
     round_trip(&ctx);
     assert_validation_clean(&ctx);
 }

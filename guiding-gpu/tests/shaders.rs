@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::assert_validation_clean;
+use common::{assert_validation_clean, staging_context};
 use guiding_gpu::*;
 
 /// Distance in units in the last place between two finite-or-infinite
@@ -28,24 +28,38 @@ fn ulps(a: f32, b: f32) -> u32 {
     a.to_bits().abs_diff(b.to_bits())
 }
 
+/// Runs `kernel` (bindings `in`, `out`, push constant `n = input.len()`)
+/// over `input` padded with `slack` elements `pad`, into an output of
+/// `input.len() + slack` elements `sentinel`, in a timed batch; returns the
+/// whole output and the report.
+fn run_padded<T: bytemuck::Pod>(
+    ctx: &GpuContext,
+    kernel: &Kernel,
+    input: &[T],
+    slack: usize,
+    (pad, sentinel): (T, T),
+) -> (Vec<T>, BatchReport) {
+    let mut padded = input.to_vec();
+    padded.resize(input.len() + slack, pad);
+    let a = ctx.buffer_from(&padded).unwrap();
+    let b = ctx
+        .buffer_from(&vec![sentinel; input.len() + slack])
+        .unwrap();
+    let n = input.len() as u32;
+    let mut batch = ctx.timed_batch().unwrap();
+    batch
+        .dispatch(kernel, &[&a, &b], bytemuck::bytes_of(&n), n)
+        .unwrap();
+    let report = batch.submit_and_wait().unwrap();
+    (b.download().unwrap(), report)
+}
+
 /// Runs `exp_kernel` over `input` (`n = input.len()`) into a buffer with
 /// `slack` extra sentinel elements; returns the whole output and the report.
 fn gpu_exp(ctx: &GpuContext, input: &[f32], slack: usize) -> (Vec<f32>, BatchReport) {
     let kernel = ctx.embedded_kernel("exp_kernel", 2, 4).unwrap();
     assert_eq!(kernel.workgroup_size(), 64);
-    let mut padded = input.to_vec();
-    padded.resize(input.len() + slack, 0.5);
-    let a = ctx.buffer_from(&padded).unwrap();
-    let b = ctx
-        .buffer_from(&vec![-1.0f32; input.len() + slack])
-        .unwrap();
-    let n = input.len() as u32;
-    let mut batch = ctx.timed_batch().unwrap();
-    batch
-        .dispatch(&kernel, &[&a, &b], bytemuck::bytes_of(&n), n)
-        .unwrap();
-    let report = batch.submit_and_wait().unwrap();
-    (b.download().unwrap(), report)
+    run_padded(ctx, &kernel, input, slack, (0.5, -1.0))
 }
 
 /// Compares with the CPU; returns (exact matches, max ulps).
@@ -66,32 +80,19 @@ fn compare(input: &[f32], out: &[f32]) -> (usize, u32) {
 }
 
 /// Runs `add_index_kernel` (`out[i] = in[i] + i` for `i < n`) with `slack`
-/// extra sentinel elements in both buffers, in a timed batch.
-fn gpu_add_index(ctx: &GpuContext, input: &[u32], slack: usize) -> (Vec<u32>, BatchReport) {
+/// extra sentinel elements in both buffers, in a timed batch, and checks
+/// the output exactly (the sentinels past `n` untouched); returns the report.
+fn run_add_index(ctx: &GpuContext, input: &[u32], slack: usize) -> BatchReport {
     let kernel = ctx.embedded_kernel("add_index_kernel", 2, 4).unwrap();
-    let mut padded = input.to_vec();
-    padded.resize(input.len() + slack, 7);
-    let a = ctx.buffer_from(&padded).unwrap();
-    let b = ctx
-        .buffer_from(&vec![u32::MAX; input.len() + slack])
-        .unwrap();
-    let n = input.len() as u32;
-    let mut batch = ctx.timed_batch().unwrap();
-    batch
-        .dispatch(&kernel, &[&a, &b], bytemuck::bytes_of(&n), n)
-        .unwrap();
-    let report = batch.submit_and_wait().unwrap();
-    (b.download().unwrap(), report)
-}
-
-fn check_add_index(input: &[u32], out: &[u32]) {
-    for (i, (&x, &y)) in input.iter().zip(out).enumerate() {
+    let (out, report) = run_padded(ctx, &kernel, input, slack, (7, u32::MAX));
+    for (i, (&x, &y)) in input.iter().zip(&out).enumerate() {
         assert_eq!(y, x.wrapping_add(i as u32), "element {i}");
     }
     assert!(
         out[input.len()..].iter().all(|&v| v == u32::MAX),
         "invocations past n wrote into the output"
     );
+    report
 }
 
 #[test]
@@ -134,8 +135,7 @@ fn a_1d_grid_covers_a_million_invocations_and_reports_gpu_time() {
     let input: Vec<u32> = (0..1_000_000u32)
         .map(|i| i.wrapping_mul(2_654_435_761))
         .collect();
-    let (out, report) = gpu_add_index(&ctx, &input, 64);
-    check_add_index(&input, &out);
+    let report = run_add_index(&ctx, &input, 64);
     assert_eq!(report.dispatches, 1);
     eprintln!("1e6 add_index: GPU time {:?} ns", report.gpu_time_ns);
     if ctx.device_info().timestamps {
@@ -153,8 +153,7 @@ fn a_2d_grid_covers_every_invocation_once_and_stops_at_n() {
     let grid = workgroup_grid(n as u32, 64, limits).unwrap();
     assert_eq!(grid, [limits[0], 2, 1]);
     let input: Vec<u32> = (0..n as u32).map(|i| i ^ 0x5555_5555).collect();
-    let (out, _) = gpu_add_index(&ctx, &input, 100);
-    check_add_index(&input, &out);
+    run_add_index(&ctx, &input, 100);
     assert_validation_clean(&ctx);
 }
 
@@ -199,17 +198,11 @@ fn a_batch_chains_dispatches_through_barriers() {
 
 #[test]
 fn staging_path_runs_kernels_too() {
-    let options = ContextOptions {
-        force_staging: true,
-        ..ContextOptions::default()
-    };
-    let Some(ctx) = test_context_with(TestNeeds::Kernels, &options) else {
+    let Some(ctx) = staging_context(TestNeeds::Kernels) else {
         return;
     };
-    assert!(!ctx.mapped_buffers());
     let input: Vec<u32> = (0..10_000u32).map(|i| i * 3).collect();
-    let (out, _) = gpu_add_index(&ctx, &input, 3);
-    check_add_index(&input, &out);
+    run_add_index(&ctx, &input, 3);
     assert_validation_clean(&ctx);
 }
 

@@ -312,6 +312,35 @@ pub struct Chi2Result {
 /// Stream of the generator used by [`run_chi2`].
 pub const CHI2_STREAM: u64 = 0x000c_4152;
 
+/// Cells `(expected, observed)` sorted by expected count, those expecting
+/// fewer than `min_expected` pooled into one (added to the smallest kept
+/// cell when the pool itself expects fewer); returns the cells and how many
+/// were pooled.
+#[must_use]
+pub fn pool_low_cells(mut cells: Vec<(f64, f64)>, min_expected: f64) -> (Vec<(f64, f64)>, usize) {
+    cells.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let n_low = cells.partition_point(|c| c.0 < min_expected);
+    let pooled = cells[..n_low]
+        .iter()
+        .fold((0.0, 0.0), |acc, c| (acc.0 + c.0, acc.1 + c.1));
+    let mut kept: Vec<(f64, f64)> = cells[n_low..].to_vec();
+    if n_low > 0 {
+        if pooled.0 < min_expected && !kept.is_empty() {
+            kept[0].0 += pooled.0;
+            kept[0].1 += pooled.1;
+        } else {
+            kept.push(pooled);
+        }
+    }
+    (kept, n_low)
+}
+
+/// Pearson's statistic `Σ (o − e)² / e` of cells `(expected, observed)`.
+#[must_use]
+pub fn pearson_statistic(cells: &[(f64, f64)]) -> f64 {
+    cells.iter().map(|(e, o)| (o - e) * (o - e) / e).sum()
+}
+
 /// Šidák-corrected per-test significance: `1 − (1 − α)^{1/n}`.
 #[must_use]
 pub fn sidak(alpha: f64, total_tests: usize) -> f64 {
@@ -457,27 +486,14 @@ pub fn run_chi2(case: &Case, total_tests: usize, cfg: &Chi2Config) -> Chi2Result
     }
 
     // Sort by expected count and pool the cells expecting < min_expected.
-    let mut cells: Vec<(f64, f64)> = expected
+    let cells: Vec<(f64, f64)> = expected
         .iter()
         .zip(&observed)
         .filter(|(e, o)| !(**e == 0.0 && **o == 0))
         .map(|(e, o)| (*e, *o as f64))
         .collect();
-    cells.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let n_low = cells.partition_point(|c| c.0 < cfg.min_expected);
-    let pooled = cells[..n_low]
-        .iter()
-        .fold((0.0, 0.0), |acc, c| (acc.0 + c.0, acc.1 + c.1));
-    let mut kept: Vec<(f64, f64)> = cells[n_low..].to_vec();
-    if n_low > 0 {
-        if pooled.0 < cfg.min_expected && !kept.is_empty() {
-            kept[0].0 += pooled.0;
-            kept[0].1 += pooled.1;
-        } else {
-            kept.push(pooled);
-        }
-    }
-    let statistic: f64 = kept.iter().map(|(e, o)| (o - e) * (o - e) / e).sum();
+    let (kept, n_low) = pool_low_cells(cells, cfg.min_expected);
+    let statistic = pearson_statistic(&kept);
     let dof = kept.len().saturating_sub(1);
     if dof < 1 {
         return fail(

@@ -149,6 +149,42 @@ impl GradientErrors {
         out
     }
 
+    /// Prints how the errors sit against `tol`: the number above it, the
+    /// median, the 99th percentile and the worst (the measurement a
+    /// tolerance's derivation quotes).
+    pub fn report(&self, name: &str, tol: f64) {
+        let (above, worst) = self.summary(tol);
+        println!(
+            "{name}: {above} of {} components above {tol:e} (median {:.1e}, 99th percentile \
+             {:.1e}, worst {worst:.2e})",
+            self.entries.len(),
+            self.quantile(0.5),
+            self.quantile(0.99),
+        );
+    }
+
+    /// A negative control: the check `check(tol, ignore_fraction)` must
+    /// reject these components with `defect` planted ([`Self::with_defect`]);
+    /// reports the planted errors.
+    ///
+    /// # Panics
+    /// When the planted defect passes.
+    pub fn assert_rejects_defect(
+        &self,
+        name: &str,
+        defect: &str,
+        (tol, ignore_fraction): (f64, f64),
+        factor: impl Fn(usize, &GradientEntry) -> f64,
+    ) {
+        let planted = self.with_defect(factor);
+        let name = format!("{name} with {defect}");
+        planted.report(&name, tol);
+        assert!(
+            planted.check(&name, tol, ignore_fraction).is_err(),
+            "{name}: the planted defect passed the gradient check"
+        );
+    }
+
     /// The `q`-quantile (`0 ≤ q ≤ 1`, nearest rank) of the errors, NaN counted
     /// as infinite; 0 when empty.
     #[must_use]

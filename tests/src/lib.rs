@@ -33,6 +33,33 @@ pub fn total_chi2_tests() -> usize {
     cases::all_cases().len() + cases::factorised::STANDALONE_CHI2_TESTS
 }
 
+/// Records a path of one vertex at `(position, normal, wo)` (roughness 1)
+/// whose direction `wi` was sampled uniformly (both pdfs `1/4π`, unit
+/// BSDF·cos), `radiance` escaping along `wi` (the embedding tests' training
+/// paths).
+pub fn record_uniform_vertex(
+    recorder: &mut guiding::PathRecorder,
+    (position, normal, wo): ([f32; 3], [f32; 3], [f32; 3]),
+    wi: Vec3,
+    radiance: f32,
+) {
+    let uniform = guiding_core::math::INV_FOUR_PI;
+    recorder.start_path();
+    recorder.add_vertex(guiding::PathVertex {
+        position,
+        normal,
+        wo,
+        roughness: 1.0,
+        wi: wi.to_array(),
+        sample_pdf: uniform,
+        bsdf_pdf: uniform,
+        bsdf_cos: [1.0; 3],
+        ..guiding::PathVertex::default()
+    });
+    recorder.add_escaped_radiance([radiance; 3], 1.0);
+    recorder.end_path();
+}
+
 /// A query point uniform in the box `[lo, hi]`, with a uniform normal and
 /// `wo` on the sphere and a uniform roughness (the embedding and device
 /// tests' shading points).

@@ -231,8 +231,11 @@ pub fn mlp(params: &[f64], offset: usize, shape: MlpShape, input: &[f64]) -> Vec
 // ---------------------------------------------------------------------------
 // Decoders.
 
-/// `1 − cos∠(μ, ω)` without cancellation.
-fn one_minus_cos(mean: DVec3, d: DVec3) -> f64 {
+/// `1 − cos∠(μ, ω)` without cancellation (`μ`, `ω` normalised here), for
+/// the log-space oracles, where `κ (1 − cos)` can be 10⁴ and must keep its
+/// digits.
+#[must_use]
+pub fn one_minus_cos(mean: DVec3, d: DVec3) -> f64 {
     let (m, d) = (mean.normalize(), d.normalize());
     let dot = m.dot(d);
     if dot > 0.0 {
@@ -252,25 +255,29 @@ fn vmf_ln_norm(kappa: f64) -> f64 {
 /// flat, 4 values per lobe.
 #[must_use]
 pub fn vmf_ln_pdf(raw: &[f64], d: DVec3) -> f64 {
-    let lobes: Vec<&[f64]> = raw.chunks(VMF_RAW_PER_LOBE).collect();
+    mixture_ln_pdf(raw, VMF_RAW_PER_LOBE, |r, ln_w| {
+        let kappa = r[1]
+            .clamp(f64::from(VMF_LOG_KAPPA_MIN), f64::from(VMF_LOG_KAPPA_MAX))
+            .exp();
+        let theta = PI * sigmoid(r[2]);
+        let phi = 2.0 * PI * sigmoid(r[3]);
+        let mean = DVec3::new(
+            theta.sin() * phi.cos(),
+            theta.sin() * phi.sin(),
+            theta.cos(),
+        );
+        ln_w + vmf_ln_norm(kappa) - kappa * one_minus_cos(mean, d)
+    })
+}
+
+/// `ln Σ_k w_k p_k` of a mixture with softmax weights: `raw` flat, `per_lobe`
+/// values per lobe, the first the weight logit; `ln_term(lobe, ln w_k)`
+/// gives `ln w_k + ln p_k`.
+fn mixture_ln_pdf(raw: &[f64], per_lobe: usize, ln_term: impl Fn(&[f64], f64) -> f64) -> f64 {
+    let lobes: Vec<&[f64]> = raw.chunks(per_lobe).collect();
     let logits: Vec<f64> = lobes.iter().map(|r| r[0]).collect();
     let lse = log_sum_exp(&logits);
-    let terms: Vec<f64> = lobes
-        .iter()
-        .map(|r| {
-            let kappa = r[1]
-                .clamp(f64::from(VMF_LOG_KAPPA_MIN), f64::from(VMF_LOG_KAPPA_MAX))
-                .exp();
-            let theta = PI * sigmoid(r[2]);
-            let phi = 2.0 * PI * sigmoid(r[3]);
-            let mean = DVec3::new(
-                theta.sin() * phi.cos(),
-                theta.sin() * phi.sin(),
-                theta.cos(),
-            );
-            r[0] - lse + vmf_ln_norm(kappa) - kappa * one_minus_cos(mean, d)
-        })
-        .collect();
+    let terms: Vec<f64> = lobes.iter().map(|r| ln_term(r, r[0] - lse)).collect();
     log_sum_exp(&terms)
 }
 
@@ -313,26 +320,19 @@ pub fn nasg_lobe_ln_pdf(
 /// flat, 6 values per lobe.
 #[must_use]
 pub fn nasg_ln_pdf(raw: &[f64], d: DVec3) -> f64 {
-    let lobes: Vec<&[f64]> = raw.chunks(NASG_RAW_PER_LOBE).collect();
-    let logits: Vec<f64> = lobes.iter().map(|r| r[0]).collect();
-    let lse = log_sum_exp(&logits);
-    let terms: Vec<f64> = lobes
-        .iter()
-        .map(|r| {
-            let lambda = r[1]
-                .clamp(f64::from(NASG_LN_LAMBDA_MIN), f64::from(NASG_LN_LAMBDA_MAX))
-                .exp();
-            let a = r[2]
-                .clamp(f64::from(NASG_LN_A_MIN), f64::from(NASG_LN_A_MAX))
-                .exp();
-            let rot = rz(2.0 * PI * sigmoid(r[3]))
-                * DMat3::from_rotation_y(PI * sigmoid(r[4]))
-                * rz(PI * sigmoid(r[5]));
-            let frame = (rot.x_axis, rot.y_axis, rot.z_axis);
-            r[0] - lse + nasg_lobe_ln_pdf(frame, lambda, a, f64::from(NASG_EPSILON), d)
-        })
-        .collect();
-    log_sum_exp(&terms)
+    mixture_ln_pdf(raw, NASG_RAW_PER_LOBE, |r, ln_w| {
+        let lambda = r[1]
+            .clamp(f64::from(NASG_LN_LAMBDA_MIN), f64::from(NASG_LN_LAMBDA_MAX))
+            .exp();
+        let a = r[2]
+            .clamp(f64::from(NASG_LN_A_MIN), f64::from(NASG_LN_A_MAX))
+            .exp();
+        let rot = rz(2.0 * PI * sigmoid(r[3]))
+            * DMat3::from_rotation_y(PI * sigmoid(r[4]))
+            * rz(PI * sigmoid(r[5]));
+        let frame = (rot.x_axis, rot.y_axis, rot.z_axis);
+        ln_w + nasg_lobe_ln_pdf(frame, lambda, a, f64::from(NASG_EPSILON), d)
+    })
 }
 
 /// The decoded selection probability `clamp(σ(r), 0.01, 0.99)`.

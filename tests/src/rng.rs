@@ -3,3 +3,27 @@
 //! one copy, [`guiding_core::rng::Pcg32`].
 
 pub use guiding_core::rng::Pcg32;
+
+/// `n` rows of `N` values, entry `j` of a row `ordinary(rng, j)`, except in
+/// the rows `i` with `i % period == phase`: there each entry is, with
+/// probability 0.3, one of `specials` (uniformly) instead — batches of
+/// ordinary inputs with rows of extreme ones mixed in.
+pub fn rows_with_specials<const N: usize>(
+    n: usize,
+    rng: &mut Pcg32,
+    (period, phase): (usize, usize),
+    specials: &[f32],
+    mut ordinary: impl FnMut(&mut Pcg32, usize) -> f32,
+) -> Vec<[f32; N]> {
+    (0..n)
+        .map(|i| {
+            core::array::from_fn(|j| {
+                if i % period == phase && rng.next_f32() < 0.3 {
+                    specials[rng.next_u32() as usize % specials.len()]
+                } else {
+                    ordinary(rng, j)
+                }
+            })
+        })
+        .collect()
+}

@@ -277,9 +277,14 @@ enum Rule {
 
 /// The recorder docs' rule written out again, per channel: `L̃_o(k) = w_k
 /// L_e(k) + D_k + β_k L̃_i(k)` for the estimate, `L_e(k+1)` in full in the
-/// target, no sample for delta vertices or `sample_pdf ≤ 0`. Appends the
-/// path's samples to `out` in path order, returns `L̃_o(0)`.
-fn by_the_rule(p: &Path, rule: Rule, out: &mut Vec<TrainingSample>) -> [f32; 3] {
+/// target, no sample for delta vertices or `sample_pdf ≤ 0`. Walks the path
+/// backwards, calling `at_sample(vertex, target, L̃_i)` at each vertex that
+/// makes a sample; returns `L̃_o(0)`.
+fn walk_by_the_rule(
+    p: &Path,
+    rule: Rule,
+    mut at_sample: impl FnMut(&PathVertex, [f32; 3], [f32; 3]),
+) -> [f32; 3] {
     let (mut target, mut estimate) = ([0.0f32; 3], [0.0f32; 3]);
     for (radiance, w) in &p.escapes {
         for c in 0..3 {
@@ -287,14 +292,11 @@ fn by_the_rule(p: &Path, rule: Rule, out: &mut Vec<TrainingSample>) -> [f32; 3] 
             estimate[c] += radiance[c] * w;
         }
     }
-    let mut reversed = Vec::new();
     for h in p.hits.iter().rev() {
         let v = h.complete();
         let continues = v.sample_pdf > 0.0;
         if continues && !v.is_delta {
-            // (The vertex → sample field mapping is checked by hand in
-            // `embedding.rs`; the rule is what is written out here.)
-            reversed.push(v.training_sample(target));
+            at_sample(&v, target, estimate);
         }
         let s = if rule == Rule::NoRoulette {
             1.0
@@ -317,6 +319,18 @@ fn by_the_rule(p: &Path, rule: Rule, out: &mut Vec<TrainingSample>) -> [f32; 3] 
             estimate[c] = weighted;
         }
     }
+    estimate
+}
+
+/// [`walk_by_the_rule`]: appends the path's samples to `out` in path order,
+/// returns `L̃_o(0)`.
+fn by_the_rule(p: &Path, rule: Rule, out: &mut Vec<TrainingSample>) -> [f32; 3] {
+    let mut reversed = Vec::new();
+    // (The vertex → sample field mapping is checked by hand in
+    // `embedding.rs`; the rule is what is written out here.)
+    let estimate = walk_by_the_rule(p, rule, |v, target, _| {
+        reversed.push(v.training_sample(target));
+    });
     out.extend(reversed.iter().rev());
     estimate
 }
@@ -526,28 +540,10 @@ fn batch_recorder_edge_cases() {
 /// from the recorder docs: `L̃_i(k) = L̃_o(k + 1)` (the escaped radiance's
 /// MIS share for the last vertex), in path order.
 fn mis_radiance_by_the_rule(p: &Path) -> Vec<[f32; 3]> {
-    let mut estimate = [0.0f32; 3];
-    for (radiance, w) in &p.escapes {
-        for c in 0..3 {
-            estimate[c] += radiance[c] * w;
-        }
-    }
     let mut reversed = Vec::new();
-    for h in p.hits.iter().rev() {
-        let v = h.complete();
-        let continues = v.sample_pdf > 0.0;
-        if continues && !v.is_delta {
-            reversed.push(estimate);
-        }
-        for (c, e) in estimate.iter_mut().enumerate() {
-            let scattered = if continues {
-                v.bsdf_cos[c] * (v.continuation_scale / v.sample_pdf) * *e
-            } else {
-                0.0
-            };
-            *e = v.emitted[c] * v.emitted_mis_weight + (v.direct[c] + scattered);
-        }
-    }
+    walk_by_the_rule(p, Rule::Documented, |_, _, estimate| {
+        reversed.push(estimate);
+    });
     reversed.reverse();
     reversed
 }

@@ -31,7 +31,7 @@ use guiding_core::model::GuidingModel;
 use guiding_core::pdf1d::Interpolation;
 use guiding_core::sample::TrainingSample;
 use guiding_core::sphere::square_to_uniform_sphere;
-use guiding_tests::rng::Pcg32;
+use guiding_tests::rng::{rows_with_specials, Pcg32};
 
 const LO: [f32; 3] = [-1.0, -2.0, 0.0];
 const HI: [f32; 3] = [1.0, 2.0, 3.0];
@@ -65,6 +65,30 @@ fn random_params(n: usize, scale: f32, seed: u64) -> Vec<f32> {
     (0..n).map(|_| rng.uniform(-scale, scale)).collect()
 }
 
+/// The compact DF radiance model (linear interpolation) of these tests.
+fn df_compact() -> DfCompactRadiance {
+    DfCompactRadiance::new(
+        guiding::config::compact_grid(LO, HI),
+        Target::Radiance,
+        Interpolation::Linear,
+    )
+}
+
+/// [`df_compact`] with [`random_params`] (scale 0.3, seed `param_seed`) and
+/// its batched vertices at `n` [`queries`] of seed `query_seed`.
+fn df_vertices(
+    param_seed: u64,
+    n: usize,
+    query_seed: u64,
+) -> (DfCompactRadiance, Vec<f32>, Vec<QueryPoint>, Vec<DfVertex>) {
+    let model = df_compact();
+    let params = random_params(model.param_count(), 0.3, param_seed);
+    let qs = queries(n, query_seed);
+    let mut vs = vec![DfVertex::ZERO; qs.len()];
+    model.decode_batch(&params, &qs, &mut vs);
+    (model, params, qs, vs)
+}
+
 fn same_bits(a: &[f32], b: &[f32]) -> bool {
     a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
 }
@@ -90,17 +114,9 @@ fn raw_rows(n: usize, seed: u64) -> Vec<[f32; NPM_OUTPUTS]> {
         1e-40,
     ];
     let mut rng = Pcg32::new(seed, 3);
-    (0..n)
-        .map(|i| {
-            std::array::from_fn(|j| {
-                if i % 5 == 4 && rng.next_f32() < 0.3 {
-                    specials[rng.next_u32() as usize % specials.len()]
-                } else {
-                    rng.uniform(-12.0, 12.0) * if j % 4 == 0 { 0.5 } else { 1.0 }
-                }
-            })
-        })
-        .collect()
+    rows_with_specials(n, &mut rng, (5, 4), &specials, |rng, j| {
+        rng.uniform(-12.0, 12.0) * if j % 4 == 0 { 0.5 } else { 1.0 }
+    })
 }
 
 #[test]
@@ -426,15 +442,7 @@ fn field_raw(field: &GuidingField, qs: &[QueryPoint], r: usize) -> Vec<f32> {
 #[test]
 fn df_vertices_sample_and_evaluate_like_the_model() {
     type Marginal = Mlp<16, 32, 32, 2>;
-    let model = DfCompactRadiance::new(
-        guiding::config::compact_grid(LO, HI),
-        Target::Radiance,
-        Interpolation::Linear,
-    );
-    let params = random_params(model.param_count(), 0.3, 21);
-    let qs = queries(90, 8);
-    let mut vs = vec![DfVertex::ZERO; qs.len()];
-    model.decode_batch(&params, &qs, &mut vs);
+    let (model, params, qs, vs) = df_vertices(21, 90, 8);
     let mut rng = Pcg32::new(1, 9);
     let mut lanes = Vec::new();
     let mut dirs = Vec::new();
@@ -509,15 +517,7 @@ fn df_vertices_sample_and_evaluate_like_the_model() {
 fn tabulated_df_vertices_hold_the_conditional_at_the_row_centres() {
     use guiding_core::factorised::{direction_from_square, square_from_direction};
     use guiding_core::model::batched::DfTable;
-    let model = DfCompactRadiance::new(
-        guiding::config::compact_grid(LO, HI),
-        Target::Radiance,
-        Interpolation::Linear,
-    );
-    let params = random_params(model.param_count(), 0.3, 23);
-    let qs = queries(40, 9);
-    let mut vs = vec![DfVertex::ZERO; qs.len()];
-    model.decode_batch(&params, &qs, &mut vs);
+    let (model, params, _, vs) = df_vertices(23, 40, 9);
     let mut tables = vec![DfTable::ZERO; vs.len()];
     model.tabulate_vertices(&params, &vs, &mut tables);
     let mut rng = Pcg32::new(3, 9);
@@ -566,11 +566,7 @@ fn tabulated_df_vertices_hold_the_conditional_at_the_row_centres() {
 fn batched_gradient_is_the_per_sample_gradient() {
     let npm = NpmCompactProduct::new(guiding::config::compact_grid(LO, HI), Target::Product);
     let nasg = NasgCompactProduct::new(guiding::config::compact_grid(LO, HI), Target::Product);
-    let df = DfCompactRadiance::new(
-        guiding::config::compact_grid(LO, HI),
-        Target::Radiance,
-        Interpolation::Linear,
-    );
+    let df = df_compact();
     check_gradient(&npm, 1);
     check_gradient(&nasg, 2);
     check_gradient(&df, 3);
@@ -656,17 +652,10 @@ fn batched_nasg_decoder_matches_the_per_query_decoder() {
     use guiding_core::model::nasg::{NASG_LOBES, NASG_OUTPUTS};
     let mut rng = Pcg32::new(12, 1);
     let specials = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 1e30, -1e30, 0.0];
-    let rows: Vec<[f32; NASG_OUTPUTS]> = (0..777)
-        .map(|i| {
-            std::array::from_fn(|_| {
-                if i % 9 == 8 && rng.next_f32() < 0.3 {
-                    specials[rng.next_u32() as usize % specials.len()]
-                } else {
-                    rng.uniform(-12.0, 12.0)
-                }
-            })
-        })
-        .collect();
+    let rows: Vec<[f32; NASG_OUTPUTS]> =
+        rows_with_specials(777, &mut rng, (9, 8), &specials, |rng, _| {
+            rng.uniform(-12.0, 12.0)
+        });
     let mut out = vec![NasgMixture::ZERO; rows.len()];
     decode_nasg_batch(&rows, &mut out);
     let close = |a: f32, b: f32, abs: f32, rel: f32| (a - b).abs() <= abs + rel * b.abs();

@@ -9,6 +9,7 @@ use guiding::{
 use guiding_core::glam::{Vec2, Vec3};
 use guiding_core::math::INV_FOUR_PI;
 use guiding_core::sphere::square_to_uniform_sphere;
+use guiding_tests::record_uniform_vertex;
 use guiding_tests::rng::Pcg32;
 
 const LO: [f32; 3] = [-1.0, -2.0, 0.0];
@@ -61,20 +62,7 @@ fn record_uniform_paths(recorder: &mut PathRecorder, rng: &mut Pcg32, n: usize) 
     for _ in 0..n {
         let wi = square_to_uniform_sphere(rng.next_vec2());
         let q = random_query(rng);
-        recorder.start_path();
-        recorder.add_vertex(PathVertex {
-            position: q.position,
-            normal: q.normal,
-            wo: q.wo,
-            roughness: 1.0,
-            wi: wi.to_array(),
-            sample_pdf: INV_FOUR_PI,
-            bsdf_pdf: INV_FOUR_PI,
-            bsdf_cos: [1.0; 3],
-            ..PathVertex::default()
-        });
-        recorder.add_escaped_radiance([radiance(wi); 3], 1.0);
-        recorder.end_path();
+        record_uniform_vertex(recorder, (q.position, q.normal, q.wo), wi, radiance(wi));
     }
 }
 

@@ -12,6 +12,7 @@ use guiding_core::factorised::{self, FactorisedTable, LN_FOUR_PI, SAMPLE_MARGIN}
 use guiding_core::math::{INV_FOUR_PI, ONE_MINUS_EPSILON};
 use guiding_core::pdf1d::{linear_cdf, sample_linear, Boundary, Interpolation, Pdf1d};
 use guiding_tests::cases::factorised::{logits, random_table, LogitKind, STANDALONE_CHI2_TESTS};
+use guiding_tests::oracles::{pdf1d_eval, pdf1d_ln_pdf};
 use guiding_tests::rng::Pcg32;
 use proptest::prelude::*;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
@@ -23,54 +24,24 @@ const CONFIGS: [(Interpolation, Boundary); 4] = [
     (Interpolation::Linear, Boundary::Clamp),
 ];
 
-// ---------------------------------------------------------------------------
-// f64 oracle, written from the spec (independent of the piece decomposition
-// the implementation samples with).
-// ---------------------------------------------------------------------------
-
-/// `N · softmax(l)` in f64.
-fn oracle_values(l: &[f64]) -> Vec<f64> {
-    let m = l.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    let e: Vec<f64> = l.iter().map(|x| (x - m).exp()).collect();
-    let s: f64 = e.iter().sum();
-    let n = l.len() as f64;
-    e.iter().map(|x| n * x / s).collect()
+/// `check::<N>()` for each bin count `N` listed (a const parameter).
+macro_rules! for_sizes {
+    ($check:ident: $($n:literal),*) => {
+        $($check::<$n>();)*
+    };
 }
 
-/// The density of bin values `v` at `x ∈ [0, 1]`.
-fn oracle_pdf(v: &[f64], x: f64, interp: Interpolation, boundary: Boundary) -> f64 {
-    let n = v.len();
-    let nf = n as f64;
-    match interp {
-        Interpolation::Nearest => v[((x * nf).floor() as usize).min(n - 1)],
-        Interpolation::Linear => {
-            let s = x * nf - 0.5;
-            match boundary {
-                Boundary::Clamp => {
-                    if s <= 0.0 {
-                        v[0]
-                    } else if s >= nf - 1.0 {
-                        v[n - 1]
-                    } else {
-                        let i = s.floor() as usize;
-                        let f = s - i as f64;
-                        (1.0 - f) * v[i] + f * v[i + 1]
-                    }
-                }
-                Boundary::Wrap => {
-                    let fl = s.floor();
-                    let f = s - fl;
-                    let i = (fl as i64).rem_euclid(n as i64) as usize;
-                    let j = (i + 1) % n;
-                    (1.0 - f) * v[i] + f * v[j]
-                }
-            }
-        }
-    }
-}
+// The f64 oracle, written from the spec (independent of the piece
+// decomposition the implementation samples with): `oracles::pdf1d_eval` and
+// `oracles::pdf1d_ln_pdf`.
 
-fn oracle_ln_pdf(l: &[f64], x: f64, interp: Interpolation, boundary: Boundary) -> f64 {
-    oracle_pdf(&oracle_values(l), x, interp, boundary).ln()
+/// `pdf.sample(u)`, asserted to be a point of `[0, 1)` with a finite density
+/// `> 0`.
+fn valid_sample<const N: usize>(pdf: &Pdf1d<N>, u: f32, what: &str) -> (f32, f32) {
+    let (x, p) = pdf.sample(u);
+    assert!((0.0..1.0).contains(&x), "{what}: x = {x}");
+    assert!(p > 0.0 && p.is_finite(), "{what}: p = {p} at x = {x}");
+    (x, p)
 }
 
 /// Central finite differences of `f` with respect to each entry of `l`.
@@ -197,7 +168,7 @@ fn check_normalisation<const N: usize>() {
                 for _ in 0..1000 {
                     let x = rng.next_f32();
                     let a = f64::from(pdf.pdf(x));
-                    let o = oracle_pdf(&v, f64::from(x), interp, boundary);
+                    let o = pdf1d_eval(&v, f64::from(x), interp, boundary);
                     assert!(
                         (a - o).abs() <= 1e-5 * o.abs().max(1e-3),
                         "N={N} {interp:?} {boundary:?}: pdf({x}) = {a}, oracle {o}"
@@ -210,11 +181,7 @@ fn check_normalisation<const N: usize>() {
 
 #[test]
 fn normalisation_and_oracle() {
-    check_normalisation::<1>();
-    check_normalisation::<2>();
-    check_normalisation::<16>();
-    check_normalisation::<32>();
-    check_normalisation::<64>();
+    for_sizes!(check_normalisation: 1, 2, 16, 32, 64);
 }
 
 fn check_sample_invert<const N: usize>() {
@@ -230,12 +197,8 @@ fn check_sample_invert<const N: usize>() {
                     2 => 0.5,
                     _ => rng.next_f32(),
                 };
-                let (x, p) = pdf.sample(u);
-                assert!((0.0..1.0).contains(&x), "x = {x}");
-                assert!(
-                    p > 0.0 && p.is_finite(),
-                    "N={N} {interp:?} {boundary:?} {kind:?}: p = {p} at x = {x}"
-                );
+                let (x, p) =
+                    valid_sample(&pdf, u, &format!("N={N} {interp:?} {boundary:?} {kind:?}"));
                 let q = pdf.pdf(x);
                 assert!((p - q).abs() <= 1e-5 * q, "sample pdf {p} vs pdf {q}");
                 let back = pdf.invert(x);
@@ -266,11 +229,7 @@ fn check_sample_invert<const N: usize>() {
 
 #[test]
 fn sample_pdf_invert_consistency() {
-    check_sample_invert::<1>();
-    check_sample_invert::<2>();
-    check_sample_invert::<16>();
-    check_sample_invert::<32>();
-    check_sample_invert::<64>();
+    for_sizes!(check_sample_invert: 1, 2, 16, 32, 64);
 }
 
 // ---------------------------------------------------------------------------
@@ -355,9 +314,7 @@ fn check_chi2<const N: usize>() {
 
 #[test]
 fn chi2_small() {
-    check_chi2::<1>();
-    check_chi2::<2>();
-    check_chi2::<16>();
+    for_sizes!(check_chi2: 1, 2, 16);
 }
 
 #[test]
@@ -621,14 +578,14 @@ fn check_grad_1d<const N: usize>(rng: &mut Pcg32) -> (usize, usize) {
             let lp = Pdf1d::grad_log_pdf(&l, x, interp, boundary, &mut g);
             let l64 = to_f64(&l);
             let x64 = f64::from(x);
-            let oracle = oracle_ln_pdf(&l64, x64, interp, boundary);
+            let oracle = pdf1d_ln_pdf(&l64, x64, interp, boundary);
             assert!(
                 (f64::from(lp) - oracle).abs() <= 1e-4 * oracle.abs().max(1.0),
                 "N={N} {interp:?} {boundary:?}: ln p = {lp}, oracle {oracle}"
             );
             let direct = Pdf1d::from_logits(&l, interp, boundary).pdf(x).ln();
             assert!((lp - direct).abs() <= 1e-4 * direct.abs().max(1.0));
-            let fd = finite_differences(&l64, |l| oracle_ln_pdf(l, x64, interp, boundary));
+            let fd = finite_differences(&l64, |l| pdf1d_ln_pdf(l, x64, interp, boundary));
             for k in 0..N {
                 total += 1;
                 if rel_err(f64::from(g[k]), fd[k]) > 1e-2 {
@@ -686,8 +643,8 @@ fn gradient_factorised() {
             let lp = factorised::grad_log_pdf(&lm, &lc, interp, d, &mut gm, &mut gc);
             let (e1, e2) = oracle_square(d);
             let (lm64, lc64) = (to_f64(&lm), to_f64(&lc));
-            let oracle_m = |l: &[f64]| oracle_ln_pdf(l, e1, interp, Boundary::Wrap);
-            let oracle_c = |l: &[f64]| oracle_ln_pdf(l, e2, interp, Boundary::Clamp);
+            let oracle_m = |l: &[f64]| pdf1d_ln_pdf(l, e1, interp, Boundary::Wrap);
+            let oracle_c = |l: &[f64]| pdf1d_ln_pdf(l, e2, interp, Boundary::Clamp);
             let oracle = oracle_m(&lm64) + oracle_c(&lc64) - (4.0 * std::f64::consts::PI).ln();
             assert!((f64::from(lp) - oracle).abs() <= 1e-4 * oracle.abs().max(1.0));
             // The same density as the per-query pdf.
@@ -1111,12 +1068,7 @@ fn check_pdf1d_valid<const N: usize>(l: &[f32; N], us: &[f32], x: f32) {
             pdf.values
         );
         for &u in us {
-            let (s, p) = pdf.sample(u);
-            assert!((0.0..1.0).contains(&s), "x = {s}");
-            assert!(
-                p > 0.0 && p.is_finite(),
-                "{l:?} {interp:?} {boundary:?}: p = {p}"
-            );
+            let (s, _) = valid_sample(&pdf, u, &format!("{l:?} {interp:?} {boundary:?}"));
             let c = pdf.invert(s);
             assert!((0.0..1.0).contains(&c));
         }

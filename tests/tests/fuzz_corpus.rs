@@ -150,6 +150,16 @@ fn mutated_scenes(seeds: &[Vec<u8>], count: usize) -> Vec<Vec<u8>> {
         .collect()
 }
 
+/// [`replay`] with `count` [`generated_inputs`] of at most `max_len` bytes,
+/// seeded by the length of the target's name.
+fn replay_generated(target: &str, check: fn(&[u8]), count: usize, max_len: usize) {
+    replay(
+        target,
+        check,
+        &generated_inputs(target.len() as u64, count, max_len),
+    );
+}
+
 fn replay(target: &str, check: fn(&[u8]), generated: &[Vec<u8>]) {
     let files = corpus_files(target);
     assert!(!files.is_empty(), "{target}: empty corpus");
@@ -185,27 +195,25 @@ fn replay(target: &str, check: fn(&[u8]), generated: &[Vec<u8>]) {
 #[test]
 fn distributions_corpus() {
     // DF tables read 1 + (32 + 32·16)·4 + … bytes; go a little beyond.
-    let generated = generated_inputs("distributions".len() as u64, 20_000, 2400);
-    replay("distributions", fuzz_checks::distributions, &generated);
+    replay_generated("distributions", fuzz_checks::distributions, 20_000, 2400);
 }
 
 #[test]
 fn lobes_extreme_corpus() {
-    let generated = generated_inputs("lobes_extreme".len() as u64, 20_000, 80);
-    replay("lobes_extreme", fuzz_checks::lobes_extreme, &generated);
+    replay_generated("lobes_extreme", fuzz_checks::lobes_extreme, 20_000, 80);
 }
 
 #[test]
 fn training_step_corpus() {
     // Three rounds of 24 samples read up to ~11 kB; most generated inputs
     // stop after a few samples, which is where the decoding is densest.
-    let generated = generated_inputs("training_step".len() as u64, 1500, 3000);
-    replay(
+    replay_generated(
         "training_step",
         |d| {
             fuzz_checks::training_step(d);
         },
-        &generated,
+        1500,
+        3000,
     );
 }
 
@@ -220,8 +228,7 @@ fn scene_parser_corpus() {
 /// byte strings (each at most `C_API_MAX_OPS` calls on Small models).
 #[test]
 fn c_api_corpus() {
-    let generated = generated_inputs("c_api".len() as u64, 1500, 400);
-    replay("c_api", fuzz_checks::c_api, &generated);
+    replay_generated("c_api", fuzz_checks::c_api, 1500, 400);
 }
 
 /// The hand-made seeds of `c_api` are the ones `write_seed_corpora` writes.
@@ -307,15 +314,17 @@ impl Calls {
     fn new_dist(self, slot: u8) -> Self {
         self.bytes(&[(slot << 7) | 18, 0])
     }
+    /// The shading point `t` of a query or training sample (`c_query`,
+    /// `c_sample`): position `(t − ½, ¼, −t)`, roughness ½, the normal
+    /// from (0.1, 0.2).
+    fn shading_point(self, t: f32) -> Self {
+        self.position([t - 0.5, 0.25, -t]).unit(0.5).dir(0.1, 0.2)
+    }
     fn query(mut self, slot: u8, n: u8) -> Self {
         self = self.bytes(&[(slot << 7) | 3, n]);
         for i in 0..n {
             let t = f32::from(i) / 8.0;
-            self = self
-                .position([t - 0.5, 0.25, -t])
-                .unit(0.5)
-                .dir(0.1, 0.2)
-                .dir(0.3 + t, 0.7);
+            self = self.shading_point(t).dir(0.3 + t, 0.7);
         }
         self.bytes(&[1])
     }
@@ -338,9 +347,7 @@ impl Calls {
         for i in 0..n {
             let t = f32::from(i) / 8.0;
             self = self
-                .position([t - 0.5, 0.25, -t])
-                .unit(0.5)
-                .dir(0.1, 0.2)
+                .shading_point(t)
                 .unit(0.08)
                 .dir(0.3, 0.7)
                 .unit(0.05)

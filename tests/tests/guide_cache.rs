@@ -19,14 +19,15 @@
 
 use guiding::{
     CacheLookup, CacheOptions, DirectionSample, DistributionBatch, FieldConfig, GuideCache,
-    GuidingConfig, GuidingError, GuidingField, ModelSize, PathRecorder, PathVertex, QueryPoint,
-    SelectionFit, Target, TrainingSample,
+    GuidingConfig, GuidingError, GuidingField, ModelSize, PathRecorder, QueryPoint, SelectionFit,
+    Target, TrainingSample,
 };
 use guiding_core::frame::normalize_or;
 use guiding_core::glam::{Vec2, Vec3};
 use guiding_core::math::INV_FOUR_PI;
 use guiding_core::sphere::square_to_uniform_sphere;
-use guiding_tests::chi2::sidak;
+use guiding_tests::chi2::{pearson_statistic, pool_low_cells, sidak};
+use guiding_tests::record_uniform_vertex;
 use guiding_tests::rng::Pcg32;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 use std::collections::HashSet;
@@ -99,20 +100,8 @@ fn record(rec: &mut PathRecorder, rng: &mut Pcg32, n: usize) {
     for _ in 0..n {
         let p = in_box(rng);
         let wi = unit(rng);
-        rec.start_path();
-        rec.add_vertex(PathVertex {
-            position: p.to_array(),
-            normal: unit(rng).to_array(),
-            wo: unit(rng).to_array(),
-            roughness: 1.0,
-            wi: wi.to_array(),
-            sample_pdf: INV_FOUR_PI,
-            bsdf_pdf: INV_FOUR_PI,
-            bsdf_cos: [1.0; 3],
-            ..PathVertex::default()
-        });
-        rec.add_escaped_radiance([radiance(p, wi); 3], 1.0);
-        rec.end_path();
+        let (normal, wo) = (unit(rng).to_array(), unit(rng).to_array());
+        record_uniform_vertex(rec, (p.to_array(), normal, wo), wi, radiance(p, wi));
     }
 }
 
@@ -165,6 +154,28 @@ fn axis_normal(rng: &mut Pcg32) -> Vec3 {
 /// A query at `p` with an [`axis_normal`] (`ωo` and roughness arbitrary).
 fn axis_query(p: Vec3, rng: &mut Pcg32) -> QueryPoint {
     QueryPoint::from_vec3(p, axis_normal(rng), unit(rng), rng.next_f32())
+}
+
+/// `n` queries `make(p)` at positions `p` uniform in the box (drawn before
+/// each query's other values).
+fn queries_in_box(
+    n: usize,
+    rng: &mut Pcg32,
+    make: impl Fn(Vec3, &mut Pcg32) -> QueryPoint,
+) -> Vec<QueryPoint> {
+    (0..n)
+        .map(|_| {
+            let p = in_box(rng);
+            make(p, rng)
+        })
+        .collect()
+}
+
+/// `n` jitters uniform in the unit cube.
+fn random_jitter(n: usize, rng: &mut Pcg32) -> Vec<Vec3> {
+    (0..n)
+        .map(|_| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()))
+        .collect()
 }
 
 /// A random unit normal that is a fixed point of
@@ -288,6 +299,47 @@ fn cached(
     (fingerprints(field, &batch), lookup, missed)
 }
 
+/// `cached`'s answer `(got, lookup, missed)` for `queries` that all hit:
+/// every query a hit, the lanes equal to `want` bit for bit, and differing
+/// from cell to cell (the comparison has teeth).
+fn assert_all_hit_with(
+    what: &str,
+    queries: &[QueryPoint],
+    (got, lookup, missed): &(Vec<Vec<u32>>, CacheLookup, Vec<u32>),
+    want: &[Vec<u32>],
+) {
+    assert_eq!(
+        *lookup,
+        CacheLookup {
+            hits: queries.len() as u64,
+            misses: 0
+        }
+    );
+    assert!(missed.is_empty());
+    for (k, (g, w)) in got.iter().zip(want).enumerate() {
+        assert_eq!(g, w, "{what}: query {k} at {:?}", queries[k].position);
+    }
+    let distinct: HashSet<&Vec<u32>> = got.iter().collect();
+    assert!(distinct.len() > got.len() / 2, "{what}: {}", distinct.len());
+}
+
+/// `cache`'s decode of `queries` at the cells' centres (jitter ½), every
+/// query a hit.
+fn decode_centred(
+    cache: &GuideCache,
+    field: &GuidingField,
+    queries: &[QueryPoint],
+) -> DistributionBatch {
+    let jitter = vec![Vec3::splat(0.5); queries.len()];
+    let mut batch = DistributionBatch::new();
+    let mut missed = Vec::new();
+    cache
+        .decode_batch(field, queries, &jitter, &mut batch, &mut missed)
+        .unwrap();
+    assert!(missed.is_empty());
+    batch
+}
+
 /// Fingerprints of the network's decode of `queries`.
 fn network(field: &GuidingField, queries: &[QueryPoint]) -> Vec<Vec<u32>> {
     let mut batch = DistributionBatch::new();
@@ -345,23 +397,8 @@ fn a_lookup_at_the_only_position_of_its_cell_is_the_network_decode_bit_for_bit()
         // In another order than the cache's cells, with other normals / ωo.
         let mut queries = queries_at(&positions, &mut rng);
         queries.reverse();
-        let jitter = vec![Vec3::splat(0.5); queries.len()];
-        let (got, lookup, missed) = cached(&cache, &field, &queries, &jitter);
-        assert_eq!(
-            lookup,
-            CacheLookup {
-                hits: queries.len() as u64,
-                misses: 0
-            }
-        );
-        assert!(missed.is_empty());
-        let want = network(&field, &queries);
-        for (k, (g, w)) in got.iter().zip(&want).enumerate() {
-            assert_eq!(g, w, "{name}: query {k} at {:?}", queries[k].position);
-        }
-        // The lanes differ from cell to cell (the comparison has teeth).
-        let distinct: HashSet<&Vec<u32>> = got.iter().collect();
-        assert!(distinct.len() > got.len() / 2, "{name}: {}", distinct.len());
+        let answer = cached_centred(&cache, &field, &queries);
+        assert_all_hit_with(name, &queries, &answer, &network(&field, &queries));
     }
 }
 
@@ -370,21 +407,13 @@ fn a_lookup_at_the_only_position_of_its_cell_is_the_network_decode_bit_for_bit()
 /// the cache as it was, and `get` reads the shared lanes.
 #[test]
 fn a_cached_batch_shares_the_cells_and_copies_them_before_a_product() {
-    let field = npm(71);
-    let mut rng = Pcg32::new(72, 1);
-    let empty = field.build_cache(&[], &OPTIONS).unwrap();
+    let (field, mut rng, empty) = npm_with_empty_cache(71, &OPTIONS);
     let positions = one_position_per_cell(empty.resolution(), &mut rng);
     let points = queries_at(&positions, &mut rng);
     let cache = field.build_cache(&points, &OPTIONS).unwrap();
     let queries = queries_at(&positions, &mut rng);
     let normals: Vec<Vec3> = queries.iter().map(|q| Vec3::from_array(q.normal)).collect();
-    let jitter = vec![Vec3::splat(0.5); queries.len()];
-    let mut batch = DistributionBatch::new();
-    let mut missed = Vec::new();
-    cache
-        .decode_batch(&field, &queries, &jitter, &mut batch, &mut missed)
-        .unwrap();
-    assert!(missed.is_empty());
+    let mut batch = decode_centred(&cache, &field, &queries);
     let (dirs, _) = probes();
     for (i, q) in queries.iter().enumerate() {
         let d = field.attach(batch.get(i).unwrap()).unwrap();
@@ -401,7 +430,7 @@ fn a_cached_batch_shares_the_cells_and_copies_them_before_a_product() {
         network_product(&field, &queries, &normals)
     );
     // The cache's own lanes are untouched.
-    let (again, _, _) = cached(&cache, &field, &queries, &jitter);
+    let (again, _, _) = cached_centred(&cache, &field, &queries);
     assert_eq!(again, network(&field, &queries));
 }
 
@@ -449,13 +478,7 @@ fn tabulated_df_cells_sample_their_own_density_and_hold_the_network_at_row_centr
     let mut cache = field.build_cache(&points, &options).unwrap();
     for round in 0..2 {
         let queries = queries_at(&positions, &mut rng);
-        let jitter = vec![Vec3::splat(0.5); queries.len()];
-        let mut batch = DistributionBatch::new();
-        let mut missed = Vec::new();
-        cache
-            .decode_batch(&field, &queries, &jitter, &mut batch, &mut missed)
-            .unwrap();
-        assert!(missed.is_empty());
+        let batch = decode_centred(&cache, &field, &queries);
         assert!(batch.get(0).is_none(), "a table lane has no plain value");
         let n = queries.len();
         let (samples, pdfs) = sample_every_lane(&field, &batch, n, &mut rng);
@@ -630,23 +653,11 @@ fn a_stale_cache_is_refused_and_refresh_equals_a_fresh_build() {
         let mut rng = Pcg32::new(50 + i as u64, 1);
         // Many points per cell (and per normal bin): the decode points are
         // centroids, the product normals means.
-        let positions: Vec<QueryPoint> = (0..3000)
-            .map(|_| {
-                let p = in_box(&mut rng);
-                axis_query(p, &mut rng)
-            })
-            .collect();
+        let positions = queries_in_box(3000, &mut rng, axis_query);
         let mut cache = field.build_cache(&positions, &options).unwrap();
         assert_eq!(cache.has_cosine_product(), options.cosine_product);
-        let queries: Vec<QueryPoint> = (0..200)
-            .map(|_| {
-                let p = in_box(&mut rng);
-                axis_query(p, &mut rng)
-            })
-            .collect();
-        let jitter: Vec<Vec3> = (0..queries.len())
-            .map(|_| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()))
-            .collect();
+        let queries = queries_in_box(200, &mut rng, axis_query);
+        let jitter = random_jitter(queries.len(), &mut rng);
         let before = cached(&cache, &field, &queries, &jitter);
         assert!(
             before.1.hits > queries.len() as u64 / 2,
@@ -787,9 +798,7 @@ fn extend_is_order_independent_counts_new_lanes_and_ignores_bad_positions() {
             })
             .collect();
         queries.extend_from_slice(&points[..400]);
-        let jitter: Vec<Vec3> = (0..queries.len())
-            .map(|_| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()))
-            .collect();
+        let jitter = random_jitter(queries.len(), &mut rng);
         let (fa, la, ma) = cached(&a, &field, &queries, &jitter);
         let (fb, lb, mb) = cached(&b, &field, &queries, &jitter);
         assert_eq!((la, &ma), (lb, &mb), "{name}");
@@ -840,9 +849,7 @@ fn extend_is_order_independent_counts_new_lanes_and_ignores_bad_positions() {
             want_missed.push(mixed.len() as u32);
             mixed.push(q);
         }
-        let jitter: Vec<Vec3> = (0..mixed.len())
-            .map(|_| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()))
-            .collect();
+        let jitter = random_jitter(mixed.len(), &mut rng);
         let (got, lookup, missed) = cached(&b, &field, &mixed, &jitter);
         assert_eq!(missed, want_missed, "{name}");
         assert_eq!(
@@ -948,27 +955,14 @@ fn pearson(observed: &[u64; CATEGORIES], probabilities: &[f64; CATEGORIES]) -> P
             p: 0.0,
         };
     }
-    let mut cells: Vec<(f64, f64)> = probabilities
+    let cells: Vec<(f64, f64)> = probabilities
         .iter()
         .zip(observed)
         .filter(|(&w, _)| w > 0.0)
         .map(|(&w, &o)| (w * n, o as f64))
         .collect();
-    cells.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let low = cells.partition_point(|c| c.0 < MIN_EXPECTED);
-    let pool = cells[..low]
-        .iter()
-        .fold((0.0, 0.0), |s, c| (s.0 + c.0, s.1 + c.1));
-    let mut kept = cells[low..].to_vec();
-    if low > 0 {
-        if pool.0 < MIN_EXPECTED && !kept.is_empty() {
-            kept[0].0 += pool.0;
-            kept[0].1 += pool.1;
-        } else {
-            kept.push(pool);
-        }
-    }
-    let statistic: f64 = kept.iter().map(|(e, o)| (o - e) * (o - e) / e).sum();
+    let (kept, low) = pool_low_cells(cells, MIN_EXPECTED);
+    let statistic = pearson_statistic(&kept);
     let dof = kept.len().saturating_sub(1);
     let p = if dof == 0 {
         // One cell holds everything: nothing to test, nothing rejected.
@@ -1156,11 +1150,31 @@ fn npm(seed: u64) -> GuidingField {
     trained(radiance_presets()[0].1, seed)
 }
 
+/// [`npm`] of `seed`, an RNG of seed `seed + 1` and the field's empty cache
+/// under `options` (its grid, for positions and cell centres).
+fn npm_with_empty_cache(seed: u64, options: &CacheOptions) -> (GuidingField, Pcg32, GuideCache) {
+    let field = npm(seed);
+    let rng = Pcg32::new(seed + 1, 1);
+    let empty = field.build_cache(&[], options).unwrap();
+    (field, rng, empty)
+}
+
+/// The density of lane `lane` of `lanes` as a function of the direction.
+fn lane_pdf<'a>(
+    field: &'a GuidingField,
+    lanes: &'a DistributionBatch,
+    lane: u32,
+) -> impl Fn(Vec3) -> f32 + 'a {
+    move |wi| {
+        let mut q = [0.0];
+        field.pdf_decoded(lanes, &[lane], &[wi], &mut q).unwrap();
+        q[0]
+    }
+}
+
 #[test]
 fn a_product_lookup_at_the_only_point_of_its_lane_is_the_network_decode_times_its_cosine() {
-    let field = npm(110);
-    let mut rng = Pcg32::new(111, 1);
-    let empty = field.build_cache(&[], &PRODUCT).unwrap();
+    let (field, mut rng, empty) = npm_with_empty_cache(110, &PRODUCT);
     assert!(empty.has_cosine_product());
     let positions = one_position_per_cell(empty.resolution(), &mut rng);
     // One point per cell with a random normal (one bin each); the normals
@@ -1184,32 +1198,17 @@ fn a_product_lookup_at_the_only_point_of_its_lane_is_the_network_decode_times_it
         .collect();
     queries.reverse();
     let normals: Vec<Vec3> = queries.iter().map(|q| Vec3::from_array(q.normal)).collect();
-    let (got, lookup, missed) = cached_centred(&cache, &field, &queries);
-    assert_eq!(
-        lookup,
-        CacheLookup {
-            hits: queries.len() as u64,
-            misses: 0
-        }
-    );
-    assert!(missed.is_empty());
+    let answer = cached_centred(&cache, &field, &queries);
     let want = network_product(&field, &queries, &normals);
-    for (k, (g, w)) in got.iter().zip(&want).enumerate() {
-        assert_eq!(g, w, "query {k} at {:?}", queries[k].position);
-    }
-    // The product changed the lanes (the comparison has teeth), and the
-    // lanes differ from cell to cell.
+    assert_all_hit_with("product", &queries, &answer, &want);
+    // The product changed the lanes.
     let plain = network(&field, &queries);
-    assert!(got.iter().zip(&plain).all(|(g, p)| g != p));
-    let distinct: HashSet<&Vec<u32>> = got.iter().collect();
-    assert!(distinct.len() > got.len() / 2, "{}", distinct.len());
+    assert!(answer.0.iter().zip(&plain).all(|(g, p)| g != p));
 }
 
 #[test]
 fn product_lanes_are_per_normal_bin_with_the_normalised_mean_normal() {
-    let field = npm(120);
-    let mut rng = Pcg32::new(121, 1);
-    let empty = field.build_cache(&[], &PRODUCT).unwrap();
+    let (field, mut rng, empty) = npm_with_empty_cache(120, &PRODUCT);
     let h = empty.cell_size();
     // Cell 1: two points, normals +z and +x (bins 36 and 39): two lanes.
     let c1 = cell_centre(&empty, [3, 4, 3]);
@@ -1247,9 +1246,7 @@ fn product_lanes_are_per_normal_bin_with_the_normalised_mean_normal() {
         at(p1, Vec3::X, &mut rng),
         at(c1, nx, &mut rng),
     ];
-    let jitter: Vec<Vec3> = (0..queries.len())
-        .map(|_| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()))
-        .collect();
+    let jitter = random_jitter(queries.len(), &mut rng);
     let (got, lookup, _) = cached(&cache, &field, &queries, &jitter);
     assert_eq!(lookup.misses, 0);
     let lane_z = network_product(&field, &points[..1], &[Vec3::Z]);
@@ -1290,9 +1287,7 @@ fn product_lanes_are_per_normal_bin_with_the_normalised_mean_normal() {
 
 #[test]
 fn a_product_miss_is_the_network_decode_times_the_query_cosine() {
-    let field = npm(130);
-    let mut rng = Pcg32::new(131, 1);
-    let empty = field.build_cache(&[], &PRODUCT).unwrap();
+    let (field, mut rng, empty) = npm_with_empty_cache(130, &PRODUCT);
     let positions = one_position_per_cell(empty.resolution(), &mut rng);
     // Every lane has the normal +z.
     let points: Vec<QueryPoint> = positions
@@ -1353,12 +1348,7 @@ fn nasg_and_df_ignore_the_cosine_product() {
     for (i, (name, config)) in radiance_presets().into_iter().enumerate().skip(1) {
         let field = trained(config, 140 + i as u64);
         let mut rng = Pcg32::new(150 + i as u64, 1);
-        let points: Vec<QueryPoint> = (0..1000)
-            .map(|_| {
-                let p = in_box(&mut rng);
-                axis_query(p, &mut rng)
-            })
-            .collect();
+        let points = queries_in_box(1000, &mut rng, axis_query);
         let plain = field.build_cache(&points, &OPTIONS).unwrap();
         let product = field.build_cache(&points, &PRODUCT).unwrap();
         assert!(!product.has_cosine_product(), "{name}");
@@ -1368,15 +1358,8 @@ fn nasg_and_df_ignore_the_cosine_product() {
             .filter_map(|q| cell_of(&plain, Vec3::from_array(q.position)))
             .collect();
         assert_eq!(product.cells(), cells.len(), "{name}: a lane per cell");
-        let queries: Vec<QueryPoint> = (0..300)
-            .map(|_| {
-                let p = in_box(&mut rng);
-                query(p, &mut rng)
-            })
-            .collect();
-        let jitter: Vec<Vec3> = (0..queries.len())
-            .map(|_| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()))
-            .collect();
+        let queries = queries_in_box(300, &mut rng, query);
+        let jitter = random_jitter(queries.len(), &mut rng);
         let a = cached(&plain, &field, &queries, &jitter);
         let b = cached(&product, &field, &queries, &jitter);
         assert_eq!(a, b, "{name}");
@@ -1384,12 +1367,7 @@ fn nasg_and_df_ignore_the_cosine_product() {
     // NPM does not (the comparison above would see the product).
     let field = npm(149);
     let mut rng = Pcg32::new(159, 1);
-    let points: Vec<QueryPoint> = (0..300)
-        .map(|_| {
-            let p = in_box(&mut rng);
-            axis_query(p, &mut rng)
-        })
-        .collect();
+    let points = queries_in_box(300, &mut rng, axis_query);
     let plain = field.build_cache(&points, &OPTIONS).unwrap();
     let product = field.build_cache(&points, &PRODUCT).unwrap();
     assert!(product.has_cosine_product() && !plain.has_cosine_product());
@@ -1526,12 +1504,7 @@ fn argmin(fit: &SelectionFit, m: &[f64], mean: f64, v_ref: f64, vertex_share: f6
 #[test]
 fn fit_selection_refuses_nasg_bad_ranges_and_stale_fields() {
     let mut rng = Pcg32::new(160, 1);
-    let points: Vec<QueryPoint> = (0..100)
-        .map(|_| {
-            let p = in_box(&mut rng);
-            axis_query(p, &mut rng)
-        })
-        .collect();
+    let points = queries_in_box(100, &mut rng, axis_query);
     let sample = TrainingSample::new(
         points[0],
         [0.0, 0.0, 1.0],
@@ -1691,9 +1664,7 @@ fn selections(
 
 #[test]
 fn fit_selection_is_the_argmin_of_the_shrunk_second_moment_per_lane() {
-    let field = npm(170);
-    let mut rng = Pcg32::new(171, 1);
-    let empty = field.build_cache(&[], &PRODUCT).unwrap();
+    let (field, mut rng, empty) = npm_with_empty_cache(170, &PRODUCT);
     let h = empty.cell_size();
     let centre = |c: [u32; 3]| cell_centre(&empty, c);
     // Lanes: A (+z) and A' (−z) in one cell, B (+x), C (+z), E (+z, no
@@ -1722,15 +1693,7 @@ fn fit_selection_is_the_argmin_of_the_shrunk_second_moment_per_lane() {
         .map(|q| Vec3::from_array(q.normal))
         .collect();
     assert!(lanes.apply_cosine_product(&normals));
-    let q_of = |lane: u32| {
-        let lanes = &lanes;
-        let field = &field;
-        move |wi: Vec3| {
-            let mut q = [0.0];
-            field.pdf_decoded(lanes, &[lane], &[wi], &mut q).unwrap();
-            q[0]
-        }
-    };
+    let q_of = |lane: u32| lane_pdf(&field, &lanes, lane);
     let none = |_: Vec3| f32::NAN;
     // A: the radiance follows the guide (strong); B: half guide, half
     // uniform (an optimum inside the range); A' and C: few samples, uniform
@@ -1929,9 +1892,7 @@ fn fit_selection_is_the_argmin_of_the_shrunk_second_moment_per_lane() {
 /// no candidate compared below it and every lane got `max`).
 #[test]
 fn fit_selection_without_prior_keeps_a_lane_own_fit_next_to_a_sample_without_bsdf_density() {
-    let field = npm(180);
-    let mut rng = Pcg32::new(181, 1);
-    let empty = field.build_cache(&[], &PRODUCT).unwrap();
+    let (field, mut rng, empty) = npm_with_empty_cache(180, &PRODUCT);
     let h = empty.cell_size();
     let (ca, cb) = (
         cell_centre(&empty, [2, 3, 2]),
@@ -1942,15 +1903,7 @@ fn fit_selection_without_prior_keeps_a_lane_own_fit_next_to_a_sample_without_bsd
     let mut lanes = DistributionBatch::new();
     field.decode_batch(&points, &mut lanes);
     assert!(lanes.apply_cosine_product(&[Vec3::Z; 2]));
-    let q_of = |lane: u32| {
-        let lanes = &lanes;
-        let field = &field;
-        move |wi: Vec3| {
-            let mut q = [0.0];
-            field.pdf_decoded(lanes, &[lane], &[wi], &mut q).unwrap();
-            q[0]
-        }
-    };
+    let q_of = |lane: u32| lane_pdf(&field, &lanes, lane);
     let flat = |_: f32, _: Vec3| 0.5;
     let a = fit_samples(100, ca, h, Vec3::Z, &q_of(0), &flat, &mut rng);
     let mut b = fit_samples(100, cb, h, Vec3::Z, &q_of(1), &flat, &mut rng);

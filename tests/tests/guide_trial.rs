@@ -4,7 +4,7 @@
 //! the trial is what keeps a noisy image from making the two arms look alike (a committed
 //! negative control computes the defective self-weighted estimate from the same samples).
 
-use guiding::{GuideTrial, GuidingError, TrialArm, TrialOptions};
+use guiding::{GuideTrial, GuidingError, TrialArm, TrialOptions, TrialVerdict};
 use guiding_core::rng::Rng;
 use statrs::distribution::{ContinuousCDF, Normal};
 
@@ -86,6 +86,17 @@ fn expected(noise: Noise, k: u32, eps: f64) -> (f64, f64) {
     (v / cells, var.sqrt() / cells)
 }
 
+/// The verdict of a finished [`run_trial`].
+fn trial_verdict(
+    seed: u32,
+    noise: (Noise, Noise),
+    seconds: (f64, f64),
+    options: TrialOptions,
+) -> TrialVerdict {
+    let (trial, _) = run_trial(seed, noise, seconds, options);
+    trial.verdict().expect("finished")
+}
+
 /// Runs a trial with passes of the arms' noise `(guided, unguided)` and pass times; returns
 /// the trial and every pass's pixels per arm.
 fn run_trial(
@@ -151,8 +162,7 @@ fn variance_estimate_is_the_per_pass_relative_variance_and_the_verdict_follows_c
             early_verdict: false,
             ..TrialOptions::default()
         };
-        let (trial, _) = run_trial(seed, (guided, unguided), (tg, 1.0), options);
-        let v = trial.verdict().expect("finished");
+        let v = trial_verdict(seed, (guided, unguided), (tg, 1.0), options);
         assert!(
             (v.guided_variance - vg).abs() <= z * seg,
             "guided V {} against {vg} ± {}",
@@ -290,13 +300,8 @@ fn a_straddling_interval_keeps_the_guide() {
         early_verdict: false,
         ..TrialOptions::default()
     };
-    let (trial, _) = run_trial(
-        41,
-        (Noise::Firefly(0.002), Noise::Firefly(0.002)),
-        (1.2, 1.0),
-        options,
-    );
-    let v = trial.verdict().expect("finished");
+    let firefly = (Noise::Firefly(0.002), Noise::Firefly(0.002));
+    let v = trial_verdict(41, firefly, (1.2, 1.0), options);
     assert!(v.cost_ratio > 1.0, "point estimate {}", v.cost_ratio);
     assert!(
         v.ratio_low < 1.0 && v.ratio_high > 1.0,
@@ -306,13 +311,8 @@ fn a_straddling_interval_keeps_the_guide() {
     );
     assert_eq!(v.evidence, guiding::Verdict::Undecided);
     assert!(v.keep_guide);
-    let (trial, _) = run_trial(
-        42,
-        (Noise::Gauss(1.0), Noise::Gauss(1.0)),
-        (1.2, 1.0),
-        options,
-    );
-    let v = trial.verdict().expect("finished");
+    let gauss = (Noise::Gauss(1.0), Noise::Gauss(1.0));
+    let v = trial_verdict(42, gauss, (1.2, 1.0), options);
     assert_eq!(
         v.evidence,
         guiding::Verdict::DoesNotPay,

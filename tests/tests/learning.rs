@@ -182,6 +182,13 @@ fn held_out_positions() -> Vec<Vec3> {
     (0..8).map(|_| uniform_position(&mut rng)).collect()
 }
 
+/// The target density at `x` in each of `dirs`, in f64.
+fn target_densities(scene: Scene, x: Vec3, dirs: &[Vec3]) -> Vec<f64> {
+    dirs.iter()
+        .map(|&w| f64::from(scene.density(x, w)))
+        .collect()
+}
+
 /// Mean KL(target ‖ learned) over the held-out positions, via the field's
 /// batched pdf (the EMA weights).
 fn mean_kl<M: GuidingModel + Send + Sync>(field: &Field<M>, scene: Scene) -> f64 {
@@ -192,10 +199,7 @@ fn mean_kl<M: GuidingModel + Send + Sync>(field: &Field<M>, scene: Scene) -> f64
     for &x in &positions {
         let queries = vec![query(x); dirs.len()];
         field.pdf_batch(&queries, &dirs, &mut q);
-        let p: Vec<f64> = dirs
-            .iter()
-            .map(|&w| f64::from(scene.density(x, w)))
-            .collect();
+        let p = target_densities(scene, x, &dirs);
         let qd: Vec<f64> = q.iter().map(|&v| f64::from(v)).collect();
         total += discrete_kl(&p, &qd);
     }
@@ -209,13 +213,7 @@ fn uniform_kl(scene: Scene) -> f64 {
     let u = vec![1.0; dirs.len()];
     positions
         .iter()
-        .map(|&x| {
-            let p: Vec<f64> = dirs
-                .iter()
-                .map(|&w| f64::from(scene.density(x, w)))
-                .collect();
-            discrete_kl(&p, &u)
-        })
+        .map(|&x| discrete_kl(&target_densities(scene, x, &dirs), &u))
         .sum::<f64>()
         / positions.len() as f64
 }
@@ -803,10 +801,7 @@ fn position_independent_floor(scene: Scene) -> f64 {
     let densities: Vec<Vec<f64>> = positions
         .iter()
         .map(|&x| {
-            let p: Vec<f64> = dirs
-                .iter()
-                .map(|&w| f64::from(scene.density(x, w)))
-                .collect();
+            let p = target_densities(scene, x, &dirs);
             let s: f64 = p.iter().sum();
             p.iter().map(|v| v / s).collect()
         })

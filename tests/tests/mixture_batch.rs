@@ -96,68 +96,50 @@ fn case(n: usize, mixtures: usize, rng: &mut Pcg32) -> Case {
 type PdfFn<M> = fn(&[M], &[u32], &[Vec3], &mut [f32]);
 type SampleFn<M> = fn(&[M], &[u32], &[Vec2], &mut [DirectionSample]);
 
-/// The dispatched entry, the baseline body and, where the CPU has them,
-/// the AVX2 and AVX-512F copies.
-fn nasg_variants() -> Vec<(
-    &'static str,
-    PdfFn<NasgMixture<8>>,
-    SampleFn<NasgMixture<8>>,
-)> {
-    let mut v: Vec<(
-        &'static str,
-        PdfFn<NasgMixture<8>>,
-        SampleFn<NasgMixture<8>>,
-    )> = vec![
-        ("dispatched", mb::nasg_pdf_batch, mb::nasg_sample_batch),
-        ("portable", mb::nasg_pdf_portable, mb::nasg_sample_portable),
-    ];
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::is_x86_feature_detected!("avx2") {
-            // SAFETY: AVX2 support was just checked.
-            v.push((
-                "avx2",
-                |m, l, d, o| unsafe { mb::nasg_pdf_avx2(m, l, d, o) },
-                |m, l, u, o| unsafe { mb::nasg_sample_avx2(m, l, u, o) },
-            ));
+/// `(name, pdf kernel, sample kernel)` of each variant.
+type Variants<M> = Vec<(&'static str, PdfFn<M>, SampleFn<M>)>;
+
+/// The dispatched entry, the baseline body and, where the CPU has them, the
+/// AVX2 and AVX-512F copies of a family's pdf and sample kernels (a macro:
+/// the copies are distinct `unsafe` functions).
+macro_rules! variants {
+    ($mb:ident: $pdf:ident, $sample:ident; $pdf_p:ident, $sample_p:ident;
+        $pdf_2:ident, $sample_2:ident; $pdf_5:ident, $sample_5:ident) => {{
+        let mut v: Variants<_> = vec![
+            ("dispatched", $mb::$pdf, $mb::$sample),
+            ("portable", $mb::$pdf_p, $mb::$sample_p),
+        ];
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::is_x86_feature_detected!("avx2") {
+                // SAFETY: AVX2 support was just checked.
+                v.push((
+                    "avx2",
+                    |m, l, d, o| unsafe { $mb::$pdf_2(m, l, d, o) },
+                    |m, l, u, o| unsafe { $mb::$sample_2(m, l, u, o) },
+                ));
+            }
+            if std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("avx2") {
+                // SAFETY: AVX-512F and AVX2 support was just checked.
+                v.push((
+                    "avx512",
+                    |m, l, d, o| unsafe { $mb::$pdf_5(m, l, d, o) },
+                    |m, l, u, o| unsafe { $mb::$sample_5(m, l, u, o) },
+                ));
+            }
         }
-        if std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("avx2") {
-            // SAFETY: AVX-512F and AVX2 support was just checked.
-            v.push((
-                "avx512",
-                |m, l, d, o| unsafe { mb::nasg_pdf_avx512(m, l, d, o) },
-                |m, l, u, o| unsafe { mb::nasg_sample_avx512(m, l, u, o) },
-            ));
-        }
-    }
-    v
+        v
+    }};
 }
 
-fn vmf_variants() -> Vec<(&'static str, PdfFn<VmfMixture<8>>, SampleFn<VmfMixture<8>>)> {
-    let mut v: Vec<(&'static str, PdfFn<VmfMixture<8>>, SampleFn<VmfMixture<8>>)> = vec![
-        ("dispatched", mb::vmf_pdf_batch, mb::vmf_sample_batch),
-        ("portable", mb::vmf_pdf_portable, mb::vmf_sample_portable),
-    ];
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::is_x86_feature_detected!("avx2") {
-            // SAFETY: AVX2 support was just checked.
-            v.push((
-                "avx2",
-                |m, l, d, o| unsafe { mb::vmf_pdf_avx2(m, l, d, o) },
-                |m, l, u, o| unsafe { mb::vmf_sample_avx2(m, l, u, o) },
-            ));
-        }
-        if std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("avx2") {
-            // SAFETY: AVX-512F and AVX2 support was just checked.
-            v.push((
-                "avx512",
-                |m, l, d, o| unsafe { mb::vmf_pdf_avx512(m, l, d, o) },
-                |m, l, u, o| unsafe { mb::vmf_sample_avx512(m, l, u, o) },
-            ));
-        }
-    }
-    v
+fn nasg_variants() -> Variants<NasgMixture<8>> {
+    variants!(mb: nasg_pdf_batch, nasg_sample_batch; nasg_pdf_portable, nasg_sample_portable;
+        nasg_pdf_avx2, nasg_sample_avx2; nasg_pdf_avx512, nasg_sample_avx512)
+}
+
+fn vmf_variants() -> Variants<VmfMixture<8>> {
+    variants!(mb: vmf_pdf_batch, vmf_sample_batch; vmf_pdf_portable, vmf_sample_portable;
+        vmf_pdf_avx2, vmf_sample_avx2; vmf_pdf_avx512, vmf_sample_avx512)
 }
 
 fn sample_bits(s: &DirectionSample) -> [u32; 4] {

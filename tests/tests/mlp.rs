@@ -14,10 +14,11 @@
 //!   below `(HIDDEN + 1) γ_64 κ ≈ 1.5·10⁻⁴` for a condition number
 //!   `κ = Σ|terms| / |Σ terms| ≤ 10`, so we allow a symmetric relative error
 //!   of 10⁻³; components smaller than 10⁻³ × the gradient's RMS are compared
-//!   absolutely against that floor, and 1 % may fail (ReLU kinks within the
+//!   absolutely against that floor, and 0.1 % may fail (ReLU kinks within the
 //!   difference step — the network is piecewise linear in every parameter,
 //!   so central differences are otherwise exact up to f64 rounding — and the
-//!   rare near-cancelling sums with `κ > 10`);
+//!   rare near-cancelling sums with `κ > 10`; see [`MLP_GRADIENT_TOL`],
+//!   [`MLP_GRADIENT_IGNORED`] and their negative control);
 //! - the batched kernels (fused multiply–adds, their own tiling) against the
 //!   per-query kernels: both satisfy the first bound, so each layer's sums
 //!   differ by at most `2 γ_{n+1}` times the absolute network's magnitude,
@@ -360,10 +361,42 @@ fn forward_matches_the_f64_oracle_and_infer_bitwise() {
 // ---------------------------------------------------------------------------
 // Gradients.
 
-fn check_gradients<const IN: usize, const WIDTH: usize, const OUT: usize, const HIDDEN: usize>(
+/// Symmetric relative error allowed between `backward` and central
+/// differences (`h = 10⁻⁶`) of the f64 oracle. The loss `Σ c_k y_k` is
+/// piecewise linear in every single parameter and input (ReLU), so away from
+/// a kink the differences are exact up to f64 rounding
+/// (`ε₆₄ |loss| / h ≈ 10⁻¹⁰` of the loss's scale). The f32 gradient is a
+/// chain of `HIDDEN + 1` sums of at most 64 terms: relative error
+/// `≤ (HIDDEN + 1) γ₆₅ κ ≈ 1.5·10⁻⁴` for a condition number
+/// `κ = Σ|terms| / |Σ terms| ≤ 10`, and below the floor (`10⁻³ ×` the RMS
+/// numeric gradient) the same absolute error against the floor. `10⁻³` leaves
+/// a factor 6. Measured over the 31 004 parameter and 200 input components of
+/// `backward_matches_central_differences_of_the_f64_oracle` (four networks,
+/// fixed seeds): 99th percentiles 2·10⁻⁷–5.5·10⁻⁵, worst 5.5·10⁻⁵ (an
+/// input component of the 32 → 3 × 64 → 32 network), none above `10⁻³`.
+const MLP_GRADIENT_TOL: f64 = 1e-3;
+
+/// Fraction of the components that may exceed [`MLP_GRADIENT_TOL`]: those
+/// whose difference step `±h max(1, |θ|)` (`h = 10⁻⁶`) straddles a ReLU
+/// kink. The step moves each downstream pre-activation `z` by
+/// `≲ h |∂z/∂θ| ≲ h` (O(1) weights and activations), so it straddles that
+/// unit's kink with probability `≲ 2h · p_z(0)`, `p_z(0) ≲ 3` the density of
+/// the pre-activations at 0 (spread ~0.3): `≲ 6·10⁻⁶` per unit, `≲ 10⁻³` per
+/// component summed over the ≤ 192 units of the widest network. 0.1 % admits
+/// that bound; measured: none of the 31 204 components. It was 1 %
+/// (tiny-cuda-nn's convention); the negative control
+/// (`gradient_check_rejects_planted_defects`) fails 84–1882 components of a
+/// check against at most 25 allowed, so it is caught either way.
+const MLP_GRADIENT_IGNORED: f64 = 1e-3;
+
+/// `backward` against central differences of the f64 oracle for the loss
+/// `Σ c_k y_k` (random `c`), over `trials` random networks and inputs:
+/// `[("weights and biases", …), ("input", …)]`, each floored at `10⁻³ ×`
+/// the RMS numeric gradient of the first trial.
+fn gradient_errors<const IN: usize, const WIDTH: usize, const OUT: usize, const HIDDEN: usize>(
     seed: u64,
     trials: usize,
-) {
+) -> [(&'static str, GradientErrors); 2] {
     type M<const A: usize, const B: usize, const C: usize, const D: usize> = Mlp<A, B, C, D>;
     let d = Dims::of::<IN, WIDTH, OUT, HIDDEN>();
     let mut rng = Pcg32::new(seed, 9);
@@ -395,26 +428,74 @@ fn check_gradients<const IN: usize, const WIDTH: usize, const OUT: usize, const 
         let ie = input_errors.get_or_insert_with(|| GradientErrors::new(1e-3 * rms(&num_x)));
         ie.push_all(&format!("trial {t} input"), &to64(&dx), &num_x);
     }
-    for (what, e) in [
-        ("weights and biases", param_errors),
-        ("input", input_errors),
-    ] {
-        let e = e.unwrap();
-        let (above, worst) = e.summary(1e-3);
-        println!(
-            "{d:?} {what}: {above} of {} components above 1e-3, worst {worst:.2e}",
-            e.entries.len()
-        );
-        e.assert(&format!("{d:?} {what} gradient"), 1e-3, 0.01);
-    }
+    [
+        ("weights and biases", param_errors.unwrap()),
+        ("input", input_errors.unwrap()),
+    ]
+}
+
+/// [`gradient_errors`] of the four networks the gradient tests check.
+fn all_gradient_errors() -> [(Dims, [(&'static str, GradientErrors); 2]); 4] {
+    [
+        (
+            Dims::of::<7, 16, 5, 2>(),
+            gradient_errors::<7, 16, 5, 2>(1, 8),
+        ),
+        (
+            Dims::of::<32, 64, 32, 3>(),
+            gradient_errors::<32, 64, 32, 3>(2, 2),
+        ),
+        (
+            Dims::of::<3, 5, 2, 1>(),
+            gradient_errors::<3, 5, 2, 1>(3, 20),
+        ),
+        (
+            Dims::of::<1, 4, 1, 4>(),
+            gradient_errors::<1, 4, 1, 4>(4, 20),
+        ),
+    ]
 }
 
 #[test]
 fn backward_matches_central_differences_of_the_f64_oracle() {
-    check_gradients::<7, 16, 5, 2>(1, 8);
-    check_gradients::<32, 64, 32, 3>(2, 2);
-    check_gradients::<3, 5, 2, 1>(3, 20);
-    check_gradients::<1, 4, 1, 4>(4, 20);
+    for (d, errors) in all_gradient_errors() {
+        for (what, e) in errors {
+            let name = format!("{d:?} {what} gradient");
+            e.report(&name, MLP_GRADIENT_TOL);
+            e.assert(&name, MLP_GRADIENT_TOL, MLP_GRADIENT_IGNORED);
+        }
+    }
+}
+
+/// Negative control: the components of
+/// [`backward_matches_central_differences_of_the_f64_oracle`] with a defect
+/// planted, the second layer's weight gradient 5 % too large
+/// (`e = 0.05/1.05 ≈ 0.048` against the tolerance `10⁻³` for every such
+/// component above the floor), or the sign of the first input's gradient
+/// flipped, must fail the same check. Measured: 84–1882 parameter
+/// components (of 640–25 024) and 2–19 input components (of 20–64) fail,
+/// against at most 25 and 0 allowed.
+#[test]
+fn gradient_check_rejects_planted_defects() {
+    for (d, [(_, params), (_, input)]) in all_gradient_errors() {
+        let n = d.param_count();
+        let layers = d.layers();
+        // Layer 1's weights follow layer 0's weights and biases.
+        let start = layers[0].0 * layers[0].1 + layers[0].1;
+        let w1 = start..start + layers[1].0 * layers[1].1;
+        params.assert_rejects_defect(
+            &format!("{d:?} weights and biases"),
+            "W1 × 1.05",
+            (MLP_GRADIENT_TOL, MLP_GRADIENT_IGNORED),
+            |i, _| if w1.contains(&(i % n)) { 1.05 } else { 1.0 },
+        );
+        input.assert_rejects_defect(
+            &format!("{d:?} input"),
+            "∂/∂x₀ × −1",
+            (MLP_GRADIENT_TOL, MLP_GRADIENT_IGNORED),
+            |i, _| if i % d.input == 0 { -1.0 } else { 1.0 },
+        );
+    }
 }
 
 /// Backward accumulates (`+=`) into the gradient buffer and writes (`=`)
@@ -905,6 +986,16 @@ fn batched_kernels_match_the_per_query_kernels_within_the_rounding_bound() {
     }
 }
 
+/// Random parameters of the `16 → 2 × 32 → 32` network with `n` random
+/// inputs and output gradients, from `Pcg32::new(seed, 13)`.
+fn batch_case(seed: u64, n: usize) -> (Vec<f32>, Vec<[f32; 16]>, Vec<[f32; 32]>) {
+    let mut rng = Pcg32::new(seed, 13);
+    let p = random_params::<16, 32, 32, 2>(&mut rng);
+    let xs = (0..n).map(|_| random_input::<16>(&mut rng)).collect();
+    let dys = (0..n).map(|_| random_input::<32>(&mut rng)).collect();
+    (p, xs, dys)
+}
+
 /// Non-finite inputs (a NaN, an ∞, in different blocks of 48 queries):
 /// every batched result has the per-query result's class (NaN, ±∞, finite),
 /// and the finite ones are within the bound. The backward pass of a block
@@ -913,11 +1004,8 @@ fn batched_kernels_match_the_per_query_kernels_within_the_rounding_bound() {
 #[test]
 fn non_finite_inputs_give_the_per_query_classes() {
     type M = Mlp<16, 32, 32, 2>;
-    let mut rng = Pcg32::new(31, 13);
-    let p = random_params::<16, 32, 32, 2>(&mut rng);
     let n = 150;
-    let mut xs: Vec<[f32; 16]> = (0..n).map(|_| random_input::<16>(&mut rng)).collect();
-    let dys: Vec<[f32; 32]> = (0..n).map(|_| random_input::<32>(&mut rng)).collect();
+    let (p, mut xs, dys) = batch_case(31, n);
     xs[10][0] = f32::NAN;
     xs[60][3] = f32::INFINITY;
     xs[61][5] = f32::NEG_INFINITY;
@@ -974,11 +1062,8 @@ fn non_finite_inputs_give_the_per_query_classes() {
 #[test]
 fn the_batch_tolerance_catches_a_perturbed_weight() {
     type M = Mlp<16, 32, 32, 2>;
-    let mut rng = Pcg32::new(21, 13);
-    let p = random_params::<16, 32, 32, 2>(&mut rng);
     let n = 200;
-    let xs: Vec<[f32; 16]> = (0..n).map(|_| random_input::<16>(&mut rng)).collect();
-    let dys: Vec<[f32; 32]> = (0..n).map(|_| random_input::<32>(&mut rng)).collect();
+    let (p, xs, dys) = batch_case(21, n);
     let g0 = vec![0.0; p.len()];
     let r = Reference::<16, 32, 32, 2>::new(&p, &g0, &xs, &dys);
     let perturbed = |k: usize| {
@@ -1158,17 +1243,23 @@ fn bounded_value(max_exp: f32) -> impl Strategy<Value = f32> {
     ]
 }
 
+/// `cases` cases from a fixed seed, nothing persisted: reproducible like
+/// every other test here.
+fn fixed_seed_config(cases: u32, seed: u64) -> ProptestConfig {
+    ProptestConfig {
+        cases,
+        rng_seed: proptest::test_runner::RngSeed::Fixed(seed),
+        failure_persistence: None,
+        ..ProptestConfig::default()
+    }
+}
+
 type Small = Mlp<7, 16, 5, 2>;
 const SMALL_PARAMS: usize = Small::PARAM_COUNT;
 
 proptest! {
     // Fixed seed: reproducible like every other test here.
-    #![proptest_config(ProptestConfig {
-        cases: 500,
-        rng_seed: proptest::test_runner::RngSeed::Fixed(0x6d6c70),
-        failure_persistence: None,
-        ..ProptestConfig::default()
-    })]
+    #![proptest_config(fixed_seed_config(500, 0x6d6c70))]
 
     /// No panic for any parameters and inputs (NaN, ±∞, ±f32::MAX,
     /// subnormals included); `forward` and `infer` agree bit for bit; every
@@ -1232,12 +1323,7 @@ proptest! {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig {
-        cases: 64,
-        rng_seed: proptest::test_runner::RngSeed::Fixed(0x6d6c71),
-        failure_persistence: None,
-        ..ProptestConfig::default()
-    })]
+    #![proptest_config(fixed_seed_config(64, 0x6d6c71))]
 
     /// The documented example: 32 → 3 × 64 → 32 with `|param| ≤ 10⁴` and
     /// `|input| ≤ 10¹⁵` is finite (magnitudes log-uniform, random signs).

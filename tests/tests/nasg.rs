@@ -29,6 +29,7 @@ use guiding_core::mixture::nasg::{
     decode_selection, NasgMixture, NASG_RAW_PER_LOBE, NASG_SELECTION_MAX, NASG_SELECTION_MIN,
 };
 use guiding_tests::cases::nasg::{random_direction, random_frame_lobe, rotation_safe};
+use guiding_tests::fuzz_checks::check_sample_is_valid;
 use guiding_tests::gradcheck::{central_difference, GradientErrors};
 use guiding_tests::oracles;
 use guiding_tests::rng::Pcg32;
@@ -620,11 +621,7 @@ fn oracle_gradient_errors() -> GradientErrors {
 #[test]
 fn gradient_matches_f64_oracle() {
     let errors = oracle_gradient_errors();
-    let (above, worst) = errors.summary(1e-2);
-    println!(
-        "gradient: {above} of {} components above 1e-2, median {:.1e}, 99th percentile {:.1e}, worst {worst:.2e}",
-        errors.entries.len(), errors.quantile(0.5), errors.quantile(0.99)
-    );
+    errors.report("gradient", 1e-2);
     errors.assert("NASG grad_log_pdf vs f64 oracle", 1e-2, 0.01);
 }
 
@@ -635,16 +632,12 @@ fn gradient_matches_f64_oracle() {
 /// fail, against 96 allowed.
 #[test]
 fn gradient_check_rejects_a_planted_nasg_defect() {
-    let errors = oracle_gradient_errors();
-    let planted = errors.with_defect(|i, _| if i % (GK * R) == 1 { 1.05 } else { 1.0 });
-    let (above, worst) = planted.summary(1e-2);
-    let verdict = planted.check("NASG grad_log_pdf with lobe 0's ∂/∂ln λ × 1.05", 1e-2, 0.01);
-    println!(
-        "planted: {above} of {} components above 1e-2 (worst {worst:.2e}), rejected: {}",
-        planted.entries.len(),
-        verdict.is_err()
+    oracle_gradient_errors().assert_rejects_defect(
+        "NASG grad_log_pdf",
+        "lobe 0's ∂/∂ln λ × 1.05",
+        (1e-2, 0.01),
+        |i, _| if i % (GK * R) == 1 { 1.05 } else { 1.0 },
     );
-    assert!(verdict.is_err(), "a 5 % defect in lobe 0's ∂/∂ln λ passed");
 }
 
 /// Clamped `ln λ`, `ln a` outputs get a zero gradient; saturated sigmoids too.
@@ -853,17 +846,8 @@ fn finiteness_sweep_lobes() {
                                 lobe.sample(Vec2::new(ux, uy)),
                                 lobe.sample3(Vec3::new(ux, uy, 0.9)),
                             ] {
-                                let d = s.direction;
-                                assert!(
-                                    d.is_finite() && (d.length() - 1.0).abs() <= 1e-5,
-                                    "{what}, u ({ux}, {uy}): direction {d}"
-                                );
-                                assert!(
-                                    s.pdf.is_finite() && s.pdf > 0.0,
-                                    "{what}, u ({ux}, {uy}): sample pdf {}",
-                                    s.pdf
-                                );
-                                let p = lobe.pdf(d);
+                                check_sample_is_valid(&format!("{what}, u ({ux}, {uy})"), s);
+                                let p = lobe.pdf(s.direction);
                                 assert!(p.is_finite() && p >= 0.0, "{what}: pdf(sample) {p}");
                             }
                         }

@@ -31,6 +31,28 @@ fn z_critical(tests: usize) -> f64 {
         .inverse_cdf(1.0 - level / 2.0)
 }
 
+/// An unbiasedness test with its negative control (two tests, Šidák):
+/// `estimate ± se` agrees with `truth` (two-sided), and the defective
+/// `control ± se` falls significantly below it (one-sided).
+fn assert_unbiased_and_control_low(
+    what: &str,
+    (estimate, se): (f64, f64),
+    (control, se_control): (f64, f64),
+    truth: f64,
+) {
+    let z = (estimate - truth) / se;
+    assert!(
+        z.abs() < z_critical(2),
+        "{what}: {estimate} ± {se}, expected {truth} (z {z:.2})"
+    );
+    let z_control = (control - truth) / se_control;
+    assert!(
+        z_control < -z_critical_one_sided(2),
+        "{what}: the control should fall below {truth}: {control} ± {se_control} \
+         (z {z_control:.2})"
+    );
+}
+
 /// One-sided critical z at the Šidák-corrected level.
 fn z_critical_one_sided(tests: usize) -> f64 {
     let level = sidak(ALPHA, tests);
@@ -291,17 +313,11 @@ fn cross_half_weights_are_unbiased_and_self_weights_are_not() {
     assert!(cross.len() > trials as usize * 9 / 10);
     // The firefly pass must matter for the test to mean anything.
     assert!(firefly_share > 0.3, "firefly share {firefly_share}");
-    let (m, se) = mean_se(&cross);
-    let z = (m - mu) / se;
-    assert!(
-        z.abs() < z_critical(2),
-        "cross-half mean {m} ± {se} (z {z:.2})"
-    );
-    let (m_own, se_own) = mean_se(&own);
-    let z_own = (m_own - mu) / se_own;
-    assert!(
-        z_own < -z_critical_one_sided(2),
-        "the self-weighted control should be biased low: {m_own} ± {se_own} (z {z_own:.2})"
+    assert_unbiased_and_control_low(
+        "cross-half mean (control: self-weighted)",
+        mean_se(&cross),
+        mean_se(&own),
+        mu,
     );
 }
 
@@ -469,17 +485,11 @@ fn other_half_denominators_tell_few_heavy_tailed_passes_apart() {
         let var = r * r * (vaa / (ma * ma) + vbb / (mb * mb) - 2.0 * vab / (ma * mb)) / n;
         (r, var.sqrt())
     };
-    let (r, se) = ratio(&v[0][0], &v[0][1]);
-    let z = (r - expected) / se;
-    assert!(
-        z.abs() < z_critical(2),
-        "other half: ratio {r} ± {se}, expected {expected} (z {z:.2})"
-    );
-    let (r_self, se_self) = ratio(&v[1][0], &v[1][1]);
-    let z_self = (r_self - expected) / se_self;
-    assert!(
-        z_self < -z_critical_one_sided(2),
-        "the self-normalised control should fall below {expected}: {r_self} ± {se_self}"
+    assert_unbiased_and_control_low(
+        "other-half ratio (control: self-normalised)",
+        ratio(&v[0][0], &v[0][1]),
+        ratio(&v[1][0], &v[1][1]),
+        expected,
     );
 }
 

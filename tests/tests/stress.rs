@@ -22,6 +22,7 @@ use guiding_core::lobe::nasg::{
     NasgLobe, NASG_A_MAX, NASG_EPSILON_MAX, NASG_EPSILON_MIN, NASG_LAMBDA_MAX, NASG_LAMBDA_MIN,
 };
 use guiding_core::lobe::vmf::{VmfLobe, VMF_KAPPA_MAX};
+use guiding_core::lobe::DirectionSample;
 use guiding_core::math::ONE_MINUS_EPSILON;
 use guiding_core::model::df::{DfSmallProduct, DfSmallRadiance};
 use guiding_core::model::nasg::{NasgSmallProduct, NasgSmallRadiance};
@@ -97,6 +98,28 @@ fn stress_directions(m: Vec3) -> Vec<Vec3> {
 fn check_densities(what: &str, pdf: impl Fn(Vec3) -> f32, m: Vec3) {
     for d in stress_directions(m) {
         check_density(&format!("{what}, d = {d}"), pdf(d));
+    }
+}
+
+/// `sample` at every `(ux, uy)` of [`US`] × [`US`] and at `(u, u)` for every
+/// `u` of [`BAD_US`], each checked by `check_sample` against `pdf`; `also`
+/// gets each grid point and its sample (the lobe's further checks).
+fn check_lobe_samples(
+    what: &str,
+    pdf: impl Fn(Vec3) -> f32,
+    sample: impl Fn(Vec2) -> DirectionSample,
+    mut also: impl FnMut(Vec2, DirectionSample),
+) {
+    for &ux in &US {
+        for &uy in &US {
+            let u = Vec2::new(ux, uy);
+            let s = sample(u);
+            check_sample(what, s, &pdf, 1e-4);
+            also(u, s);
+        }
+    }
+    for &u in &BAD_US {
+        check_sample(what, sample(Vec2::new(u, u)), &pdf, 1e-4);
     }
 }
 
@@ -198,19 +221,16 @@ fn vmf_extremes_finite_and_consistent() {
             let what = format!("vMF κ {kappa:e}, axis {axis}");
             assert!((0.0..=VMF_KAPPA_MAX).contains(&lobe.kappa), "{what}");
             check_densities(&what, |d| lobe.pdf(d), lobe.mean());
-            for &ux in &US {
-                for &uy in &US {
-                    let s = lobe.sample(Vec2::new(ux, uy));
-                    check_sample(&what, s, |d| lobe.pdf(d), 1e-4);
+            check_lobe_samples(
+                &what,
+                |d| lobe.pdf(d),
+                |u| lobe.sample(u),
+                |_, s| {
                     let back = lobe.invert(s.direction);
                     assert!(back.is_finite(), "{what}: invert {back}");
                     n += 1;
-                }
-            }
-            for &u in &BAD_US {
-                let s = lobe.sample(Vec2::new(u, u));
-                check_sample(&what, s, |d| lobe.pdf(d), 1e-4);
-            }
+                },
+            );
         }
     }
     println!("vMF: {n} samples checked");
@@ -328,19 +348,16 @@ fn nasg_extremes_finite_and_consistent() {
                     );
                     let axis = lobe.frame().z;
                     check_densities(&what, |d| lobe.pdf(d), axis);
-                    for &ux in &US {
-                        for &uy in &US {
-                            let s = lobe.sample(Vec2::new(ux, uy));
-                            check_sample(&what, s, |d| lobe.pdf(d), 1e-4);
-                            let s = lobe.sample3(Vec3::new(ux, uy, 1.0 - ux));
+                    check_lobe_samples(
+                        &what,
+                        |d| lobe.pdf(d),
+                        |u| lobe.sample(u),
+                        |u, _| {
+                            let s = lobe.sample3(Vec3::new(u.x, u.y, 1.0 - u.x));
                             check_sample(&what, s, |d| lobe.pdf(d), 1e-4);
                             n += 2;
-                        }
-                    }
-                    for &u in &BAD_US {
-                        let s = lobe.sample(Vec2::new(u, u));
-                        check_sample(&what, s, |d| lobe.pdf(d), 1e-4);
-                    }
+                        },
+                    );
                 }
             }
         }

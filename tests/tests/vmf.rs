@@ -28,6 +28,7 @@ use guiding_core::mixture::vmf::{
 use guiding_tests::cases::vmf::{mixture_warp, random_direction, random_mixture, K};
 use guiding_tests::cases::Case;
 use guiding_tests::chi2::{run_chi2, Chi2Config, Warp};
+use guiding_tests::fuzz_checks::check_sample_is_valid;
 use guiding_tests::gradcheck::{central_difference, GradientErrors};
 use guiding_tests::oracles;
 use guiding_tests::quadrature::integrate;
@@ -64,16 +65,14 @@ fn naive_pdf64(mean: DVec3, kappa: f64, d: DVec3) -> f64 {
     norm64(kappa) * (kappa * (mean.normalize().dot(d.normalize()) - 1.0)).exp()
 }
 
-/// `1 − cos∠(μ, ω)` in f64 without cancellation (for the log-space oracle,
-/// where `κ t` can be 10⁴ and must keep its digits).
-fn one_minus_cos64(mean: DVec3, d: DVec3) -> f64 {
-    let (m, d) = (mean.normalize(), d.normalize());
-    let dot = m.dot(d);
-    if dot > 0.0 {
-        m.cross(d).length_squared() / (1.0 + dot)
-    } else {
-        1.0 - dot
-    }
+/// Asserts `|got / exact − 1| ≤ tol`; returns the error over `tol`.
+fn relative_error_within(what: &str, got: f64, exact: f64, tol: f64) -> f64 {
+    let err = (got / exact - 1.0).abs();
+    assert!(
+        err <= tol,
+        "{what}: {got:e} vs f64 {exact:e}: rel. error {err:e} > {tol:e}"
+    );
+    err / tol
 }
 
 /// Angle between `a` and `b` (stable for tiny angles).
@@ -107,7 +106,7 @@ fn log_terms64(raw: &[f64], d: DVec3) -> Vec<f64> {
     lobes
         .iter()
         .map(|&(logit, kappa, mean)| {
-            logit - lse + ln_norm64(kappa) - kappa * one_minus_cos64(mean, d)
+            logit - lse + ln_norm64(kappa) - kappa * oracles::one_minus_cos(mean, d)
         })
         .collect()
 }
@@ -302,20 +301,12 @@ fn extreme_kappa_stays_valid() {
             let k = f64::from(lobe.kappa);
             for _ in 0..2000 {
                 let s = lobe.sample(rng.next_vec2());
+                check_sample_is_valid(&ctx, s);
                 let d = s.direction;
-                assert!(
-                    d.is_finite() && (f64::from(d.length()) - 1.0).abs() <= 1e-5,
-                    "{ctx}: sample {d}"
-                );
-                assert!(
-                    s.pdf.is_finite() && s.pdf > 0.0,
-                    "{ctx}: sample pdf {}",
-                    s.pdf
-                );
                 let p = lobe.pdf(d);
                 assert!(p.is_finite() && p > 0.0, "{ctx}: pdf(sample) {p}");
                 let theta = angle64(lobe.mean().as_dvec3(), d.as_dvec3());
-                let t = one_minus_cos64(lobe.mean().as_dvec3(), d.as_dvec3());
+                let t = oracles::one_minus_cos(lobe.mean().as_dvec3(), d.as_dvec3());
                 let tol = k * theta.sin() * 8.0 * EPS + 8.0 * EPS * (1.0 + k * t);
                 let diff = (f64::from(s.pdf).ln() - f64::from(p).ln()).abs();
                 assert!(
@@ -356,18 +347,7 @@ fn extreme_kappa_stays_valid() {
                 let d = random_direction(&mut rng);
                 let p = m.pdf(d);
                 assert!(p.is_finite() && p >= 0.0, "mixture {i}: pdf {p}");
-                let s = m.sample(rng.next_vec2());
-                assert!(
-                    s.direction.is_finite()
-                        && (f64::from(s.direction.length()) - 1.0).abs() <= 1e-5,
-                    "mixture {i}: sample {}",
-                    s.direction
-                );
-                assert!(
-                    s.pdf.is_finite() && s.pdf > 0.0,
-                    "mixture {i}: sample pdf {}",
-                    s.pdf
-                );
+                check_sample_is_valid(&format!("mixture {i}"), m.sample(rng.next_vec2()));
             }
         }
     }
@@ -384,7 +364,7 @@ fn extreme_kappa_stays_valid() {
 /// normaliser and `exp` add `ε (4 + 3 κ t)`.
 fn lobe_tolerance(kappa: f64, mean: DVec3, d64: DVec3) -> f64 {
     let theta = angle64(mean, d64);
-    let t = one_minus_cos64(mean, d64);
+    let t = oracles::one_minus_cos(mean, d64);
     kappa * theta.sin() * 4.0 * EPS + EPS * (4.0 + 3.0 * kappa * t)
 }
 
@@ -426,12 +406,13 @@ fn stable_pdf_matches_f64_oracle() {
                 let exact = naive_pdf64(mu, k, d64);
                 let got = f64::from(lobe.pdf(d32));
                 let tol = lobe_tolerance(k, mu, d64);
-                let err = (got / exact - 1.0).abs();
-                assert!(
-                    err <= tol,
-                    "κ {kappa}, μ {mu}, d {d64}: pdf {got:e} vs {exact:e}: rel. error {err:e} > {tol:e}"
+                let ratio = relative_error_within(
+                    &format!("κ {kappa}, μ {mu}, d {d64}: pdf"),
+                    got,
+                    exact,
+                    tol,
                 );
-                worst = worst.max(err / tol);
+                worst = worst.max(ratio);
                 // Naive f32: norm · exp(κ (μ·ω − 1)).
                 let naive =
                     f64::from(lobe.norm * (lobe.kappa * (lobe.mean().dot(d32) - 1.0)).exp());
@@ -473,12 +454,8 @@ fn stable_pdf_matches_f64_oracle() {
                 }
                 let tol = terms.iter().map(|(p, e)| p * e).sum::<f64>() / exact + 8.0 * EPS;
                 let got = f64::from(m.pdf(d32));
-                let err = (got / exact - 1.0).abs();
-                assert!(
-                    err <= tol,
-                    "mixture at {d64}: {got:e} vs {exact:e}: {err:e} > {tol:e}"
-                );
-                mix_worst = mix_worst.max(err / tol);
+                let ratio = relative_error_within(&format!("mixture at {d64}"), got, exact, tol);
+                mix_worst = mix_worst.max(ratio);
             }
         }
     }
@@ -649,7 +626,7 @@ fn ln_pdf_tolerance(raw: &[f64], d: DVec3) -> f64 {
         .zip(&terms)
         .map(|(&(logit, kappa, mean), term)| {
             let r = (term - lnp).exp();
-            let t = one_minus_cos64(mean, d);
+            let t = oracles::one_minus_cos(mean, d);
             let theta = angle64(mean, d);
             r * (4.0
                 + (logit - lse).abs()
@@ -813,11 +790,7 @@ fn underflow_errors() -> GradientErrors {
             "raw {i}: {grad:?}"
         );
     }
-    let (above, worst) = errors.summary(1e-2);
-    println!(
-        "underflow: {} components, {above} above 1e-2 (median {:.1e}, 99th percentile {:.1e}, worst {worst:.2e})",
-        errors.entries.len(), errors.quantile(0.5), errors.quantile(0.99)
-    );
+    errors.report("underflow", 1e-2);
     errors
 }
 
@@ -833,18 +806,11 @@ fn gradient_check_rejects_a_planted_vmf_defect() {
         ("grad_log_pdf", finite_difference_errors()),
         ("underflow", underflow_errors()),
     ] {
-        let planted = errors.with_defect(|i, _| if i % per_gradient == 1 { 1.05 } else { 1.0 });
-        let (above, worst) = planted.summary(1e-2);
-        let verdict = planted.check(name, 1e-2, VMF_GRADIENT_IGNORED);
-        println!(
-            "{name} with lobe 0's ∂/∂ln κ × 1.05: {above} of {} components above 1e-2 \
-             (worst {worst:.2e}), rejected: {}",
-            planted.entries.len(),
-            verdict.is_err()
-        );
-        assert!(
-            verdict.is_err(),
-            "{name}: a 5 % defect in lobe 0's ∂/∂ln κ passed"
+        errors.assert_rejects_defect(
+            name,
+            "lobe 0's ∂/∂ln κ × 1.05",
+            (1e-2, VMF_GRADIENT_IGNORED),
+            |i, _| if i % per_gradient == 1 { 1.05 } else { 1.0 },
         );
     }
 }
@@ -921,17 +887,13 @@ fn cosine_product_matches_f64_product() {
                     * (kc * (n64.dot(d64.normalize()) - 1.0)).exp()
                     / z;
                 let r = contribution / exact;
-                let t = one_minus_cos64(mu_p, d64);
+                let t = oracles::one_minus_cos(mu_p, d64);
                 let b = EPS * (4.0 + 5.0 * kp * t + 4.0 * kp * angle64(mu_p, d64).sin());
                 tol += r * (a + b);
             }
             let got = f64::from(prod.pdf(d));
-            let err = (got / exact - 1.0).abs();
-            assert!(
-                err <= tol,
-                "mixture {i}, n {n}, ω {d}: product pdf {got:e} vs f64 {exact:e}: rel. error {err:e} > {tol:e}"
-            );
-            worst = worst.max(err / tol);
+            let what = format!("mixture {i}, n {n}, ω {d}: product pdf");
+            worst = worst.max(relative_error_within(&what, got, exact, tol));
         }
     }
     println!("cosine product: worst error/bound {worst:.3}");

@@ -9,7 +9,7 @@ use guiding_core::mixture::vmf::{
 use guiding_core::model::npm::{NPM_LOBES, NPM_OUTPUTS};
 use guiding_core::model::vmf_gradient::{grad_log_pdf_vmf_batch, grad_log_pdf_vmf_portable};
 use guiding_core::sphere::square_to_uniform_sphere;
-use guiding_tests::rng::Pcg32;
+use guiding_tests::rng::{rows_with_specials, Pcg32};
 
 type Row = [f32; NPM_OUTPUTS];
 
@@ -32,17 +32,9 @@ fn rows(n: usize, seed: u64) -> Vec<Row> {
         -0.0,
     ];
     let mut rng = Pcg32::new(seed, 11);
-    (0..n)
-        .map(|i| {
-            std::array::from_fn(|_| {
-                if i % 5 == 3 && rng.next_f32() < 0.3 {
-                    specials[rng.next_u32() as usize % specials.len()]
-                } else {
-                    rng.uniform(-9.0, 9.0)
-                }
-            })
-        })
-        .collect()
+    rows_with_specials(n, &mut rng, (5, 3), &specials, |rng, _| {
+        rng.uniform(-9.0, 9.0)
+    })
 }
 
 /// Directions: uniform on the sphere, some not unit length, a few

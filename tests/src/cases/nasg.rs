@@ -48,7 +48,7 @@
 //! `pdf(round(d))` match the density of the unrounded `d` there. Mixture
 //! samples report `pdf(d)` itself, so they are exact in any frame.
 
-use super::Case;
+use super::{seeded_cases, Case};
 use crate::chi2::{axis_avoiding, Warp};
 use crate::rng::Pcg32;
 use crate::SphereDistribution;
@@ -62,16 +62,6 @@ pub const K: usize = 8;
 
 /// A single NASG lobe sampled with two random numbers ([`NasgLobe::sample`]).
 pub struct LobeDist(pub NasgLobe);
-
-impl SphereDistribution for LobeDist {
-    fn sample(&self, rng: &mut Pcg32) -> (Vec3, f32) {
-        let s = self.0.sample(rng.next_vec2());
-        (s.direction, s.pdf)
-    }
-    fn pdf(&self, direction: Vec3) -> f32 {
-        self.0.pdf(direction)
-    }
-}
 
 /// A single NASG lobe sampled with three random numbers ([`NasgLobe::sample3`]).
 pub struct Lobe3Dist(pub NasgLobe);
@@ -90,15 +80,7 @@ impl SphereDistribution for Lobe3Dist {
 /// A K-lobe NASG mixture.
 pub struct MixtureDist(pub NasgMixture<K>);
 
-impl SphereDistribution for MixtureDist {
-    fn sample(&self, rng: &mut Pcg32) -> (Vec3, f32) {
-        let s = self.0.sample(rng.next_vec2());
-        (s.direction, s.pdf)
-    }
-    fn pdf(&self, direction: Vec3) -> f32 {
-        self.0.pdf(direction)
-    }
-}
+sphere_distribution_of_sampler!(LobeDist, MixtureDist);
 
 /// `B = (2λ + 1)(1 + ε + a) − 1`: `2/B` is the lobe's narrowest scale in
 /// `1 − cos θ` (see the module docs).
@@ -330,21 +312,16 @@ pub fn cases() -> Vec<Case> {
         false,
     ));
 
-    for seed in 1..=3_u64 {
-        let mut rng = Pcg32::new(seed, 11);
-        cases.push(mixture_case(
-            format!("nasg/mixture/from-lobes/seed={seed}"),
-            random_mixture(&mut rng),
-        ));
-    }
-    for seed in 1..=3_u64 {
-        let mut rng = Pcg32::new(seed, 12);
-        let raw = random_raw(&mut rng);
+    cases.extend(seeded_cases(
+        "nasg/mixture/from-lobes",
+        3,
+        11,
+        |name, rng| mixture_case(name, random_mixture(rng)),
+    ));
+    cases.extend(seeded_cases("nasg/mixture/decoded", 3, 12, |name, rng| {
+        let raw = random_raw(rng);
         let selection = rng.uniform(-3.0, 3.0);
-        cases.push(mixture_case(
-            format!("nasg/mixture/decoded/seed={seed}"),
-            NasgMixture::decode(&raw, selection),
-        ));
-    }
+        mixture_case(name, NasgMixture::decode(&raw, selection))
+    }));
     cases
 }

@@ -9,10 +9,9 @@
 //! where the thin polar cells would be narrower than such a lobe is
 //! smooth.
 
-use super::Case;
+use super::{seeded_cases, Case};
 use crate::chi2::{axis_avoiding, Warp};
 use crate::rng::Pcg32;
-use crate::SphereDistribution;
 use glam::{DVec3, Vec3};
 use guiding_core::lobe::vmf::VmfLobe;
 use guiding_core::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
@@ -24,28 +23,10 @@ pub const K: usize = 8;
 /// A single vMF lobe.
 pub struct LobeDist(pub VmfLobe);
 
-impl SphereDistribution for LobeDist {
-    fn sample(&self, rng: &mut Pcg32) -> (Vec3, f32) {
-        let s = self.0.sample(rng.next_vec2());
-        (s.direction, s.pdf)
-    }
-    fn pdf(&self, direction: Vec3) -> f32 {
-        self.0.pdf(direction)
-    }
-}
-
 /// A K-lobe vMF mixture.
 pub struct MixtureDist(pub VmfMixture<K>);
 
-impl SphereDistribution for MixtureDist {
-    fn sample(&self, rng: &mut Pcg32) -> (Vec3, f32) {
-        let s = self.0.sample(rng.next_vec2());
-        (s.direction, s.pdf)
-    }
-    fn pdf(&self, direction: Vec3) -> f32 {
-        self.0.pdf(direction)
-    }
-}
+sphere_distribution_of_sampler!(LobeDist, MixtureDist);
 
 /// Uniformly distributed unit vector.
 #[must_use]
@@ -145,45 +126,28 @@ pub fn cases() -> Vec<Case> {
     }
     // Means exactly at the poles: the frame construction's special points
     // (and, for κ = 10, the pole of the uniform grid).
-    cases.push(lobe_case(
-        "vmf/lobe/kappa=1e3/mean=+z".into(),
-        VmfLobe::new(Vec3::Z, 1e3),
-    ));
-    cases.push(lobe_case(
-        "vmf/lobe/kappa=1e3/mean=-z".into(),
-        VmfLobe::new(-Vec3::Z, 1e3),
-    ));
-    cases.push(lobe_case(
-        "vmf/lobe/kappa=10/mean=+z".into(),
-        VmfLobe::new(Vec3::Z, 10.0),
-    ));
-    cases.push(lobe_case(
-        "vmf/lobe/kappa=10/mean=-z".into(),
-        VmfLobe::new(-Vec3::Z, 10.0),
-    ));
+    for (label, mean, kappa) in [
+        ("kappa=1e3/mean=+z", Vec3::Z, 1e3),
+        ("kappa=1e3/mean=-z", -Vec3::Z, 1e3),
+        ("kappa=10/mean=+z", Vec3::Z, 10.0),
+        ("kappa=10/mean=-z", -Vec3::Z, 10.0),
+    ] {
+        cases.push(lobe_case(
+            format!("vmf/lobe/{label}"),
+            VmfLobe::new(mean, kappa),
+        ));
+    }
 
-    for seed in 1..=3_u64 {
-        let mut rng = Pcg32::new(seed, 1);
-        cases.push(mixture_case(
-            format!("vmf/mixture/from-lobes/seed={seed}"),
-            random_mixture(&mut rng),
-        ));
-    }
-    for seed in 1..=3_u64 {
-        let mut rng = Pcg32::new(seed, 2);
-        cases.push(mixture_case(
-            format!("vmf/mixture/decoded/seed={seed}"),
-            VmfMixture::decode(&random_raw(&mut rng)),
-        ));
-    }
-    for seed in 1..=2_u64 {
-        let mut rng = Pcg32::new(seed, 3);
-        let m = random_mixture(&mut rng);
-        let normal = random_direction(&mut rng);
-        cases.push(mixture_case(
-            format!("vmf/product-cosine/seed={seed}"),
-            m.product_with_clamped_cosine(normal),
-        ));
-    }
+    cases.extend(seeded_cases("vmf/mixture/from-lobes", 3, 1, |name, rng| {
+        mixture_case(name, random_mixture(rng))
+    }));
+    cases.extend(seeded_cases("vmf/mixture/decoded", 3, 2, |name, rng| {
+        mixture_case(name, VmfMixture::decode(&random_raw(rng)))
+    }));
+    cases.extend(seeded_cases("vmf/product-cosine", 2, 3, |name, rng| {
+        let m = random_mixture(rng);
+        let normal = random_direction(rng);
+        mixture_case(name, m.product_with_clamped_cosine(normal))
+    }));
     cases
 }

@@ -107,16 +107,9 @@ pub fn density_variation(pdf: impl Fn(Vec3) -> f32, d: Vec3) -> f32 {
     variation
 }
 
-/// Asserts the properties every sample must have: a finite unit direction and
-/// a finite density `> 0` that equals `pdf(direction)` up to `rel_tol` plus
-/// the density's own variation across the f32 resolution of the direction.
-///
-/// The second term is what an f32 direction can honestly promise: where a
-/// lobe is narrower than ~10⁻⁵ rad (a NASG with a = 10⁵ near its antipode,
-/// a table sample landing exactly on a bin edge) the sampler's exact density
-/// and the density at the rounded direction differ by that much, and a fixed
-/// relative tolerance would be either wrong there or meaningless elsewhere.
-pub fn check_sample(what: &str, s: DirectionSample, pdf: impl Fn(Vec3) -> f32, rel_tol: f32) {
+/// Asserts what a sample must be on its own: a finite unit direction (to
+/// `10⁻⁵`) and a finite density `> 0`.
+pub fn check_sample_is_valid(what: &str, s: DirectionSample) {
     let d = s.direction;
     assert!(d.is_finite(), "{what}: non-finite direction {d}");
     assert!(
@@ -129,6 +122,20 @@ pub fn check_sample(what: &str, s: DirectionSample, pdf: impl Fn(Vec3) -> f32, r
         "{what}: sample pdf {}",
         s.pdf
     );
+}
+
+/// Asserts the properties every sample must have: [`check_sample_is_valid`],
+/// and a density that equals `pdf(direction)` up to `rel_tol` plus
+/// the density's own variation across the f32 resolution of the direction.
+///
+/// The second term is what an f32 direction can honestly promise: where a
+/// lobe is narrower than ~10⁻⁵ rad (a NASG with a = 10⁵ near its antipode,
+/// a table sample landing exactly on a bin edge) the sampler's exact density
+/// and the density at the rounded direction differ by that much, and a fixed
+/// relative tolerance would be either wrong there or meaningless elsewhere.
+pub fn check_sample(what: &str, s: DirectionSample, pdf: impl Fn(Vec3) -> f32, rel_tol: f32) {
+    check_sample_is_valid(what, s);
+    let d = s.direction;
     let at_d = pdf(d);
     assert!(at_d.is_finite() && at_d >= 0.0, "{what}: pdf(d) = {at_d}");
     let allowed = rel_tol * at_d.max(s.pdf) + density_variation(&pdf, d);

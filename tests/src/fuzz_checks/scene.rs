@@ -103,6 +103,11 @@ pub fn check_scene(what: &str, s: &Scene) {
                 eta,
                 reflectance,
                 transmittance,
+            }
+            | Material::ThinDielectric {
+                eta,
+                reflectance,
+                transmittance,
             } => {
                 eta.is_finite()
                     && eta > 0.0
@@ -162,16 +167,6 @@ pub fn check_scene(what: &str, s: &Scene) {
                     && finite_non_negative(specular)
                     && scale > 0.0
                     && scale <= 1.0
-            }
-            Material::ThinDielectric {
-                eta,
-                reflectance,
-                transmittance,
-            } => {
-                eta.is_finite()
-                    && eta > 0.0
-                    && finite_non_negative(reflectance)
-                    && finite_non_negative(transmittance)
             }
             Material::Blend { a, b, weight } => {
                 (a as usize) < s.materials.len()
