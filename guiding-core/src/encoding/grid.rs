@@ -58,7 +58,7 @@
 //! cost — loop bounds unknown to the compiler — is negligible next to the 8
 //! scattered memory reads per level.
 
-use crate::encoding::clamp_unit;
+use crate::encoding::{clamp_unit, write_clamped};
 use crate::gradient::GradientSink;
 use crate::rng::pcg_hash;
 use bytemuck::{Pod, Zeroable};
@@ -154,14 +154,22 @@ impl GridConfig {
     #[inline]
     #[must_use]
     pub const fn level_count(&self) -> usize {
-        at_most(self.levels, GRID_MAX_LEVELS) as usize
+        (if self.levels < GRID_MAX_LEVELS {
+            self.levels
+        } else {
+            GRID_MAX_LEVELS
+        }) as usize
     }
 
     /// Features per vertex actually used: `min(features, GRID_MAX_FEATURES)`.
     #[inline]
     #[must_use]
     pub const fn feature_count(&self) -> usize {
-        at_most(self.features, GRID_MAX_FEATURES) as usize
+        (if self.features < GRID_MAX_FEATURES {
+            self.features
+        } else {
+            GRID_MAX_FEATURES
+        }) as usize
     }
 
     /// Width of the encoding, `L · F` (32 for the NPM preset).
@@ -185,7 +193,12 @@ impl GridConfig {
     /// `level` is clamped to `levels`.
     #[must_use]
     pub fn level_offset(&self, level: u32) -> usize {
-        level_walk(self, at_most(level, self.level_count() as u32)).1
+        let l = if (level as usize) < self.level_count() {
+            level
+        } else {
+            self.level_count() as u32
+        };
+        level_walk(self, l).1
     }
 
     /// Number of grid parameters, `Σ_l (R_l + 1)³ · F` (4 134 012 for the NPM
@@ -199,20 +212,14 @@ impl GridConfig {
     }
 }
 
-/// `min(x, max)` (`Ord::min` is not `const`).
-#[inline]
-const fn at_most(x: u32, max: u32) -> u32 {
-    if x < max {
-        x
-    } else {
-        max
-    }
-}
-
 /// `(R_level, level_offset(level))`, walking the levels from 0 with the same
 /// `f32` arithmetic as [`grid_forward`].
 fn level_walk(cfg: &GridConfig, level: u32) -> (u32, usize) {
-    let target = at_most(level, GRID_MAX_LEVELS);
+    let target = if level < GRID_MAX_LEVELS {
+        level
+    } else {
+        GRID_MAX_LEVELS
+    };
     let f = cfg.feature_count();
     let mut scale_pow = 1.0f32;
     let mut offset = 0usize;
@@ -377,157 +384,43 @@ pub fn grid_forward<const N: usize>(
     out: &mut [f32; N],
     out_offset: usize,
 ) -> usize {
-    let mut gather = Gather {
-        params,
-        out,
-        acc: 0.0,
-    };
-    grid_pass(cfg, position, out_offset, &mut gather);
-    out_offset.wrapping_add(cfg.level_count() * cfg.feature_count())
-}
-
-/// One of the two passes over the grid ([`grid_forward`], [`grid_backward`]):
-/// what [`grid_pass`] does at each slot `o < N` of the encoding, where
-/// slot `offset + l·F + k` is feature `k` of level `l`: `begin(o)`, then
-/// `term(index, w)` for each of the level's 8 corners in order whose
-/// parameter `index` (feature `k` of the corner) is below [`Self::len`],
-/// then `end(o)`.
-trait GridPass<const N: usize> {
-    /// Length of the buffer the parameter indices address.
-    fn len(&self) -> usize;
-    fn begin(&mut self, o: usize);
-    fn term(&mut self, index: usize, w: f32);
-    fn end(&mut self, o: usize);
-}
-
-/// The forward pass: `out[o] = Σ_c w_c · params[index_c + k]`, summed from 0
-/// in corner order.
-struct Gather<'a, const N: usize> {
-    params: &'a [f32],
-    out: &'a mut [f32; N],
-    acc: f32,
-}
-
-impl<const N: usize> GridPass<N> for Gather<'_, N> {
-    #[inline]
-    fn len(&self) -> usize {
-        self.params.len()
-    }
-    #[inline]
-    fn begin(&mut self, _: usize) {
-        self.acc = 0.0;
-    }
-    #[inline]
-    fn term(&mut self, index: usize, w: f32) {
-        self.acc += w * self.params[index];
-    }
-    #[inline]
-    fn end(&mut self, o: usize) {
-        self.out[o] = self.acc;
-    }
-}
-
-/// The backward pass: `grad[index_c + k] += w_c · d_out[o]`.
-struct Scatter<'a, const N: usize, G: GradientSink + ?Sized> {
-    d_out: &'a [f32; N],
-    grad: &'a mut G,
-    d: f32,
-}
-
-impl<const N: usize, G: GradientSink + ?Sized> GridPass<N> for Scatter<'_, N, G> {
-    #[inline]
-    fn len(&self) -> usize {
-        self.grad.len()
-    }
-    #[inline]
-    fn begin(&mut self, o: usize) {
-        self.d = self.d_out[o];
-    }
-    #[inline]
-    fn term(&mut self, index: usize, w: f32) {
-        self.grad.add(index, w * self.d);
-    }
-    #[inline]
-    fn end(&mut self, _: usize) {}
-}
-
-/// Runs `pass` over every level of the grid at `position` (see
-/// [`GridPass`]); nothing when `offset ≥ N`.
-#[inline]
-fn grid_pass<const N: usize, P: GridPass<N>>(
-    cfg: &GridConfig,
-    position: Vec3,
-    offset: usize,
-    pass: &mut P,
-) {
-    if offset >= N {
-        return;
-    }
     let levels = cfg.level_count();
     let f = cfg.feature_count();
-    let len = pass.len();
-    let mut walk = LevelWalk::new(cfg, position);
+    if out_offset >= N {
+        return out_offset.wrapping_add(levels * f);
+    }
+    let u = unit_position(cfg, position);
+    let smooth = cfg.smoothstep != 0;
+    let len = params.len();
+    let mut base = cfg.offset as usize;
+    let mut scale_pow = 1.0f32;
     let mut l = 0;
     while l < levels {
-        let corners = walk.next_corners();
-        let slots = offset.wrapping_add(l * f);
+        let r = resolution_at(cfg.base_resolution, scale_pow);
+        let corners = corners_at(&u, r, f, base, smooth);
+        let out_base = out_offset.wrapping_add(l * f);
         let mut k = 0;
         while k < f {
-            let o = slots.wrapping_add(k);
+            let o = out_base.wrapping_add(k);
             if o < N {
-                pass.begin(o);
+                let mut acc = 0.0;
                 let mut c = 0;
                 while c < 8 {
-                    let index = corners.index[c].wrapping_add(k);
-                    if index < len {
-                        pass.term(index, corners.weight[c]);
+                    let idx = corners.index[c].wrapping_add(k);
+                    if idx < len {
+                        acc += corners.weight[c] * params[idx];
                     }
                     c += 1;
                 }
-                pass.end(o);
+                write_clamped(out, o, acc);
             }
             k += 1;
         }
+        base = base.wrapping_add(level_size(r, f));
+        scale_pow *= cfg.per_level_scale;
         l += 1;
     }
-}
-
-/// The levels of a grid in order, for one position: each
-/// [`Self::next_corners`] gives the next level's cell corners.
-struct LevelWalk {
-    u: [f32; 3],
-    features: usize,
-    smooth: bool,
-    base_resolution: u32,
-    per_level_scale: f32,
-    /// Index of the level's first parameter.
-    base: usize,
-    /// `s^l`, in the `f32` arithmetic of [`GridConfig::param_count`].
-    scale_pow: f32,
-}
-
-impl LevelWalk {
-    #[inline]
-    fn new(cfg: &GridConfig, position: Vec3) -> Self {
-        Self {
-            u: unit_position(cfg, position),
-            features: cfg.feature_count(),
-            smooth: cfg.smoothstep != 0,
-            base_resolution: cfg.base_resolution,
-            per_level_scale: cfg.per_level_scale,
-            base: cfg.offset as usize,
-            scale_pow: 1.0,
-        }
-    }
-
-    #[inline]
-    fn next_corners(&mut self) -> GridCorners {
-        let r = resolution_at(self.base_resolution, self.scale_pow);
-        let corners = corners_at(&self.u, r, self.features, self.base, self.smooth);
-        self.base = self.base.wrapping_add(level_size(r, self.features));
-        self.scale_pow *= self.per_level_scale;
-        corners
-    }
+    out_offset.wrapping_add(levels * f)
 }
 
 /// Most levels a [`GridTrace`] records (grids with more take the untraced
@@ -689,9 +582,13 @@ fn forward4<const N: usize>(
 ) -> usize {
     const F: usize = 4;
     let levels = cfg.level_count();
-    let mut walk = LevelWalk::new(cfg, position);
+    let u = unit_position(cfg, position);
+    let smooth = cfg.smoothstep != 0;
+    let mut base = cfg.offset as usize;
+    let mut scale_pow = 1.0f32;
     for l in 0..levels {
-        let corners = walk.next_corners();
+        let r = resolution_at(cfg.base_resolution, scale_pow);
+        let corners = corners_at(&u, r, F, base, smooth);
         let mut acc = [0.0f32; F];
         for c in 0..8 {
             let i = corners.index[c];
@@ -706,6 +603,8 @@ fn forward4<const N: usize>(
         }
         let o = out_offset + l * F;
         out[o..o + F].copy_from_slice(&acc);
+        base = base.wrapping_add(level_size(r, F));
+        scale_pow *= cfg.per_level_scale;
     }
     out_offset + levels * F
 }
@@ -727,12 +626,41 @@ pub fn grid_backward<const N: usize, G: GradientSink + ?Sized>(
     d_out_offset: usize,
     grad: &mut G,
 ) {
-    let mut scatter = Scatter {
-        d_out,
-        grad,
-        d: 0.0,
-    };
-    grid_pass(cfg, position, d_out_offset, &mut scatter);
+    if d_out_offset >= N {
+        return;
+    }
+    let u = unit_position(cfg, position);
+    let levels = cfg.level_count();
+    let f = cfg.feature_count();
+    let smooth = cfg.smoothstep != 0;
+    let len = grad.len();
+    let mut base = cfg.offset as usize;
+    let mut scale_pow = 1.0f32;
+    let mut l = 0;
+    while l < levels {
+        let r = resolution_at(cfg.base_resolution, scale_pow);
+        let corners = corners_at(&u, r, f, base, smooth);
+        let d_base = d_out_offset.wrapping_add(l * f);
+        let mut k = 0;
+        while k < f {
+            let o = d_base.wrapping_add(k);
+            if o < N {
+                let d = d_out[o];
+                let mut c = 0;
+                while c < 8 {
+                    let idx = corners.index[c].wrapping_add(k);
+                    if idx < len {
+                        grad.add(idx, corners.weight[c] * d);
+                    }
+                    c += 1;
+                }
+            }
+            k += 1;
+        }
+        base = base.wrapping_add(level_size(r, f));
+        scale_pow *= cfg.per_level_scale;
+        l += 1;
+    }
 }
 
 /// Initial value of grid parameter `index` (relative to the grid's start):
