@@ -63,50 +63,55 @@ mod chains {
     use super::PEAK_ITERS;
     use core::arch::x86_64::*;
 
-    /// 12 independent chains of `vfmadd` on 8 lanes (two FMA pipes × 4
-    /// cycles of latency, with margin), `PEAK_ITERS` steps each.
-    #[target_feature(enable = "avx2,fma")]
-    pub fn avx2(seed: f32) -> f32 {
-        let m = _mm256_set1_ps(0.999_999);
-        let a = _mm256_set1_ps(1e-7);
-        let mut acc = [_mm256_set1_ps(seed); 12];
-        for (k, v) in acc.iter_mut().enumerate() {
-            *v = _mm256_add_ps(*v, _mm256_set1_ps(k as f32));
-        }
-        for _ in 0..PEAK_ITERS {
-            for v in &mut acc {
-                *v = _mm256_fmadd_ps(*v, m, a);
+    /// `$name(seed)`: 12 independent chains of `$fmadd` on one vector type
+    /// (two FMA pipes × 4 cycles of latency, with margin), `PEAK_ITERS`
+    /// steps each, their sum reduced to one float by `$sum`. One body for
+    /// every width, so the widths are timed on the same chains.
+    macro_rules! fma_chains {
+        ($(#[$attr:meta])* $name:ident: $set1:ident, $add:ident, $fmadd:ident,
+            $setzero:ident, $sum:ident) => {
+            $(#[$attr])*
+            pub fn $name(seed: f32) -> f32 {
+                let m = $set1(0.999_999);
+                let a = $set1(1e-7);
+                let mut acc = [$set1(seed); 12];
+                for (k, v) in acc.iter_mut().enumerate() {
+                    *v = $add(*v, $set1(k as f32));
+                }
+                for _ in 0..PEAK_ITERS {
+                    for v in &mut acc {
+                        *v = $fmadd(*v, m, a);
+                    }
+                }
+                let mut s = $setzero();
+                for v in acc {
+                    s = $add(s, v);
+                }
+                $sum(s)
             }
-        }
-        let mut s = _mm256_setzero_ps();
-        for v in acc {
-            s = _mm256_add_ps(s, v);
-        }
+        };
+    }
+
+    fma_chains! {
+        /// On 8 lanes (AVX2).
+        #[target_feature(enable = "avx2,fma")]
+        avx2: _mm256_set1_ps, _mm256_add_ps, _mm256_fmadd_ps, _mm256_setzero_ps, sum8
+    }
+
+    fma_chains! {
+        /// On 16 lanes (AVX-512).
+        #[target_feature(enable = "avx512f,avx2,fma")]
+        avx512: _mm512_set1_ps, _mm512_add_ps, _mm512_fmadd_ps, _mm512_setzero_ps,
+            _mm512_reduce_add_ps
+    }
+
+    /// The sum of the 8 lanes of `s`.
+    #[target_feature(enable = "avx2,fma")]
+    fn sum8(s: __m256) -> f32 {
         let mut out = [0.0f32; 8];
         // SAFETY: `out` holds 8 floats.
         unsafe { _mm256_storeu_ps(out.as_mut_ptr(), s) };
         out.iter().sum()
-    }
-
-    /// 12 independent chains of `vfmadd` on 16 lanes.
-    #[target_feature(enable = "avx512f,avx2,fma")]
-    pub fn avx512(seed: f32) -> f32 {
-        let m = _mm512_set1_ps(0.999_999);
-        let a = _mm512_set1_ps(1e-7);
-        let mut acc = [_mm512_set1_ps(seed); 12];
-        for (k, v) in acc.iter_mut().enumerate() {
-            *v = _mm512_add_ps(*v, _mm512_set1_ps(k as f32));
-        }
-        for _ in 0..PEAK_ITERS {
-            for v in &mut acc {
-                *v = _mm512_fmadd_ps(*v, m, a);
-            }
-        }
-        let mut s = _mm512_setzero_ps();
-        for v in acc {
-            s = _mm512_add_ps(s, v);
-        }
-        _mm512_reduce_add_ps(s)
     }
 
     /// One dependent chain of `PEAK_ITERS` FMAs (latency bound: the clock).

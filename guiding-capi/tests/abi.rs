@@ -838,38 +838,9 @@ fn c_results_equal_the_rust_api_for_every_representation() {
 
 #[test]
 fn recorder_matches_the_rust_path_recorder() {
-    let vertices = [
-        PathVertex {
-            position: [0.0, 0.0, 0.0],
-            normal: [0.0, 0.0, 1.0],
-            wo: [0.0, 0.0, 1.0],
-            emitted: [5.0; 3],
-            direct: [0.1, 0.2, 0.3],
-            wi: [1.0, 0.0, 0.0],
-            sample_pdf: 0.5,
-            bsdf_pdf: 0.4,
-            bsdf_cos: [0.2, 0.3, 0.4],
-            ..PathVertex::default()
-        },
-        PathVertex {
-            position: [1.0, 0.0, 0.0],
-            wi: [0.0, 1.0, 0.0],
-            sample_pdf: 1.0,
-            bsdf_cos: [0.9; 3],
-            is_delta: true,
-            ..PathVertex::default()
-        },
-        PathVertex {
-            position: [1.0, 1.0, 0.0],
-            emitted: [2.0, 4.0, 8.0],
-            emitted_mis_weight: 0.5,
-            wi: [0.0, 0.0, 1.0],
-            sample_pdf: 2.0,
-            bsdf_cos: [1.0, 0.5, 0.25],
-            continuation_scale: 2.0,
-            ..PathVertex::default()
-        },
-    ];
+    // The embedding test's path, without direct light at its last vertex.
+    let mut vertices = guiding_tests::mirror_path();
+    vertices[2].direct = [0.0; 3];
     let mut rust = PathRecorder::new();
     rust.start_path();
     for v in vertices {

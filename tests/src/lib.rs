@@ -60,6 +60,48 @@ pub fn record_uniform_vertex(
     recorder.end_path();
 }
 
+/// A three-vertex path: diffuse (seen by the camera, with direct light), a
+/// delta (mirror) vertex, and a diffuse vertex that hits an emitter (MIS
+/// weight ½), has direct light and survived roulette with probability ½ (the
+/// recorder tests of the Rust and the C API).
+#[must_use]
+pub fn mirror_path() -> [guiding::PathVertex; 3] {
+    use guiding::PathVertex;
+    [
+        PathVertex {
+            position: [0.0, 0.0, 0.0],
+            normal: [0.0, 0.0, 1.0],
+            wo: [0.0, 0.0, 1.0],
+            emitted: [5.0; 3],
+            direct: [0.1, 0.2, 0.3],
+            wi: [1.0, 0.0, 0.0],
+            sample_pdf: 0.5,
+            bsdf_pdf: 0.4,
+            bsdf_cos: [0.2, 0.3, 0.4],
+            ..PathVertex::default()
+        },
+        PathVertex {
+            position: [1.0, 0.0, 0.0],
+            wi: [0.0, 1.0, 0.0],
+            sample_pdf: 1.0,
+            bsdf_cos: [0.9; 3],
+            is_delta: true,
+            ..PathVertex::default()
+        },
+        PathVertex {
+            position: [1.0, 1.0, 0.0],
+            emitted: [2.0, 4.0, 8.0],
+            emitted_mis_weight: 0.5,
+            direct: [0.5, 0.0, 0.25],
+            wi: [0.0, 0.0, 1.0],
+            sample_pdf: 2.0,
+            bsdf_cos: [1.0, 0.5, 0.25],
+            continuation_scale: 2.0,
+            ..PathVertex::default()
+        },
+    ]
+}
+
 /// A query point uniform in the box `[lo, hi]`, with a uniform normal and
 /// `wo` on the sphere and a uniform roughness (the embedding and device
 /// tests' shading points).

@@ -250,22 +250,32 @@ fn vmf_ln_norm(kappa: f64) -> f64 {
     kappa.ln() - (2.0 * PI).ln() - (-(-2.0 * kappa).exp_m1()).ln()
 }
 
+/// `exp(clamp(x, lo, hi))`: a decoder's log parameter within its `f32` clamp.
+fn exp_clamped(x: f64, lo: f32, hi: f32) -> f64 {
+    x.clamp(f64::from(lo), f64::from(hi)).exp()
+}
+
+/// `(κ, μ)` of one raw vMF lobe as `VmfMixture::decode` reads it (NPM Table
+/// 1): `κ = exp(clamp(r₁, −10, 10))`, `θ = π σ(r₂)`, `φ = 2π σ(r₃)`.
+#[must_use]
+pub fn vmf_lobe(r: &[f64]) -> (f64, DVec3) {
+    let kappa = exp_clamped(r[1], VMF_LOG_KAPPA_MIN, VMF_LOG_KAPPA_MAX);
+    let theta = PI * sigmoid(r[2]);
+    let phi = 2.0 * PI * sigmoid(r[3]);
+    let mean = DVec3::new(
+        theta.sin() * phi.cos(),
+        theta.sin() * phi.sin(),
+        theta.cos(),
+    );
+    (kappa, mean)
+}
+
 /// `ln q(ω)` of `VmfMixture::decode(raw)` (NPM Table 1: softmax weights,
-/// `κ = exp(clamp(r₁, −10, 10))`, `θ = π σ(r₂)`, `φ = 2π σ(r₃)`); `raw` is
-/// flat, 4 values per lobe.
+/// lobes by [`vmf_lobe`]); `raw` is flat, 4 values per lobe.
 #[must_use]
 pub fn vmf_ln_pdf(raw: &[f64], d: DVec3) -> f64 {
     mixture_ln_pdf(raw, VMF_RAW_PER_LOBE, |r, ln_w| {
-        let kappa = r[1]
-            .clamp(f64::from(VMF_LOG_KAPPA_MIN), f64::from(VMF_LOG_KAPPA_MAX))
-            .exp();
-        let theta = PI * sigmoid(r[2]);
-        let phi = 2.0 * PI * sigmoid(r[3]);
-        let mean = DVec3::new(
-            theta.sin() * phi.cos(),
-            theta.sin() * phi.sin(),
-            theta.cos(),
-        );
+        let (kappa, mean) = vmf_lobe(r);
         ln_w + vmf_ln_norm(kappa) - kappa * one_minus_cos(mean, d)
     })
 }
@@ -321,12 +331,8 @@ pub fn nasg_lobe_ln_pdf(
 #[must_use]
 pub fn nasg_ln_pdf(raw: &[f64], d: DVec3) -> f64 {
     mixture_ln_pdf(raw, NASG_RAW_PER_LOBE, |r, ln_w| {
-        let lambda = r[1]
-            .clamp(f64::from(NASG_LN_LAMBDA_MIN), f64::from(NASG_LN_LAMBDA_MAX))
-            .exp();
-        let a = r[2]
-            .clamp(f64::from(NASG_LN_A_MIN), f64::from(NASG_LN_A_MAX))
-            .exp();
+        let lambda = exp_clamped(r[1], NASG_LN_LAMBDA_MIN, NASG_LN_LAMBDA_MAX);
+        let a = exp_clamped(r[2], NASG_LN_A_MIN, NASG_LN_A_MAX);
         let rot = rz(2.0 * PI * sigmoid(r[3]))
             * DMat3::from_rotation_y(PI * sigmoid(r[4]))
             * rz(PI * sigmoid(r[5]));

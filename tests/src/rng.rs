@@ -4,6 +4,10 @@
 
 pub use guiding_core::rng::Pcg32;
 
+/// Signed zero, NaN and the infinities: the IEEE special values, which
+/// tables of extreme inputs start with.
+pub const IEEE_SPECIALS: [f32; 5] = [0.0, -0.0, f32::NAN, f32::INFINITY, f32::NEG_INFINITY];
+
 /// `n` rows of `N` values, entry `j` of a row `ordinary(rng, j)`, except in
 /// the rows `i` with `i % period == phase`: there each entry is, with
 /// probability 0.3, one of `specials` (uniformly) instead — batches of

@@ -31,7 +31,7 @@ use guiding_core::model::GuidingModel;
 use guiding_core::pdf1d::Interpolation;
 use guiding_core::sample::TrainingSample;
 use guiding_core::sphere::square_to_uniform_sphere;
-use guiding_tests::rng::{rows_with_specials, Pcg32};
+use guiding_tests::rng::{rows_with_specials, Pcg32, IEEE_SPECIALS};
 
 const LO: [f32; 3] = [-1.0, -2.0, 0.0];
 const HI: [f32; 3] = [1.0, 2.0, 3.0];
@@ -99,20 +99,10 @@ fn vmf_floats(m: &VmfMixture<NPM_LOBES>) -> Vec<f32> {
 
 /// Raw rows: ordinary values, the clamps' edges and non-finite values.
 fn raw_rows(n: usize, seed: u64) -> Vec<[f32; NPM_OUTPUTS]> {
-    let specials = [
-        0.0,
-        -0.0,
-        f32::NAN,
-        f32::INFINITY,
-        f32::NEG_INFINITY,
-        1e30,
-        -1e30,
-        10.0,
-        -10.0,
-        87.0,
-        -87.0,
-        1e-40,
-    ];
+    let specials: Vec<f32> = IEEE_SPECIALS
+        .into_iter()
+        .chain([1e30, -1e30, 10.0, -10.0, 87.0, -87.0, 1e-40])
+        .collect();
     let mut rng = Pcg32::new(seed, 3);
     rows_with_specials(n, &mut rng, (5, 4), &specials, |rng, j| {
         rng.uniform(-12.0, 12.0) * if j % 4 == 0 { 0.5 } else { 1.0 }

@@ -485,6 +485,45 @@ fn mass_checks() -> usize {
     cases().len() + 2
 }
 
+/// One conditioned sampler, `dist(∫pdf, attempts)`: its chi² test (named
+/// `bsdf/{name}`, seed `seed`, one of `tests`), then [`check_mass`] of `∫pdf`
+/// by [`pdf_mass`] against the attempts it counted. Returns the failures.
+fn check_conditioned<D: SphereDistribution + 'static>(
+    name: &str,
+    (tests, seed): (usize, u64),
+    cfg: &Chi2Config,
+    pdf: impl Fn(glam::DVec3) -> f64 + Copy,
+    sharpness: f64,
+    dist: impl FnOnce(f64, Rc<Cell<u64>>) -> D,
+) -> Vec<String> {
+    let mass = pdf_mass(pdf, cfg.res_u, cfg.res_v);
+    let attempts = Rc::new(Cell::new(0));
+    let case = Case {
+        name: format!("bsdf/{name}"),
+        dist: Box::new(dist(mass.0, Rc::clone(&attempts))),
+        warp: Warp::uniform(),
+    };
+    let r = run_chi2(
+        &case,
+        tests,
+        &Chi2Config {
+            seed,
+            ..cfg.clone()
+        },
+    );
+    eprintln!("{}", r.message);
+    let mut failures = Vec::new();
+    if !r.passed {
+        failures.push(r.message);
+    }
+    let (samples, checks) = (cfg.samples as u64, mass_checks());
+    match check_mass(name, mass, sharpness, samples, attempts.get(), checks) {
+        Ok(report) => eprintln!("  {report}"),
+        Err(e) => failures.push(e),
+    }
+    failures
+}
+
 #[test]
 fn bsdf_sampling_matches_pdf() {
     let all = cases();
@@ -500,40 +539,19 @@ fn bsdf_sampling_matches_pdf() {
         } else {
             Chi2Config::default()
         };
-        let warp = Warp::uniform();
-        let mass = pdf_mass(
+        failures.extend(check_conditioned(
+            name,
+            (all.len(), 100 + i as u64),
+            &cfg,
             |d| f64::from(m.eval(*wi, d.as_vec3()).1),
-            cfg.res_u,
-            cfg.res_v,
-        );
-        let attempts = Rc::new(Cell::new(0));
-        let case = Case {
-            name: format!("bsdf/{name}"),
-            dist: Box::new(Conditioned {
+            lobe_sharpness(m),
+            |norm, attempts| Conditioned {
                 m: *m,
                 wi: *wi,
-                norm: mass.0,
-                attempts: Rc::clone(&attempts),
-            }),
-            warp,
-        };
-        let r = run_chi2(
-            &case,
-            all.len(),
-            &Chi2Config {
-                seed: 100 + i as u64,
-                ..cfg.clone()
+                norm,
+                attempts,
             },
-        );
-        eprintln!("{}", r.message);
-        if !r.passed {
-            failures.push(r.message);
-        }
-        let (s, checks) = (lobe_sharpness(m), mass_checks());
-        match check_mass(name, mass, s, cfg.samples as u64, attempts.get(), checks) {
-            Ok(report) => eprintln!("  {report}"),
-            Err(e) => failures.push(e),
-        }
+        ));
     }
     assert!(failures.is_empty(), "{failures:#?}");
 }
@@ -911,43 +929,22 @@ fn blendbsdf_sampling_matches_mixture_pdf() {
     let wi = Vec3::new(0.55, 0.1, 0.6).normalize();
     let uvs = [Vec2::splat(0.25), Vec2::new(0.75, 0.25)];
     for (i, uv) in uvs.iter().enumerate() {
-        let cfg = Chi2Config::default();
-        let warp = Warp::uniform();
-        let mass = pdf_mass(
+        let failures = check_conditioned(
+            &format!("blendbsdf uv{i}"),
+            (uvs.len(), 300 + i as u64),
+            &Chi2Config::default(),
             |d| f64::from(scene.eval_mixture(outer, *uv, wi, d.as_vec3()).1),
-            cfg.res_u,
-            cfg.res_v,
-        );
-        let attempts = Rc::new(Cell::new(0));
-        let case = Case {
-            name: format!("bsdf/blendbsdf uv{i}"),
-            dist: Box::new(Blend {
+            // The sharpest lobe is the rough conductor's, α = 0.15.
+            1.0 / 0.15f64.powi(2),
+            |norm, attempts| Blend {
                 scene: std::sync::Arc::clone(&scene),
                 id: outer,
                 uv: *uv,
                 wi,
-                norm: mass.0,
-                attempts: Rc::clone(&attempts),
-            }),
-            warp,
-        };
-        let r = run_chi2(
-            &case,
-            uvs.len(),
-            &Chi2Config {
-                seed: 300 + i as u64,
-                ..cfg
+                norm,
+                attempts,
             },
         );
-        eprintln!("{}", r.message);
-        assert!(r.passed, "{}", r.message);
-        let name = format!("blendbsdf uv{i}");
-        let checks = mass_checks();
-        // The sharpest lobe is the rough conductor's, α = 0.15.
-        let s = 1.0 / 0.15f64.powi(2);
-        match check_mass(&name, mass, s, cfg.samples as u64, attempts.get(), checks) {
-            Ok(report) => eprintln!("  {report}"),
-            Err(e) => panic!("{e}"),
-        }
+        assert!(failures.is_empty(), "{failures:#?}");
     }
 }

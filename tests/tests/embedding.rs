@@ -9,8 +9,8 @@ use guiding::{
 use guiding_core::glam::{Vec2, Vec3};
 use guiding_core::math::INV_FOUR_PI;
 use guiding_core::sphere::square_to_uniform_sphere;
-use guiding_tests::record_uniform_vertex;
 use guiding_tests::rng::Pcg32;
+use guiding_tests::{mirror_path, record_uniform_vertex};
 
 const LO: [f32; 3] = [-1.0, -2.0, 0.0];
 const HI: [f32; 3] = [1.0, 2.0, 3.0];
@@ -159,38 +159,8 @@ fn invalid_configs_and_bounds_are_errors() {
 
 #[test]
 fn recorder_propagates_radiance_back_along_the_path() {
-    // Three vertices: diffuse, delta (mirror), diffuse that hits an emitter.
-    let v0 = PathVertex {
-        position: [0.0, 0.0, 0.0],
-        normal: [0.0, 0.0, 1.0],
-        wo: [0.0, 0.0, 1.0],
-        emitted: [5.0, 5.0, 5.0], // seen by the camera, weight 1
-        direct: [0.1, 0.2, 0.3],
-        wi: [1.0, 0.0, 0.0],
-        sample_pdf: 0.5,
-        bsdf_pdf: 0.4,
-        bsdf_cos: [0.2, 0.3, 0.4],
-        ..PathVertex::default()
-    };
-    let v1 = PathVertex {
-        position: [1.0, 0.0, 0.0],
-        wi: [0.0, 1.0, 0.0],
-        sample_pdf: 1.0,
-        bsdf_cos: [0.9, 0.9, 0.9],
-        is_delta: true,
-        ..PathVertex::default()
-    };
-    let v2 = PathVertex {
-        position: [1.0, 1.0, 0.0],
-        emitted: [2.0, 4.0, 8.0],
-        emitted_mis_weight: 0.5,
-        direct: [0.5, 0.0, 0.25],
-        wi: [0.0, 0.0, 1.0],
-        sample_pdf: 2.0,
-        bsdf_cos: [1.0, 0.5, 0.25],
-        continuation_scale: 2.0, // survived roulette with probability ½
-        ..PathVertex::default()
-    };
+    // Diffuse, delta (mirror), diffuse that hits an emitter.
+    let [v0, v1, v2] = mirror_path();
     let mut rec = PathRecorder::new();
     rec.start_path();
     rec.add_vertex(v0);

@@ -99,41 +99,6 @@ impl GuidingModel for TinyGrid {
     }
 }
 
-/// A model without parameters (rejected by `Field::new`).
-#[derive(Clone, Copy, Debug)]
-struct Empty;
-
-impl GuidingModel for Empty {
-    const FAMILY: Family = Family::Npm;
-    fn param_count(&self) -> usize {
-        0
-    }
-    fn init(&self, _: &mut [f32], _: u32) {}
-    fn sample(&self, _: &[f32], _: &QueryPoint, _: Vec2) -> DirectionSample {
-        DirectionSample {
-            direction: Vec3::Z,
-            pdf: INV_FOUR_PI,
-        }
-    }
-    fn pdf(&self, _: &[f32], _: &QueryPoint, _: Vec3) -> f32 {
-        INV_FOUR_PI
-    }
-    fn selection_probability(&self, _: &[f32], _: &QueryPoint) -> f32 {
-        0.5
-    }
-    fn constant_selection_probability(&self) -> Option<f32> {
-        Some(0.5)
-    }
-    fn accumulate_gradient<G: GradientSink + ?Sized>(
-        &self,
-        _: &[f32],
-        _: &TrainingSample,
-        _: &mut G,
-    ) -> f32 {
-        0.0
-    }
-}
-
 /// The target: a vMF lobe (κ = 8) whose mean direction turns with x.
 fn target_lobe(p: [f32; 3]) -> VmfLobe {
     let a = 2.0 * p[0];
@@ -738,8 +703,10 @@ fn config_validation() {
         Field::new(model, d.with_batch_size(0)).unwrap_err(),
         FieldError::ZeroBatchSize
     );
-    assert_eq!(Field::new(Empty, d).unwrap_err(), FieldError::EmptyModel);
-    assert!(Field::new(Empty, d)
+    // A grid of no cells: a model without parameters.
+    let empty = TinyGrid { res: 0 };
+    assert_eq!(Field::new(empty, d).unwrap_err(), FieldError::EmptyModel);
+    assert!(Field::new(empty, d)
         .unwrap_err()
         .to_string()
         .contains("no parameters"));

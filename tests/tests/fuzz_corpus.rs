@@ -37,24 +37,10 @@ fn corpus(target: &str) -> Vec<Vec<u8>> {
 }
 
 /// Special f32 bit patterns that sit at the edges of every domain.
-const SPECIAL: [f32; 16] = [
-    0.0,
-    -0.0,
-    1e-45,
-    -1e-45,
-    1e-38,
-    1e-30,
-    1e-4,
-    1.0,
-    -1.0,
-    1e4,
-    1e30,
-    -1e30,
-    f32::MAX,
-    f32::INFINITY,
-    f32::NEG_INFINITY,
-    f32::NAN,
-];
+const SPECIAL: [f32; 16] = fuzz_checks::special_values(
+    [0.0, -0.0, 1e-45, -1e-45, 1e-38, 1e-30, 1e-4, 1.0, -1.0, 1e4],
+    [],
+);
 
 /// Deterministic inputs: random bytes, and byte strings built from special
 /// floats, so the replay covers the extremes even before a fuzzer ran.

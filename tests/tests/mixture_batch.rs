@@ -10,6 +10,7 @@ use guiding_core::glam::{Vec2, Vec3};
 use guiding_core::lobe::DirectionSample;
 use guiding_core::mixture::nasg::{NasgMixture, NASG_RAW_PER_LOBE};
 use guiding_core::mixture::vmf::{VmfMixture, VMF_RAW_PER_LOBE};
+use guiding_core::mixture::LobeMixture;
 use guiding_core::model::batched::DfTable;
 use guiding_core::model::mixture_batch as mb;
 use guiding_core::pdf1d::Interpolation;
@@ -156,13 +157,12 @@ const EMPTY: DirectionSample = DirectionSample {
     pdf: 0.0,
 };
 
-/// Every variant against the per-lane reference on batches of every length
-/// kind (empty, partial blocks, one block, several).
-fn check_variants<M>(
+/// Every variant against the per-lane reference (the mixture's own `pdf` and
+/// `sample`) on batches of every length kind (empty, partial blocks, one
+/// block, several).
+fn check_variants<M: LobeMixture>(
     mixtures: &[M],
     variants: Vec<(&'static str, PdfFn<M>, SampleFn<M>)>,
-    pdf: impl Fn(&M, Vec3) -> f32,
-    sample: impl Fn(&M, Vec2) -> DirectionSample,
     rng: &mut Pcg32,
 ) {
     for n in [0, 1, 7, 8, 9, 63, 1000] {
@@ -174,14 +174,14 @@ fn check_variants<M>(
             sample_batch(mixtures, &c.lanes, &c.us, &mut samples);
             for i in 0..n {
                 let m = &mixtures[c.lanes[i] as usize];
-                let want = pdf(m, c.dirs[i]);
+                let want = m.pdf(c.dirs[i]);
                 assert_eq!(
                     out[i].to_bits(),
                     want.to_bits(),
                     "{name} n {n} lane {i}: {} vs {want}",
                     out[i]
                 );
-                let s = sample(m, c.us[i]);
+                let s = m.sample(c.us[i]);
                 assert_eq!(
                     sample_bits(&samples[i]),
                     sample_bits(&s),
@@ -196,26 +196,14 @@ fn check_variants<M>(
 fn batched_nasg_densities_and_samples_are_the_per_lane_ones_bit_for_bit() {
     let mut rng = Pcg32::new(41, 5);
     let mixtures = nasg_mixtures(37, &mut rng);
-    check_variants(
-        &mixtures,
-        nasg_variants(),
-        |m, d| m.pdf(d),
-        |m, u| m.sample(u),
-        &mut rng,
-    );
+    check_variants(&mixtures, nasg_variants(), &mut rng);
 }
 
 #[test]
 fn batched_vmf_densities_and_samples_are_the_per_lane_ones_bit_for_bit() {
     let mut rng = Pcg32::new(43, 5);
     let mixtures = vmf_mixtures(37, &mut rng);
-    check_variants(
-        &mixtures,
-        vmf_variants(),
-        |m, d| m.pdf(d),
-        |m, u| m.sample(u),
-        &mut rng,
-    );
+    check_variants(&mixtures, vmf_variants(), &mut rng);
 }
 
 #[test]

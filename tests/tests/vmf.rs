@@ -22,9 +22,7 @@
 use core::f64::consts::PI;
 use glam::{DVec3, Vec2, Vec3};
 use guiding_core::lobe::vmf::{VmfLobe, VMF_KAPPA_MAX};
-use guiding_core::mixture::vmf::{
-    VmfMixture, CLAMPED_COSINE_KAPPA, VMF_LOG_KAPPA_MAX, VMF_LOG_KAPPA_MIN, VMF_RAW_PER_LOBE,
-};
+use guiding_core::mixture::vmf::{VmfMixture, CLAMPED_COSINE_KAPPA, VMF_RAW_PER_LOBE};
 use guiding_tests::cases::vmf::{mixture_warp, random_direction, random_mixture, K};
 use guiding_tests::cases::Case;
 use guiding_tests::chi2::{run_chi2, Chi2Config, Warp};
@@ -84,16 +82,7 @@ fn angle64(a: DVec3, b: DVec3) -> f64 {
 /// One lobe of the f64 decoder (NPM Table 1, same activations as
 /// `VmfMixture::decode`): `(weight logit, κ, μ)`.
 fn decode_lobe64(raw: &[f64]) -> (f64, f64, DVec3) {
-    let kappa = raw[1]
-        .clamp(f64::from(VMF_LOG_KAPPA_MIN), f64::from(VMF_LOG_KAPPA_MAX))
-        .exp();
-    let theta = PI * oracles::sigmoid(raw[2]);
-    let phi = 2.0 * PI * oracles::sigmoid(raw[3]);
-    let mean = DVec3::new(
-        theta.sin() * phi.cos(),
-        theta.sin() * phi.sin(),
-        theta.cos(),
-    );
+    let (kappa, mean) = oracles::vmf_lobe(raw);
     (raw[0], kappa, mean)
 }
 
@@ -517,6 +506,19 @@ fn direction() -> impl Strategy<Value = Vec3> {
     unit_square().prop_map(guiding_core::sphere::square_to_uniform_sphere)
 }
 
+/// A raw output of `value` entries with `n` directions and `n` random
+/// numbers: the arguments of [`check_decoded`].
+fn decoder_inputs(
+    value: BoxedStrategy<f32>,
+    n: usize,
+) -> impl Strategy<Value = (Raw, Vec<Vec3>, Vec<Vec2>)> {
+    (
+        raw_strategy(value),
+        prop::collection::vec(direction(), n),
+        prop::collection::vec(unit_square(), n),
+    )
+}
+
 /// The validity contract of a decoded mixture (see `decode`'s doc).
 fn check_decoded(raw: &Raw, directions: &[Vec3], us: &[Vec2]) -> Result<(), TestCaseError> {
     let m = VmfMixture::<K>::decode(raw);
@@ -575,20 +577,14 @@ proptest! {
 
     /// Any raw output with entries in ±10³⁰ decodes to a valid mixture.
     #[test]
-    fn decode_any_raw_is_valid(
-        raw in raw_strategy(raw_value().boxed()),
-        directions in prop::collection::vec(direction(), 8),
-        us in prop::collection::vec(unit_square(), 8),
-    ) {
+    fn decode_any_raw_is_valid((raw, directions, us) in decoder_inputs(raw_value().boxed(), 8)) {
         check_decoded(&raw, &directions, &us)?;
     }
 
     /// Also NaN, ±∞ and ±f32::MAX (sanitised to 0 / ±10³⁰ by the decoder).
     #[test]
     fn decode_non_finite_raw_is_valid(
-        raw in raw_strategy(raw_value_with_specials().boxed()),
-        directions in prop::collection::vec(direction(), 4),
-        us in prop::collection::vec(unit_square(), 4),
+        (raw, directions, us) in decoder_inputs(raw_value_with_specials().boxed(), 4),
     ) {
         check_decoded(&raw, &directions, &us)?;
     }
@@ -902,19 +898,20 @@ fn cosine_product_matches_f64_product() {
 // ---------------------------------------------------------------------------
 // The chi² harness has teeth.
 
-/// Samples from one lobe, claims the density of another.
-struct Mismatched {
-    sampled: VmfLobe,
-    claimed: VmfLobe,
+/// Samples one distribution (`sample`, from `u ∈ [0, 1)²`), claims the
+/// density `pdf` of another.
+struct Mismatched<S, P> {
+    sample: S,
+    pdf: P,
 }
 
-impl SphereDistribution for Mismatched {
+impl<S: Fn(Vec2) -> Vec3, P: Fn(Vec3) -> f32> SphereDistribution for Mismatched<S, P> {
     fn sample(&self, rng: &mut Pcg32) -> (Vec3, f32) {
-        let s = self.sampled.sample(rng.next_vec2());
-        (s.direction, self.claimed.pdf(s.direction))
+        let d = (self.sample)(rng.next_vec2());
+        (d, (self.pdf)(d))
     }
     fn pdf(&self, direction: Vec3) -> f32 {
-        self.claimed.pdf(direction)
+        (self.pdf)(direction)
     }
 }
 
@@ -940,8 +937,8 @@ fn chi2_rejects_wrong_samplers() {
         let case = |name: &str, sampled: VmfLobe| Case {
             name: format!("harness-selftest/kappa={kappa}/{name}"),
             dist: Box::new(Mismatched {
-                sampled,
-                claimed: right,
+                sample: move |u| sampled.sample(u).direction,
+                pdf: move |d| right.pdf(d),
             }),
             warp,
         };
@@ -956,19 +953,6 @@ fn chi2_rejects_wrong_samplers() {
         }
     }
 
-    struct SwappedWeights {
-        sampled: VmfMixture<K>,
-        claimed: VmfMixture<K>,
-    }
-    impl SphereDistribution for SwappedWeights {
-        fn sample(&self, rng: &mut Pcg32) -> (Vec3, f32) {
-            let s = self.sampled.sample(rng.next_vec2());
-            (s.direction, self.claimed.pdf(s.direction))
-        }
-        fn pdf(&self, direction: Vec3) -> f32 {
-            self.claimed.pdf(direction)
-        }
-    }
     let mut rng = Pcg32::new(5, 5);
     let claimed = random_mixture(&mut rng);
     let mut sampled = claimed;
@@ -992,7 +976,10 @@ fn chi2_rejects_wrong_samplers() {
     let case = Case {
         name: "harness-selftest/mixture/swapped-weights".into(),
         warp: mixture_warp(&claimed),
-        dist: Box::new(SwappedWeights { sampled, claimed }),
+        dist: Box::new(Mismatched {
+            sample: move |u| sampled.sample(u).direction,
+            pdf: move |d| claimed.pdf(d),
+        }),
     };
     let r = run_chi2(&case, 1, &cfg);
     assert!(

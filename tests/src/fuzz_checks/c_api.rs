@@ -25,7 +25,7 @@
 //! valid schedule allows at most 4 epochs per update, so a scheduled update
 //! runs at most 4 · 64 steps.
 
-use super::ByteReader;
+use super::{special_values, ByteReader};
 use guiding_capi::*;
 use std::ffi::{CStr, CString};
 use std::ptr::{null, null_mut};
@@ -39,24 +39,10 @@ const MAX_N: usize = 6;
 const SLOTS: usize = 2;
 
 /// Values at the edges of every argument's domain.
-const SPECIAL: [f32; 16] = [
-    0.0,
-    -0.0,
-    1e-45,
-    -1.0,
-    1.0,
-    0.5,
-    1.0 + 1e-3,
-    1e-30,
-    1e6,
-    1e30,
-    -1e30,
-    f32::MAX,
-    f32::INFINITY,
-    f32::NEG_INFINITY,
-    f32::NAN,
-    2.0,
-];
+const SPECIAL: [f32; 16] = special_values(
+    [0.0, -0.0, 1e-45, -1.0, 1.0, 0.5, 1.0 + 1e-3, 1e-30, 1e6],
+    [2.0],
+);
 
 impl ByteReader<'_> {
     /// Mostly a plausible value in `[0, 1)`, sometimes a special value,

@@ -88,6 +88,41 @@ impl<'a> ByteReader<'a> {
     }
 }
 
+/// Huge magnitudes, `f32::MAX`, the infinities and NaN: the far end of every
+/// special-value table of the fuzz checks.
+pub const FAR_ENDS: [f32; 6] = [
+    1e30,
+    -1e30,
+    f32::MAX,
+    f32::INFINITY,
+    f32::NEG_INFINITY,
+    f32::NAN,
+];
+
+/// A special-value table: `head`, [`FAR_ENDS`], `tail`. Sixteen entries, as
+/// a nibble of fuzzer bytes indexes it (so the order is part of what a
+/// corpus input means).
+#[must_use]
+pub const fn special_values<const H: usize, const T: usize>(
+    head: [f32; H],
+    tail: [f32; T],
+) -> [f32; 16] {
+    assert!(H + FAR_ENDS.len() + T == 16, "a table has 16 entries");
+    let mut table = [0.0; 16];
+    let mut i = 0;
+    while i < 16 {
+        table[i] = if i < H {
+            head[i]
+        } else if i < H + FAR_ENDS.len() {
+            FAR_ENDS[i - H]
+        } else {
+            tail[i - H - FAR_ENDS.len()]
+        };
+        i += 1;
+    }
+    table
+}
+
 /// Half-width of the neighbourhood over which a direction is only known in
 /// f32: about two ulps of 1 on each component.
 pub const DIRECTION_RESOLUTION: f32 = 2.5e-7;

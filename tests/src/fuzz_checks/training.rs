@@ -1,7 +1,7 @@
 //! Fuzz target `training_step`: arbitrary training batches through the CPU
 //! runtime [`Field`] of every small model.
 
-use super::{check_density, check_sample, ByteReader};
+use super::{check_density, check_sample, special_values, ByteReader};
 use glam::Vec3;
 use guiding_core::field::{Field, FieldConfig};
 use guiding_core::model::df::{DfSmallProduct, DfSmallRadiance};
@@ -14,24 +14,10 @@ use guiding_core::sample::{Rejection, TrainingSample, REJECTION_KINDS, UNIT_TOLE
 use guiding_core::sphere::square_to_uniform_sphere;
 
 /// Values at the edges of every field's domain.
-const SPECIAL: [f32; 16] = [
-    0.0,
-    -0.0,
-    1e-45,
-    -1e-45,
-    1e-38,
-    -1.0,
-    1.0,
-    1e6,
-    1e18,
-    1e30,
-    -1e30,
-    f32::MAX,
-    f32::INFINITY,
-    f32::NEG_INFINITY,
-    f32::NAN,
-    1.0 + 2.0 * UNIT_TOLERANCE,
-];
+const SPECIAL: [f32; 16] = special_values(
+    [0.0, -0.0, 1e-45, -1e-45, 1e-38, -1.0, 1.0, 1e6, 1e18],
+    [1.0 + 2.0 * UNIT_TOLERANCE],
+);
 
 /// Powers of ten for plausible magnitudes.
 const SCALE: [f32; 8] = [1e-30, 1e-6, 1e-2, 1.0, 1e2, 1e6, 1e18, 1e30];
