@@ -575,20 +575,21 @@ fn roughdiffuse_white_furnace_matches_quadrature() {
     let rho = Vec3::new(0.8, 0.5, 0.2);
     for (alpha, fast, theta) in cases {
         let (s, c) = theta.to_radians().sin_cos();
-        let text = format!(
-            r#"<scene version="0.6.0">
-<integrator type="path"><integer name="maxDepth" value="4"/></integrator>
-<sensor type="perspective"><float name="fov" value="2"/>
-<transform name="toWorld"><lookAt origin="0, {}, {}" target="0, 0, 0" up="0, 0, 1"/></transform>
-<film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>
-</sensor>
-<shape type="rectangle"><transform name="toWorld"><scale value="1000"/></transform>
+        let origin = format!("0, {}, {}", -5.0 * s, 5.0 * c);
+        let text = common::scene_doc(
+            common::Dialect::V06,
+            &origin,
+            "0, 0, 0",
+            "0, 0, 1",
+            2.0,
+            8,
+            4,
+            &format!(
+                r#"<shape type="rectangle"><transform name="toWorld"><scale value="1000"/></transform>
 <bsdf type="roughdiffuse"><rgb name="reflectance" value="0.8, 0.5, 0.2"/><float name="alpha" value="{alpha}"/><boolean name="useFastApprox" value="{fast}"/></bsdf>
 </shape>
-<emitter type="constant"><rgb name="radiance" value="1"/></emitter>
-</scene>"#,
-            -5.0 * s,
-            5.0 * c
+<emitter type="constant"><rgb name="radiance" value="1"/></emitter>"#
+            ),
         );
         let sc = load(&text);
         let m = sc.materials[sc.shapes[0].material as usize];

@@ -28,7 +28,16 @@ fn dir(name: &str) -> PathBuf {
 /// Camera at `(0, 0, 5)` looking at the origin (image right = +x, image up = +y), `fov`
 /// degrees, `res²` pixels, and `body`.
 fn scene_xml(fov: f32, res: u32, max_depth: u32, body: &str) -> String {
-    common::scene_doc("0, 0, 5", "0, 0, 0", "0, 1, 0", fov, res, max_depth, body)
+    common::scene_doc(
+        common::Dialect::V3,
+        "0, 0, 5",
+        "0, 0, 0",
+        "0, 1, 0",
+        fov,
+        res,
+        max_depth,
+        body,
+    )
 }
 
 fn load_in(text: &str, base: &Path) -> Scene {

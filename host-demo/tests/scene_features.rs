@@ -25,7 +25,16 @@ fn dir(name: &str) -> PathBuf {
 
 /// A scene document: path integrator, a `fov` camera at `origin` looking at `target`, and `body`.
 fn scene_xml(origin: &str, target: &str, fov: f32, res: u32, max_depth: u32, body: &str) -> String {
-    common::scene_doc(origin, target, "0, 0, 1", fov, res, max_depth, body)
+    common::scene_doc(
+        common::Dialect::V3,
+        origin,
+        target,
+        "0, 0, 1",
+        fov,
+        res,
+        max_depth,
+        body,
+    )
 }
 
 /// The loader tests' scene document: 8 × 8 pixels, a camera at `(0, −10, 0)`, and `body`.
@@ -779,19 +788,19 @@ fn russian_roulette_is_unbiased() {
 
 /// A Mitsuba 0.6 scene (y-up sky rotated to z-up) with `body` inside.
 fn scene_06(body: &str) -> String {
-    format!(
-        r#"<scene version="0.6.0">
-  <integrator type="path"><integer name="maxDepth" value="3"/></integrator>
-  <sensor type="perspective"><float name="fov" value="40"/>
-    <transform name="toWorld"><lookAt origin="0, -2, 6" target="0, 0, 0" up="0, 0, 1"/></transform>
-    <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="32"/></film>
-  </sensor>
-  <shape type="rectangle"><transform name="toWorld"><scale value="3"/></transform>
+    let ground_and_box = r#"  <shape type="rectangle"><transform name="toWorld"><scale value="3"/></transform>
     <bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf></shape>
   <shape type="cube"><transform name="toWorld"><scale value="0.5"/><translate z="0.6"/></transform>
-    <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.5, 0.3"/></bsdf></shape>
-{body}
-</scene>"#
+    <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.5, 0.3"/></bsdf></shape>"#;
+    common::scene_doc(
+        common::Dialect::V06,
+        "0, -2, 6",
+        "0, 0, 0",
+        "0, 0, 1",
+        40.0,
+        32,
+        3,
+        &format!("{ground_and_box}\n{body}"),
     )
 }
 

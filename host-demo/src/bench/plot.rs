@@ -135,23 +135,27 @@ where
     root.present().map_err(err)
 }
 
+/// The plots' size in pixels.
+const SIZE: (u32, u32) = (800, 560);
+
 /// Writes `<slug>.svg` and `<slug>.png` for `scene` into `dir`.
 pub fn error_vs_time(dir: &Path, scene: &str, records: &[RunRecord]) -> Result<()> {
     register_font()?;
     let slug = scene_slug(scene);
     let curves = curves(scene, records);
     let title = format!("{slug}: relMSE against time");
-    let svg = dir.join(format!("{slug}.svg"));
+    let (svg, png) = (
+        dir.join(format!("{slug}.svg")),
+        dir.join(format!("{slug}.png")),
+    );
     draw(
-        SVGBackend::new(&svg, (800, 560)).into_drawing_area(),
+        SVGBackend::new(&svg, SIZE).into_drawing_area(),
         &title,
         &curves,
     )?;
-    let png = dir.join(format!("{slug}.png"));
     draw(
-        BitMapBackend::new(&png, (800, 560)).into_drawing_area(),
+        BitMapBackend::new(&png, SIZE).into_drawing_area(),
         &title,
         &curves,
-    )?;
-    Ok(())
+    )
 }

@@ -313,24 +313,55 @@ struct SelectionRefit {
     variance_ratio: Option<f64>,
 }
 
-/// The efficiency trial: off, unfinished, or its verdict.
+/// A stage that ends in a verdict (the efficiency trial, the training probe): off, ran
+/// without a verdict yet (`U`), or its verdict (`F`), with `ran` and `finished` flags.
 #[derive(Serialize)]
 #[serde(untagged)]
-enum TrialStage {
+enum VerdictStage<U, F> {
     Off(Stage),
-    Unfinished {
-        ran: bool,
-        finished: bool,
-        passes: u32,
-    },
-    Finished(TrialFinished),
+    Unfinished(Ran<U>),
+    Finished(Ran<F>),
+}
+
+/// A [`VerdictStage`] that ran: the flags, then the stage's own values.
+#[derive(Serialize)]
+struct Ran<T> {
+    ran: bool,
+    finished: bool,
+    #[serde(flatten)]
+    values: T,
+}
+
+impl<U, F> VerdictStage<U, F> {
+    fn unfinished(values: U) -> Self {
+        Self::Unfinished(Ran {
+            ran: true,
+            finished: false,
+            values,
+        })
+    }
+
+    fn finished(values: F) -> Self {
+        Self::Finished(Ran {
+            ran: true,
+            finished: true,
+            values,
+        })
+    }
+}
+
+/// The efficiency trial: off, unfinished, or its verdict.
+type TrialStage = VerdictStage<TrialUnfinished, TrialFinished>;
+
+/// An efficiency trial without a verdict yet.
+#[derive(Serialize)]
+struct TrialUnfinished {
+    passes: u32,
 }
 
 /// A finished efficiency trial ([`guiding::TrialVerdict`]).
 #[derive(Serialize)]
 struct TrialFinished {
-    ran: bool,
-    finished: bool,
     passes: u32,
     keep_guide: bool,
     /// The `Debug` name of the [`guiding::Verdict`].
@@ -346,23 +377,17 @@ struct TrialFinished {
 }
 
 /// The training probe: off, without a verdict, or its verdict.
+type ProbeStage = VerdictStage<ProbeUnfinished, ProbeFinished>;
+
+/// A training probe without a verdict yet.
 #[derive(Serialize)]
-#[serde(untagged)]
-enum ProbeStage {
-    Off(Stage),
-    Unfinished {
-        ran: bool,
-        finished: bool,
-        passes_guide_off: u32,
-    },
-    Finished(ProbeFinished),
+struct ProbeUnfinished {
+    passes_guide_off: u32,
 }
 
 /// A training probe's verdict ([`host_demo::render::strategy::probe::ProbeVerdict`]).
 #[derive(Serialize)]
 struct ProbeFinished {
-    ran: bool,
-    finished: bool,
     at_pass: u32,
     abandoned: bool,
     guided_pass: u32,
@@ -546,14 +571,8 @@ impl TrialStage {
             ));
         };
         match &t.verdict {
-            None => Self::Unfinished {
-                ran: true,
-                finished: false,
-                passes: t.passes,
-            },
-            Some(v) => Self::Finished(TrialFinished {
-                ran: true,
-                finished: true,
+            None => Self::unfinished(TrialUnfinished { passes: t.passes }),
+            Some(v) => Self::finished(TrialFinished {
                 passes: t.passes,
                 keep_guide: v.keep_guide,
                 evidence: format!("{:?}", v.evidence),
@@ -576,14 +595,10 @@ impl ProbeStage {
             return Self::Off(Stage::skipped("off, or the efficiency trial is off"));
         };
         match &p.verdict {
-            None => Self::Unfinished {
-                ran: true,
-                finished: false,
+            None => Self::unfinished(ProbeUnfinished {
                 passes_guide_off: p.passes_guide_off,
-            },
-            Some(v) => Self::Finished(ProbeFinished {
-                ran: true,
-                finished: true,
+            }),
+            Some(v) => Self::finished(ProbeFinished {
                 at_pass: v.at_pass,
                 abandoned: v.abandoned,
                 guided_pass: v.guided_pass,

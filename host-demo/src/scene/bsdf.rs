@@ -588,6 +588,17 @@ pub struct BsdfSample {
     pub pdf: f32,
 }
 
+impl BsdfSample {
+    /// A delta lobe's sample: `wo` with `weight`, `pdf = ∞`.
+    fn delta(wo: Vec3, weight: Vec3) -> Self {
+        Self {
+            wo,
+            weight,
+            pdf: f32::INFINITY,
+        }
+    }
+}
+
 /// Unpolarised Fresnel reflectance of a dielectric interface with relative IOR `eta`
 /// (Mitsuba 3 `fresnel`): returns `(F, cos θt, η_it, η_ti)`. `cos_i < 0` means the ray arrives
 /// from inside (η inverted); `cos θt` has the opposite sign of `cos_i`; total internal
@@ -757,6 +768,21 @@ pub fn thin_dielectric_reflectance(cos_i: f32, eta: f32) -> f32 {
 #[inline]
 fn reflect_z(wi: Vec3) -> Vec3 {
     Vec3::new(-wi.x, -wi.y, wi.z)
+}
+
+/// `wi` reflected about the unit normal `m`.
+fn reflect(wi: Vec3, m: Vec3) -> Vec3 {
+    2.0 * wi.dot(m) * m - wi
+}
+
+/// A direction of the Phong lobe about the mirror direction of `wi`: `cos α = u2^(1/(n+1))`,
+/// density `(n+1)/(2π) cosⁿα`.
+fn sample_phong_lobe(exponent: f32, wi: Vec3, u1: f32, u2: f32) -> Vec3 {
+    let cos_a = u2.powf(1.0 / (exponent + 1.0)).min(1.0);
+    let sin_a = (1.0 - cos_a * cos_a).max(0.0).sqrt();
+    let (sp, cp) = (2.0 * PI * u1).sin_cos();
+    let local = Vec3::new(sin_a * cp, sin_a * sp, cos_a);
+    crate::math::Frame::from_z(reflect_z(wi)).to_world(local)
 }
 
 /// Unpolarised Fresnel reflectance of a conductor, per channel (same formula as Mitsuba 3).
@@ -1206,29 +1232,33 @@ impl Material {
                 eta,
                 reflectance,
                 transmittance,
-            } => sample_dielectric(wi, eta, reflectance, transmittance, u0),
+            } => {
+                let (f, cos_t, _, eta_ti) = fresnel_dielectric(wi.z, eta);
+                let wt = Vec3::new(-eta_ti * wi.x, -eta_ti * wi.y, cos_t);
+                // Radiance is scaled by (η_t/i)² across the interface.
+                sample_delta_pair(
+                    wi,
+                    u0,
+                    f,
+                    reflectance,
+                    wt,
+                    transmittance * (eta_ti * eta_ti),
+                )
+            }
             Material::RoughDielectric {
                 distribution,
                 alpha,
                 eta,
-                reflectance,
-                transmittance,
-            } => rough_dielectric_sample(
-                wi,
-                distribution,
-                alpha,
-                eta,
-                reflectance,
-                transmittance,
-                u0,
-                u1,
-                u2,
-            ),
+                ..
+            } => self.sample_rough_dielectric(wi, distribution, alpha, eta, u0, u1, u2),
             Material::ThinDielectric {
                 eta,
                 reflectance,
                 transmittance,
-            } => sample_thin_dielectric(wi, eta, reflectance, transmittance, u0),
+            } => {
+                let r = thin_dielectric_reflectance(wi.z.abs(), eta);
+                sample_delta_pair(wi, u0, r, reflectance, -wi, transmittance)
+            }
             Material::TwoSided { .. } | Material::Blend { .. } => None,
             // The opaque BSDFs below reflect only into the upper hemisphere.
             _ if wi.z <= 0.0 => None,
@@ -1240,28 +1270,42 @@ impl Material {
                 k,
                 specular,
             } => sample_rough_conductor(wi, distribution, alpha, eta, k, specular, u1, u2),
-            Material::Conductor { eta, k, specular } => Some(BsdfSample {
-                wo: reflect_z(wi),
-                weight: specular * fresnel_conductor(wi.z, eta, k),
-                pdf: f32::INFINITY,
-            }),
+            Material::Conductor { eta, k, specular } => Some(BsdfSample::delta(
+                reflect_z(wi),
+                specular * fresnel_conductor(wi.z, eta, k),
+            )),
             Material::Plastic(ref c) => self.sample_plastic(c, wi, u0, u1, u2),
-            Material::RoughPlastic(ref c) => self.sample_rough_plastic(c, wi, u0, u1, u2),
-            Material::Phong {
-                exponent,
-                diffuse,
-                specular,
-                ..
-            } => self.sample_phong(exponent, diffuse, specular, wi, u0, u1, u2),
+            // A visible normal of the coating with the specular probability.
+            Material::RoughPlastic(ref c) => {
+                let prob_spec = rough_plastic_spec_prob(c, c.transmittance(wi.z));
+                self.sample_lobe_or_cosine(wi, prob_spec, u0, u1, u2, |u1, u2| {
+                    reflect(wi, c.distribution.sample_visible(wi, c.alpha, u1, u2))
+                })
+            }
             // Cosine-weighted, as Mitsuba 0.6's `roughdiffuse` samples.
             Material::RoughDiffuse { .. } => self.weighted(wi, sample_cosine_hemisphere(u1, u2)),
+            // The glossy lobe with probability [`glossy_weight`], else cosine-weighted.
+            Material::Phong {
+                diffuse, specular, ..
+            }
+            | Material::Ward {
+                diffuse, specular, ..
+            } => {
+                let glossy = |u1, u2| self.sample_glossy_lobe(wi, u1, u2);
+                self.sample_lobe_or_cosine(wi, glossy_weight(diffuse, specular), u0, u1, u2, glossy)
+            }
+        }
+    }
+
+    /// A direction of the glossy lobe of [`Material::Phong`] (about the mirror direction) or
+    /// [`Material::Ward`] (Walter's half-vector warp); zero for the other materials.
+    fn sample_glossy_lobe(&self, wi: Vec3, u1: f32, u2: f32) -> Vec3 {
+        match *self {
+            Material::Phong { exponent, .. } => sample_phong_lobe(exponent, wi, u1, u2),
             Material::Ward {
-                alpha_u,
-                alpha_v,
-                diffuse,
-                specular,
-                ..
-            } => self.sample_ward([alpha_u, alpha_v], diffuse, specular, wi, u0, u1, u2),
+                alpha_u, alpha_v, ..
+            } => reflect(wi, sample_ward_half(alpha_u, alpha_v, u1, u2)),
+            _ => Vec3::ZERO,
         }
     }
 
@@ -1281,11 +1325,10 @@ impl Material {
         let pd = (1.0 - f_i) * (1.0 - c.spec_weight);
         let prob_spec = if ps + pd > 0.0 { ps / (ps + pd) } else { 0.0 };
         if u0 < prob_spec {
-            return Some(BsdfSample {
-                wo: reflect_z(wi),
-                weight: c.specular * (f_i / prob_spec),
-                pdf: f32::INFINITY,
-            });
+            return Some(BsdfSample::delta(
+                reflect_z(wi),
+                c.specular * (f_i / prob_spec),
+            ));
         }
         let wo = sample_cosine_hemisphere(u1, u2);
         if wo.z <= 0.0 {
@@ -1299,81 +1342,64 @@ impl Material {
         })
     }
 
-    /// [`Material::sample`] of [`Material::RoughPlastic`]: a visible normal of the coating
-    /// with the specular probability, else the cosine-weighted base; the weight from the full
-    /// mixture pdf.
-    #[inline(always)] // one call site in the per-vertex `Material::sample`
-    fn sample_rough_plastic(
+    /// [`Material::sample`] of [`Material::RoughDielectric`]: a visible normal (of the side `wi`
+    /// is on), reflected with the Fresnel reflectance as probability, else refracted; the weight
+    /// from [`Material::eval`].
+    #[allow(clippy::too_many_arguments)] // the lobe's fields, `wi` and three random numbers
+    fn sample_rough_dielectric(
         &self,
-        c: &Coating,
         wi: Vec3,
+        dist: Microfacet,
+        alpha: f32,
+        eta: f32,
         u0: f32,
         u1: f32,
         u2: f32,
     ) -> Option<BsdfSample> {
-        let prob_spec = rough_plastic_spec_prob(c, c.transmittance(wi.z));
-        let wo = if u0 < prob_spec {
-            let m = c.distribution.sample_visible(wi, c.alpha, u1, u2);
-            2.0 * wi.dot(m) * m - wi
-        } else {
-            sample_cosine_hemisphere(u1, u2)
-        };
-        if wo.z <= 0.0 {
+        let ci = wi.z;
+        if ci == 0.0 {
             return None;
         }
-        let (f, pdf) = self.eval(wi, wo);
-        (pdf > 0.0 && pdf.is_finite() && f.is_finite()).then(|| BsdfSample {
+        let flip = if ci > 0.0 { 1.0 } else { -1.0 };
+        let m = dist.sample_visible(wi * flip, alpha, u1, u2);
+        let wim = wi.dot(m);
+        let (f, cos_t, _, eta_ti) = fresnel_dielectric(wim, eta);
+        let reflect = u0 < f;
+        let wo = if reflect {
+            2.0 * wim * m - wi
+        } else {
+            m * (wim * eta_ti + cos_t) - wi * eta_ti
+        };
+        let wo = wo.normalize_or_zero();
+        // The sampled lobe must leave on its side of the macro surface.
+        if wo == Vec3::ZERO || (wo.z * ci > 0.0) != reflect || wo.z == 0.0 {
+            return None;
+        }
+        let (v, pdf) = self.eval(wi, wo);
+        if !(pdf > 0.0 && pdf.is_finite() && v.is_finite()) {
+            return None;
+        }
+        Some(BsdfSample {
             wo,
-            weight: f / pdf,
+            weight: v / pdf,
             pdf,
         })
     }
 
-    /// [`Material::sample`] of [`Material::Phong`]: the Phong lobe about the mirror direction
-    /// with probability [`glossy_weight`], else cosine-weighted.
-    #[allow(clippy::too_many_arguments)] // the lobe's fields plus `wi` and three random numbers
-    #[inline(always)] // one call site in the per-vertex `Material::sample`
-    fn sample_phong(
+    /// A mixture sampler's sample: `lobe(u1, u2)` with probability `p_lobe`, else the
+    /// cosine-weighted base; the weight from the full mixture pdf ([`Material::weighted`]).
+    #[inline(always)] // three call sites in the per-vertex `Material::sample`
+    fn sample_lobe_or_cosine(
         &self,
-        exponent: f32,
-        diffuse: Vec3,
-        specular: Vec3,
         wi: Vec3,
+        p_lobe: f32,
         u0: f32,
         u1: f32,
         u2: f32,
+        lobe: impl FnOnce(f32, f32) -> Vec3,
     ) -> Option<BsdfSample> {
-        let wo = if u0 < glossy_weight(diffuse, specular) {
-            // cos α = u^(1/(n+1)) about the mirror direction: density
-            // (n+1)/(2π) cosⁿα.
-            let cos_a = u2.powf(1.0 / (exponent + 1.0)).min(1.0);
-            let sin_a = (1.0 - cos_a * cos_a).max(0.0).sqrt();
-            let (sp, cp) = (2.0 * PI * u1).sin_cos();
-            let local = Vec3::new(sin_a * cp, sin_a * sp, cos_a);
-            crate::math::Frame::from_z(reflect_z(wi)).to_world(local)
-        } else {
-            sample_cosine_hemisphere(u1, u2)
-        };
-        self.weighted(wi, wo)
-    }
-
-    /// [`Material::sample`] of [`Material::Ward`]: Walter's half-vector warp of the lobe
-    /// (`alpha = [α_u, α_v]`) with probability [`glossy_weight`], else cosine-weighted.
-    #[allow(clippy::too_many_arguments)] // the lobe's fields plus `wi` and three random numbers
-    #[inline(always)] // one call site in the per-vertex `Material::sample`
-    fn sample_ward(
-        &self,
-        alpha: [f32; 2],
-        diffuse: Vec3,
-        specular: Vec3,
-        wi: Vec3,
-        u0: f32,
-        u1: f32,
-        u2: f32,
-    ) -> Option<BsdfSample> {
-        let wo = if u0 < glossy_weight(diffuse, specular) {
-            let h = sample_ward_half(alpha[0], alpha[1], u1, u2);
-            2.0 * wi.dot(h) * h - wi
+        let wo = if u0 < p_lobe {
+            lobe(u1, u2)
         } else {
             sample_cosine_hemisphere(u1, u2)
         };
@@ -1530,62 +1556,25 @@ fn rough_dielectric_eval(
     }
 }
 
-/// [`Material::sample`] of [`Material::Dielectric`]: the delta reflection with the Fresnel
-/// reflectance as probability, else the delta refraction (from either side).
-#[inline(always)] // one call site in the per-vertex `Material::sample`
-fn sample_dielectric(
+/// [`Material::sample`] of the smooth dielectrics: the delta reflection with probability `r`
+/// (the Fresnel or the sheet's reflectance), else the delta transmission `wt` with `weight_t`
+/// (from either side).
+#[inline(always)] // two call sites in the per-vertex `Material::sample`
+fn sample_delta_pair(
     wi: Vec3,
-    eta: f32,
-    reflectance: Vec3,
-    transmittance: Vec3,
     u0: f32,
+    r: f32,
+    reflectance: Vec3,
+    wt: Vec3,
+    weight_t: Vec3,
 ) -> Option<BsdfSample> {
     if wi.z == 0.0 {
         return None;
     }
-    let (f, cos_t, _, eta_ti) = fresnel_dielectric(wi.z, eta);
-    Some(if u0 < f {
-        BsdfSample {
-            wo: reflect_z(wi),
-            weight: reflectance,
-            pdf: f32::INFINITY,
-        }
-    } else {
-        BsdfSample {
-            wo: Vec3::new(-eta_ti * wi.x, -eta_ti * wi.y, cos_t),
-            // Radiance is scaled by (η_t/i)² across the interface.
-            weight: transmittance * (eta_ti * eta_ti),
-            pdf: f32::INFINITY,
-        }
-    })
-}
-
-/// [`Material::sample`] of [`Material::ThinDielectric`]: the delta reflection with the
-/// sheet's reflectance as probability, else straight through.
-#[inline(always)] // one call site in the per-vertex `Material::sample`
-fn sample_thin_dielectric(
-    wi: Vec3,
-    eta: f32,
-    reflectance: Vec3,
-    transmittance: Vec3,
-    u0: f32,
-) -> Option<BsdfSample> {
-    if wi.z == 0.0 {
-        return None;
-    }
-    let r = thin_dielectric_reflectance(wi.z.abs(), eta);
     Some(if u0 < r {
-        BsdfSample {
-            wo: reflect_z(wi),
-            weight: reflectance,
-            pdf: f32::INFINITY,
-        }
+        BsdfSample::delta(reflect_z(wi), reflectance)
     } else {
-        BsdfSample {
-            wo: -wi,
-            weight: transmittance,
-            pdf: f32::INFINITY,
-        }
+        BsdfSample::delta(wt, weight_t)
     })
 }
 
@@ -1618,7 +1607,7 @@ fn sample_rough_conductor(
     u2: f32,
 ) -> Option<BsdfSample> {
     let m = dist.sample_visible(wi, alpha, u1, u2);
-    let wo = 2.0 * wi.dot(m) * m - wi;
+    let wo = reflect(wi, m);
     if wo.z <= 0.0 {
         return None;
     }
@@ -1636,52 +1625,42 @@ fn sample_rough_conductor(
     Some(BsdfSample { wo, weight, pdf })
 }
 
-#[allow(clippy::too_many_arguments)] // the material's fields plus three random numbers
-fn rough_dielectric_sample(
-    wi: Vec3,
-    dist: Microfacet,
-    alpha: f32,
-    eta: f32,
-    reflectance: Vec3,
-    transmittance: Vec3,
-    u0: f32,
-    u1: f32,
-    u2: f32,
-) -> Option<BsdfSample> {
-    let ci = wi.z;
-    if ci == 0.0 {
-        return None;
-    }
-    let flip = if ci > 0.0 { 1.0 } else { -1.0 };
-    let m = dist.sample_visible(wi * flip, alpha, u1, u2);
-    let wim = wi.dot(m);
-    let (f, cos_t, _, eta_ti) = fresnel_dielectric(wim, eta);
-    let reflect = u0 < f;
-    let wo = if reflect {
-        2.0 * wim * m - wi
-    } else {
-        m * (wim * eta_ti + cos_t) - wi * eta_ti
-    };
-    let wo = wo.normalize_or_zero();
-    // The sampled lobe must leave on its side of the macro surface.
-    if wo == Vec3::ZERO || (wo.z * ci > 0.0) != reflect || wo.z == 0.0 {
-        return None;
-    }
-    let (v, pdf) = rough_dielectric_eval(wi, wo, dist, alpha, eta, reflectance, transmittance);
-    if !(pdf > 0.0 && pdf.is_finite() && v.is_finite()) {
-        return None;
-    }
-    Some(BsdfSample {
-        wo,
-        weight: v / pdf,
-        pdf,
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::math::Rng;
+
+    /// A rough conductor with copper's RGB IOR.
+    fn rough_copper(distribution: Microfacet, alpha: f32, specular: Vec3) -> Material {
+        Material::RoughConductor {
+            distribution,
+            alpha,
+            eta: Vec3::new(0.2, 0.92, 1.1),
+            k: Vec3::new(3.9, 2.45, 2.14),
+            specular,
+        }
+    }
+
+    /// A clear rough dielectric.
+    fn rough_glass(distribution: Microfacet, alpha: f32, eta: f32) -> Material {
+        Material::RoughDielectric {
+            distribution,
+            alpha,
+            eta,
+            reflectance: Vec3::ONE,
+            transmittance: Vec3::ONE,
+        }
+    }
+
+    /// Normal, grazing (two ways) and oblique incidence from above, for the edge-case tests.
+    fn edge_wis() -> [Vec3; 4] {
+        [
+            Vec3::Z,
+            Vec3::new(1.0, 0.0, 1e-7).normalize(),
+            Vec3::new(0.0, -1.0, 1e-30),
+            Vec3::new(0.6, 0.0, 0.8),
+        ]
+    }
 
     fn non_delta_materials() -> Vec<Material> {
         let (d, s) = (Vec3::new(0.5, 0.6, 0.7), Vec3::splat(0.9));
@@ -1697,20 +1676,8 @@ mod tests {
                 alpha: 0.3,
                 fast: true,
             },
-            Material::RoughConductor {
-                distribution: Microfacet::Ggx,
-                alpha: 0.3,
-                eta: Vec3::new(0.2, 0.92, 1.1),
-                k: Vec3::new(3.9, 2.45, 2.14),
-                specular: Vec3::new(1.0, 0.8, 0.6),
-            },
-            Material::RoughConductor {
-                distribution: Microfacet::Beckmann,
-                alpha: 0.3,
-                eta: Vec3::new(0.2, 0.92, 1.1),
-                k: Vec3::new(3.9, 2.45, 2.14),
-                specular: Vec3::new(1.0, 0.8, 0.6),
-            },
+            rough_copper(Microfacet::Ggx, 0.3, Vec3::new(1.0, 0.8, 0.6)),
+            rough_copper(Microfacet::Beckmann, 0.3, Vec3::new(1.0, 0.8, 0.6)),
             Material::RoughConductor {
                 distribution: Microfacet::Beckmann,
                 alpha: 0.8,
@@ -1718,27 +1685,9 @@ mod tests {
                 k: Vec3::ONE,
                 specular: Vec3::ONE,
             },
-            Material::RoughDielectric {
-                distribution: Microfacet::Ggx,
-                alpha: 0.3,
-                eta: 1.5,
-                reflectance: Vec3::ONE,
-                transmittance: Vec3::ONE,
-            },
-            Material::RoughDielectric {
-                distribution: Microfacet::Beckmann,
-                alpha: 0.3,
-                eta: 1.5,
-                reflectance: Vec3::ONE,
-                transmittance: Vec3::ONE,
-            },
-            Material::RoughDielectric {
-                distribution: Microfacet::Beckmann,
-                alpha: 0.6,
-                eta: 1.0 / 1.5,
-                reflectance: Vec3::ONE,
-                transmittance: Vec3::ONE,
-            },
+            rough_glass(Microfacet::Ggx, 0.3, 1.5),
+            rough_glass(Microfacet::Beckmann, 0.3, 1.5),
+            rough_glass(Microfacet::Beckmann, 0.6, 1.0 / 1.5),
             Material::Plastic(Coating::smooth(d, s, 1.49, false)),
             Material::RoughPlastic(Coating::rough(d, s, 1.49, true, Microfacet::Ggx, 0.2)),
             Material::RoughPlastic(Coating::rough(d, s, 1.49, false, Microfacet::Beckmann, 0.3)),
@@ -2012,12 +1961,7 @@ mod tests {
     /// 0 and at the largest value below 1, huge exponents, extreme alphas.
     #[test]
     fn phong_ward_finite_at_extremes() {
-        let wis = [
-            Vec3::Z,
-            Vec3::new(1.0, 0.0, 1e-7).normalize(),
-            Vec3::new(0.0, -1.0, 1e-30),
-            Vec3::new(0.6, 0.0, 0.8),
-        ];
+        let wis = edge_wis();
         let mut mats = Vec::new();
         for n in [0.0f32, 1e-3, 1e4, 1e7, 1e30] {
             mats.push(Material::Phong {
@@ -2332,32 +2276,21 @@ mod tests {
     /// normal `wi` from both sides, `u` at 0 and just below 1; GGX and Beckmann.
     #[test]
     fn microfacet_finite_at_extremes() {
+        let [z, grazing_x, grazing_y, oblique] = edge_wis();
         let wis = [
-            Vec3::Z,
-            Vec3::new(1.0, 0.0, 1e-7).normalize(),
-            Vec3::new(0.0, -1.0, 1e-30),
-            Vec3::new(0.6, 0.0, 0.8),
+            z,
+            grazing_x,
+            grazing_y,
+            oblique,
             Vec3::new(0.3, 0.2, -0.9).normalize(),
             Vec3::new(-1.0, 0.0, -1e-6).normalize(),
         ];
         let mut mats = Vec::new();
         for dist in [Microfacet::Ggx, Microfacet::Beckmann] {
             for alpha in [1e-4f32, 0.05, 0.8, 10.0] {
-                mats.push(Material::RoughConductor {
-                    distribution: dist,
-                    alpha,
-                    eta: Vec3::new(0.2, 0.92, 1.1),
-                    k: Vec3::new(3.9, 2.45, 2.14),
-                    specular: Vec3::ONE,
-                });
+                mats.push(rough_copper(dist, alpha, Vec3::ONE));
                 for eta in [1.5f32, 1.0 / 1.5] {
-                    mats.push(Material::RoughDielectric {
-                        distribution: dist,
-                        alpha,
-                        eta,
-                        reflectance: Vec3::ONE,
-                        transmittance: Vec3::ONE,
-                    });
+                    mats.push(rough_glass(dist, alpha, eta));
                 }
                 let c = Coating::rough(Vec3::splat(0.5), Vec3::ONE, 1.49, false, dist, alpha);
                 assert!(c.internal.is_finite() && c.ext_t.iter().all(|t| t.is_finite()));

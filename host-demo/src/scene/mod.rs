@@ -897,7 +897,7 @@ impl Scene {
 
     /// Material `id` with its textured parameters evaluated at `uv`.
     pub fn shade(&self, id: u32, uv: Vec2) -> Material {
-        let m = self.materials[id as usize];
+        let mut m = self.materials[id as usize];
         let t = &self.material_textures[id as usize];
         if t.is_empty() {
             return m;
@@ -906,102 +906,61 @@ impl Scene {
         let alpha = |o: Option<u32>, a: f32| {
             o.map_or(a, |i| self.textures[i as usize].eval_scalar(uv).max(1e-4))
         };
-        match m {
-            Material::Diffuse { reflectance } => Material::Diffuse {
-                reflectance: tex(t.diffuse, reflectance),
-            },
+        match &mut m {
+            Material::Diffuse { reflectance } => *reflectance = tex(t.diffuse, *reflectance),
             Material::RoughDiffuse {
                 reflectance,
                 alpha: a,
-                fast,
-            } => Material::RoughDiffuse {
-                reflectance: tex(t.diffuse, reflectance),
-                alpha: alpha(t.scalar, a),
-                fast,
-            },
-            Material::Conductor { eta, k, specular } => Material::Conductor {
-                eta,
-                k,
-                specular: tex(t.specular, specular),
-            },
+                ..
+            } => {
+                *reflectance = tex(t.diffuse, *reflectance);
+                *a = alpha(t.scalar, *a);
+            }
+            Material::Conductor { specular, .. } => *specular = tex(t.specular, *specular),
             Material::RoughConductor {
-                distribution,
-                alpha: a,
-                eta,
-                k,
-                specular,
-            } => Material::RoughConductor {
-                distribution,
-                alpha: alpha(t.scalar, a),
-                eta,
-                k,
-                specular: tex(t.specular, specular),
-            },
+                alpha: a, specular, ..
+            } => {
+                *a = alpha(t.scalar, *a);
+                *specular = tex(t.specular, *specular);
+            }
             Material::Dielectric {
-                eta,
                 reflectance,
                 transmittance,
-            } => Material::Dielectric {
-                eta,
-                reflectance: tex(t.specular, reflectance),
-                transmittance: tex(t.transmittance, transmittance),
-            },
-            Material::ThinDielectric {
-                eta,
+                ..
+            }
+            | Material::ThinDielectric {
                 reflectance,
                 transmittance,
-            } => Material::ThinDielectric {
-                eta,
-                reflectance: tex(t.specular, reflectance),
-                transmittance: tex(t.transmittance, transmittance),
-            },
+                ..
+            } => {
+                *reflectance = tex(t.specular, *reflectance);
+                *transmittance = tex(t.transmittance, *transmittance);
+            }
             Material::RoughDielectric {
-                distribution,
                 alpha: a,
-                eta,
                 reflectance,
                 transmittance,
-            } => Material::RoughDielectric {
-                distribution,
-                alpha: alpha(t.scalar, a),
-                eta,
-                reflectance: tex(t.specular, reflectance),
-                transmittance: tex(t.transmittance, transmittance),
-            },
-            Material::Plastic(c) => Material::Plastic(
-                c.with_albedo(tex(t.diffuse, c.diffuse), tex(t.specular, c.specular)),
-            ),
-            Material::RoughPlastic(c) => Material::RoughPlastic(
-                c.with_albedo(tex(t.diffuse, c.diffuse), tex(t.specular, c.specular)),
-            ),
+                ..
+            } => {
+                *a = alpha(t.scalar, *a);
+                *reflectance = tex(t.specular, *reflectance);
+                *transmittance = tex(t.transmittance, *transmittance);
+            }
+            Material::Plastic(c) | Material::RoughPlastic(c) => {
+                *c = c.with_albedo(tex(t.diffuse, c.diffuse), tex(t.specular, c.specular));
+            }
             Material::Phong {
-                exponent,
-                diffuse,
-                specular,
-                scale,
-            } => Material::Phong {
-                exponent,
-                diffuse: tex(t.diffuse, diffuse),
-                specular: tex(t.specular, specular),
-                scale,
-            },
-            Material::Ward {
-                variant,
-                alpha_u,
-                alpha_v,
-                diffuse,
-                specular,
-                scale,
-            } => Material::Ward {
-                variant,
-                alpha_u,
-                alpha_v,
-                diffuse: tex(t.diffuse, diffuse),
-                specular: tex(t.specular, specular),
-                scale,
-            },
-            other => other,
+                diffuse, specular, ..
+            }
+            | Material::Ward {
+                diffuse, specular, ..
+            } => {
+                *diffuse = tex(t.diffuse, *diffuse);
+                *specular = tex(t.specular, *specular);
+            }
+            _ => {}
         }
+        m
     }
 
     /// True if anything blocks the segment `o + t d`, `t` in `(tmin, tmax)` (masked-out

@@ -32,9 +32,20 @@ pub fn scratch_dir(name: &str) -> PathBuf {
     d
 }
 
-/// A Mitsuba 3 document: the path integrator to `max_depth`, a `fov` camera at `origin`
-/// looking at `target` (`up`) with `res²` pixels, and `body` (from line 7).
+/// The two spellings of Mitsuba scene documents that the loader reads.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub enum Dialect {
+    /// Mitsuba 3 (`version="3.0.0"`, `max_depth`, `to_world`, `lookat`).
+    V3,
+    /// Mitsuba 0.6 (`version="0.6.0"`, `maxDepth`, `toWorld`, `lookAt`).
+    V06,
+}
+
+/// A scene document in `dialect`: the path integrator to `max_depth`, a `fov` camera at
+/// `origin` looking at `target` (`up`) with `res²` pixels, and `body` (from line 7).
+#[allow(clippy::too_many_arguments)] // the dialect, the camera's five values and the body
 pub fn scene_doc(
+    dialect: Dialect,
     origin: &str,
     target: &str,
     up: &str,
@@ -43,11 +54,15 @@ pub fn scene_doc(
     max_depth: u32,
     body: &str,
 ) -> String {
+    let (version, depth_name, to_world, lookat) = match dialect {
+        Dialect::V3 => ("3.0.0", "max_depth", "to_world", "lookat"),
+        Dialect::V06 => ("0.6.0", "maxDepth", "toWorld", "lookAt"),
+    };
     format!(
-        r#"<scene version="3.0.0">
-  <integrator type="path"><integer name="max_depth" value="{max_depth}"/></integrator>
+        r#"<scene version="{version}">
+  <integrator type="path"><integer name="{depth_name}" value="{max_depth}"/></integrator>
   <sensor type="perspective"><float name="fov" value="{fov}"/>
-    <transform name="to_world"><lookat origin="{origin}" target="{target}" up="{up}"/></transform>
+    <transform name="{to_world}"><{lookat} origin="{origin}" target="{target}" up="{up}"/></transform>
     <film type="hdrfilm"><integer name="width" value="{res}"/><integer name="height" value="{res}"/></film>
   </sensor>
 {body}
