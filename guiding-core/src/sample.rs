@@ -172,29 +172,27 @@ impl TrainingSample {
 mod tests {
     use super::TrainingSample;
     use crate::model::QueryPoint;
+    use bytemuck::bytes_of;
     use core::mem::{align_of, offset_of, size_of};
 
-    /// The constructors write exactly the struct literal with zero padding.
+    /// The constructors write the fields to their documented slots and zero
+    /// the padding: the memory image, one 16-byte `vec4` slot a row.
     #[test]
     fn constructors_match_literals_with_zero_padding() {
         let q = QueryPoint::new([1.0, 2.0, 3.0], [0.0, 0.0, 1.0], [0.6, 0.0, 0.8], 0.25);
-        let literal = QueryPoint {
-            position: [1.0, 2.0, 3.0],
-            roughness: 0.25,
-            normal: [0.0, 0.0, 1.0],
-            pad0: 0.0,
-            wo: [0.6, 0.0, 0.8],
-            pad1: 0.0,
-        };
-        assert_eq!(q, literal);
-        assert_eq!(bytemuck::bytes_of(&q), bytemuck::bytes_of(&literal));
+        let q_image: [f32; 12] = [
+            1.0, 2.0, 3.0, 0.25, // position, roughness
+            0.0, 0.0, 1.0, 0.0, // normal, pad0
+            0.6, 0.0, 0.8, 0.0, // wo, pad1
+        ];
+        assert_eq!(bytes_of(&q), bytes_of(&q_image));
         let from_vec3 = QueryPoint::from_vec3(
             glam::Vec3::new(1.0, 2.0, 3.0),
             glam::Vec3::Z,
             glam::Vec3::new(0.6, 0.0, 0.8),
             0.25,
         );
-        assert_eq!(bytemuck::bytes_of(&from_vec3), bytemuck::bytes_of(&literal));
+        assert_eq!(bytes_of(&from_vec3), bytes_of(&q_image));
 
         let s = TrainingSample::new(
             q,
@@ -204,56 +202,46 @@ mod tests {
             0.125,
             [0.7, 0.8, 0.9],
         );
-        let literal = TrainingSample {
-            position: [1.0, 2.0, 3.0],
-            roughness: 0.25,
-            normal: [0.0, 0.0, 1.0],
-            sample_pdf: 0.5,
-            wo: [0.6, 0.0, 0.8],
-            bsdf_pdf: 0.125,
-            wi: [0.0, 0.6, 0.8],
-            pad0: 0.0,
-            radiance: [4.0, 5.0, 6.0],
-            pad1: 0.0,
-            bsdf_cos: [0.7, 0.8, 0.9],
-            pad2: 0.0,
-        };
-        assert_eq!(s, literal);
-        assert_eq!(bytemuck::bytes_of(&s), bytemuck::bytes_of(&literal));
+        let s_image: [f32; 24] = [
+            1.0, 2.0, 3.0, 0.25, // position, roughness
+            0.0, 0.0, 1.0, 0.5, // normal, sample_pdf
+            0.6, 0.0, 0.8, 0.125, // wo, bsdf_pdf
+            0.0, 0.6, 0.8, 0.0, // wi, pad0
+            4.0, 5.0, 6.0, 0.0, // radiance, pad1
+            0.7, 0.8, 0.9, 0.0, // bsdf_cos, pad2
+        ];
+        assert_eq!(bytes_of(&s), bytes_of(&s_image));
         assert_eq!(QueryPoint::of_sample(&s), q);
+    }
+
+    /// `offsets_of!(T, [f₀, f₁, …])` = `[offset_of!(T, f₀), offset_of!(T, f₁), …]`.
+    macro_rules! offsets_of {
+        ($t:ty, [$($field:ident),+ $(,)?]) => {
+            [$(offset_of!($t, $field)),+]
+        };
     }
 
     /// The GPU / C layout: sizes, alignment and every field's offset.
     #[test]
     fn layouts_are_unchanged() {
         assert_eq!((size_of::<QueryPoint>(), align_of::<QueryPoint>()), (48, 4));
-        let q = [
-            offset_of!(QueryPoint, position),
-            offset_of!(QueryPoint, roughness),
-            offset_of!(QueryPoint, normal),
-            offset_of!(QueryPoint, pad0),
-            offset_of!(QueryPoint, wo),
-            offset_of!(QueryPoint, pad1),
-        ];
-        assert_eq!(q, [0, 12, 16, 28, 32, 44]);
+        assert_eq!(
+            offsets_of!(QueryPoint, [position, roughness, normal, pad0, wo, pad1]),
+            [0, 12, 16, 28, 32, 44]
+        );
         assert_eq!(
             (size_of::<TrainingSample>(), align_of::<TrainingSample>()),
             (96, 4)
         );
-        let s = [
-            offset_of!(TrainingSample, position),
-            offset_of!(TrainingSample, roughness),
-            offset_of!(TrainingSample, normal),
-            offset_of!(TrainingSample, sample_pdf),
-            offset_of!(TrainingSample, wo),
-            offset_of!(TrainingSample, bsdf_pdf),
-            offset_of!(TrainingSample, wi),
-            offset_of!(TrainingSample, pad0),
-            offset_of!(TrainingSample, radiance),
-            offset_of!(TrainingSample, pad1),
-            offset_of!(TrainingSample, bsdf_cos),
-            offset_of!(TrainingSample, pad2),
-        ];
-        assert_eq!(s, [0, 12, 16, 28, 32, 44, 48, 60, 64, 76, 80, 92]);
+        assert_eq!(
+            offsets_of!(
+                TrainingSample,
+                [
+                    position, roughness, normal, sample_pdf, wo, bsdf_pdf, wi, pad0, radiance,
+                    pad1, bsdf_cos, pad2
+                ]
+            ),
+            [0, 12, 16, 28, 32, 44, 48, 60, 64, 76, 80, 92]
+        );
     }
 }
