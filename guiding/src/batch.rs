@@ -23,7 +23,7 @@
 //! after an [`GuidingField::update`] that changed the parameters is
 //! [`GuidingError::StaleDistribution`].
 
-use crate::device::DeviceLanes;
+use crate::device::{DeviceLanes, LanesOut};
 use crate::error::{same_lengths, GuidingError};
 use crate::field::{DecodedDistribution, GuidingField};
 use crate::models::{self, with_df_field, with_field, BatchItems, Decode, Lanes};
@@ -396,7 +396,13 @@ impl GuidingField {
                 let r = match out {
                     DeviceOut::Samples(ref mut o) => {
                         let mut packed = vec![[0.0f32; 4]; lanes.len()];
-                        let r = d.sample(&lanes_ref, lanes, &normals, inputs, &mut packed);
+                        let r = d.eval_lanes(
+                            &lanes_ref,
+                            lanes,
+                            &normals,
+                            inputs,
+                            LanesOut::Samples(&mut packed),
+                        );
                         for (s, p) in o.iter_mut().zip(&packed) {
                             *s = DirectionSample {
                                 direction: Vec3::new(p[0], p[1], p[2]),
@@ -405,7 +411,9 @@ impl GuidingField {
                         }
                         r
                     }
-                    DeviceOut::Pdfs(ref mut o) => d.pdf(&lanes_ref, lanes, &normals, inputs, o),
+                    DeviceOut::Pdfs(ref mut o) => {
+                        d.eval_lanes(&lanes_ref, lanes, &normals, inputs, LanesOut::Pdfs(o))
+                    }
                 };
                 match r {
                     Ok(()) => false,
@@ -449,20 +457,8 @@ impl GuidingField {
         use guiding_core::model::nasg::NASG_OUTPUTS;
         use guiding_core::model::npm::NPM_OUTPUTS;
         out.reset(self);
+        let n = models::raw_queries(&self.inner, raw.len(), false)?;
         let r = models::raw_outputs(&self.inner);
-        if r == 0 {
-            return Err(GuidingError::InvalidConfig(
-                "DF models have no raw outputs (the conditional network depends on the \
-                 direction)"
-                    .into(),
-            ));
-        }
-        if raw.len() % r != 0 {
-            return Err(GuidingError::LengthMismatch {
-                what: format!("{} raw outputs for a {r}-output model", raw.len()),
-            });
-        }
-        let n = raw.len() / r;
         if models::family(&self.inner) == Family::Npm {
             out.items.selection = models::constant_selection(&self.inner);
             let rows: Vec<[f32; NPM_OUTPUTS]> = raw
@@ -491,14 +487,7 @@ impl GuidingField {
         if let Some(e) = self.device_refusal() {
             return Err(e);
         }
-        if batch.field_id != self.id || batch.generation != self.generation {
-            return Err(GuidingError::StaleDistribution {
-                field_id: batch.field_id,
-                generation: batch.generation,
-                used_id: self.id,
-                used_generation: self.generation,
-            });
-        }
+        self.check_current(batch.field_id, batch.generation)?;
         let n = batch.len();
         if let Some(&bad) = lanes.iter().find(|&&l| l as usize >= n) {
             return Err(GuidingError::LengthMismatch {
@@ -529,31 +518,26 @@ impl GuidingField {
         u: &[Vec2],
         out: &mut [DirectionSample],
     ) -> Result<(), GuidingError> {
-        same_lengths(&[
-            (lanes.len(), "lanes"),
-            (u.len(), "random pairs"),
-            (out.len(), "outputs"),
-        ])?;
-        if lanes.is_empty() {
-            return Ok(());
-        }
-        self.check_batch(batch, lanes)?;
-        if matches!(batch.location, LaneLocation::Device(_)) {
-            let packed: Vec<[f32; 4]> = u.iter().map(|v| [v.x, v.y, 0.0, 0.0]).collect();
-            return self.device_lanes_call(batch, lanes, &packed, DeviceOut::Samples(out));
-        }
-        batch.route(lanes, u, out, |items, lanes, u, out| match &items.lanes {
-            Lanes::Vmf(m) => mixture_batch::vmf_sample_batch(m, lanes, u, out),
-            Lanes::Nasg(m) => mixture_batch::nasg_sample_batch(m, lanes, u, out),
-            // DF lanes come from a DF field (`check_batch`: this field).
-            Lanes::Df(v) => with_df_field!(&self.inner, f => f
-                .model()
-                .sample_vertices(f.ema_params(), v, lanes, u, out), ()),
-            Lanes::DfTable { tables, sums } => {
-                mixture_batch::table_sample_batch(tables, sums, lanes, u, out);
-            }
-        });
-        Ok(())
+        self.decoded_call(
+            batch,
+            lanes,
+            u,
+            "random pairs",
+            out,
+            |v| [v.x, v.y, 0.0, 0.0],
+            |o| DeviceOut::Samples(o),
+            |items, lanes, u, out| match &items.lanes {
+                Lanes::Vmf(m) => mixture_batch::vmf_sample_batch(m, lanes, u, out),
+                Lanes::Nasg(m) => mixture_batch::nasg_sample_batch(m, lanes, u, out),
+                // DF lanes come from a DF field (`check_batch`: this field).
+                Lanes::Df(v) => with_df_field!(&self.inner, f => f
+                    .model()
+                    .sample_vertices(f.ema_params(), v, lanes, u, out), ()),
+                Lanes::DfTable { tables, sums } => {
+                    mixture_batch::table_sample_batch(tables, sums, lanes, u, out);
+                }
+            },
+        )
     }
 
     /// The density of `directions[k]` (unit `wi`s) under lane `lanes[k]`
@@ -571,9 +555,47 @@ impl GuidingField {
         directions: &[Vec3],
         out: &mut [f32],
     ) -> Result<(), GuidingError> {
+        self.decoded_call(
+            batch,
+            lanes,
+            directions,
+            "directions",
+            out,
+            |d| [d.x, d.y, d.z, 0.0],
+            |o| DeviceOut::Pdfs(o),
+            |items, lanes, dirs, out| match &items.lanes {
+                Lanes::Vmf(m) => mixture_batch::vmf_pdf_batch(m, lanes, dirs, out),
+                Lanes::Nasg(m) => mixture_batch::nasg_pdf_batch(m, lanes, dirs, out),
+                // DF lanes come from a DF field (`check_batch`: this field).
+                Lanes::Df(v) => with_df_field!(&self.inner, f => f
+                    .model()
+                    .pdf_vertices(f.ema_params(), v, lanes, dirs, out), ()),
+                Lanes::DfTable { tables, .. } => {
+                    mixture_batch::table_pdf_batch(tables, lanes, dirs, out);
+                }
+            },
+        )
+    }
+
+    /// The common body of [`Self::sample_decoded`] and [`Self::pdf_decoded`]:
+    /// checks the lengths (`inputs` named `what`) and the batch, then
+    /// answers `lanes` on the device (inputs packed by `pack`, results
+    /// through `device_out`) or through `batch.route` with `eval`.
+    #[allow(clippy::too_many_arguments)] // the two calls' inputs, outputs and kernels
+    fn decoded_call<I: Copy, O: Copy>(
+        &self,
+        batch: &DistributionBatch,
+        lanes: &[u32],
+        inputs: &[I],
+        what: &str,
+        out: &mut [O],
+        pack: impl Fn(&I) -> [f32; 4],
+        device_out: impl FnOnce(&mut [O]) -> DeviceOut<'_>,
+        eval: impl Fn(&BatchItems, &[u32], &[I], &mut [O]),
+    ) -> Result<(), GuidingError> {
         same_lengths(&[
             (lanes.len(), "lanes"),
-            (directions.len(), "directions"),
+            (inputs.len(), what),
             (out.len(), "outputs"),
         ])?;
         if lanes.is_empty() {
@@ -581,25 +603,10 @@ impl GuidingField {
         }
         self.check_batch(batch, lanes)?;
         if matches!(batch.location, LaneLocation::Device(_)) {
-            let packed: Vec<[f32; 4]> = directions.iter().map(|d| [d.x, d.y, d.z, 0.0]).collect();
-            return self.device_lanes_call(batch, lanes, &packed, DeviceOut::Pdfs(out));
+            let packed: Vec<[f32; 4]> = inputs.iter().map(pack).collect();
+            return self.device_lanes_call(batch, lanes, &packed, device_out(out));
         }
-        batch.route(
-            lanes,
-            directions,
-            out,
-            |items, lanes, dirs, out| match &items.lanes {
-                Lanes::Vmf(m) => mixture_batch::vmf_pdf_batch(m, lanes, dirs, out),
-                Lanes::Nasg(m) => mixture_batch::nasg_pdf_batch(m, lanes, dirs, out),
-                // DF lanes come from a DF field (`check_batch`: this field).
-                Lanes::Df(v) => with_df_field!(&self.inner, f => f
-                .model()
-                .pdf_vertices(f.ema_params(), v, lanes, dirs, out), ()),
-                Lanes::DfTable { tables, .. } => {
-                    mixture_batch::table_pdf_batch(tables, lanes, dirs, out);
-                }
-            },
-        );
+        batch.route(lanes, inputs, out, eval);
         Ok(())
     }
 }

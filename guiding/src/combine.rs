@@ -492,27 +492,35 @@ impl PassCombiner {
 
 /// Sum of each pixel's `(2r + 1)²` neighbourhood (clipped at the borders), separable.
 fn box_sum(width: usize, height: usize, src: &[[f64; 4]], r: usize) -> Vec<[f64; 4]> {
-    let add = |a: &mut [f64; 4], b: [f64; 4]| {
-        for k in 0..4 {
-            a[k] += b[k];
-        }
-    };
-    let mut rows = vec![[0.0; 4]; src.len()];
-    for y in 0..height {
-        for x in 0..width {
-            let mut acc = [0.0; 4];
-            for xx in x.saturating_sub(r)..=(x + r).min(width - 1) {
-                add(&mut acc, src[y * width + xx]);
-            }
-            rows[y * width + x] = acc;
-        }
-    }
+    let rows = box_pass(width, height, src, r, true);
+    box_pass(width, height, &rows, r, false)
+}
+
+/// One pass of [`box_sum`]: each pixel's sum over `±r` pixels along the
+/// rows (`along_rows`) or the columns, in increasing order.
+fn box_pass(
+    width: usize,
+    height: usize,
+    src: &[[f64; 4]],
+    r: usize,
+    along_rows: bool,
+) -> Vec<[f64; 4]> {
     let mut out = vec![[0.0; 4]; src.len()];
     for y in 0..height {
         for x in 0..width {
+            // The pixel's position `at` on its line of `len` pixels, which
+            // starts at `first` with `stride` between neighbours.
+            let (at, len, first, stride) = if along_rows {
+                (x, width, y * width, 1)
+            } else {
+                (y, height, x, width)
+            };
             let mut acc = [0.0; 4];
-            for yy in y.saturating_sub(r)..=(y + r).min(height - 1) {
-                add(&mut acc, rows[yy * width + x]);
+            for t in at.saturating_sub(r)..=(at + r).min(len - 1) {
+                let b = src[first + t * stride];
+                for k in 0..4 {
+                    acc[k] += b[k];
+                }
             }
             out[y * width + x] = acc;
         }

@@ -227,50 +227,43 @@ impl DeviceField {
         Ok(())
     }
 
-    /// Samples lanes `lanes[k]` with `u[k]` into `out[k]` (`[ω, pdf]`).
-    pub(crate) fn sample(
+    /// Samples lanes `lanes[k]` with `inputs[k]` (`u`) into `out[k]` (`[ω, pdf]`),
+    /// or takes the density of direction `inputs[k]` under lane `lanes[k]`.
+    pub(crate) fn eval_lanes(
         &self,
         decoded: &DeviceLanes,
         lanes: &[u32],
         normals: &[[f32; 4]],
-        u: &[[f32; 4]],
-        out: &mut [[f32; 4]],
+        inputs: &[[f32; 4]],
+        out: LanesOut<'_>,
     ) -> Result<(), GpuError> {
         let mut model = lock(&self.model);
-        match (&decoded.raw, self.family) {
-            (Some(raw), Family::Npm | Family::Nasg) => {
-                model.sample_lanes(raw, lanes, normals, u, out)?;
+        // An empty decode: no lanes.
+        let Some(raw) = &decoded.raw else {
+            return Ok(());
+        };
+        match (out, self.family) {
+            (LanesOut::Samples(out), Family::Npm | Family::Nasg) => {
+                model.sample_lanes(raw, lanes, normals, inputs, out)?;
             }
-            (Some(vertices), Family::Df) => {
-                model.sample_vertex_lanes(vertices, lanes, u, out)?;
+            (LanesOut::Samples(out), Family::Df) => {
+                model.sample_vertex_lanes(raw, lanes, inputs, out)?;
             }
-            // An empty decode: no lanes.
-            (None, _) => {}
+            (LanesOut::Pdfs(out), Family::Npm | Family::Nasg) => {
+                model.pdf_lanes(raw, lanes, normals, inputs, out)?;
+            }
+            (LanesOut::Pdfs(out), Family::Df) => {
+                model.pdf_vertex_lanes(raw, lanes, inputs, out)?;
+            }
         }
         Ok(())
     }
+}
 
-    /// Densities of `directions[k]` under lanes `lanes[k]` into `out[k]`.
-    pub(crate) fn pdf(
-        &self,
-        decoded: &DeviceLanes,
-        lanes: &[u32],
-        normals: &[[f32; 4]],
-        directions: &[[f32; 4]],
-        out: &mut [f32],
-    ) -> Result<(), GpuError> {
-        let mut model = lock(&self.model);
-        match (&decoded.raw, self.family) {
-            (Some(raw), Family::Npm | Family::Nasg) => {
-                model.pdf_lanes(raw, lanes, normals, directions, out)?;
-            }
-            (Some(vertices), Family::Df) => {
-                model.pdf_vertex_lanes(vertices, lanes, directions, out)?;
-            }
-            (None, _) => {}
-        }
-        Ok(())
-    }
+/// Where [`DeviceField::eval_lanes`] writes: samples (`[ω, pdf]`) or densities.
+pub(crate) enum LanesOut<'a> {
+    Samples(&'a mut [[f32; 4]]),
+    Pdfs(&'a mut [f32]),
 }
 
 /// A device error as the facade's error.

@@ -442,21 +442,7 @@ impl GuidingField {
         u: &[Vec2],
         out: &mut [DirectionSample],
     ) -> Result<(), GuidingError> {
-        same_lengths(&[
-            (queries.len(), "queries"),
-            (u.len(), "random pairs"),
-            (out.len(), "outputs"),
-        ])?;
-        let batches = self.decode_chunks(queries);
-        for ((b, u), out) in batches
-            .iter()
-            .zip(u.chunks(QUERY_CHUNK))
-            .zip(out.chunks_mut(QUERY_CHUNK))
-        {
-            let lanes: Vec<u32> = (0..u.len() as u32).collect();
-            self.sample_decoded(b, &lanes, u, out)?;
-        }
-        Ok(())
+        self.per_query_call(queries, u, "random pairs", out, Self::sample_decoded)
     }
 
     /// Density of `directions[i]` (unit `wi`s) at `queries[i]`, spread over
@@ -470,19 +456,39 @@ impl GuidingField {
         directions: &[Vec3],
         out: &mut [f32],
     ) -> Result<(), GuidingError> {
+        self.per_query_call(queries, directions, "directions", out, Self::pdf_decoded)
+    }
+
+    /// The common body of [`Self::sample_batch`] and [`Self::pdf_batch`]:
+    /// checks the lengths (`inputs` named `what`), decodes `queries` in
+    /// chunks and runs `call` (a `*_decoded` method) on each chunk's lanes.
+    fn per_query_call<I, O>(
+        &self,
+        queries: &[QueryPoint],
+        inputs: &[I],
+        what: &str,
+        out: &mut [O],
+        call: impl Fn(
+            &Self,
+            &crate::DistributionBatch,
+            &[u32],
+            &[I],
+            &mut [O],
+        ) -> Result<(), GuidingError>,
+    ) -> Result<(), GuidingError> {
         same_lengths(&[
             (queries.len(), "queries"),
-            (directions.len(), "directions"),
+            (inputs.len(), what),
             (out.len(), "outputs"),
         ])?;
         let batches = self.decode_chunks(queries);
-        for ((b, d), out) in batches
+        for ((b, inputs), out) in batches
             .iter()
-            .zip(directions.chunks(QUERY_CHUNK))
+            .zip(inputs.chunks(QUERY_CHUNK))
             .zip(out.chunks_mut(QUERY_CHUNK))
         {
-            let lanes: Vec<u32> = (0..d.len() as u32).collect();
-            self.pdf_decoded(b, &lanes, d, out)?;
+            let lanes: Vec<u32> = (0..inputs.len() as u32).collect();
+            call(self, b, &lanes, inputs, out)?;
         }
         Ok(())
     }
@@ -506,6 +512,23 @@ impl GuidingField {
         Ok(())
     }
 
+    /// Checks that something decoded by field `field_id` at `generation`
+    /// is this field's at its current generation.
+    ///
+    /// # Errors
+    /// [`GuidingError::StaleDistribution`] otherwise.
+    pub(crate) fn check_current(&self, field_id: u64, generation: u64) -> Result<(), GuidingError> {
+        if field_id != self.id || generation != self.generation {
+            return Err(GuidingError::StaleDistribution {
+                field_id,
+                generation,
+                used_id: self.id,
+                used_generation: self.generation,
+            });
+        }
+        Ok(())
+    }
+
     /// Re-attaches a [`DecodedDistribution`] (e.g. kept in a renderer's
     /// per-lane storage) to this field.
     ///
@@ -513,14 +536,7 @@ impl GuidingField {
     /// [`GuidingError::StaleDistribution`] if it was decoded by another field
     /// or before this field's latest update.
     pub fn attach(&self, decoded: DecodedDistribution) -> Result<Distribution<'_>, GuidingError> {
-        if decoded.field_id != self.id || decoded.generation != self.generation {
-            return Err(GuidingError::StaleDistribution {
-                field_id: decoded.field_id,
-                generation: decoded.generation,
-                used_id: self.id,
-                used_generation: self.generation,
-            });
-        }
+        self.check_current(decoded.field_id, decoded.generation)?;
         Ok(Distribution {
             field: self,
             decoded: decoded.decoded,
@@ -549,19 +565,7 @@ impl GuidingField {
     /// [`GuidingError::LengthMismatch`] if `raw` has the wrong length, or
     /// [`GuidingError::InvalidConfig`] for DF models (no raw outputs).
     pub fn distribution_from_raw(&self, raw: &[f32]) -> Result<Distribution<'_>, GuidingError> {
-        let expected = models::raw_outputs(&self.inner);
-        if expected == 0 {
-            return Err(GuidingError::InvalidConfig(
-                "DF models have no raw outputs (the conditional network depends on the \
-                 direction)"
-                    .into(),
-            ));
-        }
-        if raw.len() != expected {
-            return Err(GuidingError::LengthMismatch {
-                what: format!("{} raw outputs for a {expected}-output model", raw.len()),
-            });
-        }
+        models::raw_queries(&self.inner, raw.len(), true)?;
         let decoded = models::decode_raw(&self.inner, raw)
             .ok_or_else(|| GuidingError::InvalidConfig("the model has no raw outputs".into()))?;
         Ok(Distribution {

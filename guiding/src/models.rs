@@ -503,6 +503,34 @@ pub(crate) fn raw_outputs(field: &AnyField) -> usize {
     family(field).raw_outputs()
 }
 
+/// How many queries' raw outputs `raw_len` values hold (`exactly_one`: it
+/// must be one query's).
+///
+/// # Errors
+/// [`GuidingError::InvalidConfig`] for DF (no raw outputs), and
+/// [`GuidingError::LengthMismatch`] if `raw_len` is not a whole number of
+/// the model's rows (or not one row).
+pub(crate) fn raw_queries(
+    field: &AnyField,
+    raw_len: usize,
+    exactly_one: bool,
+) -> Result<usize, GuidingError> {
+    let r = raw_outputs(field);
+    if r == 0 {
+        return Err(GuidingError::InvalidConfig(
+            "DF models have no raw outputs (the conditional network depends on the \
+             direction)"
+                .into(),
+        ));
+    }
+    if raw_len % r != 0 || (exactly_one && raw_len != r) {
+        return Err(GuidingError::LengthMismatch {
+            what: format!("{raw_len} raw outputs for a {r}-output model"),
+        });
+    }
+    Ok(raw_len / r)
+}
+
 /// The model's constant selection probability (NPM, DF); 0 where it is
 /// learned per query (NASG: each lane carries its own).
 pub(crate) fn constant_selection(field: &AnyField) -> f32 {
