@@ -85,12 +85,19 @@ impl GpuContext {
         push_constant_bytes: u32,
     ) -> Result<Kernel, GpuError> {
         let shared = &self.shared;
-        let workgroup_size = self.checked_workgroup_size(
-            spirv_words,
-            entry_point,
-            storage_buffers,
-            push_constant_bytes,
-        )?;
+        let module = spirv::parse(spirv_words)?;
+        let Some(ep) = module.entry_points.iter().find(|e| e.name == entry_point) else {
+            let names: Vec<&str> = module
+                .entry_points
+                .iter()
+                .map(|e| e.name.as_str())
+                .collect();
+            return Err(GpuError::InvalidSpirv(format!(
+                "no compute entry point {entry_point:?}; the module has {names:?}"
+            )));
+        };
+        let workgroup_size =
+            self.checked_workgroup_size(&module, ep, storage_buffers, push_constant_bytes)?;
         let name = CString::new(entry_point)
             .map_err(|_| bad(format!("entry point name {entry_point:?} contains NUL")))?;
 
@@ -149,28 +156,18 @@ impl GpuContext {
         Ok(kernel)
     }
 
-    /// The preamble checks of [`Self::kernel`] (its docs): the entry
-    /// point's workgroup size if `spirv_words` passes them.
+    /// The preamble checks of [`Self::kernel`] (its docs) of entry point
+    /// `ep` of `module`: its workgroup size if they pass.
     fn checked_workgroup_size(
         &self,
-        spirv_words: &[u32],
-        entry_point: &str,
+        module: &spirv::ModuleInfo,
+        ep: &spirv::EntryPoint,
         storage_buffers: u32,
         push_constant_bytes: u32,
     ) -> Result<u32, GpuError> {
         let shared = &self.shared;
         let info = &shared.info;
-        let module = spirv::parse(spirv_words)?;
-        let Some(ep) = module.entry_points.iter().find(|e| e.name == entry_point) else {
-            let names: Vec<&str> = module
-                .entry_points
-                .iter()
-                .map(|e| e.name.as_str())
-                .collect();
-            return Err(GpuError::InvalidSpirv(format!(
-                "no compute entry point {entry_point:?}; the module has {names:?}"
-            )));
-        };
+        let entry_point = ep.name.as_str();
         let workgroup_size = match ep.local_size {
             Some([x, 1, 1]) if x > 0 => x,
             other => {
@@ -239,8 +236,8 @@ impl GpuContext {
             Some(&m) => m,
             None => {
                 let info = vk::ShaderModuleCreateInfo::default().code(spirv_words);
-                // SAFETY: `Self::kernel`, the only caller, ran the header
-                // checks (`checked_workgroup_size`) on the blob first.
+                // SAFETY: `Self::kernel`, the only caller, parsed and checked
+                // the blob's header first.
                 let m = unsafe { d.create_shader_module(&info, None) }.map_err(GpuError::alloc(
                     "vkCreateShaderModule",
                     4 * spirv_words.len() as u64,
