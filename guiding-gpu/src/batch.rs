@@ -310,22 +310,18 @@ impl<'a> Batch<'a> {
                 kernel.entry
             )));
         }
-        if buffers.len() != kernel.storage_buffers as usize {
-            return Err(GpuError::BadArgument(format!(
-                "kernel {} takes {} storage buffers, {} given",
-                kernel.entry,
-                kernel.storage_buffers,
-                buffers.len()
-            )));
-        }
-        if push.len() != kernel.push_constant_bytes as usize {
-            return Err(GpuError::BadArgument(format!(
-                "kernel {} takes {} bytes of push constants, {} given",
-                kernel.entry,
-                kernel.push_constant_bytes,
-                push.len()
-            )));
-        }
+        check_count(
+            kernel,
+            kernel.storage_buffers,
+            buffers.len(),
+            "storage buffers",
+        )?;
+        check_count(
+            kernel,
+            kernel.push_constant_bytes,
+            push.len(),
+            "bytes of push constants",
+        )?;
         let grid = workgroup_grid(
             invocations,
             kernel.workgroup_size,
@@ -532,6 +528,18 @@ impl GpuContext {
         batch.dispatch(kernel, buffers, push, invocations)?;
         batch.submit_and_wait()
     }
+}
+
+/// The error unless a dispatch of `kernel` supplies the `expected` number
+/// of `what` (storage buffers, bytes of push constants).
+fn check_count(kernel: &Kernel, expected: u32, given: usize, what: &str) -> Result<(), GpuError> {
+    if given == expected as usize {
+        return Ok(());
+    }
+    Err(GpuError::BadArgument(format!(
+        "kernel {} takes {expected} {what}, {given} given",
+        kernel.entry
+    )))
 }
 
 #[cfg(test)]

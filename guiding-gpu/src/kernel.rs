@@ -85,7 +85,6 @@ impl GpuContext {
         push_constant_bytes: u32,
     ) -> Result<Kernel, GpuError> {
         let shared = &self.shared;
-        let info = &shared.info;
         let module = spirv::parse(spirv_words)?;
         let Some(ep) = module.entry_points.iter().find(|e| e.name == entry_point) else {
             let names: Vec<&str> = module
@@ -97,6 +96,78 @@ impl GpuContext {
                 "no compute entry point {entry_point:?}; the module has {names:?}"
             )));
         };
+        let workgroup_size =
+            self.checked_workgroup_size(&module, ep, storage_buffers, push_constant_bytes)?;
+        let name = CString::new(entry_point)
+            .map_err(|_| bad(format!("entry point name {entry_point:?} contains NUL")))?;
+
+        let d = &shared.device;
+        let shader = self.shader_module(spirv_words)?;
+
+        let mut kernel = Kernel {
+            shared: Arc::clone(shared),
+            entry: entry_point.to_string(),
+            set_layout: vk::DescriptorSetLayout::null(),
+            pipeline_layout: vk::PipelineLayout::null(),
+            pipeline: vk::Pipeline::null(),
+            storage_buffers,
+            push_constant_bytes,
+            workgroup_size,
+        };
+        let bindings: Vec<vk::DescriptorSetLayoutBinding> = (0..storage_buffers)
+            .map(|i| {
+                vk::DescriptorSetLayoutBinding::default()
+                    .binding(i)
+                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                    .descriptor_count(1)
+                    .stage_flags(vk::ShaderStageFlags::COMPUTE)
+            })
+            .collect();
+        // SAFETY: valid create infos; on error `kernel` is dropped, which
+        // destroys whatever was created so far.
+        unsafe {
+            let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings);
+            kernel.set_layout = d
+                .create_descriptor_set_layout(&info, None)
+                .map_err(GpuError::vk("vkCreateDescriptorSetLayout"))?;
+            let layouts = [kernel.set_layout];
+            let ranges = [vk::PushConstantRange::default()
+                .stage_flags(vk::ShaderStageFlags::COMPUTE)
+                .offset(0)
+                .size(push_constant_bytes)];
+            let mut info = vk::PipelineLayoutCreateInfo::default().set_layouts(&layouts);
+            if push_constant_bytes > 0 {
+                info = info.push_constant_ranges(&ranges);
+            }
+            kernel.pipeline_layout = d
+                .create_pipeline_layout(&info, None)
+                .map_err(GpuError::vk("vkCreatePipelineLayout"))?;
+            let stage = vk::PipelineShaderStageCreateInfo::default()
+                .stage(vk::ShaderStageFlags::COMPUTE)
+                .module(shader)
+                .name(&name);
+            let info = vk::ComputePipelineCreateInfo::default()
+                .stage(stage)
+                .layout(kernel.pipeline_layout);
+            kernel.pipeline = d
+                .create_compute_pipelines(vk::PipelineCache::null(), &[info], None)
+                .map_err(|(_, e)| GpuError::vk("vkCreateComputePipelines")(e))?[0];
+        }
+        Ok(kernel)
+    }
+
+    /// The preamble checks of [`Self::kernel`] (its docs) of entry point
+    /// `ep` of `module`: its workgroup size if they pass.
+    fn checked_workgroup_size(
+        &self,
+        module: &spirv::ModuleInfo,
+        ep: &spirv::EntryPoint,
+        storage_buffers: u32,
+        push_constant_bytes: u32,
+    ) -> Result<u32, GpuError> {
+        let shared = &self.shared;
+        let info = &shared.info;
+        let entry_point = ep.name.as_str();
         let workgroup_size = match ep.local_size {
             Some([x, 1, 1]) if x > 0 => x,
             other => {
@@ -153,79 +224,30 @@ impl GpuContext {
                 "{entry_point} reads push constants but push_constant_bytes is 0"
             )));
         }
-        let name = CString::new(entry_point)
-            .map_err(|_| bad(format!("entry point name {entry_point:?} contains NUL")))?;
+        Ok(workgroup_size)
+    }
 
-        let d = &shared.device;
-        let shader = {
-            let mut modules = lock(&shared.modules);
-            match modules.get(spirv_words) {
-                Some(&m) => m,
-                None => {
-                    let info = vk::ShaderModuleCreateInfo::default().code(spirv_words);
-                    // SAFETY: the blob passed the header checks above.
-                    let m =
-                        unsafe { d.create_shader_module(&info, None) }.map_err(GpuError::alloc(
-                            "vkCreateShaderModule",
-                            4 * spirv_words.len() as u64,
-                            "a shader module",
-                        ))?;
-                    modules.insert(spirv_words.to_vec(), m);
-                    m
-                }
+    /// The `VkShaderModule` of `spirv_words`, created at its first use and
+    /// cached in the context.
+    fn shader_module(&self, spirv_words: &[u32]) -> Result<vk::ShaderModule, GpuError> {
+        let d = &self.shared.device;
+        let mut modules = lock(&self.shared.modules);
+        let m = match modules.get(spirv_words) {
+            Some(&m) => m,
+            None => {
+                let info = vk::ShaderModuleCreateInfo::default().code(spirv_words);
+                // SAFETY: `Self::kernel`, the only caller, parsed and checked
+                // the blob's header first.
+                let m = unsafe { d.create_shader_module(&info, None) }.map_err(GpuError::alloc(
+                    "vkCreateShaderModule",
+                    4 * spirv_words.len() as u64,
+                    "a shader module",
+                ))?;
+                modules.insert(spirv_words.to_vec(), m);
+                m
             }
         };
-
-        let mut kernel = Kernel {
-            shared: Arc::clone(shared),
-            entry: entry_point.to_string(),
-            set_layout: vk::DescriptorSetLayout::null(),
-            pipeline_layout: vk::PipelineLayout::null(),
-            pipeline: vk::Pipeline::null(),
-            storage_buffers,
-            push_constant_bytes,
-            workgroup_size,
-        };
-        let bindings: Vec<vk::DescriptorSetLayoutBinding> = (0..storage_buffers)
-            .map(|i| {
-                vk::DescriptorSetLayoutBinding::default()
-                    .binding(i)
-                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
-                    .descriptor_count(1)
-                    .stage_flags(vk::ShaderStageFlags::COMPUTE)
-            })
-            .collect();
-        // SAFETY: valid create infos; on error `kernel` is dropped, which
-        // destroys whatever was created so far.
-        unsafe {
-            let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings);
-            kernel.set_layout = d
-                .create_descriptor_set_layout(&info, None)
-                .map_err(GpuError::vk("vkCreateDescriptorSetLayout"))?;
-            let layouts = [kernel.set_layout];
-            let ranges = [vk::PushConstantRange::default()
-                .stage_flags(vk::ShaderStageFlags::COMPUTE)
-                .offset(0)
-                .size(push_constant_bytes)];
-            let mut info = vk::PipelineLayoutCreateInfo::default().set_layouts(&layouts);
-            if push_constant_bytes > 0 {
-                info = info.push_constant_ranges(&ranges);
-            }
-            kernel.pipeline_layout = d
-                .create_pipeline_layout(&info, None)
-                .map_err(GpuError::vk("vkCreatePipelineLayout"))?;
-            let stage = vk::PipelineShaderStageCreateInfo::default()
-                .stage(vk::ShaderStageFlags::COMPUTE)
-                .module(shader)
-                .name(&name);
-            let info = vk::ComputePipelineCreateInfo::default()
-                .stage(stage)
-                .layout(kernel.pipeline_layout);
-            kernel.pipeline = d
-                .create_compute_pipelines(vk::PipelineCache::null(), &[info], None)
-                .map_err(|(_, e)| GpuError::vk("vkCreateComputePipelines")(e))?[0];
-        }
-        Ok(kernel)
+        Ok(m)
     }
 
     /// [`GpuContext::kernel`] for an entry point of the SPIR-V module embedded

@@ -187,6 +187,17 @@ fn push<T: Pod>(value: &T) -> &[u8] {
     bytemuck::bytes_of(value)
 }
 
+/// The error unless `outputs` holds the `raw` outputs of each of `queries`.
+fn check_raw_len(queries: usize, raw: usize, outputs: usize) -> Result<(), GpuError> {
+    if outputs == queries * raw {
+        return Ok(());
+    }
+    Err(GpuError::BadArgument(format!(
+        "infer: {queries} queries need {} outputs, {outputs} given",
+        queries * raw
+    )))
+}
+
 fn count_u32(n: usize, what: &str) -> Result<u32, GpuError> {
     u32::try_from(n).map_err(|_| GpuError::BadArgument(format!("{what}: {n} is over 2^32")))
 }
@@ -218,42 +229,22 @@ impl GpuModel {
         }
         let b = size_of::<BatchArgs>() as u32;
         let p = entry.prefix;
+        // A kernel only the models of some families have.
+        let only = |has: bool, name: &str, buffers: u32| -> Result<Option<Kernel>, GpuError> {
+            has.then(|| ctx.embedded_kernel(name, buffers, b))
+                .transpose()
+        };
+        let (df, nasg) = (entry.family == Family::Df, entry.family == Family::Nasg);
+        // The lane kernels of the mixture's family: `vmf_lane_*`, `nasg_lane_*`.
+        let mixture = if nasg { "nasg" } else { "vmf" };
         let kernels = Kernels {
-            infer: if entry.family != Family::Df {
-                Some(ctx.embedded_kernel(&format!("{p}_infer"), 4, b)?)
-            } else {
-                None
-            },
-            lane_sample: match entry.family {
-                Family::Npm => Some(ctx.embedded_kernel("vmf_lane_sample", 5, b)?),
-                Family::Nasg => Some(ctx.embedded_kernel("nasg_lane_sample", 5, b)?),
-                Family::Df => None,
-            },
-            lane_pdf: match entry.family {
-                Family::Npm => Some(ctx.embedded_kernel("vmf_lane_pdf", 5, b)?),
-                Family::Nasg => Some(ctx.embedded_kernel("nasg_lane_pdf", 5, b)?),
-                Family::Df => None,
-            },
-            selection: if entry.family == Family::Nasg {
-                Some(ctx.embedded_kernel("nasg_selection", 2, b)?)
-            } else {
-                None
-            },
-            vertex: if entry.family == Family::Df {
-                Some(ctx.embedded_kernel(&format!("{p}_vertex"), 4, b)?)
-            } else {
-                None
-            },
-            vertex_sample: if entry.family == Family::Df {
-                Some(ctx.embedded_kernel(&format!("{p}_vertex_sample"), 6, b)?)
-            } else {
-                None
-            },
-            vertex_pdf: if entry.family == Family::Df {
-                Some(ctx.embedded_kernel(&format!("{p}_vertex_pdf"), 6, b)?)
-            } else {
-                None
-            },
+            infer: only(!df, &format!("{p}_infer"), 4)?,
+            lane_sample: only(!df, &format!("{mixture}_lane_sample"), 5)?,
+            lane_pdf: only(!df, &format!("{mixture}_lane_pdf"), 5)?,
+            selection: only(nasg, "nasg_selection", 2)?,
+            vertex: only(df, &format!("{p}_vertex"), 4)?,
+            vertex_sample: only(df, &format!("{p}_vertex_sample"), 6)?,
+            vertex_pdf: only(df, &format!("{p}_vertex_pdf"), 6)?,
             sample: ctx.embedded_kernel(&format!("{p}_sample"), 5, b)?,
             pdf: ctx.embedded_kernel(&format!("{p}_pdf"), 5, b)?,
             gradient: ctx.embedded_kernel(&format!("{p}_gradient"), 5, b)?,
@@ -318,14 +309,7 @@ impl GpuModel {
         out: &mut [f32],
     ) -> Result<BatchReport, GpuError> {
         let r = self.entry.family.raw_outputs();
-        if out.len() != queries.len() * r {
-            return Err(GpuError::BadArgument(format!(
-                "infer: {} queries need {} outputs, {} given",
-                queries.len(),
-                queries.len() * r,
-                out.len()
-            )));
-        }
+        check_raw_len(queries.len(), r, out.len())?;
         let per = self.max_batch((r * 4).max(size_of::<QueryPoint>()));
         let mut report = NO_WORK;
         let mut start = 0;
@@ -345,39 +329,19 @@ impl GpuModel {
     ) -> Result<BatchReport, GpuError> {
         let r = self.entry.family.raw_outputs();
         let Some(kernel) = self.kernels.infer.as_ref() else {
-            return Err(GpuError::BadArgument(format!(
-                "{} has no raw outputs (its conditional network depends on the direction): \
-                 use sample / pdf",
-                self.entry.prefix
-            )));
+            return Err(self.missing_kernel(
+                "has no raw outputs (its conditional network depends on the direction): use \
+                 sample / pdf",
+            ));
         };
-        if out.len() != queries.len() * r {
-            return Err(GpuError::BadArgument(format!(
-                "infer: {} queries need {} outputs, {} given",
-                queries.len(),
-                queries.len() * r,
-                out.len()
-            )));
-        }
+        check_raw_len(queries.len(), r, out.len())?;
         if queries.is_empty() {
             return Ok(NO_WORK);
         }
         let n = count_u32(queries.len(), "queries")?;
         self.queries.put(&self.ctx, queries)?;
         self.outputs.at_least(&self.ctx, size_of_val(out) as u64)?;
-        let args = args_for(n);
-        let mut batch = self.ctx.timed_batch()?;
-        batch.dispatch(
-            kernel,
-            &[
-                &self.model,
-                &self.ema,
-                self.queries.get()?,
-                self.outputs.get()?,
-            ],
-            push(&args),
-            n,
-        )?;
+        let batch = self.query_batch(kernel, self.outputs.get()?, n)?;
         let report = batch.submit_and_wait()?;
         self.outputs.get()?.download_into(out)?;
         Ok(report)
@@ -454,50 +418,29 @@ impl GpuModel {
         let mut report = NO_WORK;
         let mut start = 0;
         while start < queries.len() {
+            // One dispatch per piece.
             let end = (start + per).min(queries.len());
-            let rep = Self::query_dispatch(
-                ctx,
-                kernel,
-                state,
-                (&mut *sq, &mut *si, &mut *so),
+            let (q, i, o) = (
                 &queries[start..end],
                 &input[start..end],
                 &mut out[start..end],
+            );
+            let n = count_u32(q.len(), "queries")?;
+            sq.put(ctx, q)?;
+            si.put(ctx, i)?;
+            so.at_least(ctx, size_of_val(o) as u64)?;
+            let mut batch = ctx.timed_batch()?;
+            batch.dispatch(
+                kernel,
+                &[state[0], state[1], sq.get()?, si.get()?, so.get()?],
+                push(&args_for(n)),
+                n,
             )?;
+            let rep = batch.submit_and_wait()?;
+            so.get()?.download_into(o)?;
             report = combine(report, rep);
             start = end;
         }
-        Ok(report)
-    }
-
-    /// One dispatch of a `(model, params, queries, input) → out` kernel.
-    fn query_dispatch<I: Pod, O: Pod>(
-        ctx: &GpuContext,
-        kernel: &Kernel,
-        state: [&GpuBuffer; 2],
-        scratch: (&mut Scratch, &mut Scratch, &mut Scratch),
-        queries: &[QueryPoint],
-        input: &[I],
-        out: &mut [O],
-    ) -> Result<BatchReport, GpuError> {
-        if queries.is_empty() {
-            return Ok(NO_WORK);
-        }
-        let n = count_u32(queries.len(), "queries")?;
-        let (sq, si, so) = scratch;
-        sq.put(ctx, queries)?;
-        si.put(ctx, input)?;
-        so.at_least(ctx, size_of_val(out) as u64)?;
-        let args = args_for(n);
-        let mut batch = ctx.timed_batch()?;
-        batch.dispatch(
-            kernel,
-            &[state[0], state[1], sq.get()?, si.get()?, so.get()?],
-            push(&args),
-            n,
-        )?;
-        let report = batch.submit_and_wait()?;
-        so.get()?.download_into(out)?;
         Ok(report)
     }
 
@@ -665,10 +608,9 @@ impl GpuModel {
         selection.clear();
         let r = self.entry.family.raw_outputs();
         let Some(kernel) = self.kernels.infer.as_ref() else {
-            return Err(GpuError::BadArgument(format!(
-                "{} has no raw outputs (its conditional network depends on the direction)",
-                self.entry.prefix
-            )));
+            return Err(self.missing_kernel(
+                "has no raw outputs (its conditional network depends on the direction)",
+            ));
         };
         if queries.is_empty() {
             return Ok(NO_WORK);
@@ -680,17 +622,10 @@ impl GpuModel {
         if self.kernels.selection.is_some() {
             self.outputs.at_least(&self.ctx, u64::from(n) * 4)?;
         }
-        let args = args_for(n);
-        let mut batch = self.ctx.timed_batch()?;
-        batch.dispatch(
-            kernel,
-            &[&self.model, &self.ema, self.queries.get()?, out],
-            push(&args),
-            n,
-        )?;
+        let mut batch = self.query_batch(kernel, out, n)?;
         if let Some(sel) = self.kernels.selection.as_ref() {
             batch.barrier();
-            batch.dispatch(sel, &[out, self.outputs.get()?], push(&args), n)?;
+            batch.dispatch(sel, &[out, self.outputs.get()?], push(&args_for(n)), n)?;
         }
         let report = batch.submit_and_wait()?;
         if self.kernels.selection.is_some() {
@@ -749,10 +684,9 @@ impl GpuModel {
         vertices: &mut Option<GpuBuffer>,
     ) -> Result<BatchReport, GpuError> {
         let Some(kernel) = self.kernels.vertex.as_ref() else {
-            return Err(GpuError::BadArgument(format!(
-                "{} has no vertex kernels (only DF has): use infer_resident",
-                self.entry.prefix
-            )));
+            return Err(
+                self.missing_kernel("has no vertex kernels (only DF has): use infer_resident")
+            );
         };
         if queries.is_empty() {
             return Ok(NO_WORK);
@@ -765,6 +699,24 @@ impl GpuModel {
             (queries.len() * size_of::<DfVertex>()) as u64,
         )?;
         self.queries.put(&self.ctx, queries)?;
+        self.query_batch(kernel, out, n)?.submit_and_wait()
+    }
+
+    /// The error that this model has no such kernel (`why`, after the
+    /// model's prefix).
+    fn missing_kernel(&self, why: &str) -> GpuError {
+        GpuError::BadArgument(format!("{} {why}", self.entry.prefix))
+    }
+
+    /// A new batch with `kernel` dispatched over the `n` queries on the
+    /// device: it reads the model, the EMA weights and the queries and
+    /// writes `out`.
+    fn query_batch<'a>(
+        &'a self,
+        kernel: &'a Kernel,
+        out: &'a GpuBuffer,
+        n: u32,
+    ) -> Result<Batch<'a>, GpuError> {
         let mut batch = self.ctx.timed_batch()?;
         batch.dispatch(
             kernel,
@@ -772,7 +724,7 @@ impl GpuModel {
             push(&args_for(n)),
             n,
         )?;
-        batch.submit_and_wait()
+        Ok(batch)
     }
 
     /// `out[i] = [ω, pdf]` sampled with `u[i]` at the resident DF vertex

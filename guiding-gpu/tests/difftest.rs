@@ -34,6 +34,7 @@ use guiding_core::lobe::DirectionSample;
 use guiding_core::loss::Target;
 use guiding_core::mixture::nasg::NasgMixture;
 use guiding_core::mixture::vmf::VmfMixture;
+use guiding_core::mixture::LobeMixture;
 use guiding_core::model::df::{DfCompactProduct, DfSmallProduct, DfSmallRadiance};
 use guiding_core::model::nasg::{NasgCompactProduct, NasgSmallProduct, NasgSmallRadiance};
 use guiding_core::model::npm::{
@@ -189,16 +190,19 @@ fn pdf_sensitivity<M: GuidingModel>(model: &M, params: &[f32], q: &QueryPoint, d
     local_sensitivity(&|x| model.pdf(params, q, x), d)
 }
 
+/// A model with its parameters and queries, compared between the GPU and
+/// the CPU; `what` names it in messages.
+struct Case<'a, M> {
+    model: &'a M,
+    params: &'a [f32],
+    q: &'a [QueryPoint],
+    what: &'a str,
+}
+
 /// Sample kernel: GPU `[ω, pdf]` against the CPU's, and the GPU's pdf
 /// against the CPU pdf of the GPU's direction (always comparable).
-fn check_sample<M: GuidingModel>(
-    gpu: &mut GpuModel,
-    model: &M,
-    params: &[f32],
-    q: &[QueryPoint],
-    what: &str,
-    pdf_rel: f32,
-) {
+fn check_sample<M: GuidingModel>(gpu: &mut GpuModel, case: &Case<'_, M>, pdf_rel: f32) {
+    let (model, params, q, what) = (case.model, case.params, case.q, case.what);
     let u = randoms(q.len(), 7);
     let mut out = vec![[0.0f32; 4]; q.len()];
     gpu.sample(q, &u, &mut out).expect("sample kernel");
@@ -272,14 +276,9 @@ fn check_sample<M: GuidingModel>(
     );
 }
 
-fn check_pdf<M: GuidingModel>(
-    gpu: &mut GpuModel,
-    model: &M,
-    params: &[f32],
-    q: &[QueryPoint],
-    what: &str,
-    pdf_rel: f32,
-) {
+/// Pdf kernel: GPU against CPU densities of random directions.
+fn check_pdf<M: GuidingModel>(gpu: &mut GpuModel, case: &Case<'_, M>, pdf_rel: f32) {
+    let (model, params, q, what) = (case.model, case.params, case.q, case.what);
     let d = directions(q.len(), 11);
     let mut out = vec![0.0f32; q.len()];
     gpu.pdf(q, &d, &mut out).expect("pdf kernel");
@@ -714,8 +713,14 @@ macro_rules! model_difftest {
             let mut gpu = upload(ctx, &model, prefix, family_of(&model), &params).expect("upload");
             let q = queries(1000, 5);
             let rel = model_difftest!(@infer $kind, gpu, model, params, q, prefix);
-            check_sample(&mut gpu, &model, &params, &q, prefix, rel);
-            check_pdf(&mut gpu, &model, &params, &q, prefix, rel);
+            let case = Case {
+                model: &model,
+                params: &params,
+                q: &q,
+                what: prefix,
+            };
+            check_sample(&mut gpu, &case, rel);
+            check_pdf(&mut gpu, &case, rel);
             check_train_step(&mut gpu, &model, &params, prefix);
         }
     };
@@ -1198,6 +1203,28 @@ fn check_decode(
     );
 }
 
+/// [`check_decode`] of a mixture family (`per` raw outputs per vector,
+/// [`MIXTURE_PDF_REL`]): `from_raw` decodes vector `i` on the CPU, which
+/// samples it with `uv(i)`.
+fn check_mixture_decode<M: LobeMixture + Copy>(
+    ctx: &GpuContext,
+    family: &str,
+    per: usize,
+    from_raw: fn(&[f32], usize) -> M,
+    lobe_sensitivity: fn(&M, Vec3) -> f32,
+    uv: &dyn Fn(usize) -> Vec2,
+) {
+    let cpu = move |raw: &[f32], i: usize| {
+        CpuDecoded::of(
+            from_raw(raw, i * per),
+            |m| m.sample(uv(i)),
+            |m, d| m.pdf(d),
+            lobe_sensitivity,
+        )
+    };
+    check_decode(ctx, family, per, 0, MIXTURE_PDF_REL, Box::new(cpu));
+}
+
 #[test]
 fn decode_kernels_match_the_cpu_on_ordinary_and_extreme_parameters() {
     let Some(ctx) = test_context() else { return };
@@ -1205,35 +1232,21 @@ fn decode_kernels_match_the_cpu_on_ordinary_and_extreme_parameters() {
     // `check_decode` draws the same random pairs (seed 19).
     let u = randoms(2000, 19);
     let uv = |i: usize| Vec2::new(u[i][0], u[i][1]);
-    check_decode(
+    check_mixture_decode(
         &ctx,
         "vmf",
         32,
-        0,
-        MIXTURE_PDF_REL,
-        Box::new(|raw, i| {
-            CpuDecoded::of(
-                batch::vmf_mixture_from_raw(raw, i * 32),
-                |m| m.sample(uv(i)),
-                |m, d| m.pdf(d),
-                vmf_lobe_sensitivity,
-            )
-        }),
+        batch::vmf_mixture_from_raw,
+        vmf_lobe_sensitivity,
+        &uv,
     );
-    check_decode(
+    check_mixture_decode(
         &ctx,
         "nasg",
         49,
-        0,
-        MIXTURE_PDF_REL,
-        Box::new(|raw, i| {
-            CpuDecoded::of(
-                batch::nasg_mixture_from_raw(raw, i * 49),
-                |m| m.sample(uv(i)),
-                |m, d| m.pdf(d),
-                nasg_lobe_sensitivity,
-            )
-        }),
+        batch::nasg_mixture_from_raw,
+        nasg_lobe_sensitivity,
+        &uv,
     );
     let per = DF_MARGINAL_BINS + DF_MARGINAL_BINS * DF_CONDITIONAL_BINS;
     for (code, interp) in [(0u32, Interpolation::Nearest), (1, Interpolation::Linear)] {
@@ -1252,6 +1265,69 @@ fn decode_kernels_match_the_cpu_on_ordinary_and_extreme_parameters() {
                 )
             }),
         );
+    }
+}
+
+/// Agreement of a lane kernel's samples and densities with the CPU's
+/// (relative tolerance `rel`, widened by the density's local sensitivity).
+struct LaneCheck {
+    prefix: &'static str,
+    rel: f32,
+    /// Samples the GPU drew in another direction (across a CDF boundary).
+    differ: usize,
+    /// The largest error over its bound.
+    worst: f32,
+}
+
+impl LaneCheck {
+    fn new(prefix: &'static str, rel: f32) -> Self {
+        Self {
+            prefix,
+            rel,
+            differ: 0,
+            worst: 0.0,
+        }
+    }
+
+    /// Lane `k`: the GPU's sample `[ω, pdf]` and density at `d` against the
+    /// CPU's sample `(ω, pdf)` and density at `d`; `density` is the CPU's.
+    fn lane(
+        &mut self,
+        k: usize,
+        density: &dyn Fn(Vec3) -> f32,
+        (g, p_gpu): ([f32; 4], f32),
+        ((cd, c_pdf), p_cpu): ((Vec3, f32), f32),
+        d: Vec3,
+    ) {
+        let prefix = self.prefix;
+        let gd = batch::unpack_direction(g);
+        assert!(
+            g.iter().all(|x| x.is_finite()) && g[3] > 0.0,
+            "{prefix}: GPU sample {k} {g:?}"
+        );
+        if (gd - cd).length() > 1e-4 {
+            assert!(density(gd) > 0.0, "{prefix}: GPU sample {k} at density 0");
+            self.differ += 1;
+        } else {
+            let bound = self.rel * c_pdf.abs().max(1e-2)
+                + (density(gd) - density(cd)).abs()
+                + (c_pdf - density(cd)).abs()
+                + local_sensitivity(density, cd);
+            let err = (g[3] - c_pdf).abs();
+            assert!(
+                err <= bound,
+                "{prefix}: sample {k} pdf gpu {} cpu {c_pdf} (bound {bound:e})",
+                g[3]
+            );
+            self.worst = self.worst.max(err / bound);
+        }
+        let bound = self.rel * p_cpu.abs().max(1e-2) + local_sensitivity(density, d);
+        let err = (p_gpu - p_cpu).abs();
+        assert!(
+            p_gpu.is_finite() && err <= bound,
+            "{prefix}: pdf {k} gpu {p_gpu} cpu {p_cpu} (bound {bound:e})"
+        );
+        self.worst = self.worst.max(err / bound);
     }
 }
 
@@ -1348,7 +1424,7 @@ fn check_lanes<M: RawOutputs + bytemuck::Pod>(
             batch::lane_pdf_element::<NasgMixture<8>>(&raw, &lanes, &normals, &d, &mut p_cpu, k);
         }
     }
-    let (mut differ, mut worst) = (0usize, 0.0f32);
+    let mut check = LaneCheck::new(prefix, MIXTURE_PDF_REL);
     for k in 0..m {
         let density = |dir: Vec3| -> f32 {
             let mut out = [0.0f32];
@@ -1361,40 +1437,12 @@ fn check_lanes<M: RawOutputs + bytemuck::Pod>(
             }
             out[0]
         };
-        let (g, c) = (s_gpu[k], s_cpu[k]);
-        let (gd, cd) = (batch::unpack_direction(g), batch::unpack_direction(c));
-        assert!(
-            g.iter().all(|x| x.is_finite()) && g[3] > 0.0,
-            "{prefix}: GPU sample {k} {g:?}"
-        );
-        if (gd - cd).length() > 1e-4 {
-            assert!(density(gd) > 0.0, "{prefix}: GPU sample {k} at density 0");
-            differ += 1;
-        } else {
-            let bound = MIXTURE_PDF_REL * c[3].abs().max(1e-2)
-                + (density(gd) - density(cd)).abs()
-                + (c[3] - density(cd)).abs()
-                + local_sensitivity(&density, cd);
-            let err = (g[3] - c[3]).abs();
-            assert!(
-                err <= bound,
-                "{prefix}: sample {k} pdf gpu {} cpu {} (bound {bound:e})",
-                g[3],
-                c[3]
-            );
-            worst = worst.max(err / bound);
-        }
-        let dd = batch::unpack_direction(d[k]);
-        let bound = MIXTURE_PDF_REL * p_cpu[k].abs().max(1e-2) + local_sensitivity(&density, dd);
-        let err = (p_gpu[k] - p_cpu[k]).abs();
-        assert!(
-            p_gpu[k].is_finite() && err <= bound,
-            "{prefix}: pdf {k} gpu {} cpu {} (bound {bound:e})",
-            p_gpu[k],
-            p_cpu[k]
-        );
-        worst = worst.max(err / bound);
+        let c = s_cpu[k];
+        let cpu_sample = (batch::unpack_direction(c), c[3]);
+        let d = batch::unpack_direction(d[k]);
+        check.lane(k, &density, (s_gpu[k], p_gpu[k]), (cpu_sample, p_cpu[k]), d);
     }
+    let LaneCheck { differ, worst, .. } = check;
     assert!(
         differ * 100 < m,
         "{prefix}: {differ} of {m} lane samples in another direction"
@@ -1474,45 +1522,16 @@ fn df_vertex_kernels_match_the_cpu() {
             .expect("sample vertex lanes");
         gpu.pdf_vertex_lanes(&buf, &lanes, &d, &mut p_gpu)
             .expect("pdf vertex lanes");
-        let (mut differ, mut worst) = (0usize, 0.0f32);
+        let mut check = LaneCheck::new(prefix, DF_PDF_REL);
         for k in 0..m {
             let v = vertices[lanes[k] as usize];
             let density = |dir: Vec3| model.pdf_vertex(&params, &v, dir);
             let c = model.sample_vertex(&params, &v, Vec2::new(u[k][0], u[k][1]));
-            let g = s_gpu[k];
-            let gd = batch::unpack_direction(g);
-            assert!(
-                g.iter().all(|x| x.is_finite()) && g[3] > 0.0,
-                "{prefix}: GPU sample {k} {g:?}"
-            );
-            if (gd - c.direction).length() > 1e-4 {
-                assert!(density(gd) > 0.0, "{prefix}: GPU sample {k} at density 0");
-                differ += 1;
-            } else {
-                let bound = DF_PDF_REL * c.pdf.abs().max(1e-2)
-                    + (density(gd) - density(c.direction)).abs()
-                    + (c.pdf - density(c.direction)).abs()
-                    + local_sensitivity(&density, c.direction);
-                let err = (g[3] - c.pdf).abs();
-                assert!(
-                    err <= bound,
-                    "{prefix}: sample {k} pdf gpu {} cpu {} (bound {bound:e})",
-                    g[3],
-                    c.pdf
-                );
-                worst = worst.max(err / bound);
-            }
-            let dd = batch::unpack_direction(d[k]);
-            let want = density(dd);
-            let bound = DF_PDF_REL * want.abs().max(1e-2) + local_sensitivity(&density, dd);
-            let err = (p_gpu[k] - want).abs();
-            assert!(
-                p_gpu[k].is_finite() && err <= bound,
-                "{prefix}: pdf {k} gpu {} cpu {want} (bound {bound:e})",
-                p_gpu[k]
-            );
-            worst = worst.max(err / bound);
+            let d = batch::unpack_direction(d[k]);
+            let cpu = ((c.direction, c.pdf), density(d));
+            check.lane(k, &density, (s_gpu[k], p_gpu[k]), cpu, d);
         }
+        let LaneCheck { differ, worst, .. } = check;
         assert!(
             differ * 100 < m,
             "{prefix}: {differ} of {m} vertex samples in another direction"

@@ -47,6 +47,7 @@ use crate::pdf1d::{Boundary, Pdf1d};
 use crate::sample::TrainingSample;
 use glam::{Vec2, Vec3};
 use std::vec;
+use std::vec::Vec;
 
 /// Queries per chunk of a batched decode (inputs and outputs of one chunk
 /// stay in L1).
@@ -61,6 +62,13 @@ pub const WAVEFRONT_CHUNK: usize = 64;
 /// 128 → 895 k / 212 k / 456 k, 256 → 930 k / 197 k / 330 k (larger chunks
 /// leave L2).
 pub const TRAIN_CHUNK: usize = 128;
+
+/// The (vertex, table row) of pair `i` of [`Df::tabulate_vertices`]: row-major,
+/// [`DF_MARGINAL_BINS`] rows per vertex.
+#[inline]
+const fn vertex_row(i: usize) -> (usize, usize) {
+    (i / DF_MARGINAL_BINS, i % DF_MARGINAL_BINS)
+}
 
 /// A DF distribution tabulated per marginal bin ([`Df::tabulate_vertices`]).
 pub type DfTable = factorised::FactorisedTable<DF_MARGINAL_BINS, DF_CONDITIONAL_BINS>;
@@ -147,7 +155,6 @@ impl<F: MixtureFamily<OUT>, const IN: usize, const W: usize, const H: usize, con
     /// chunk), taken out again if anything is not finite (as the per-query
     /// kernel does: such samples add nothing here either), run backward in
     /// one batched call and scattered into the grid.
-    #[allow(clippy::useless_vec)] // chunk buffers on the heap: too large for a worker's stack
     pub(crate) fn gradient_batch(
         &self,
         params: &[f32],
@@ -159,80 +166,163 @@ impl<F: MixtureFamily<OUT>, const IN: usize, const W: usize, const H: usize, con
         }
         let target = self.target();
         let offset = self.mlp_offset as usize;
-        let mut xs = vec![[0.0f32; IN]; TRAIN_CHUNK];
-        let mut ys = vec![[0.0f32; OUT]; TRAIN_CHUNK];
-        let mut dys = vec![[0.0f32; OUT]; TRAIN_CHUNK];
-        let mut dxs = vec![[0.0f32; IN]; TRAIN_CHUNK];
-        let mut ctxs = vec![MlpContext::<W, H>::ZERO; TRAIN_CHUNK];
-        let mut live = vec![0usize; TRAIN_CHUNK];
-        let mut losses = vec![0.0f32; TRAIN_CHUNK];
-        let mut ok = vec![false; TRAIN_CHUNK];
-        let mut traces = vec![GridTrace::EMPTY; TRAIN_CHUNK];
+        let mut rows = SampleRows::new();
+        let mut net = NetRows::<IN, W, OUT, H>::new();
         let mut total = 0.0f64;
         for chunk in samples.chunks(TRAIN_CHUNK) {
             // Samples with a usable weight, encoded.
-            let mut m = 0;
-            for (j, s) in chunk.iter().enumerate() {
-                if s.validate().is_err() || kl_weight(s, target) == 0.0 {
-                    continue;
-                }
-                live[m] = j;
-                xs[m] = [0.0; IN];
-                encode_inputs_traced(
-                    params,
-                    &self.grid,
-                    self.target,
-                    &QueryPoint::of_sample(s),
-                    &mut xs[m],
-                    &mut traces[m],
-                );
-                m += 1;
-            }
+            let m = rows.encode_live(params, &self.grid, self.target, chunk, &mut net.xs, |s| {
+                kl_weight(s, target) != 0.0
+            });
             if m == 0 {
                 continue;
             }
-            Mlp::<IN, W, OUT, H>::forward_batch(
-                params,
-                offset,
-                &xs[..m],
-                &mut ys[..m],
-                &mut ctxs[..m],
-            );
-            for dy in &mut dys[..m] {
+            net.forward(params, offset, m);
+            for dy in &mut net.dys[..m] {
                 *dy = [0.0; OUT];
             }
             self.family.output_gradients(ChunkOutputs {
                 target,
                 chunk,
-                live: &live[..m],
-                ys: &ys[..m],
-                dys: &mut dys[..m],
-                losses: &mut losses[..m],
+                live: &rows.live[..m],
+                ys: &net.ys[..m],
+                dys: &mut net.dys[..m],
+                losses: &mut rows.losses[..m],
             });
             for k in 0..m {
-                ok[k] = losses[k].is_finite() && all_finite(&ys[k]) && all_finite(&dys[k]);
-                if !ok[k] {
-                    exclude(&mut dys[k], &mut xs[k], &mut ctxs[k], &mut losses[k]);
+                rows.ok[k] =
+                    rows.losses[k].is_finite() && all_finite(&net.ys[k]) && all_finite(&net.dys[k]);
+                if !rows.ok[k] {
+                    net.exclude(k, &mut rows.losses[k]);
                 }
             }
-            Mlp::<IN, W, OUT, H>::backward_batch(
-                params,
-                offset,
-                &xs[..m],
-                &ctxs[..m],
-                &dys[..m],
-                grad,
-                &mut dxs[..m],
-            );
+            net.backward(params, offset, m, grad);
             for k in 0..m {
-                if ok[k] {
-                    let position = chunk[live[k]].position();
-                    grid_backward_traced(&self.grid, position, &traces[k], &dxs[k], 0, grad);
-                    total += f64::from(losses[k]);
-                }
+                rows.scatter(&self.grid, chunk, k, &net.dxs[k], grad, &mut total);
             }
         }
         total
+    }
+}
+
+/// Per-sample state of a training chunk: which samples are live (`live[k]`
+/// indexes the chunk), their grid traces, losses and whether they are kept.
+/// Heap buffers: too large for a worker's stack.
+struct SampleRows {
+    live: Vec<usize>,
+    ok: Vec<bool>,
+    losses: Vec<f32>,
+    traces: Vec<GridTrace>,
+}
+
+impl SampleRows {
+    fn new() -> Self {
+        Self {
+            live: vec![0; TRAIN_CHUNK],
+            ok: vec![false; TRAIN_CHUNK],
+            losses: vec![0.0; TRAIN_CHUNK],
+            traces: vec![GridTrace::EMPTY; TRAIN_CHUNK],
+        }
+    }
+
+    /// Encodes the valid samples of `chunk` that `keep` accepts, in order,
+    /// into rows `0..m` of `xs` (and their traces); returns `m`.
+    fn encode_live<const IN: usize>(
+        &mut self,
+        params: &[f32],
+        grid: &crate::encoding::GridConfig,
+        target: u32,
+        chunk: &[TrainingSample],
+        xs: &mut [[f32; IN]],
+        keep: impl Fn(&TrainingSample) -> bool,
+    ) -> usize {
+        let mut m = 0;
+        for (j, s) in chunk.iter().enumerate() {
+            if s.validate().is_err() || !keep(s) {
+                continue;
+            }
+            self.live[m] = j;
+            xs[m] = [0.0; IN];
+            let q = QueryPoint::of_sample(s);
+            encode_inputs_traced(params, grid, target, &q, &mut xs[m], &mut self.traces[m]);
+            m += 1;
+        }
+        m
+    }
+
+    /// Scatters the input gradient `dx` of row `k` into the grid and adds
+    /// its loss to `total`, if the row is kept.
+    fn scatter<const IN: usize>(
+        &self,
+        grid: &crate::encoding::GridConfig,
+        chunk: &[TrainingSample],
+        k: usize,
+        dx: &[f32; IN],
+        grad: &mut [f32],
+        total: &mut f64,
+    ) {
+        if self.ok[k] {
+            let position = chunk[self.live[k]].position();
+            grid_backward_traced(grid, position, &self.traces[k], dx, 0, grad);
+            *total += f64::from(self.losses[k]);
+        }
+    }
+}
+
+/// One network's rows over a training chunk: inputs, outputs, output and
+/// input gradients, activations (heap buffers, as [`SampleRows`]).
+struct NetRows<const IN: usize, const W: usize, const OUT: usize, const H: usize> {
+    xs: Vec<[f32; IN]>,
+    ys: Vec<[f32; OUT]>,
+    dys: Vec<[f32; OUT]>,
+    dxs: Vec<[f32; IN]>,
+    ctxs: Vec<MlpContext<W, H>>,
+}
+
+impl<const IN: usize, const W: usize, const OUT: usize, const H: usize> NetRows<IN, W, OUT, H> {
+    fn new() -> Self {
+        Self {
+            xs: vec![[0.0; IN]; TRAIN_CHUNK],
+            ys: vec![[0.0; OUT]; TRAIN_CHUNK],
+            dys: vec![[0.0; OUT]; TRAIN_CHUNK],
+            dxs: vec![[0.0; IN]; TRAIN_CHUNK],
+            ctxs: vec![MlpContext::ZERO; TRAIN_CHUNK],
+        }
+    }
+
+    /// [`Mlp::forward_batch`] of the network at `offset` over rows `0..m`.
+    fn forward(&mut self, params: &[f32], offset: usize, m: usize) {
+        Mlp::<IN, W, OUT, H>::forward_batch(
+            params,
+            offset,
+            &self.xs[..m],
+            &mut self.ys[..m],
+            &mut self.ctxs[..m],
+        );
+    }
+
+    /// [`Mlp::backward_batch`] of the network at `offset` over rows `0..m`:
+    /// parameter gradients into `grad`, input gradients into `dxs`.
+    fn backward(&mut self, params: &[f32], offset: usize, m: usize, grad: &mut [f32]) {
+        Mlp::<IN, W, OUT, H>::backward_batch(
+            params,
+            offset,
+            &self.xs[..m],
+            &self.ctxs[..m],
+            &self.dys[..m],
+            grad,
+            &mut self.dxs[..m],
+        );
+    }
+
+    /// Takes row `k` out after its forward pass: zero output gradient,
+    /// input and activations (so `0 · NaN` cannot reach the gradient) and
+    /// zero `loss`.
+    fn exclude(&mut self, k: usize, loss: &mut f32) {
+        self.dys[k] = [0.0; OUT];
+        self.xs[k] = [0.0; IN];
+        self.ctxs[k] = MlpContext::ZERO;
+        *loss = 0.0;
     }
 }
 
@@ -655,21 +745,6 @@ fn decode_nasg_block(ys: &[[f32; NASG_OUTPUTS]], out: &mut [NasgMixture<NASG_LOB
     }
 }
 
-/// Takes a sample out of a chunk after its forward pass: zero output
-/// gradient, input and activations (so `0 · NaN` cannot reach the
-/// gradient) and zero loss.
-fn exclude<const IN: usize, const OUT: usize, const W: usize, const H: usize>(
-    dy: &mut [f32; OUT],
-    x: &mut [f32; IN],
-    ctx: &mut MlpContext<W, H>,
-    loss: &mut f32,
-) {
-    *dy = [0.0; OUT];
-    *x = [0.0; IN];
-    *ctx = MlpContext::ZERO;
-    *loss = 0.0;
-}
-
 impl<
         const IN_M: usize,
         const IN_C: usize,
@@ -755,19 +830,13 @@ impl<
         while start < pairs {
             let m = (pairs - start).min(WAVEFRONT_CHUNK);
             for b in 0..m {
-                let (v, r) = (
-                    (start + b) / DF_MARGINAL_BINS,
-                    (start + b) % DF_MARGINAL_BINS,
-                );
+                let (v, r) = vertex_row(start + b);
                 lanes[b] = v as u32;
                 eps1[b] = (r as f32 + 0.5) / DF_MARGINAL_BINS as f32;
             }
             self.conditional_chunk(params, vertices, &lanes[..m], &eps1[..m], &mut ys);
             for (b, y) in ys[..m].iter().enumerate() {
-                let (v, r) = (
-                    (start + b) / DF_MARGINAL_BINS,
-                    (start + b) % DF_MARGINAL_BINS,
-                );
+                let (v, r) = vertex_row(start + b);
                 out[v].conditionals[r] =
                     Pdf1d::from_logits(y, self.interpolation(), Boundary::Clamp);
             }
@@ -822,25 +891,20 @@ impl<
             }
             return;
         }
-        let mut e1 = [0.0f32; WAVEFRONT_CHUNK];
-        let mut p1 = [0.0f32; WAVEFRONT_CHUNK];
-        let mut ys = [[0.0f32; DF_CONDITIONAL_BINS]; WAVEFRONT_CHUNK];
-        for ((ls, us), os) in lanes
-            .chunks(WAVEFRONT_CHUNK)
-            .zip(u.chunks(WAVEFRONT_CHUNK))
-            .zip(out.chunks_mut(WAVEFRONT_CHUNK))
-        {
-            for b in 0..ls.len() {
-                (e1[b], p1[b]) =
-                    factorised::sample_marginal(&vertices[ls[b] as usize].marginal, us[b].x);
-            }
-            self.conditional_chunk(params, vertices, ls, &e1[..ls.len()], &mut ys);
-            for b in 0..ls.len() {
-                let conditional = Pdf1d::from_logits(&ys[b], self.interpolation(), Boundary::Clamp);
-                let v = &vertices[ls[b] as usize];
-                os[b] = self.finish_sample(params, v, e1[b], p1[b], &conditional, us[b].y);
-            }
-        }
+        self.for_each_conditional(
+            params,
+            vertices,
+            lanes,
+            |i| {
+                let (e1, p1) =
+                    factorised::sample_marginal(&vertices[lanes[i] as usize].marginal, u[i].x);
+                (e1, (e1, p1))
+            },
+            |i, (e1, p1), conditional| {
+                let v = &vertices[lanes[i] as usize];
+                out[i] = self.finish_sample(params, v, e1, p1, conditional, u[i].y);
+            },
+        );
     }
 
     /// [`VertexModel::pdf_vertex`](super::df::VertexModel::pdf_vertex) for `out[b]` = the density of `directions[b]` at
@@ -863,41 +927,51 @@ impl<
             out.fill(INV_FOUR_PI);
             return;
         }
+        self.for_each_conditional(
+            params,
+            vertices,
+            lanes,
+            |i| (square_from_direction(directions[i]).x, ()),
+            |i, (), conditional| {
+                let marginal = &vertices[lanes[i] as usize].marginal;
+                out[i] = factorised::pdf(marginal, conditional, directions[i]);
+            },
+        );
+    }
+
+    /// The conditional density at `(vertices[lanes[i]], ε₁)` for every lane
+    /// `i`, the network batched over chunks of [`WAVEFRONT_CHUNK`] lanes:
+    /// `prepare(i)` gives lane `i`'s `ε₁` and a value handed on to
+    /// `finish(i, value, conditional)`.
+    fn for_each_conditional<T: Copy + Default>(
+        &self,
+        params: &[f32],
+        vertices: &[DfVertex],
+        lanes: &[u32],
+        prepare: impl Fn(usize) -> (f32, T),
+        mut finish: impl FnMut(usize, T, &Pdf1d<DF_CONDITIONAL_BINS>),
+    ) {
         let mut e1 = [0.0f32; WAVEFRONT_CHUNK];
+        let mut values = [T::default(); WAVEFRONT_CHUNK];
         let mut ys = [[0.0f32; DF_CONDITIONAL_BINS]; WAVEFRONT_CHUNK];
-        for ((ls, ds), os) in lanes
-            .chunks(WAVEFRONT_CHUNK)
-            .zip(directions.chunks(WAVEFRONT_CHUNK))
-            .zip(out.chunks_mut(WAVEFRONT_CHUNK))
-        {
+        for (c, ls) in lanes.chunks(WAVEFRONT_CHUNK).enumerate() {
+            let start = c * WAVEFRONT_CHUNK;
             for b in 0..ls.len() {
-                e1[b] = square_from_direction(ds[b]).x;
+                (e1[b], values[b]) = prepare(start + b);
             }
             self.conditional_chunk(params, vertices, ls, &e1[..ls.len()], &mut ys);
             for b in 0..ls.len() {
                 let conditional = Pdf1d::from_logits(&ys[b], self.interpolation(), Boundary::Clamp);
-                os[b] = factorised::pdf(&vertices[ls[b] as usize].marginal, &conditional, ds[b]);
+                finish(start + b, values[b], &conditional);
             }
         }
     }
-}
 
-impl<
-        const IN_M: usize,
-        const IN_C: usize,
-        const IN_R: usize,
-        const WIDTH: usize,
-        const HIDDEN: usize,
-        const CACHE_WIDTH: usize,
-        const CACHE_HIDDEN: usize,
-    > Df<IN_M, IN_C, IN_R, WIDTH, HIDDEN, CACHE_WIDTH, CACHE_HIDDEN>
-{
     /// The batched form of DF's `accumulate_gradient` (module docs): the
     /// cache, marginal and conditional networks each run forward and
     /// backward over the chunk; the guide term is skipped where its weight
     /// is zero and a sample the per-query kernel would reject (invalid,
     /// non-finite output or gradient) adds nothing. Returns the summed loss.
-    #[allow(clippy::useless_vec)] // chunk buffers on the heap: too large for a worker's stack
     pub(crate) fn gradient_batch(
         &self,
         params: &[f32],
@@ -913,146 +987,87 @@ impl<
             self.conditional_offset as usize,
             self.cache_offset as usize,
         );
-        type Ctx<const W: usize, const H: usize> = MlpContext<W, H>;
-        let mut xb = vec![[0.0f32; IN_M]; TRAIN_CHUNK];
-        let mut xc = vec![[0.0f32; IN_C]; TRAIN_CHUNK];
-        let mut xr = vec![[0.0f32; IN_R]; TRAIN_CHUNK];
-        let mut yr = vec![[0.0f32; 3]; TRAIN_CHUNK];
-        let mut ym = vec![[0.0f32; DF_MARGINAL_BINS]; TRAIN_CHUNK];
-        let mut yc = vec![[0.0f32; DF_CONDITIONAL_BINS]; TRAIN_CHUNK];
-        let mut dr = vec![[0.0f32; 3]; TRAIN_CHUNK];
-        let mut dm = vec![[0.0f32; DF_MARGINAL_BINS]; TRAIN_CHUNK];
-        let mut dc = vec![[0.0f32; DF_CONDITIONAL_BINS]; TRAIN_CHUNK];
-        let mut dxb = vec![[0.0f32; IN_M]; TRAIN_CHUNK];
-        let mut dxc = vec![[0.0f32; IN_C]; TRAIN_CHUNK];
-        let mut dxr = vec![[0.0f32; IN_R]; TRAIN_CHUNK];
-        let mut cr = vec![Ctx::<CACHE_WIDTH, CACHE_HIDDEN>::ZERO; TRAIN_CHUNK];
-        let mut cm = vec![Ctx::<WIDTH, HIDDEN>::ZERO; TRAIN_CHUNK];
-        let mut cc = vec![Ctx::<WIDTH, HIDDEN>::ZERO; TRAIN_CHUNK];
-        let mut live = vec![0usize; TRAIN_CHUNK];
-        let mut ok = vec![false; TRAIN_CHUNK];
-        let mut losses = vec![0.0f32; TRAIN_CHUNK];
-        let mut traces = vec![GridTrace::EMPTY; TRAIN_CHUNK];
-        let lambda_c = self.cache_weight();
+        let mut rows = SampleRows::new();
+        let mut base = NetRows::<IN_M, WIDTH, DF_MARGINAL_BINS, HIDDEN>::new();
+        let mut cond = NetRows::<IN_C, WIDTH, DF_CONDITIONAL_BINS, HIDDEN>::new();
+        let mut cache = NetRows::<IN_R, CACHE_WIDTH, 3, CACHE_HIDDEN>::new();
         let g = self.grid.output_dims();
         let mut total = 0.0f64;
         for chunk in samples.chunks(TRAIN_CHUNK) {
-            let mut m = 0;
-            for (j, s) in chunk.iter().enumerate() {
-                if s.validate().is_err() {
-                    continue;
-                }
-                live[m] = j;
-                xb[m] = [0.0; IN_M];
-                encode_inputs_traced(
-                    params,
-                    &self.grid,
-                    self.target,
-                    &QueryPoint::of_sample(s),
-                    &mut xb[m],
-                    &mut traces[m],
-                );
-                xr[m] = self.cache_input(&xb[m], s.wi());
-                xc[m] = Self::conditional_input(&xb[m], square_from_direction(s.wi()).x);
-                m += 1;
-            }
+            let m = rows.encode_live(params, &self.grid, self.target, chunk, &mut base.xs, |_| {
+                true
+            });
             if m == 0 {
                 continue;
             }
-            Mlp::<IN_R, CACHE_WIDTH, 3, CACHE_HIDDEN>::forward_batch(
-                params,
-                off_r,
-                &xr[..m],
-                &mut yr[..m],
-                &mut cr[..m],
-            );
-            Mlp::<IN_M, WIDTH, DF_MARGINAL_BINS, HIDDEN>::forward_batch(
-                params,
-                off_m,
-                &xb[..m],
-                &mut ym[..m],
-                &mut cm[..m],
-            );
-            Mlp::<IN_C, WIDTH, DF_CONDITIONAL_BINS, HIDDEN>::forward_batch(
-                params,
-                off_c,
-                &xc[..m],
-                &mut yc[..m],
-                &mut cc[..m],
-            );
             for k in 0..m {
-                let (loss, finite, guided) = self.output_gradients(
-                    &chunk[live[k]],
-                    lambda_c,
-                    (&yr[k], &ym[k], &yc[k]),
-                    (&mut dr[k], &mut dm[k], &mut dc[k]),
-                );
-                if !guided {
-                    // The per-query kernel never runs these networks here.
-                    xb[k] = [0.0; IN_M];
-                    xc[k] = [0.0; IN_C];
-                    cm[k] = MlpContext::ZERO;
-                    cc[k] = MlpContext::ZERO;
-                }
-                ok[k] = finite
-                    && loss.is_finite()
-                    && all_finite(&dr[k])
-                    && all_finite(&dm[k])
-                    && all_finite(&dc[k]);
-                if ok[k] {
-                    losses[k] = loss;
-                } else {
-                    exclude(&mut dr[k], &mut xr[k], &mut cr[k], &mut losses[k]);
-                    exclude(&mut dm[k], &mut xb[k], &mut cm[k], &mut 0.0);
-                    exclude(&mut dc[k], &mut xc[k], &mut cc[k], &mut 0.0);
-                }
+                let wi = chunk[rows.live[k]].wi();
+                cache.xs[k] = self.cache_input(&base.xs[k], wi);
+                cond.xs[k] = Self::conditional_input(&base.xs[k], square_from_direction(wi).x);
             }
-            Mlp::<IN_M, WIDTH, DF_MARGINAL_BINS, HIDDEN>::backward_batch(
-                params,
-                off_m,
-                &xb[..m],
-                &cm[..m],
-                &dm[..m],
-                grad,
-                &mut dxb[..m],
-            );
-            Mlp::<IN_C, WIDTH, DF_CONDITIONAL_BINS, HIDDEN>::backward_batch(
-                params,
-                off_c,
-                &xc[..m],
-                &cc[..m],
-                &dc[..m],
-                grad,
-                &mut dxc[..m],
-            );
-            Mlp::<IN_R, CACHE_WIDTH, 3, CACHE_HIDDEN>::backward_batch(
-                params,
-                off_r,
-                &xr[..m],
-                &cr[..m],
-                &dr[..m],
-                grad,
-                &mut dxr[..m],
-            );
+            cache.forward(params, off_r, m);
+            base.forward(params, off_m, m);
+            cond.forward(params, off_c, m);
+            self.chunk_output_gradients(chunk, m, &mut rows, &mut base, &mut cond, &mut cache);
+            base.backward(params, off_m, m, grad);
+            cond.backward(params, off_c, m, grad);
+            cache.backward(params, off_r, m, grad);
             for k in 0..m {
-                if !ok[k] {
-                    continue;
-                }
                 // d_base = marginal + conditional + cache input gradients, in
                 // the per-query kernel's order.
-                let mut d = dxb[k];
-                for i in 0..IN_M.min(IN_C) {
-                    d[i] += dxc[k][i];
+                let mut d = base.dxs[k];
+                for (di, &dc) in d.iter_mut().zip(&cond.dxs[k]) {
+                    *di += dc;
                 }
-                for i in 0..g.min(IN_M).min(IN_R) {
-                    d[i] += dxr[k][i];
+                for (di, &dr) in d.iter_mut().zip(&cache.dxs[k]).take(g) {
+                    *di += dr;
                 }
-                let position = chunk[live[k]].position();
-                grid_backward_traced(&self.grid, position, &traces[k], &d, 0, grad);
-                total += f64::from(losses[k]);
+                rows.scatter(&self.grid, chunk, k, &d, grad, &mut total);
             }
         }
         total
+    }
+
+    /// Every live sample's loss and output gradients ([`Self::output_gradients`]);
+    /// a sample whose guide term is skipped keeps no marginal or conditional
+    /// rows, one with anything non-finite no rows at all.
+    fn chunk_output_gradients(
+        &self,
+        chunk: &[TrainingSample],
+        m: usize,
+        rows: &mut SampleRows,
+        base: &mut NetRows<IN_M, WIDTH, DF_MARGINAL_BINS, HIDDEN>,
+        cond: &mut NetRows<IN_C, WIDTH, DF_CONDITIONAL_BINS, HIDDEN>,
+        cache: &mut NetRows<IN_R, CACHE_WIDTH, 3, CACHE_HIDDEN>,
+    ) {
+        let lambda_c = self.cache_weight();
+        for k in 0..m {
+            let (loss, finite, guided) = self.output_gradients(
+                &chunk[rows.live[k]],
+                lambda_c,
+                (&cache.ys[k], &base.ys[k], &cond.ys[k]),
+                (&mut cache.dys[k], &mut base.dys[k], &mut cond.dys[k]),
+            );
+            if !guided {
+                // The per-query kernel never runs these networks here.
+                base.xs[k] = [0.0; IN_M];
+                cond.xs[k] = [0.0; IN_C];
+                base.ctxs[k] = MlpContext::ZERO;
+                cond.ctxs[k] = MlpContext::ZERO;
+            }
+            rows.ok[k] = finite
+                && loss.is_finite()
+                && all_finite(&cache.dys[k])
+                && all_finite(&base.dys[k])
+                && all_finite(&cond.dys[k]);
+            if rows.ok[k] {
+                rows.losses[k] = loss;
+            } else {
+                cache.exclude(k, &mut rows.losses[k]);
+                base.exclude(k, &mut 0.0);
+                cond.exclude(k, &mut 0.0);
+            }
+        }
     }
 
     /// One sample's loss and output gradients, as the per-query kernel forms them: the

@@ -160,12 +160,11 @@ dispatch!(
 /// evaluates its terms, and the per-lane parts of the reference `pdf` and
 /// `sample` around them.
 trait Blocked: Sized {
-    /// The lane-major inputs and terms of one block.
-    type Scratch;
-    /// A zeroed scratch (once per call: in a last, partial block the unused
-    /// lanes keep the previous block's values, whose terms are computed and
-    /// never summed).
-    fn scratch() -> Self::Scratch;
+    /// The lane-major inputs and terms of one block; its default is zeroed
+    /// (made once per call: in a last, partial block the unused lanes keep
+    /// the previous block's values, whose terms are computed and never
+    /// summed).
+    type Scratch: Default;
     /// The unit direction the reference `pdf` evaluates at `d`.
     fn unit(d: Vec3) -> Vec3;
     /// The reference's value where it does not evaluate at [`Self::unit`]
@@ -173,16 +172,30 @@ trait Blocked: Sized {
     fn special(&self, d: Vec3) -> Option<f32>;
     /// The direction the reference `sample` draws.
     fn direction(&self, u: Vec2) -> Vec3;
-    /// The densities of up to [`PAIRS`] pairs (`lanes[b]`'s mixture at the
-    /// unit direction `unit[b]`) into `out[..lanes.len()]`: the reference's
-    /// terms over the block's lanes, then each pair's pairwise sum.
-    fn block(
-        mixtures: &[Self],
-        lanes: &[u32],
-        unit: &[Vec3; PAIRS],
-        scratch: &mut Self::Scratch,
-        out: &mut [f32],
-    );
+    /// Copies the lobe fields of `m` and the unit direction `u` into
+    /// pair `b`'s lanes of the block ([`load_pair`]).
+    fn load(m: &Self, scratch: &mut Self::Scratch, b: usize, u: Vec3);
+    /// The reference's terms over the block's lanes, then the pairwise sum
+    /// of each of the first `out.len()` pairs into `out`.
+    fn terms(scratch: &mut Self::Scratch, out: &mut [f32]);
+}
+
+/// The densities of up to [`PAIRS`] pairs (`lanes[b]`'s mixture at the
+/// unit direction `unit[b]`) into `out[..lanes.len()]`: every pair loaded,
+/// then [`Blocked::terms`].
+#[inline(always)]
+fn block<M: Blocked>(
+    mixtures: &[M],
+    lanes: &[u32],
+    unit: &[Vec3; PAIRS],
+    scratch: &mut M::Scratch,
+    out: &mut [f32],
+) {
+    let n = lanes.len().min(PAIRS);
+    for (b, &lane) in lanes[..n].iter().enumerate() {
+        M::load(&mixtures[lane as usize], scratch, b, unit[b]);
+    }
+    M::terms(scratch, &mut out[..n]);
 }
 
 /// Asserts the shared length contract of the batch functions.
@@ -197,7 +210,7 @@ fn check_lengths(lanes: usize, inputs: usize, outputs: usize) {
 #[inline(always)]
 fn pdf_blocks<M: Blocked>(mixtures: &[M], lanes: &[u32], directions: &[Vec3], out: &mut [f32]) {
     check_lengths(lanes.len(), directions.len(), out.len());
-    let mut scratch = M::scratch();
+    let mut scratch = M::Scratch::default();
     let mut unit = [Vec3::ZERO; PAIRS];
     for (j, ((l, d), o)) in lanes
         .chunks(PAIRS)
@@ -209,7 +222,7 @@ fn pdf_blocks<M: Blocked>(mixtures: &[M], lanes: &[u32], directions: &[Vec3], ou
         for (u, &d) in unit.iter_mut().zip(d) {
             *u = M::unit(d);
         }
-        M::block(mixtures, l, &unit, &mut scratch, o);
+        block(mixtures, l, &unit, &mut scratch, o);
         for ((o, &lane), &d) in o.iter_mut().zip(l).zip(d) {
             if let Some(p) = mixtures[lane as usize].special(d) {
                 *o = p;
@@ -229,7 +242,7 @@ fn sample_blocks<M: Blocked>(
     out: &mut [DirectionSample],
 ) {
     check_lengths(lanes.len(), u.len(), out.len());
-    let mut scratch = M::scratch();
+    let mut scratch = M::Scratch::default();
     let mut dirs = [Vec3::ZERO; PAIRS];
     let mut pdfs = [0.0f32; PAIRS];
     for (j, ((l, u), o)) in lanes
@@ -242,7 +255,7 @@ fn sample_blocks<M: Blocked>(
         for ((d, &lane), &ub) in dirs.iter_mut().zip(l).zip(u) {
             *d = mixtures[lane as usize].direction(ub);
         }
-        M::block(mixtures, l, &dirs, &mut scratch, &mut pdfs);
+        block(mixtures, l, &dirs, &mut scratch, &mut pdfs);
         for ((o, &d), &p) in o.iter_mut().zip(&dirs).zip(&pdfs) {
             *o = DirectionSample {
                 direction: d,
@@ -292,22 +305,28 @@ fn sum_pairs<const LANES: usize>(terms: &[f32; LANES], out: &mut [f32]) {
     }
 }
 
-/// A NASG block: weight, x (3), y (3), z (3), λ, a, ε, −ln K, the direction (3).
-struct NasgScratch {
-    fields: [[f32; NASG_LANES]; 17],
-    terms: [f32; NASG_LANES],
+/// The lane-major arrays of one block: `F` lobe fields (the direction's
+/// three last) and the terms.
+struct BlockScratch<const LANES: usize, const F: usize> {
+    fields: [[f32; LANES]; F],
+    terms: [f32; LANES],
 }
+
+impl<const LANES: usize, const F: usize> Default for BlockScratch<LANES, F> {
+    #[inline(always)]
+    fn default() -> Self {
+        Self {
+            fields: [[0.0; LANES]; F],
+            terms: [0.0; LANES],
+        }
+    }
+}
+
+/// A NASG block: weight, x (3), y (3), z (3), λ, a, ε, −ln K, the direction (3).
+type NasgScratch = BlockScratch<NASG_LANES, 17>;
 
 impl Blocked for NasgMixture<NASG_LOBES> {
     type Scratch = NasgScratch;
-
-    #[inline(always)]
-    fn scratch() -> NasgScratch {
-        NasgScratch {
-            fields: [[0.0; NASG_LANES]; 17],
-            terms: [0.0; NASG_LANES],
-        }
-    }
 
     #[inline(always)]
     fn unit(d: Vec3) -> Vec3 {
@@ -325,36 +344,30 @@ impl Blocked for NasgMixture<NASG_LOBES> {
         self.sample_direction(u)
     }
 
+    #[inline(always)]
+    fn load(m: &Self, f: &mut NasgScratch, b: usize, u: Vec3) {
+        let fields = [
+            &m.weight,
+            &m.x_x,
+            &m.x_y,
+            &m.x_z,
+            &m.y_x,
+            &m.y_y,
+            &m.y_z,
+            &m.z_x,
+            &m.z_y,
+            &m.z_z,
+            &m.lambda,
+            &m.a,
+            &m.epsilon,
+            &m.log_norm,
+        ];
+        load_pair(&mut f.fields, b, fields, u);
+    }
+
     /// The terms of `NasgMixture::pdf_unit`.
     #[inline(always)]
-    fn block(
-        mixtures: &[Self],
-        lanes: &[u32],
-        unit: &[Vec3; PAIRS],
-        f: &mut NasgScratch,
-        out: &mut [f32],
-    ) {
-        let n = lanes.len().min(PAIRS);
-        for (b, &lane) in lanes[..n].iter().enumerate() {
-            let m = &mixtures[lane as usize];
-            let fields = [
-                &m.weight,
-                &m.x_x,
-                &m.x_y,
-                &m.x_z,
-                &m.y_x,
-                &m.y_y,
-                &m.y_z,
-                &m.z_x,
-                &m.z_y,
-                &m.z_z,
-                &m.lambda,
-                &m.a,
-                &m.epsilon,
-                &m.log_norm,
-            ];
-            load_pair(&mut f.fields, b, fields, unit[b]);
-        }
+    fn terms(f: &mut NasgScratch, out: &mut [f32]) {
         let [w, x_x, x_y, x_z, y_x, y_y, y_z, z_x, z_y, z_z, lambda, a, epsilon, log_norm, ux, uy, uz] =
             &f.fields;
         let terms = &mut f.terms;
@@ -367,15 +380,12 @@ impl Blocked for NasgMixture<NASG_LOBES> {
             // Unused lanes have weight 0: exactly 0, whatever their arithmetic gave.
             terms[l] = if w[l] > 0.0 { p } else { 0.0 };
         }
-        sum_pairs(terms, &mut out[..n]);
+        sum_pairs(terms, out);
     }
 }
 
 /// A vMF block: weight, mean (3), κ, normaliser, the direction (3).
-struct VmfScratch {
-    fields: [[f32; VMF_LANES]; 9],
-    terms: [f32; VMF_LANES],
-}
+type VmfScratch = BlockScratch<VMF_LANES, 9>;
 
 /// Whether `VmfMixture::pdf` normalises `d` (else it has a formula of its own).
 #[inline(always)]
@@ -386,14 +396,6 @@ fn vmf_regular(d: Vec3) -> bool {
 
 impl Blocked for VmfMixture<NPM_LOBES> {
     type Scratch = VmfScratch;
-
-    #[inline(always)]
-    fn scratch() -> VmfScratch {
-        VmfScratch {
-            fields: [[0.0; VMF_LANES]; 9],
-            terms: [0.0; VMF_LANES],
-        }
-    }
 
     #[inline(always)]
     fn unit(d: Vec3) -> Vec3 {
@@ -414,23 +416,17 @@ impl Blocked for VmfMixture<NPM_LOBES> {
         self.sample_direction(u)
     }
 
+    #[inline(always)]
+    fn load(m: &Self, f: &mut VmfScratch, b: usize, u: Vec3) {
+        let fields = [
+            &m.weight, &m.mean_x, &m.mean_y, &m.mean_z, &m.kappa, &m.norm,
+        ];
+        load_pair(&mut f.fields, b, fields, u);
+    }
+
     /// The terms of `VmfMixture::pdf_unit`.
     #[inline(always)]
-    fn block(
-        mixtures: &[Self],
-        lanes: &[u32],
-        unit: &[Vec3; PAIRS],
-        f: &mut VmfScratch,
-        out: &mut [f32],
-    ) {
-        let n = lanes.len().min(PAIRS);
-        for (b, &lane) in lanes[..n].iter().enumerate() {
-            let m = &mixtures[lane as usize];
-            let fields = [
-                &m.weight, &m.mean_x, &m.mean_y, &m.mean_z, &m.kappa, &m.norm,
-            ];
-            load_pair(&mut f.fields, b, fields, unit[b]);
-        }
+    fn terms(f: &mut VmfScratch, out: &mut [f32]) {
         let [w, mx, my, mz, kappa, norm, ux, uy, uz] = &f.fields;
         let terms = &mut f.terms;
         for l in 0..VMF_LANES {
@@ -440,7 +436,7 @@ impl Blocked for VmfMixture<NPM_LOBES> {
             let half_chord2 = 0.5 * (dx * dx + dy * dy + dz * dz);
             terms[l] = w[l] * norm[l] * exp_nonpositive(-kappa[l] * half_chord2);
         }
-        sum_pairs(terms, &mut out[..n]);
+        sum_pairs(terms, out);
     }
 }
 

@@ -134,6 +134,23 @@ fn dlog_pdf_dkappa(kappa: f32, t: f32) -> f32 {
     norm_term - t
 }
 
+/// Per lane `b`, `ln Σ_k exp(x[k][b] − max[b])` (summed in lobe order).
+#[inline(always)]
+#[allow(clippy::needless_range_loop)] // index loops over lanes are what vectorises
+fn ln_sum_exp_shifted(x: &Lanes, max: &[f32; GRAD_BLOCK]) -> [f32; GRAD_BLOCK] {
+    let mut sum = [0.0f32; GRAD_BLOCK];
+    for k in 0..NPM_LOBES {
+        for b in 0..GRAD_BLOCK {
+            sum[b] += exp(x[k][b] - max[b]);
+        }
+    }
+    let mut ln_sum = [0.0f32; GRAD_BLOCK];
+    for b in 0..GRAD_BLOCK {
+        ln_sum[b] = ln_inline(sum[b]);
+    }
+    ln_sum
+}
+
 /// [`grad_log_pdf_vmf_batch`] of up to [`GRAD_BLOCK`] samples; unused
 /// lanes compute a zero row towards `+z` and are dropped.
 #[inline(always)]
@@ -173,16 +190,7 @@ fn grad_block(
             max_logit[b] = max_logit[b].max(logit[k][b]);
         }
     }
-    let mut sum = [0.0f32; B];
-    for k in 0..K {
-        for b in 0..B {
-            sum[b] += exp(logit[k][b] - max_logit[b]);
-        }
-    }
-    let mut log_sum = [0.0f32; B];
-    for b in 0..B {
-        log_sum[b] = ln_inline(sum[b]);
-    }
+    let log_sum = ln_sum_exp_shifted(&logit, &max_logit);
 
     // Per lobe: κ, the mean and its derivatives, ln(w_k f_k(ω)).
     let mut kappa: Lanes = [[0.0; B]; K];
@@ -233,15 +241,10 @@ fn grad_block(
                 dir[0] * (-sin_t * sin_p * dphi) + dir[1] * (sin_t * cos_p * dphi) + dir[2] * 0.0;
         }
     }
-    let mut total = [0.0f32; B];
-    for k in 0..K {
-        for b in 0..B {
-            total[b] += exp(log_term[k][b] - max_term[b]);
-        }
-    }
+    let ln_total = ln_sum_exp_shifted(&log_term, &max_term);
     let mut log_pdf = [0.0f32; B];
     for b in 0..B {
-        log_pdf[b] = max_term[b] + ln_inline(total[b]);
+        log_pdf[b] = max_term[b] + ln_total[b];
     }
 
     // Responsibilities r_k = w_k f_k / q and weights w_k.
