@@ -102,7 +102,10 @@ macro_rules! two_mode_enum {
 
 /// `const` builder methods that return `self` with some fields replaced:
 /// `$method($field: $ty, …)` is `pub const fn $method(self, $field: $ty, …)
-/// -> Self { Self { $field, …, ..self } }`.
+/// -> Self { Self { $field, …, ..self } }`. Exported (hidden) for the `guiding` crate's
+/// configuration builders.
+#[doc(hidden)]
+#[macro_export]
 macro_rules! with_fields {
     ($($(#[$doc:meta])* $method:ident($($field:ident: $ty:ty),+);)+) => {
         $(

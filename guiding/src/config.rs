@@ -219,32 +219,15 @@ impl GuidingConfig {
         Self::preset(Representation::DfLinear, Target::Radiance)
     }
 
-    /// `self` with another training target.
-    #[must_use]
-    pub const fn with_target(mut self, target: Target) -> Self {
-        self.target = target;
-        self
-    }
-
-    /// `self` with another model size.
-    #[must_use]
-    pub const fn with_size(mut self, size: ModelSize) -> Self {
-        self.size = size;
-        self
-    }
-
-    /// `self` with another constant selection probability (NPM, DF).
-    #[must_use]
-    pub const fn with_selection_probability(mut self, p: f32) -> Self {
-        self.selection_probability = p;
-        self
-    }
-
-    /// `self` with other training settings.
-    #[must_use]
-    pub const fn with_training(mut self, training: FieldConfig) -> Self {
-        self.training = training;
-        self
+    guiding_core::with_fields! {
+        /// `self` with another training target.
+        with_target(target: Target);
+        /// `self` with another model size.
+        with_size(size: ModelSize);
+        /// `self` with another constant selection probability (NPM, DF).
+        with_selection_probability(selection_probability: f32);
+        /// `self` with other training settings.
+        with_training(training: FieldConfig);
     }
 
     /// Checks every value against its documented range.

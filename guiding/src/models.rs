@@ -266,48 +266,86 @@ impl BatchItems {
 
 /// Decoding of one family of models, per query and per batch.
 pub(crate) trait Decode: GuidingModel {
-    fn decode_at(&self, params: &[f32], query: &QueryPoint) -> Decoded;
+    /// The family's decoded query.
+    type Lane: DecodedLane;
 
-    /// Decodes every query into `out` (cleared first), one batched network
-    /// pass per chunk.
-    fn decode_batch_into(&self, params: &[f32], queries: &[QueryPoint], out: &mut BatchItems);
-}
+    /// The model's batched decode of `queries` into `out` (one lane per query).
+    fn decode_lanes(&self, params: &[f32], queries: &[QueryPoint], out: &mut [Self::Lane]);
 
-impl<const IN: usize, const W: usize, const H: usize> Decode for Npm<IN, W, H> {
-    /// A batch of one: the same kernels (and bits) as every lane of a
-    /// batched decode.
+    /// One decoded lane with its selection probability at `query`.
+    fn decoded(&self, lane: Self::Lane, params: &[f32], query: &QueryPoint) -> Decoded;
+
+    /// Decodes one query, as a batch of one: the same kernels (and bits) as every lane of
+    /// a batched decode.
     fn decode_at(&self, params: &[f32], query: &QueryPoint) -> Decoded {
-        let mut m = [VmfMixture::ZERO];
-        self.decode_batch(params, std::slice::from_ref(query), &mut m);
-        Decoded::Vmf {
-            mixture: m[0],
-            selection: self.selection_probability(params, query),
-        }
+        let mut lane = [Self::Lane::ZERO];
+        self.decode_lanes(params, std::slice::from_ref(query), &mut lane);
+        self.decoded(lane[0], params, query)
     }
 
+    /// Decodes every query into `out` (cleared first), one batched network pass per chunk,
+    /// with the model's constant selection probability (0 where it is learned per lane).
     fn decode_batch_into(&self, params: &[f32], queries: &[QueryPoint], out: &mut BatchItems) {
         out.clear();
         out.selection = self.constant_selection_probability().unwrap_or(0.0);
-        let lanes = out.lanes.vmf_mut();
-        lanes.resize(queries.len(), VmfMixture::ZERO);
-        self.decode_batch(params, queries, lanes);
+        let lanes = Self::Lane::buffer(&mut out.lanes);
+        lanes.resize(queries.len(), Self::Lane::ZERO);
+        self.decode_lanes(params, queries, lanes);
+    }
+}
+
+/// A lane type that a model decodes into [`Lanes`].
+pub(crate) trait DecodedLane: Copy {
+    /// The lane before decoding.
+    const ZERO: Self;
+    /// Its buffer in `lanes` (switched to this family, emptied, if they were another).
+    fn buffer(lanes: &mut Lanes) -> &mut Vec<Self>;
+}
+
+impl DecodedLane for VmfMixture<NPM_LOBES> {
+    const ZERO: Self = VmfMixture::ZERO;
+    fn buffer(lanes: &mut Lanes) -> &mut Vec<Self> {
+        lanes.vmf_mut()
+    }
+}
+
+impl DecodedLane for NasgMixture<NASG_LOBES> {
+    const ZERO: Self = NasgMixture::ZERO;
+    fn buffer(lanes: &mut Lanes) -> &mut Vec<Self> {
+        lanes.nasg_mut()
+    }
+}
+
+impl DecodedLane for DfVertex {
+    const ZERO: Self = DfVertex::ZERO;
+    fn buffer(lanes: &mut Lanes) -> &mut Vec<Self> {
+        lanes.df_mut()
+    }
+}
+
+impl<const IN: usize, const W: usize, const H: usize> Decode for Npm<IN, W, H> {
+    type Lane = VmfMixture<NPM_LOBES>;
+
+    fn decode_lanes(&self, params: &[f32], queries: &[QueryPoint], out: &mut [Self::Lane]) {
+        self.decode_batch(params, queries, out);
+    }
+
+    fn decoded(&self, mixture: Self::Lane, params: &[f32], query: &QueryPoint) -> Decoded {
+        let selection = self.selection_probability(params, query);
+        Decoded::Vmf { mixture, selection }
     }
 }
 
 impl<const IN: usize, const W: usize, const H: usize> Decode for Nasg<IN, W, H> {
-    /// A batch of one (see the NPM implementation).
-    fn decode_at(&self, params: &[f32], query: &QueryPoint) -> Decoded {
-        let mut m = [NasgMixture::ZERO];
-        self.decode_batch(params, std::slice::from_ref(query), &mut m);
-        Decoded::Nasg(m[0])
+    type Lane = NasgMixture<NASG_LOBES>;
+
+    fn decode_lanes(&self, params: &[f32], queries: &[QueryPoint], out: &mut [Self::Lane]) {
+        self.decode_batch(params, queries, out);
     }
 
-    fn decode_batch_into(&self, params: &[f32], queries: &[QueryPoint], out: &mut BatchItems) {
-        out.clear();
-        out.selection = 0.0;
-        let lanes = out.lanes.nasg_mut();
-        lanes.resize(queries.len(), NasgMixture::ZERO);
-        self.decode_batch(params, queries, lanes);
+    /// The selection probability is the mixture's own (learned).
+    fn decoded(&self, mixture: Self::Lane, _params: &[f32], _query: &QueryPoint) -> Decoded {
+        Decoded::Nasg(mixture)
     }
 }
 
@@ -321,21 +359,15 @@ impl<
         const HR: usize,
     > Decode for Df<IN_M, IN_C, IN_R, W, H, WR, HR>
 {
-    fn decode_at(&self, params: &[f32], query: &QueryPoint) -> Decoded {
-        let mut v = [DfVertex::ZERO];
-        self.decode_batch(params, std::slice::from_ref(query), &mut v);
-        Decoded::Df {
-            vertex: v[0],
-            selection: self.selection_probability(params, query),
-        }
+    type Lane = DfVertex;
+
+    fn decode_lanes(&self, params: &[f32], queries: &[QueryPoint], out: &mut [Self::Lane]) {
+        self.decode_batch(params, queries, out);
     }
 
-    fn decode_batch_into(&self, params: &[f32], queries: &[QueryPoint], out: &mut BatchItems) {
-        out.clear();
-        out.selection = self.constant_selection_probability().unwrap_or(0.0);
-        let lanes = out.lanes.df_mut();
-        lanes.resize(queries.len(), DfVertex::ZERO);
-        self.decode_batch(params, queries, lanes);
+    fn decoded(&self, vertex: Self::Lane, params: &[f32], query: &QueryPoint) -> Decoded {
+        let selection = self.selection_probability(params, query);
+        Decoded::Df { vertex, selection }
     }
 }
 

@@ -337,18 +337,11 @@ impl<
         self
     }
 
-    /// The same model with another constant selection probability.
-    #[must_use]
-    pub const fn with_selection_probability(mut self, p: f32) -> Self {
-        self.selection_probability = p;
-        self
-    }
-
-    /// The same model with another weight `λ_c` of the cache loss.
-    #[must_use]
-    pub const fn with_cache_loss_weight(mut self, weight: f32) -> Self {
-        self.cache_loss_weight = weight;
-        self
+    with_fields! {
+        /// The same model with another constant selection probability.
+        with_selection_probability(selection_probability: f32);
+        /// The same model with another weight `λ_c` of the cache loss.
+        with_cache_loss_weight(cache_loss_weight: f32);
     }
 
     /// Whether the const widths match the grid and target
