@@ -191,19 +191,21 @@ impl DistributionBatch {
     /// for a lane out of range.
     #[must_use]
     pub fn selection_probability(&self, i: usize) -> f32 {
-        if i >= self.len() {
-            return 0.0;
-        }
-        if matches!(self.location, LaneLocation::Device(_)) {
-            return self
+        match &self.location {
+            // Device lanes hold no host lanes, only their selection probabilities.
+            LaneLocation::Device(d) if i < d.len => self
                 .items
                 .lane_selection
                 .get(i)
                 .copied()
-                .unwrap_or(self.items.selection);
+                .unwrap_or(self.items.selection),
+            LaneLocation::Device(_) => 0.0,
+            // `resolve` maps a lane out of range to an index out of range, which reads 0.
+            _ => {
+                let (items, k) = self.resolve(i);
+                items.selection_probability(k)
+            }
         }
-        let (items, k) = self.resolve(i);
-        items.selection_probability(k)
     }
 
     /// Multiplies every lane's vMF mixture by the clamped cosine

@@ -250,16 +250,14 @@ impl BatchItems {
 
     /// The guide-selection probability of lane `i` (0 out of range).
     pub(crate) fn selection_probability(&self, i: usize) -> f32 {
-        if i >= self.len() {
-            return 0.0;
-        }
         match &self.lanes {
-            Lanes::Nasg(v) => v[i].selection_probability,
-            _ => self
+            Lanes::Nasg(v) => v.get(i).map_or(0.0, |m| m.selection_probability),
+            _ if i < self.len() => self
                 .lane_selection
                 .get(i)
                 .copied()
                 .unwrap_or(self.selection),
+            _ => 0.0,
         }
     }
 }
