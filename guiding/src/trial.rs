@@ -44,6 +44,27 @@
 //! independent pixels (0.3 % at 320 × 240); heavy-tailed pixels (fireflies) widen it, through
 //! the spread of the bands, and a verdict then waits (the old rule, the point estimate against
 //! 1, switched guides off by a coin flip on such scenes).
+//!
+//! **Continuation** ([`TrialOptions::continuation`], on by default). A trial whose interval
+//! still straddles 1 after `K` passes per arm does not end: the guide stays on, as the fixed
+//! trial would keep it, but the passes go on alternating, the arm with the cheaper point
+//! estimate running two passes for each pass of the other, and the interval is looked at again
+//! each time the less-run arm reaches `2K, 4K, 8K, …` passes, until it excludes 1 (then the
+//! verdict is final) or the render ends. Both arms are unbiased and the renderer's pass
+//! combiner weighs every pass by its own variance, so a continuing trial costs the image only
+//! the efficiency gap on the third of the passes that the worse-looking arm runs; in exchange a
+//! scene whose first look straddled (fireflies, or a guide that is nearly break-even) reaches a
+//! verdict once enough passes exist, instead of keeping a dearer guide for the whole render.
+//! The 2 : 1 split: for `n` passes the standard error of `ln R̂` grows as
+//! `√(1/n_f + 1/n_o)`, `√4.5/√4 = 1.06` times that of an even split, while the worse-looking
+//! arm's share falls from 1/2 to 1/3. Looks are sequential tests of the same hypothesis, so
+//! each has its own error (α-spending): look `j ≥ 1` of the continuation uses
+//! `α_j = α₀ · 2^{−j}` (`α₀` the two-sided error of [`TrialOptions::z`] per look, 0.27 % at
+//! `z = 3`), so all continuation looks together err at most `α₀`, and the whole trial (three
+//! looks before, at 2, 3 and 4 passes per arm) at most `4 α₀` (1.1 %).
+//! [`GuideTrial::restart`] drops one arm's passes when the renderer changes that estimator
+//! (host-demo refits the guide-selection probabilities at the first look): the continuation
+//! then measures the estimator that renders.
 
 use crate::evidence::{band_count, band_of_row, CostRatio, Verdict};
 use crate::GuidingError;
@@ -81,6 +102,10 @@ pub struct TrialOptions {
     pub epsilon: f64,
     /// Radius `r` of the box filter on the image before the trial (0: none).
     pub smoothing_radius: u32,
+    /// An interval that still straddles 1 after `K` passes per arm does not end the trial: it
+    /// goes on with a 2 : 1 split of passes and α-spending looks (see the
+    /// [module docs](self)). Off: the trial ends at `K` passes per arm whatever the interval.
+    pub continuation: bool,
 }
 
 impl Default for TrialOptions {
@@ -91,6 +116,7 @@ impl Default for TrialOptions {
             z: crate::evidence::Z,
             epsilon: 0.01,
             smoothing_radius: 2,
+            continuation: true,
         }
     }
 }
@@ -117,9 +143,13 @@ pub struct TrialVerdict {
     pub unguided_seconds: f64,
     /// `(V_g · t_g) / (V_u · t_u)`: below 1 the guide pays (`NaN` if the unguided cost is 0).
     pub cost_ratio: f64,
-    /// Passes each arm ran (fewer than [`TrialOptions::passes_per_arm`] after an early
-    /// verdict).
-    pub passes_per_arm: u32,
+    /// Passes of the guided arm in this estimate (since its last [`GuideTrial::restart`]).
+    pub guided_passes: u32,
+    /// Passes of the unguided arm in this estimate (since its last [`GuideTrial::restart`]).
+    pub unguided_passes: u32,
+    /// The interval's normal quantile at this look (larger at later looks of a continuing
+    /// trial: α-spending).
+    pub z: f64,
     /// Pixels left out because a trial pass gave them a non-finite value.
     pub pixels_skipped: u64,
 }
@@ -147,6 +177,12 @@ pub struct GuideTrial {
     bad: Vec<bool>,
     /// The verdict, once the trial has ended (all passes, or an early clear case).
     decided: Option<TrialVerdict>,
+    /// The estimate at `K` passes per arm (or the early verdict), once it exists.
+    first_look: Option<TrialVerdict>,
+    /// The latest estimate (after every pass once each arm has 2).
+    latest: Option<TrialVerdict>,
+    /// Looks of the continuation made so far (`j` of the next look is this plus 1).
+    continued_looks: u32,
 }
 
 impl GuideTrial {
@@ -212,20 +248,59 @@ impl GuideTrial {
             arms: [arm(), arm()],
             bad: vec![false; pixels],
             decided: None,
+            first_look: None,
+            latest: None,
+            continued_looks: 0,
         })
     }
 
-    /// The arm the next pass should run, alternating (guided first), or `None` once the trial
-    /// has ended (both arms have their passes, or an early verdict).
+    /// The arm the next pass should run, or `None` once the trial has ended (a verdict). Before
+    /// the first look the arms alternate (guided first); a continuing trial gives the arm with
+    /// the cheaper point estimate two passes for each pass of the other (an arm with fewer than
+    /// 2 passes since a [`GuideTrial::restart`] runs first).
     pub fn next_arm(&self) -> Option<TrialArm> {
-        let k = self.options.passes_per_arm;
         let (g, u) = (self.arms[0].passes, self.arms[1].passes);
-        if self.decided.is_some() || (g >= k && u >= k) {
-            None
-        } else if g <= u && g < k {
-            Some(TrialArm::Guided)
+        if self.decided.is_some() {
+            return None;
+        }
+        if self.first_look.is_none() {
+            return Some(if g <= u {
+                TrialArm::Guided
+            } else {
+                TrialArm::Unguided
+            });
+        }
+        if g < 2 {
+            return Some(TrialArm::Guided);
+        }
+        if u < 2 {
+            return Some(TrialArm::Unguided);
+        }
+        // NaN (no cost) favours the guide, as an undecided trial keeps it.
+        let guide_looks_dearer = self.latest.is_some_and(|v| v.cost_ratio > 1.0);
+        let (favourite, other) = if !guide_looks_dearer {
+            (TrialArm::Guided, TrialArm::Unguided)
         } else {
-            Some(TrialArm::Unguided)
+            (TrialArm::Unguided, TrialArm::Guided)
+        };
+        let (f, o) = (
+            self.arms[favourite.index()].passes,
+            self.arms[other.index()].passes,
+        );
+        Some(if 2 * o < f { other } else { favourite })
+    }
+
+    /// Drops the passes of `arm` (its sums, count and seconds) once the renderer has changed
+    /// that estimator, so that the continuing trial measures the one that now renders. Only
+    /// while the trial runs; the first look and the looks already made stand.
+    pub fn restart(&mut self, arm: TrialArm) {
+        if self.decided.is_none() {
+            let a = &mut self.arms[arm.index()];
+            a.passes = 0;
+            a.seconds = 0.0;
+            a.sum.fill([0.0; 3]);
+            a.sum2.fill([0.0; 3]);
+            self.latest = None;
         }
     }
 
@@ -262,7 +337,7 @@ impl GuideTrial {
             ));
         }
         let a = &mut self.arms[arm.index()];
-        if a.passes >= self.options.passes_per_arm {
+        if self.first_look.is_none() && a.passes >= self.options.passes_per_arm {
             return Err(GuidingError::InvalidConfig(format!(
                 "the {arm:?} arm already has its {} passes",
                 a.passes
@@ -281,15 +356,54 @@ impl GuideTrial {
                 a.sum2[p][ch] += x * x;
             }
         }
+        self.look();
+        Ok(())
+    }
+
+    /// Updates the latest estimate and, at a look, decides (see the [module docs](self)).
+    fn look(&mut self) {
         let (g, u) = (self.arms[0].passes, self.arms[1].passes);
-        if g == u && g >= 2 {
-            let v = self.estimate(g);
+        if g < 2 || u < 2 {
+            return;
+        }
+        let k = self.options.passes_per_arm;
+        if self.first_look.is_none() {
+            if g != u {
+                return;
+            }
+            let v = self.estimate(self.options.z);
+            self.latest = Some(v);
             let clear = self.options.early_verdict && v.evidence != Verdict::Undecided;
-            if clear || g >= self.options.passes_per_arm {
+            if clear || g >= k {
+                self.first_look = Some(v);
+                if v.evidence != Verdict::Undecided || !self.options.continuation {
+                    self.decided = Some(v);
+                }
+            }
+            return;
+        }
+        let j = self.continued_looks + 1;
+        let z = continuation_z(self.options.z, j);
+        let v = self.estimate(z);
+        self.latest = Some(v);
+        let due = u64::from(k) << j.min(32);
+        if u64::from(g.min(u)) >= due {
+            self.continued_looks = j;
+            if v.evidence != Verdict::Undecided {
                 self.decided = Some(v);
             }
         }
-        Ok(())
+    }
+
+    /// The estimate at the first look: `K` passes per arm, or the early verdict; `None` before.
+    pub fn first_look(&self) -> Option<TrialVerdict> {
+        self.first_look
+    }
+
+    /// The latest estimate (updated after every pass once each arm has 2 passes; its `z` is
+    /// that of the next look). Not a verdict: see [`GuideTrial::verdict`].
+    pub fn latest(&self) -> Option<TrialVerdict> {
+        self.latest
     }
 
     /// The verdict once the trial has ended, else `None`.
@@ -297,11 +411,11 @@ impl GuideTrial {
         self.decided
     }
 
-    /// The verdict from `k ≥ 2` passes of each arm: per band of rows and arm the mean of
-    /// `s² · w` over the band's cells, the arms' `V` the mean over the bands, and the cost
-    /// ratio's interval from the paired bands ([`CostRatio::from_bands`]).
-    fn estimate(&self, passes: u32) -> TrialVerdict {
-        let k = f64::from(passes);
+    /// The verdict from the arms' passes (at least 2 each) at quantile `z`: per band of rows
+    /// and arm the mean of `s² · w` over the band's cells, the arms' `V` the mean over the
+    /// bands, and the cost ratio's interval from the paired bands ([`CostRatio::from_bands`]).
+    fn estimate(&self, z: f64) -> TrialVerdict {
+        let k = [0, 1].map(|a| f64::from(self.arms[a].passes));
         let bands = band_count(self.height);
         let mut var = [vec![0.0f64; bands], vec![0.0f64; bands]];
         let mut cells = vec![0u64; bands];
@@ -317,7 +431,7 @@ impl GuideTrial {
                 for (ch, &w) in w.iter().enumerate() {
                     let (s, s2) = (arm.sum[p][ch], arm.sum2[p][ch]);
                     // Unbiased sample variance; rounding can make it a hair negative.
-                    let s_var = ((s2 - s * s / k) / (k - 1.0)).max(0.0);
+                    let s_var = ((s2 - s * s / k[a]) / (k[a] - 1.0)).max(0.0);
                     var[a][b] += s_var * w;
                 }
             }
@@ -329,10 +443,10 @@ impl GuideTrial {
         let (gb, ub) = (per_band(0), per_band(1));
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
         let (vg, vu) = (mean(&gb), mean(&ub));
-        let (tg, tu) = (self.arms[0].seconds / k, self.arms[1].seconds / k);
+        let (tg, tu) = (self.arms[0].seconds / k[0], self.arms[1].seconds / k[1]);
         let (cg, cu) = (vg * tg, vu * tu);
         let cost_ratio = if cu > 0.0 { cg / cu } else { f64::NAN };
-        let interval = CostRatio::from_bands(&gb, &ub, tg, tu, self.options.z);
+        let interval = CostRatio::from_bands(&gb, &ub, tg, tu, z);
         let evidence = interval.map_or(Verdict::Undecided, |c| c.verdict());
         TrialVerdict {
             keep_guide: evidence != Verdict::DoesNotPay,
@@ -344,10 +458,61 @@ impl GuideTrial {
             guided_seconds: tg,
             unguided_seconds: tu,
             cost_ratio,
-            passes_per_arm: passes,
+            guided_passes: self.arms[0].passes,
+            unguided_passes: self.arms[1].passes,
+            z,
             pixels_skipped: (self.pixels as u64) - used,
         }
     }
+}
+
+/// The normal quantile of look `j ≥ 1` of a continuing trial: two-sided error
+/// `α_j = α₀ · 2^{−j}`, `α₀ = 2 Q(z₀)` the error of the first looks' quantile `z₀`
+/// (`Q` the standard normal's upper tail). Never below `z₀`.
+#[must_use]
+pub fn continuation_z(z0: f64, j: u32) -> f64 {
+    let alpha = 2.0 * normal_upper_tail(z0) * 0.5f64.powi(j.min(1000) as i32);
+    normal_upper_quantile(alpha / 2.0).max(z0)
+}
+
+/// `Q(z) = P(N(0, 1) > z) = erfc(z / √2) / 2`, with the rational Chebyshev approximation of
+/// `erfc` in *Numerical Recipes* (§6.2, `erfcc`; fractional error below 1.2e-7 everywhere).
+fn normal_upper_tail(z: f64) -> f64 {
+    let x = z / std::f64::consts::SQRT_2;
+    let t = 1.0 / (1.0 + 0.5 * x.abs());
+    let c = [
+        -1.265_512_23,
+        1.000_023_68,
+        0.374_091_96,
+        0.096_784_18,
+        -0.186_288_06,
+        0.278_868_07,
+        -1.135_203_98,
+        1.488_515_87,
+        -0.822_152_23,
+        0.170_872_77,
+    ];
+    let mut poly = 0.0;
+    for &ci in c.iter().rev() {
+        poly = poly * t + ci;
+    }
+    let erfc = t * (-x * x + poly).exp();
+    0.5 * if x >= 0.0 { erfc } else { 2.0 - erfc }
+}
+
+/// The `z` with `Q(z) = p` for `p` in `(0, 1/2]`, by bisection on `[0, 40]` (`Q` decreases;
+/// 64 halvings reach the rounding of `f64`). Smaller `p` (down to 0) gives 40.
+fn normal_upper_quantile(p: f64) -> f64 {
+    let (mut lo, mut hi) = (0.0f64, 40.0f64);
+    for _ in 0..64 {
+        let mid = 0.5 * (lo + hi);
+        if normal_upper_tail(mid) > p {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
 }
 
 /// The mean of each pixel's `(2r + 1)²` neighbourhood (clipped at the borders), per channel;

@@ -126,8 +126,10 @@ fn run_trial(
 #[test]
 fn arms_alternate_guided_first_until_both_have_their_passes() {
     let image = vec![[0.0; 3]; 4];
+    // Equal (zero) passes never exclude 1: the fixed trial ends at its 3 passes per arm.
     let options = TrialOptions {
         passes_per_arm: 3,
+        continuation: false,
         ..TrialOptions::default()
     };
     let mut trial = GuideTrial::new(2, 2, &image, options).expect("valid trial");
@@ -188,7 +190,7 @@ fn variance_estimate_is_the_per_pass_relative_variance_and_the_verdict_follows_c
         // 0.75 keeps the guide, 1.25 does not: a verdict that ignored the time (or the
         // variance) would keep it in both cases.
         assert_eq!(v.keep_guide, keep, "t_g = {tg}: ratio {}", v.cost_ratio);
-        assert_eq!(v.passes_per_arm, k);
+        assert_eq!((v.guided_passes, v.unguided_passes), (k, k));
         // The interval is narrow here (Gaussian pixels) and excludes 1 on the right side.
         assert!(v.ratio_low <= v.cost_ratio && v.cost_ratio <= v.ratio_high);
         assert_eq!(
@@ -270,7 +272,7 @@ fn a_clear_case_ends_the_trial_after_two_passes_per_arm() {
             TrialOptions::default(),
         );
         let v = trial.verdict().expect("ended early");
-        assert_eq!(v.passes_per_arm, 2);
+        assert_eq!((v.guided_passes, v.unguided_passes), (2, 2));
         assert_eq!((passes[0].len(), passes[1].len()), (2, 2));
         assert!(trial.next_arm().is_none());
         assert_eq!(v.keep_guide, keep);
@@ -298,6 +300,7 @@ fn a_clear_case_ends_the_trial_after_two_passes_per_arm() {
 fn a_straddling_interval_keeps_the_guide() {
     let options = TrialOptions {
         early_verdict: false,
+        continuation: false,
         ..TrialOptions::default()
     };
     let firefly = (Noise::Firefly(0.002), Noise::Firefly(0.002));
@@ -326,7 +329,12 @@ fn a_straddling_interval_keeps_the_guide() {
 #[test]
 fn non_finite_pixels_are_left_out_and_counted() {
     let image = vec![MEAN; W * H];
-    let mut trial = GuideTrial::new(W, H, &image, TrialOptions::default()).expect("valid");
+    // Equal arms: the fixed trial (a continuing one would go on until the render ends).
+    let options = TrialOptions {
+        continuation: false,
+        ..TrialOptions::default()
+    };
+    let mut trial = GuideTrial::new(W, H, &image, options).expect("valid");
     let mut rng = Rng::new(5);
     while let Some(arm) = trial.next_arm() {
         let mut pixels: Vec<[f32; 3]> = (0..W * H)
@@ -378,4 +386,131 @@ fn bad_arguments_are_errors() {
         Some(TrialArm::Guided),
         "nothing was added"
     );
+}
+
+/// Continuation: a guide whose true cost ratio is 2 % from break-even straddles 1 at the first
+/// look (4 passes per arm), and the continuing trial reaches the right verdict once enough
+/// passes exist: 1.02 switches the guide off, 0.98 keeps it as "pays"; meanwhile the arm that
+/// looks cheaper runs about two passes per pass of the other. Negative control: the same
+/// passes without continuation end undecided with the guide on, so a trial that never goes
+/// on fails this test.
+#[test]
+fn a_continuing_trial_decides_a_near_break_even_guide() {
+    let gauss = (Noise::Gauss(1.0), Noise::Gauss(1.0));
+    for (seed, tg, expected) in [
+        (51, 1.02, guiding::Verdict::DoesNotPay),
+        (52, 0.98, guiding::Verdict::Pays),
+    ] {
+        let options = TrialOptions {
+            early_verdict: false,
+            ..TrialOptions::default()
+        };
+        let (trial, passes) = run_trial(seed, gauss, (tg, 1.0), options);
+        let first = trial.first_look().expect("first look");
+        assert_eq!(
+            first.evidence,
+            guiding::Verdict::Undecided,
+            "t_g = {tg}: the case must straddle at the first look: [{}, {}]",
+            first.ratio_low,
+            first.ratio_high
+        );
+        assert_eq!((first.guided_passes, first.unguided_passes), (4, 4));
+        let v = trial.verdict().expect("the continuation decides");
+        assert_eq!(
+            v.evidence, expected,
+            "t_g = {tg}: [{}, {}]",
+            v.ratio_low, v.ratio_high
+        );
+        assert_eq!(v.keep_guide, expected == guiding::Verdict::Pays);
+        assert!(
+            v.z > first.z,
+            "later looks spend less error: z {} then {}",
+            first.z,
+            v.z
+        );
+        let (favourite, other) = if tg < 1.0 {
+            (passes[0].len(), passes[1].len())
+        } else {
+            (passes[1].len(), passes[0].len())
+        };
+        assert!(
+            favourite >= 2 * other - 4 && favourite <= 2 * other + 1,
+            "t_g = {tg}: {favourite} passes of the cheaper arm against {other}"
+        );
+        // The negative control: the fixed trial, same seed, ends at its first look.
+        let fixed = TrialOptions {
+            continuation: false,
+            ..options
+        };
+        let v = trial_verdict(seed, gauss, (tg, 1.0), fixed);
+        assert_eq!(v.evidence, guiding::Verdict::Undecided);
+        assert!(v.keep_guide);
+    }
+}
+
+/// The continuation's looks spend error as `α_j = α₀ 2^{−j}` (`α₀` two-sided at `z = 3`): each
+/// look's quantile is the normal quantile of that error (checked against `statrs`), and the
+/// errors of all looks sum to at most `α₀`.
+#[test]
+fn continuation_looks_spend_a_halving_error() {
+    let normal = Normal::new(0.0, 1.0).expect("unit normal");
+    let z0 = TrialOptions::default().z;
+    let alpha0 = 2.0 * (1.0 - normal.cdf(z0));
+    let mut spent = 0.0;
+    let mut previous = z0;
+    for j in 1..=30 {
+        let z = guiding::trial::continuation_z(z0, j);
+        let alpha = alpha0 * 0.5f64.powi(j as i32);
+        let expected = normal.inverse_cdf(1.0 - alpha / 2.0);
+        // The erfc approximation's 1.2e-7 relative error moves z by ~1e-7 / z.
+        assert!(
+            (z - expected).abs() < 1e-5,
+            "look {j}: z {z} against {expected}"
+        );
+        assert!(z > previous);
+        previous = z;
+        spent += 2.0 * (1.0 - normal.cdf(z));
+    }
+    assert!(spent <= alpha0 * (1.0 + 1e-4), "spent {spent} of {alpha0}");
+    // Far looks saturate, never overflow.
+    assert!(guiding::trial::continuation_z(z0, u32::MAX).is_finite());
+}
+
+/// A restart drops one arm's passes: the continuing trial runs that arm until it has 2 again,
+/// and its next estimate counts only the new passes.
+#[test]
+fn a_restart_measures_the_new_estimator() {
+    let options = TrialOptions {
+        early_verdict: false,
+        ..TrialOptions::default()
+    };
+    let image = vec![MEAN; W * H];
+    let mut trial = GuideTrial::new(W, H, &image, options).expect("valid trial");
+    let mut rng = Rng::new(61);
+    let pass = |noise: Noise, rng: &mut Rng| -> Vec<[f32; 3]> {
+        (0..W * H)
+            .map(|p| MEAN.map(|m| noise.draw(p, f64::from(m), rng) as f32))
+            .collect()
+    };
+    // Fireflies: the first look straddles.
+    let firefly = Noise::Firefly(0.002);
+    while trial.first_look().is_none() {
+        let arm = trial.next_arm().expect("running");
+        trial
+            .record(arm, &pass(firefly, &mut rng), 1.0)
+            .expect("valid");
+    }
+    assert!(trial.verdict().is_none(), "{:?}", trial.first_look());
+    trial.restart(TrialArm::Guided);
+    assert!(trial.latest().is_none());
+    for _ in 0..2 {
+        assert_eq!(trial.next_arm(), Some(TrialArm::Guided));
+        trial
+            .record(TrialArm::Guided, &pass(firefly, &mut rng), 2.0)
+            .expect("valid");
+    }
+    let latest = trial.latest().expect("2 passes of each");
+    assert_eq!(latest.guided_passes, 2);
+    assert_eq!(latest.guided_seconds, 2.0, "only the new passes' seconds");
+    assert!(latest.unguided_passes >= 4);
 }

@@ -353,10 +353,17 @@ impl<U, F> VerdictStage<U, F> {
 /// The efficiency trial: off, unfinished, or its verdict.
 type TrialStage = VerdictStage<TrialUnfinished, TrialFinished>;
 
-/// An efficiency trial without a verdict yet.
+/// An efficiency trial without a verdict yet: its passes and, once each arm has 2, the
+/// latest estimate (the guide stays on meanwhile).
 #[derive(Serialize)]
 struct TrialUnfinished {
     passes: u32,
+    /// The first look straddled 1 and the trial went on.
+    continued: bool,
+    /// The guided arm was restarted after the refit at the first look.
+    restarted: bool,
+    first_look: Option<TrialEstimate>,
+    latest: Option<TrialEstimate>,
 }
 
 /// A finished efficiency trial ([`guiding::TrialVerdict`]).
@@ -366,6 +373,20 @@ struct TrialFinished {
     keep_guide: bool,
     /// The `Debug` name of the [`guiding::Verdict`].
     evidence: String,
+    continued: bool,
+    restarted: bool,
+    first_look: Option<TrialEstimate>,
+    #[serde(flatten)]
+    estimate: TrialEstimate,
+    passes_guide_off: u32,
+}
+
+/// One estimate of the trial ([`guiding::TrialVerdict`]).
+#[derive(Serialize)]
+struct TrialEstimate {
+    guided_passes: u32,
+    unguided_passes: u32,
+    z: f64,
     cost_ratio_interval: [Option<f64>; 2],
     guided_relmse_per_pass: Option<f64>,
     unguided_relmse_per_pass: Option<f64>,
@@ -373,7 +394,23 @@ struct TrialFinished {
     unguided_seconds_per_pass: f64,
     cost_ratio: Option<f64>,
     pixels_skipped: u64,
-    passes_guide_off: u32,
+}
+
+impl TrialEstimate {
+    fn new(v: &guiding::TrialVerdict) -> Self {
+        Self {
+            guided_passes: v.guided_passes,
+            unguided_passes: v.unguided_passes,
+            z: v.z,
+            cost_ratio_interval: [finite(v.ratio_low), finite(v.ratio_high)],
+            guided_relmse_per_pass: finite(v.guided_variance),
+            unguided_relmse_per_pass: finite(v.unguided_variance),
+            guided_seconds_per_pass: v.guided_seconds,
+            unguided_seconds_per_pass: v.unguided_seconds,
+            cost_ratio: finite(v.cost_ratio),
+            pixels_skipped: v.pixels_skipped,
+        }
+    }
 }
 
 /// The training probe: off, without a verdict, or its verdict.
@@ -570,19 +607,24 @@ impl TrialStage {
                 "off, an spp budget, or training never stopped",
             ));
         };
+        let continued = t.first_look.is_some();
+        let first_look = t.first_look.as_ref().map(TrialEstimate::new);
         match &t.verdict {
-            None => Self::unfinished(TrialUnfinished { passes: t.passes }),
+            None => Self::unfinished(TrialUnfinished {
+                passes: t.passes,
+                continued,
+                restarted: t.restarted,
+                first_look,
+                latest: t.latest.as_ref().map(TrialEstimate::new),
+            }),
             Some(v) => Self::finished(TrialFinished {
                 passes: t.passes,
                 keep_guide: v.keep_guide,
                 evidence: format!("{:?}", v.evidence),
-                cost_ratio_interval: [finite(v.ratio_low), finite(v.ratio_high)],
-                guided_relmse_per_pass: finite(v.guided_variance),
-                unguided_relmse_per_pass: finite(v.unguided_variance),
-                guided_seconds_per_pass: v.guided_seconds,
-                unguided_seconds_per_pass: v.unguided_seconds,
-                cost_ratio: finite(v.cost_ratio),
-                pixels_skipped: v.pixels_skipped,
+                continued,
+                restarted: t.restarted,
+                first_look,
+                estimate: TrialEstimate::new(v),
                 passes_guide_off: t.passes_guide_off,
             }),
         }

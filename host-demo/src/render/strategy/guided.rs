@@ -337,12 +337,91 @@ impl std::fmt::Display for PassWeightStats {
 /// What the efficiency trial of a guided render did.
 #[derive(Clone, Debug, Default)]
 pub struct TrialStats {
-    /// Trial passes run (both arms).
+    /// Trial passes run (both arms, those a restart dropped included).
     pub passes: u32,
-    /// The verdict, once both arms had their passes.
+    /// The estimate at the first look (`K` passes per arm, or an early verdict).
+    pub first_look: Option<TrialVerdict>,
+    /// The guided arm was restarted after the refit at the first look.
+    pub restarted: bool,
+    /// The latest estimate of a trial that is still running (`None` once it has a verdict).
+    pub latest: Option<TrialVerdict>,
+    /// The verdict, once the interval excluded 1 (or the trial ended at its first look).
     pub verdict: Option<TrialVerdict>,
     /// Passes after the trial rendered with the guide off (it did not pay).
     pub passes_guide_off: u32,
+}
+
+impl TrialStats {
+    /// One estimate as `--stats` shows it.
+    fn describe(v: &TrialVerdict) -> String {
+        format!(
+            "{} + {} passes; relMSE per pass x seconds per pass: guided {:.3e} x {:.4} s, \
+             unguided {:.3e} x {:.4} s, ratio {:.3} [{:.3}, {:.3}] (z {:.2}){}",
+            v.guided_passes,
+            v.unguided_passes,
+            v.guided_variance,
+            v.guided_seconds,
+            v.unguided_variance,
+            v.unguided_seconds,
+            v.cost_ratio,
+            v.ratio_low,
+            v.ratio_high,
+            v.z,
+            if v.pixels_skipped > 0 {
+                format!(" ({} non-finite pixels left out)", v.pixels_skipped)
+            } else {
+                String::new()
+            }
+        )
+    }
+}
+
+impl std::fmt::Display for TrialStats {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if let Some(first) = &self.first_look {
+            writeln!(
+                f,
+                "efficiency trial: first look {}: the interval straddles 1, the guide stayed \
+                 on and the trial continued{}",
+                Self::describe(first),
+                if self.restarted {
+                    " (guided arm restarted after the refit)"
+                } else {
+                    ""
+                }
+            )?;
+        }
+        match (&self.verdict, &self.latest) {
+            (Some(v), _) => writeln!(
+                f,
+                "efficiency trial: {} passes, verdict {}: {}",
+                self.passes,
+                Self::describe(v),
+                if v.evidence == guiding::Verdict::Pays {
+                    "the guide pays, kept".to_string()
+                } else if v.keep_guide {
+                    "the interval straddles 1: no evidence against the guide, kept".to_string()
+                } else {
+                    format!(
+                        "skipped: the guide does not pay, off for the remaining {} passes",
+                        self.passes_guide_off
+                    )
+                }
+            ),
+            (None, Some(v)) => writeln!(
+                f,
+                "efficiency trial: no verdict when the budget ended ({} passes), latest {}: \
+                 the guide stayed on",
+                self.passes,
+                Self::describe(v)
+            ),
+            (None, None) => writeln!(
+                f,
+                "efficiency trial: unfinished ({} passes before the budget ended)",
+                self.passes
+            ),
+        }
+    }
 }
 
 impl std::fmt::Display for GuidedStats {
@@ -406,43 +485,7 @@ impl std::fmt::Display for GuidedStats {
             )?;
         }
         if let Some(t) = &self.trial {
-            match &t.verdict {
-                Some(v) => writeln!(
-                    f,
-                    "efficiency trial: {} + {} passes; relMSE per pass x seconds per pass: \
-                     guided {:.3e} x {:.4} s, unguided {:.3e} x {:.4} s, ratio {:.3} \
-                     [{:.3}, {:.3}]: {}{}",
-                    v.passes_per_arm,
-                    v.passes_per_arm,
-                    v.guided_variance,
-                    v.guided_seconds,
-                    v.unguided_variance,
-                    v.unguided_seconds,
-                    v.cost_ratio,
-                    v.ratio_low,
-                    v.ratio_high,
-                    if v.evidence == guiding::Verdict::Pays {
-                        "the guide pays, kept".to_string()
-                    } else if v.keep_guide {
-                        "the interval straddles 1: no evidence against the guide, kept".to_string()
-                    } else {
-                        format!(
-                            "skipped: the guide does not pay, off for the remaining {} passes",
-                            t.passes_guide_off
-                        )
-                    },
-                    if v.pixels_skipped > 0 {
-                        format!(" ({} non-finite pixels left out)", v.pixels_skipped)
-                    } else {
-                        String::new()
-                    }
-                )?,
-                None => writeln!(
-                    f,
-                    "efficiency trial: unfinished ({} passes before the budget ended)",
-                    t.passes
-                )?,
-            }
+            write!(f, "{t}")?;
         }
         if let Some(w) = &self.pass_weights {
             writeln!(f, "{w}")?;
@@ -647,18 +690,20 @@ impl<'g> Guided<'g> {
     /// `r_vert` the first fit's vertex variance ratio
     /// ([`guiding::SelectionFit::variance_share`]). Nothing when `s` comes out at 1 or
     /// cannot be formed (no cost, no interval, a fit that predicted no gain).
-    fn refit_selection(&mut self, v: &guiding::TrialVerdict) {
+    ///
+    /// Returns whether the selection probabilities changed.
+    fn refit_selection(&mut self, v: &guiding::TrialVerdict) -> bool {
         let (Some(first), Some(guide_cost)) = (self.stats.selection_fit, self.stats.guide_cost)
         else {
-            return;
+            return false;
         };
         let r_low = v.ratio_low * v.unguided_seconds / v.guided_seconds;
         let share = (1.0 - r_low) / (1.0 - first.variance_ratio);
         if !(guide_cost > 0.0 && share.is_finite() && first.variance_ratio < 1.0 && share < 1.0) {
-            return;
+            return false;
         }
         let Some(cache) = self.cache.as_mut() else {
-            return;
+            return false;
         };
         let t0 = Instant::now();
         let fit = guiding::SelectionFit {
@@ -668,10 +713,15 @@ impl<'g> Guided<'g> {
         };
         let samples = &self.last_samples;
         let mis = (self.last_mis.len() == samples.len()).then_some(self.last_mis.as_slice());
-        if let Ok(report) = cache.fit_selection(self.guide, samples, mis, &fit) {
-            self.stats.selection_refit = Some((fit.variance_share, report));
-        }
+        let refitted = match cache.fit_selection(self.guide, samples, mis, &fit) {
+            Ok(report) => {
+                self.stats.selection_refit = Some((fit.variance_share, report));
+                true
+            }
+            Err(_) => false,
+        };
         self.stats.cache_build += t0.elapsed();
+        refitted
     }
 
     /// The guide's relative cost per vertex for the selection fit,
@@ -1247,11 +1297,29 @@ impl<'g> Strategy for Guided<'g> {
         }
         let t = self.stats.trial.get_or_insert_with(TrialStats::default);
         t.passes += 1;
+        t.latest = trial.latest();
         if let Some(v) = trial.verdict() {
+            let refit = t.first_look.is_none() && v.keep_guide;
             t.verdict = Some(v);
+            t.latest = None;
             self.trial = None;
-            if v.keep_guide {
+            if refit {
                 self.refit_selection(&v);
+            }
+            self.last_samples = Vec::new();
+            self.last_mis = Vec::new();
+        } else if let (Some(first), None) = (trial.first_look(), t.first_look) {
+            // The first look straddles 1: the guide stays on, refitted as a kept guide is,
+            // and the trial continues with the refitted guide's passes.
+            t.first_look = Some(first);
+            if self.refit_selection(&first) {
+                if let Some(trial) = &mut self.trial {
+                    trial.restart(TrialArm::Guided);
+                }
+                if let Some(t) = &mut self.stats.trial {
+                    t.restarted = true;
+                    t.latest = None;
+                }
             }
             self.last_samples = Vec::new();
             self.last_mis = Vec::new();
