@@ -69,17 +69,25 @@ fn z_bound(alpha: f64, tests: usize) -> f64 {
 }
 
 /// The trial's expected `V` of an arm and its standard error: the sample variance `s²` of `K`
-/// values has mean `σ²` and variance `(μ₄ − σ⁴ (K − 3) / (K − 1)) / K`.
+/// values has mean `σ²` and variance `(μ₄ − σ⁴ (K − 3) / (K − 1)) / K`. From 4 passes (even
+/// `K`) the trial's `V` is the mean of its two halves' (`K / 2` passes each): the variance of
+/// `s²` of `K / 2` values, halved.
 fn expected(noise: Noise, k: u32, eps: f64) -> (f64, f64) {
     let (mut v, mut var) = (0.0, 0.0);
-    let kf = f64::from(k);
+    let split = k >= 4;
+    let kf = if split {
+        f64::from(k / 2)
+    } else {
+        f64::from(k)
+    };
+    let halves = if split { 2.0 } else { 1.0 };
     for p in 0..W * H {
         for m in MEAN {
             let m = f64::from(m);
             let (s2, mu4) = noise.moments(p, m);
             let w = 1.0 / (m * m + eps);
             v += s2 * w;
-            var += (mu4 - s2 * s2 * (kf - 3.0) / (kf - 1.0)) / kf * w * w;
+            var += (mu4 - s2 * s2 * (kf - 3.0) / (kf - 1.0)) / kf / halves * w * w;
         }
     }
     let cells = (3 * W * H) as f64;

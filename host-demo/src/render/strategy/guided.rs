@@ -60,8 +60,12 @@
 //! clear case; never without NEE), and a
 //! [`GuideTrial`] compares their relMSE per pass times seconds per pass on the image itself.
 //! If the guide does not pay it stays off for the rest of the render (no lookup, sample or
-//! pdf: the cost of `pt-nee`); `--stats` shows the two costs and the verdict. Every trial pass
-//! is unbiased and stays in the image.
+//! pdf: the cost of `pt-nee`); `--stats` shows the two costs and the verdict. When the first
+//! look's interval straddles 1 the guide stays on, the selection probabilities are refitted
+//! and the trial continues with the refitted guide's passes (the guided arm restarted), two
+//! passes of the cheaper-looking arm per pass of the other, until its interval excludes 1 or
+//! the render ends ([`TrialOptions::continuation`]). Every trial pass is unbiased and stays in
+//! the image.
 //!
 //! Radiance-target guides are sampled directly (the learned incident-radiance distribution,
 //! times the cosine with [`GuidedOptions::cosine_product`]) instead of the product with the
