@@ -86,37 +86,18 @@ impl CostRatio {
         unguided_seconds: f64,
         z: f64,
     ) -> Option<Self> {
-        let b = guided_bands.len();
-        if b < 2 || unguided_bands.len() != b {
-            return None;
-        }
-        let finite = |x: &f64| x.is_finite() && *x >= 0.0;
-        if !guided_bands.iter().all(finite) || !unguided_bands.iter().all(finite) {
-            return None;
-        }
-        let positive = |x: f64| x.is_finite() && x > 0.0;
+        let b = usable_bands(&[guided_bands, unguided_bands])?;
         let vg = guided_bands.iter().sum::<f64>() / b as f64;
         let vu = unguided_bands.iter().sum::<f64>() / b as f64;
-        if !(positive(vg) && positive(vu) && positive(guided_seconds) && positive(unguided_seconds))
-        {
-            return None;
-        }
-        let r: Vec<f64> = guided_bands
-            .iter()
-            .zip(unguided_bands)
-            .map(|(g, u)| g / vg - u / vu)
-            .collect();
-        let mean = r.iter().sum::<f64>() / b as f64;
-        let var = r.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / (b - 1) as f64;
-        let log_se = (var / b as f64).sqrt();
-        let ratio = vg * guided_seconds / (vu * unguided_seconds);
-        Some(Self {
-            ratio,
-            low: ratio * (-z * log_se).exp(),
-            high: ratio * (z * log_se).exp(),
-            guided_variance: vg,
-            unguided_variance: vu,
-            log_se,
+        Self::with_se((vg, vu), (guided_seconds, unguided_seconds), z, |vg, vu| {
+            let r: Vec<f64> = guided_bands
+                .iter()
+                .zip(unguided_bands)
+                .map(|(g, u)| g / vg - u / vu)
+                .collect();
+            let mean = r.iter().sum::<f64>() / b as f64;
+            let var = r.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / (b - 1) as f64;
+            (var / b as f64).sqrt()
         })
     }
 
@@ -137,27 +118,32 @@ impl CostRatio {
         unguided_seconds: f64,
         z: f64,
     ) -> Option<Self> {
-        let b = guided[0].len();
-        let lists = [guided[0], guided[1], unguided[0], unguided[1]];
-        if b < 2 || lists.iter().any(|l| l.len() != b) {
-            return None;
-        }
-        let finite = |x: &f64| x.is_finite() && *x >= 0.0;
-        if !lists.iter().all(|l| l.iter().all(finite)) {
-            return None;
-        }
+        let b = usable_bands(&[guided[0], guided[1], unguided[0], unguided[1]])?;
         let mean_of =
             |h: [&[f64]; 2]| (0..b).map(|i| (h[0][i] + h[1][i]) / 2.0).sum::<f64>() / b as f64;
-        let (vg, vu) = (mean_of(guided), mean_of(unguided));
+        let v = (mean_of(guided), mean_of(unguided));
+        Self::with_se(v, (guided_seconds, unguided_seconds), z, |vg, vu| {
+            let r = |h: usize, i: usize| guided[h][i] / vg - unguided[h][i] / vu;
+            let sum_d2: f64 = (0..b).map(|i| (r(0, i) - r(1, i)).powi(2)).sum();
+            (sum_d2 / 4.0).sqrt() / b as f64
+        })
+    }
+
+    /// The ratio `R̂ = V_g t_g / (V_u t_u)` of `(V_g, V_u)` and `(t_g, t_u)` with the interval
+    /// `R̂ · exp(±z · se)`, `se = log_se(V_g, V_u)`; `None` unless all four are finite and
+    /// positive.
+    fn with_se(
+        (vg, vu): (f64, f64),
+        (tg, tu): (f64, f64),
+        z: f64,
+        log_se: impl FnOnce(f64, f64) -> f64,
+    ) -> Option<Self> {
         let positive = |x: f64| x.is_finite() && x > 0.0;
-        if !(positive(vg) && positive(vu) && positive(guided_seconds) && positive(unguided_seconds))
-        {
+        if !(positive(vg) && positive(vu) && positive(tg) && positive(tu)) {
             return None;
         }
-        let r = |h: usize, i: usize| guided[h][i] / vg - unguided[h][i] / vu;
-        let sum_d2: f64 = (0..b).map(|i| (r(0, i) - r(1, i)).powi(2)).sum();
-        let log_se = (sum_d2 / 4.0).sqrt() / b as f64;
-        let ratio = vg * guided_seconds / (vu * unguided_seconds);
+        let log_se = log_se(vg, vu);
+        let ratio = vg * tg / (vu * tu);
         Some(Self {
             ratio,
             low: ratio * (-z * log_se).exp(),
@@ -182,6 +168,13 @@ impl CostRatio {
     }
 }
 
+/// The common length `B ≥ 2` of band lists whose values are all finite and non-negative.
+fn usable_bands(lists: &[&[f64]]) -> Option<usize> {
+    let b = lists.first()?.len();
+    let finite = |x: &f64| x.is_finite() && *x >= 0.0;
+    (b >= 2 && lists.iter().all(|l| l.len() == b && l.iter().all(finite))).then_some(b)
+}
+
 impl std::fmt::Display for CostRatio {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
@@ -195,6 +188,16 @@ impl std::fmt::Display for CostRatio {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Uniform numbers in `(0, 1)` from a 64-bit LCG (Knuth's MMIX constants) seeded `state`.
+    fn lcg_uniform(mut state: u64) -> impl FnMut() -> f64 {
+        move || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        }
+    }
 
     #[test]
     fn bands_cover_every_row_evenly() {
@@ -232,13 +235,7 @@ mod tests {
     /// in about 99.7 % of draws (checked at 98 %, 3 standard errors of the binomial below).
     #[test]
     fn the_interval_covers_the_true_ratio() {
-        let mut state = 0x853c_49e6_748f_ea9bu64;
-        let mut uniform = || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-        };
+        let mut uniform = lcg_uniform(0x853c_49e6_748f_ea9b);
         let trials = 2000;
         let (mut covered, mut covered_narrow) = (0, 0);
         for _ in 0..trials {
@@ -278,13 +275,7 @@ mod tests {
     /// a split interval a sixth as wide fails the coverage check.
     #[test]
     fn the_split_interval_narrows_with_passes_over_uneven_bands() {
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut uniform = || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-        };
+        let mut uniform = lcg_uniform(0x2545_f491_4f6c_dd1d);
         let bands = 32;
         let level_u = |b: usize| 1.0 + (b % 5) as f64;
         // Guided: 0.4x to 1.3x of the unguided level depending on the band.
