@@ -204,7 +204,7 @@ pub struct GuideTrial {
     decided: Option<TrialVerdict>,
     /// The estimate at `K` passes per arm (or the early verdict), once it exists.
     first_look: Option<TrialVerdict>,
-    /// The latest estimate (after every pass once each arm has 2).
+    /// The estimate at the latest look (its point estimate picks the favourite arm).
     latest: Option<TrialVerdict>,
     /// Looks of the continuation made so far (`j` of the next look is this plus 1).
     continued_looks: u32,
@@ -389,7 +389,9 @@ impl GuideTrial {
         Ok(())
     }
 
-    /// Updates the latest estimate and, at a look, decides (see the [module docs](self)).
+    /// At a look, estimates and decides (see the [module docs](self)). Only at looks: an
+    /// estimate reads every pixel of both arms, and a continuing trial of short passes (1 300
+    /// passes of 15 ms on veach-mis) would spend seconds re-estimating after each.
     fn look(&mut self) {
         let (g, u) = (self.arms[0].passes, self.arms[1].passes);
         if g < 2 || u < 2 {
@@ -412,11 +414,10 @@ impl GuideTrial {
             return;
         }
         let j = self.continued_looks + 1;
-        let z = continuation_z(self.options.z, j);
-        let v = self.estimate(z);
-        self.latest = Some(v);
         let due = u64::from(k) << j.min(32);
         if u64::from(g.min(u)) >= due {
+            let v = self.estimate(continuation_z(self.options.z, j));
+            self.latest = Some(v);
             self.continued_looks = j;
             if v.evidence != Verdict::Undecided {
                 self.decided = Some(v);
@@ -429,10 +430,26 @@ impl GuideTrial {
         self.first_look
     }
 
-    /// The latest estimate (updated after every pass once each arm has 2 passes; its `z` is
-    /// that of the next look). Not a verdict: see [`GuideTrial::verdict`].
+    /// The estimate at the latest look (`None` before the first, and after a
+    /// [`GuideTrial::restart`] until the next). Not a verdict: see [`GuideTrial::verdict`].
     pub fn latest(&self) -> Option<TrialVerdict> {
         self.latest
+    }
+
+    /// An estimate from all passes so far, at the quantile of the next look (`None` while an
+    /// arm has fewer than 2 passes): what a render that ends before the next look reports. It
+    /// reads every pixel of both arms; the trial itself estimates only at its looks.
+    pub fn current(&self) -> Option<TrialVerdict> {
+        let (g, u) = (self.arms[0].passes, self.arms[1].passes);
+        if g < 2 || u < 2 {
+            return None;
+        }
+        let z = if self.first_look.is_none() {
+            self.options.z
+        } else {
+            continuation_z(self.options.z, self.continued_looks + 1)
+        };
+        Some(self.estimate(z))
     }
 
     /// The verdict once the trial has ended, else `None`.

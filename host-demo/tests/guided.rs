@@ -464,15 +464,21 @@ fn efficiency_trial_decides_once_and_keeps_the_image_unbiased() {
         }
         (None, None) => panic!("3 s of a 32 x 32 image reach the trial's first look"),
     }
-    let v = trial.verdict.or(trial.latest).expect("an estimate");
     let expected_off = match trial.verdict {
         Some(v) if !v.keep_guide => after_trial_start - trial.passes,
         _ => 0,
     };
     assert_eq!(trial.passes_guide_off, expected_off);
-    assert!(v.guided_seconds > 0.0 && v.unguided_seconds > 0.0);
-    assert!(v.cost_ratio.is_finite());
-    assert!(v.ratio_low <= v.cost_ratio && v.cost_ratio <= v.ratio_high);
+    // The verdict, or the estimate of a trial still running (none only when the render ended
+    // within 2 passes of the guided arm's restart).
+    match trial.verdict.or(trial.latest) {
+        Some(v) => {
+            assert!(v.guided_seconds > 0.0 && v.unguided_seconds > 0.0);
+            assert!(v.cost_ratio.is_finite());
+            assert!(v.ratio_low <= v.cost_ratio && v.cost_ratio <= v.ratio_high);
+        }
+        None => assert!(trial.restarted),
+    }
     assert_same_mean("trial", &img, &reference);
     // The same render with an spp budget: no trial.
     let mut g = small_npm();

@@ -517,7 +517,8 @@ fn a_restart_measures_the_new_estimator() {
             .record(TrialArm::Guided, &pass(firefly, &mut rng), 2.0)
             .expect("valid");
     }
-    let latest = trial.latest().expect("2 passes of each");
+    assert!(trial.latest().is_none(), "no look since the restart");
+    let latest = trial.current().expect("2 passes of each");
     assert_eq!(latest.guided_passes, 2);
     assert_eq!(latest.guided_seconds, 2.0, "only the new passes' seconds");
     assert!(latest.unguided_passes >= 4);

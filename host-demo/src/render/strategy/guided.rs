@@ -347,7 +347,8 @@ pub struct TrialStats {
     pub first_look: Option<TrialVerdict>,
     /// The guided arm was restarted after the refit at the first look.
     pub restarted: bool,
-    /// The latest estimate of a trial that is still running (`None` once it has a verdict).
+    /// A trial still running when the render ended: its estimate from all its passes
+    /// ([`GuideTrial::current`]); `None` once it has a verdict.
     pub latest: Option<TrialVerdict>,
     /// The verdict, once the interval excluded 1 (or the trial ended at its first look).
     pub verdict: Option<TrialVerdict>,
@@ -806,6 +807,9 @@ impl<'g> Guided<'g> {
             self.guide.stop_training();
         }
         let mut stats = self.stats;
+        if let (Some(trial), Some(t)) = (&self.trial, &mut stats.trial) {
+            t.latest = trial.current();
+        }
         stats.schedule = self.schedule.report();
         stats.nee = rs.nee;
         stats.passes = rs.passes;
@@ -1301,7 +1305,6 @@ impl<'g> Strategy for Guided<'g> {
         }
         let t = self.stats.trial.get_or_insert_with(TrialStats::default);
         t.passes += 1;
-        t.latest = trial.latest();
         if let Some(v) = trial.verdict() {
             let refit = t.first_look.is_none() && v.keep_guide;
             t.verdict = Some(v);
