@@ -280,8 +280,9 @@ impl GuideTrial {
 
     /// The arm the next pass should run, or `None` once the trial has ended (a verdict). Before
     /// the first look the arms alternate (guided first); a continuing trial gives the arm with
-    /// the cheaper point estimate two passes for each pass of the other (an arm with fewer than
-    /// 2 passes since a [`GuideTrial::restart`] runs first).
+    /// the cheaper point estimate at the latest look two passes for each pass of the other (an
+    /// arm with fewer than 2 passes since a [`GuideTrial::restart`] runs first, and without a
+    /// look since the restart the guide counts as the cheaper, as an undecided trial keeps it).
     pub fn next_arm(&self) -> Option<TrialArm> {
         let (g, u) = (self.arms[0].passes, self.arms[1].passes);
         if self.decided.is_some() {
@@ -300,7 +301,8 @@ impl GuideTrial {
         if u < 2 {
             return Some(TrialArm::Unguided);
         }
-        // NaN (no cost) favours the guide, as an undecided trial keeps it.
+        // No look since a restart, or a NaN ratio (no cost): the guide, as an undecided trial
+        // keeps it.
         let guide_looks_dearer = self.latest.is_some_and(|v| v.cost_ratio > 1.0);
         let (favourite, other) = if !guide_looks_dearer {
             (TrialArm::Guided, TrialArm::Unguided)
@@ -464,7 +466,7 @@ impl GuideTrial {
     /// the paired bands' ([`CostRatio::from_bands`], `V` from all of the arm's passes).
     fn estimate(&self, z: f64) -> TrialVerdict {
         let bands = band_count(self.height);
-        // var[a][0]: all of the arm's passes; var[a][1 + h]: half h.
+        // var[a][0]: all of the arm's passes (before the split); var[a][1 + h]: half h.
         let mut var = [
             [0, 1, 2].map(|_| vec![0.0f64; bands]),
             [0, 1, 2].map(|_| vec![0.0f64; bands]),
@@ -488,10 +490,11 @@ impl GuideTrial {
                 for (ch, &w) in w.iter().enumerate() {
                     let (s0, q0) = (h0.sum[p][ch], h0.sum2[p][ch]);
                     let (s1, q1) = (h1.sum[p][ch], h1.sum2[p][ch]);
-                    var[a][0][b] += sample_variance(s0 + s1, q0 + q1, k0 + k1) * w;
                     if split {
                         var[a][1][b] += sample_variance(s0, q0, k0) * w;
                         var[a][2][b] += sample_variance(s1, q1, k1) * w;
+                    } else {
+                        var[a][0][b] += sample_variance(s0 + s1, q0 + q1, k0 + k1) * w;
                     }
                 }
             }
@@ -565,29 +568,9 @@ pub fn continuation_z(z0: f64, j: u32) -> f64 {
     normal_upper_quantile(alpha / 2.0).max(z0)
 }
 
-/// `Q(z) = P(N(0, 1) > z) = erfc(z / √2) / 2`, with the rational Chebyshev approximation of
-/// `erfc` in *Numerical Recipes* (§6.2, `erfcc`; fractional error below 1.2e-7 everywhere).
+/// `Q(z) = P(N(0, 1) > z) = erfc(z / √2) / 2`.
 fn normal_upper_tail(z: f64) -> f64 {
-    let x = z / std::f64::consts::SQRT_2;
-    let t = 1.0 / (1.0 + 0.5 * x.abs());
-    let c = [
-        -1.265_512_23,
-        1.000_023_68,
-        0.374_091_96,
-        0.096_784_18,
-        -0.186_288_06,
-        0.278_868_07,
-        -1.135_203_98,
-        1.488_515_87,
-        -0.822_152_23,
-        0.170_872_77,
-    ];
-    let mut poly = 0.0;
-    for &ci in c.iter().rev() {
-        poly = poly * t + ci;
-    }
-    let erfc = t * (-x * x + poly).exp();
-    0.5 * if x >= 0.0 { erfc } else { 2.0 - erfc }
+    0.5 * libm::erfc(z / std::f64::consts::SQRT_2)
 }
 
 /// The `z` with `Q(z) = p` for `p` in `(0, 1/2]`, by bisection on `[0, 40]` (`Q` decreases;

@@ -1308,7 +1308,6 @@ impl<'g> Strategy for Guided<'g> {
         if let Some(v) = trial.verdict() {
             let refit = t.first_look.is_none() && v.keep_guide;
             t.verdict = Some(v);
-            t.latest = None;
             self.trial = None;
             if refit {
                 self.refit_selection(&v);
@@ -1325,7 +1324,6 @@ impl<'g> Strategy for Guided<'g> {
                 }
                 if let Some(t) = &mut self.stats.trial {
                     t.restarted = true;
-                    t.latest = None;
                 }
             }
             self.last_samples = Vec::new();
