@@ -24,7 +24,7 @@ use guiding_core::model::batched::{decode_vmf_batch, decode_vmf_batch_portable};
 use guiding_core::model::df::{DfCompactRadiance, DfVertex, VertexModel};
 use guiding_core::model::nasg::NasgCompactProduct;
 use guiding_core::model::npm::{
-    encode_inputs, encode_inputs_fast, NpmCompactProduct, NpmCompactRadiance, NPM_LOBES,
+    encode_inputs, encode_product_inputs, NpmCompactProduct, NpmCompactRadiance, NPM_LOBES,
     NPM_OUTPUTS,
 };
 use guiding_core::model::GuidingModel;
@@ -167,7 +167,8 @@ fn fast_grid_gather_is_the_grid_forward_bit_for_bit() {
     for q in queries(200, 4) {
         let (mut a, mut b) = ([0.0f32; 48], [0.0f32; 48]);
         encode_inputs(&params, &model.grid, model.target, &q, &mut a);
-        encode_inputs_fast(&params, &model.grid, model.target, &q, &mut b);
+        let o = grid_forward_fast(&params, &model.grid, q.position(), &mut b, 0);
+        encode_product_inputs(model.target, &q, &mut b, o);
         assert!(same_bits(&a, &b));
     }
 }

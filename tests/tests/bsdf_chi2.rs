@@ -113,7 +113,9 @@ fn cases() -> Vec<(String, Material, Vec3, bool)> {
         ),
         (
             "roughplastic a0.2".into(),
-            Material::RoughPlastic(Coating::rough(d, s, 1.49, false, Microfacet::Ggx, 0.2)),
+            Material::RoughPlastic(
+                Coating::smooth(d, s, 1.49, false).roughened(Microfacet::Ggx, 0.2),
+            ),
             outside,
             false,
         ),
@@ -121,7 +123,8 @@ fn cases() -> Vec<(String, Material, Vec3, bool)> {
             // A textured diffuse_reflectance re-weights the lobe selection per hit.
             "roughplastic a0.2 textured albedo".into(),
             Material::RoughPlastic(
-                Coating::rough(d, s, 1.49, false, Microfacet::Ggx, 0.2)
+                Coating::smooth(d, s, 1.49, false)
+                    .roughened(Microfacet::Ggx, 0.2)
                     .with_albedo(Vec3::new(0.9, 0.1, 0.05), Vec3::splat(0.3)),
             ),
             outside,
@@ -220,14 +223,10 @@ fn beckmann_cases() -> Vec<(String, Material, Vec3, bool)> {
         transmittance: Vec3::ONE,
     };
     let rp = |alpha| {
-        Material::RoughPlastic(Coating::rough(
-            Vec3::new(0.4, 0.5, 0.6),
-            Vec3::ONE,
-            1.49,
-            false,
-            Microfacet::Beckmann,
-            alpha,
-        ))
+        Material::RoughPlastic(
+            Coating::smooth(Vec3::new(0.4, 0.5, 0.6), Vec3::ONE, 1.49, false)
+                .roughened(Microfacet::Beckmann, alpha),
+        )
     };
     let mut cases: Vec<(String, Material, Vec3, bool)> = Vec::new();
     for (alpha, fine) in [(0.05f32, true), (0.3, false), (0.8, false)] {

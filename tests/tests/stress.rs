@@ -174,6 +174,22 @@ fn check_normalisation(
     ((fine - 1.0).abs(), delta)
 }
 
+/// Magnitudes every lobe parameter is stressed at: zero, the smallest
+/// denormal and powers of ten from 1e-30 to 1e30.
+const MAGNITUDES: [f32; 11] = [
+    0.0,
+    DENORMAL_MIN,
+    1e-30,
+    1e-6,
+    1e-2,
+    1.0,
+    1e2,
+    1e4,
+    1e5,
+    1e7,
+    1e30,
+];
+
 // ---------------------------------------------------------------------------
 // vMF.
 
@@ -242,24 +258,7 @@ fn vmf_extremes_finite_and_consistent() {
 /// (uniform below κ = 100, a zoomed cap with `s0 = 1/κ` above).
 #[test]
 fn vmf_normalisation_across_kappa() {
-    let kappas = [
-        0.0,
-        DENORMAL_MIN,
-        1e-30,
-        1e-6,
-        1e-3,
-        0.1,
-        1.0,
-        10.0,
-        99.0,
-        1e2,
-        1e3,
-        1e4,
-        1e5,
-        1e6,
-        1e7,
-        1e30,
-    ];
+    let kappas = [&MAGNITUDES[..], &[1e-3, 0.1, 10.0, 99.0, 1e3, 1e6]].concat();
     let mut worst = (0.0f64, 0.0f64);
     for &kappa in &kappas {
         for (axis, exact_axis) in [
@@ -287,39 +286,17 @@ fn vmf_normalisation_across_kappa() {
 // ---------------------------------------------------------------------------
 // NASG.
 
-const LAMBDAS: [f32; 16] = [
-    0.0,
-    -0.0,
-    DENORMAL_MIN,
-    f32::MIN_POSITIVE,
-    1e-30,
-    1e-6,
-    1e-4,
-    1e-2,
-    1.0,
-    1e2,
-    1e4,
-    1e5,
-    1e7,
-    1e30,
-    f32::INFINITY,
-    f32::NAN,
-];
+/// λ: the magnitudes, negative zero, the smallest normal, 1e-4 and the
+/// non-finite values (16).
+fn lambdas() -> Vec<f32> {
+    let special = [-0.0, f32::MIN_POSITIVE, 1e-4, f32::INFINITY, f32::NAN];
+    [&MAGNITUDES[..], &special].concat()
+}
 
-const ANISOTROPIES: [f32; 12] = [
-    0.0,
-    DENORMAL_MIN,
-    DENORMAL,
-    1e-30,
-    1e-6,
-    1e-2,
-    1.0,
-    1e2,
-    1e4,
-    1e5,
-    1e7,
-    1e30,
-];
+/// Anisotropy: the magnitudes and a denormal (12).
+fn anisotropies() -> Vec<f32> {
+    [&MAGNITUDES[..], &[DENORMAL]].concat()
+}
 
 const EPSILONS: [f32; 7] = [DENORMAL_MIN, 1e-30, 1e-7, 1e-6, 1e-3, 1.0, 1e30];
 
@@ -334,8 +311,8 @@ fn nasg_extremes_finite_and_consistent() {
         (Vec3::new(0.3, -0.5, 0.8), Vec3::new(1.0, 0.2, 0.0)),
     ];
     let mut n = 0;
-    for &lambda in &LAMBDAS {
-        for &a in &ANISOTROPIES {
+    for &lambda in &lambdas() {
+        for &a in &anisotropies() {
             for &eps in &EPSILONS {
                 for &(z, x) in &frames {
                     let lobe = NasgLobe::new(z, x, lambda, a, eps);

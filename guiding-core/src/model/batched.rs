@@ -33,8 +33,9 @@
 use super::df::{Df, DfVertex, DF_CONDITIONAL_BINS, DF_MARGINAL_BINS, DF_MAX_BASE};
 use super::mixture_model::{MixtureFamily, MixtureModel};
 use super::nasg::{NASG_LOBES, NASG_OUTPUTS, NASG_SELECTION_OUTPUT};
-use super::npm::{all_finite, encode_inputs_fast, encode_inputs_traced, NPM_LOBES, NPM_OUTPUTS};
+use super::npm::{all_finite, encode_product_inputs, NPM_LOBES, NPM_OUTPUTS};
 use super::{GuidingModel, QueryPoint};
+use crate::encoding::grid::{grid_forward_fast, grid_forward_traced};
 use crate::encoding::{grid_backward_traced, GridTrace};
 use crate::factorised::{self, direction_from_square, square_from_direction};
 use crate::lobe::DirectionSample;
@@ -89,7 +90,8 @@ fn infer_chunk<const IN: usize, const W: usize, const OUT: usize, const H: usize
     let m = queries.len();
     for (x, q) in xs.iter_mut().zip(queries) {
         *x = [0.0; IN];
-        encode_inputs_fast(params, grid, target, q, x);
+        let o = grid_forward_fast(params, grid, q.position(), x, 0);
+        encode_product_inputs(target, q, x, o);
     }
     Mlp::<IN, W, OUT, H>::infer_batch(params, offset, &xs[..m], &mut ys[..m]);
 }
@@ -244,7 +246,15 @@ impl SampleRows {
             self.live[m] = j;
             xs[m] = [0.0; IN];
             let q = QueryPoint::of_sample(s);
-            encode_inputs_traced(params, grid, target, &q, &mut xs[m], &mut self.traces[m]);
+            let o = grid_forward_traced(
+                params,
+                grid,
+                q.position(),
+                &mut xs[m],
+                0,
+                &mut self.traces[m],
+            );
+            encode_product_inputs(target, &q, &mut xs[m], o);
             m += 1;
         }
         m

@@ -153,41 +153,14 @@ pub fn encode_inputs<const N: usize>(
     encode_product_inputs(target, query, out, o)
 }
 
-/// [`encode_inputs`] with the grid read by
-/// [`grid_forward_fast`](crate::encoding::grid::grid_forward_fast) (the same
-/// bits, CPU fast path of the batched decode).
-#[cfg(feature = "std")]
-pub fn encode_inputs_fast<const N: usize>(
-    params: &[f32],
-    grid: &GridConfig,
-    target: u32,
-    query: &QueryPoint,
-    out: &mut [f32; N],
-) -> usize {
-    let o = crate::encoding::grid::grid_forward_fast(params, grid, query.position(), out, 0);
-    encode_product_inputs(target, query, out, o)
-}
-
-/// [`encode_inputs_fast`] that also records the grid's corners in `trace`
-/// for [`crate::encoding::grid_backward_traced`] (the batched gradient).
-#[cfg(feature = "std")]
-pub fn encode_inputs_traced<const N: usize>(
-    params: &[f32],
-    grid: &GridConfig,
-    target: u32,
-    query: &QueryPoint,
-    out: &mut [f32; N],
-    trace: &mut crate::encoding::GridTrace,
-) -> usize {
-    let o =
-        crate::encoding::grid::grid_forward_traced(params, grid, query.position(), out, 0, trace);
-    encode_product_inputs(target, query, out, o)
-}
-
 /// The product inputs of [`encode_inputs`] from `out[o]` on (nothing for the
-/// radiance target); returns the end offset.
+/// radiance target); returns the end offset. [`encode_inputs`] is
+/// [`grid_forward`] followed by this; the batched CPU decoders follow
+/// [`grid_forward_fast`](crate::encoding::grid::grid_forward_fast) or
+/// [`grid_forward_traced`](crate::encoding::grid::grid_forward_traced) (the
+/// same bits) by it.
 #[inline]
-fn encode_product_inputs<const N: usize>(
+pub fn encode_product_inputs<const N: usize>(
     target: u32,
     query: &QueryPoint,
     out: &mut [f32; N],
@@ -266,17 +239,10 @@ pub(crate) fn split_rows<const K: usize, const R: usize, const N: usize>(
     y: &[f32; N],
 ) -> [[f32; R]; K] {
     let mut rows = [[0.0f32; R]; K];
-    let mut k = 0;
-    while k < K {
-        let mut r = 0;
-        while r < R {
-            let i = k * R + r;
-            if i < N {
-                rows[k][r] = y[i];
-            }
-            r += 1;
-        }
-        k += 1;
+    let mut i = 0;
+    while i < K * R && i < N {
+        rows[i / R][i % R] = y[i];
+        i += 1;
     }
     rows
 }
@@ -288,17 +254,10 @@ pub(crate) fn join_rows<const K: usize, const R: usize, const N: usize>(
     rows: &[[f32; R]; K],
     y: &mut [f32; N],
 ) {
-    let mut k = 0;
-    while k < K {
-        let mut r = 0;
-        while r < R {
-            let i = k * R + r;
-            if i < N {
-                y[i] = rows[k][r];
-            }
-            r += 1;
-        }
-        k += 1;
+    let mut i = 0;
+    while i < K * R && i < N {
+        y[i] = rows[i / R][i % R];
+        i += 1;
     }
 }
 

@@ -249,27 +249,17 @@ impl Coating {
         }
     }
 
-    /// Rough plastic (Mitsuba 3 `roughplastic`): tabulates the coating's external
-    /// transmittance and internal reflectance for the coating's distribution and alpha.
-    pub fn rough(
-        diffuse: Vec3,
-        specular: Vec3,
-        eta: f32,
-        nonlinear: bool,
-        distribution: Microfacet,
-        alpha: f32,
-    ) -> Self {
-        let (ext_t, internal) = coating_tables(distribution, alpha, eta);
+    /// Rough plastic (Mitsuba 3 `roughplastic`): this coating with a rough interface of
+    /// `distribution` and `alpha`, its external transmittance and internal reflectance
+    /// tabulated for them.
+    pub fn roughened(self, distribution: Microfacet, alpha: f32) -> Self {
+        let (ext_t, internal) = coating_tables(distribution, alpha, self.eta);
         Self {
-            diffuse,
-            specular,
-            eta,
-            nonlinear,
             distribution,
             alpha,
-            spec_weight: spec_weight(diffuse, specular),
             internal,
             ext_t,
+            ..self
         }
     }
 
@@ -1689,8 +1679,12 @@ mod tests {
             rough_glass(Microfacet::Beckmann, 0.3, 1.5),
             rough_glass(Microfacet::Beckmann, 0.6, 1.0 / 1.5),
             Material::Plastic(Coating::smooth(d, s, 1.49, false)),
-            Material::RoughPlastic(Coating::rough(d, s, 1.49, true, Microfacet::Ggx, 0.2)),
-            Material::RoughPlastic(Coating::rough(d, s, 1.49, false, Microfacet::Beckmann, 0.3)),
+            Material::RoughPlastic(
+                Coating::smooth(d, s, 1.49, true).roughened(Microfacet::Ggx, 0.2),
+            ),
+            Material::RoughPlastic(
+                Coating::smooth(d, s, 1.49, false).roughened(Microfacet::Beckmann, 0.3),
+            ),
             Material::Phong {
                 exponent: 30.0,
                 diffuse: d * 0.5,
@@ -2292,7 +2286,8 @@ mod tests {
                 for eta in [1.5f32, 1.0 / 1.5] {
                     mats.push(rough_glass(dist, alpha, eta));
                 }
-                let c = Coating::rough(Vec3::splat(0.5), Vec3::ONE, 1.49, false, dist, alpha);
+                let c = Coating::smooth(Vec3::splat(0.5), Vec3::ONE, 1.49, false)
+                    .roughened(dist, alpha);
                 assert!(c.internal.is_finite() && c.ext_t.iter().all(|t| t.is_finite()));
                 assert!(
                     c.internal > 0.0 && c.internal < 1.0,
@@ -2331,8 +2326,8 @@ mod tests {
     #[test]
     fn rough_plastic_tables_follow_distribution() {
         let (d, s) = (Vec3::splat(0.5), Vec3::ONE);
-        let g = Coating::rough(d, s, 1.5, false, Microfacet::Ggx, 0.3);
-        let b = Coating::rough(d, s, 1.5, false, Microfacet::Beckmann, 0.3);
+        let g = Coating::smooth(d, s, 1.5, false).roughened(Microfacet::Ggx, 0.3);
+        let b = Coating::smooth(d, s, 1.5, false).roughened(Microfacet::Beckmann, 0.3);
         assert_eq!(b.distribution, Microfacet::Beckmann);
         assert!(
             (g.internal - b.internal).abs() > 1e-3,

@@ -310,27 +310,18 @@ impl DoorMaterials {
             },
         });
         let floor = b.textured_material(
-            Material::RoughPlastic(Coating::rough(
-                Vec3::splat(0.5),
-                Vec3::ONE,
-                eta,
-                false,
-                dist,
-                alpha,
-            )),
+            Material::RoughPlastic(
+                Coating::smooth(Vec3::splat(0.5), Vec3::ONE, eta, false).roughened(dist, alpha),
+            ),
             MaterialTextures {
                 diffuse: Some(checker),
                 ..Default::default()
             },
         );
-        let table_top = b.material(Material::RoughPlastic(Coating::rough(
-            Vec3::new(0.25, 0.12, 0.06),
-            Vec3::ONE,
-            eta,
-            false,
-            dist,
-            alpha,
-        )));
+        let table_top = b.material(Material::RoughPlastic(
+            Coating::smooth(Vec3::new(0.25, 0.12, 0.06), Vec3::ONE, eta, false)
+                .roughened(dist, alpha),
+        ));
         let copper = b.material(Material::RoughConductor {
             distribution: Microfacet::Ggx,
             alpha: 0.25,

@@ -1592,21 +1592,14 @@ impl Ctx<'_> {
         if int_ior == ext_ior {
             return Err(self.err(n, "int_ior and ext_ior must differ"));
         }
-        let eta = int_ior / ext_ior;
+        let coating = Coating::smooth(diffuse, specular, int_ior / ext_ior, nonlinear);
         if ty == "plastic" {
-            return Ok(Material::Plastic(Coating::smooth(
-                diffuse, specular, eta, nonlinear,
-            )));
+            return Ok(Material::Plastic(coating));
         }
         let (distribution, alpha) = self.check_rough(n, &distribution, alpha)?;
-        Ok(Material::RoughPlastic(Coating::rough(
-            diffuse,
-            specular,
-            eta,
-            nonlinear,
-            distribution,
-            alpha,
-        )))
+        Ok(Material::RoughPlastic(
+            coating.roughened(distribution, alpha),
+        ))
     }
 
     /// `twosided`: one nested BSDF for both sides, or front and back; only opaque one-sided
