@@ -1,0 +1,417 @@
+"""Mitsuba 3 integrator ``guided_path``: Mitsuba's ``path`` with a learned guide.
+
+``import guiding.mitsuba`` registers it, so that a scene names it
+(``<integrator type="guided_path"/>``, or ``{"type": "guided_path"}`` in ``mi.load_dict``).
+It runs on the JIT variants with RGB colour (``llvm_ad_rgb``, ``cuda_ad_rgb``).
+
+What it computes is Mitsuba's ``path`` estimator (next-event estimation, MIS with the power
+heuristic, Russian roulette from ``rr_depth``) with one change at every vertex whose BSDF has no
+delta lobe: the continuation is sampled by one-sample MIS between the BSDF and the guide, with
+the guide's selection probability ``c`` (the library's preset, or NASG's learned one), so its
+density is ``p = c·p_guide + (1 − c)·p_bsdf``; that ``p`` also weighs next-event estimation
+against the continuation. Each of the ``spp`` passes traces one sample per pixel as a wavefront
+(one evaluated kernel per bounce, the guide called between them on numpy arrays); the passes
+of the training phase (the library's ``Schedule``: its default fraction of the passes) record
+their paths and train the guide between passes. Every pass is an unbiased estimate given the
+guide of the passes before it, so the image (all passes splatted into one block, as ``path``
+splats its samples) is unbiased.
+
+Properties: ``max_depth`` (default -1, unbounded), ``rr_depth`` (5), as ``path``; ``guide``
+(``npm``, ``nasg``, ``df-n``, ``df-l``; default ``npm``), ``target`` (``radiance``, ``product``),
+``size`` (``small``, ``compact``, ``paper``), ``train_fraction`` (the library's default when
+absent), ``guiding`` (``false``: the same wavefront loop without a guide, to measure what the
+loop itself costs), ``threads`` (the library's threads, 0: all cores).
+
+After a render, ``integrator.field`` is the trained ``guiding.Field`` (save it with
+``field.save``) and ``integrator.stats`` says what the render did and where its time went.
+"""
+
+import time
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from . import BatchRecorder, Field, Schedule
+
+
+def _rows(v):
+    """A Dr.Jit 3-vector (or colour) as an ``(n, 3)`` float32 array."""
+    return np.ascontiguousarray(
+        np.stack([np.asarray(v.x), np.asarray(v.y), np.asarray(v.z)], axis=1), dtype=np.float32
+    )
+
+
+def _vec3(rows):
+    """An ``(n, 3)`` array as a ``mi.Vector3f``."""
+    return mi.Vector3f(mi.Float(rows[:, 0]), mi.Float(rows[:, 1]), mi.Float(rows[:, 2]))
+
+
+def _mis_weight(pdf_a, pdf_b):
+    """The power heuristic, as Mitsuba's ``path`` (0 where it is not finite)."""
+    a2 = dr.square(pdf_a)
+    w = a2 / (a2 + dr.square(pdf_b))
+    return dr.select(dr.isfinite(w), w, 0.0)
+
+
+class _Times:
+    """Seconds spent per part of a render."""
+
+    def __init__(self):
+        self.mitsuba = 0.0
+        self.guide = 0.0
+        self.recording = 0.0
+        self.training = 0.0
+
+    def as_dict(self):
+        return dict(self.__dict__)
+
+
+class GuidedPath(mi.SamplingIntegrator):
+    """``guided_path``: see the module documentation."""
+
+    def __init__(self, props=mi.Properties()):
+        super().__init__(props)
+        self.max_depth = props.get("max_depth", -1)
+        self.rr_depth = props.get("rr_depth", 5)
+        if self.rr_depth <= 0:
+            raise ValueError('guided_path: "rr_depth" must be greater than zero')
+        self.guide = props.get("guide", "npm")
+        self.target = props.get("target", "radiance")
+        self.size = props.get("size", "compact")
+        fraction = props.get("train_fraction", -1.0)
+        self.train_fraction = None if fraction < 0 else float(fraction)
+        self.guiding = props.get("guiding", True)
+        self.threads = props.get("threads", 0)
+        self.field = None
+        self.stats = {}
+        # Test hook: multiplies the guide's density in the MIS weights (a wrong estimator,
+        # for the unbiasedness test's negative control).
+        self._guide_pdf_scale = 1.0
+
+    def to_string(self):
+        return (
+            f"GuidedPath[guide = {self.guide} {self.target} {self.size}, "
+            f"max_depth = {self.max_depth}, rr_depth = {self.rr_depth}]"
+        )
+
+    def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
+        if not mi.is_rgb or mi.is_polarized or not dr.is_jit_v(mi.Float):
+            raise RuntimeError(
+                "guided_path runs on the JIT RGB variants (llvm_ad_rgb, cuda_ad_rgb), "
+                f"not {mi.variant()}"
+            )
+        if isinstance(sensor, int):
+            sensor = scene.sensors()[sensor]
+        film = sensor.film()
+        spp = spp if spp > 0 else sensor.sampler().sample_count()
+        times = _Times()
+        field, schedule, recorder = None, None, None
+        if self.guiding:
+            bbox = scene.bbox()
+            field = Field(
+                [float(x) for x in bbox.min],
+                [float(x) for x in bbox.max],
+                representation=self.guide,
+                target=self.target,
+                size=self.size,
+                threads=self.threads,
+            )
+            schedule = Schedule(spp=spp, train_fraction=self.train_fraction)
+            recorder = BatchRecorder()
+        self.field = field
+        with dr.suspend_grad():
+            film.prepare([])
+            block = film.create_block()
+            start = time.perf_counter()
+            training_passes = 0
+            for p in range(spp):
+                train = schedule is not None and schedule.in_training_phase(
+                    time.perf_counter() - start, p
+                )
+                if schedule is not None and not train and not schedule.training_over:
+                    schedule.end_training()
+                t0 = time.perf_counter()
+                sampler, n = self._pass_sampler(sensor, (int(seed) * spp + p) & 0xFFFFFFFF)
+                ray, weight, pos = self._sample_rays(sensor, sampler)
+                L = self._trace(scene, sampler, ray, n, field, recorder if train else None, times)
+                self._splat(block, film, pos, L * weight)
+                dr.eval(block.tensor())
+                traced = time.perf_counter() - t0
+                if train:
+                    training_passes += 1
+                    t1 = time.perf_counter()
+                    recorder.end()
+                    recorder.flush_into(field)
+                    times.recording += time.perf_counter() - t1
+                    schedule.record_traced(traced, n)
+                    t2 = time.perf_counter()
+                    field.train_scheduled(schedule)
+                    times.training += time.perf_counter() - t2
+            film.put_block(block)
+            self.stats = {
+                "spp": spp,
+                "training_passes": training_passes,
+                "seconds": time.perf_counter() - start,
+                "time_split": times.as_dict(),
+                "schedule": schedule.report() if schedule is not None else None,
+                "field": field.stats() if field is not None else None,
+            }
+            return film.develop() if develop else None
+
+    def _pass_sampler(self, sensor, seed):
+        """The sensor's sampler for one sample per pixel, seeded for this pass."""
+        film = sensor.film()
+        sampler = sensor.sampler().clone()
+        sampler.set_sample_count(1)
+        sampler.set_samples_per_wavefront(1)
+        size = film.crop_size()
+        if film.sample_border():
+            size += 2 * film.rfilter().border_size()
+        n = int(dr.prod(size))
+        sampler.seed(seed, n)
+        return sampler, n
+
+    def _sample_rays(self, sensor, sampler):
+        """One camera ray per pixel (Mitsuba's sample positions and ray weights)."""
+        film = sensor.film()
+        size = film.crop_size()
+        border = film.rfilter().border_size()
+        if film.sample_border():
+            size += 2 * border
+        idx = dr.arange(mi.UInt32, dr.prod(size))
+        pos = mi.Vector2i()
+        pos.y = mi.Int32(idx // size[0])
+        pos.x = mi.Int32(idx - mi.UInt32(pos.y) * size[0])
+        if film.sample_border():
+            pos -= border
+        pos += mi.Vector2i(film.crop_offset())
+        pos_f = mi.Vector2f(pos) + sampler.next_2d()
+        scale = dr.rcp(mi.ScalarVector2f(film.crop_size()))
+        offset = -mi.ScalarVector2f(film.crop_offset()) * scale
+        aperture = sampler.next_2d() if sensor.needs_aperture_sample() else mi.Vector2f(0.0)
+        t = sensor.shutter_open()
+        if sensor.shutter_open_time() > 0:
+            t += sampler.next_1d() * sensor.shutter_open_time()
+        ray, weight = sensor.sample_ray_differential(
+            time=t, sample1=0.0, sample2=dr.fma(pos_f, scale, offset), sample3=aperture
+        )
+        splat = mi.Vector2f(pos) if film.rfilter().is_box_filter() else pos_f
+        return ray, weight, splat
+
+    @staticmethod
+    def _splat(block, film, pos, rgb):
+        if mi.has_flag(film.flags(), mi.FilmFlags.Alpha):
+            values = [rgb.x, rgb.y, rgb.z, mi.Float(1.0), mi.Float(1.0)]
+        else:
+            values = [rgb.x, rgb.y, rgb.z, mi.Float(1.0)]
+        block.put(pos, values)
+
+    def _trace(self, scene, sampler, ray, n, field, recorder, times):
+        """One wavefront of ``n`` paths; returns their radiance."""
+        slots = np.arange(n, dtype=np.uint32)
+        ctx = mi.BSDFContext()
+        beta = mi.Spectrum(1.0)
+        L = mi.Spectrum(0.0)
+        eta = mi.Float(1.0)
+        active = mi.Bool(True)
+        prev_si = dr.zeros(mi.Interaction3f)
+        prev_pdf = mi.Float(1.0)
+        prev_delta = mi.Bool(True)
+        ray = mi.Ray3f(ray)
+        if recorder is not None:
+            recorder.start(n)
+        depth = 0
+        while True:
+            t0 = time.perf_counter()
+            si = scene.ray_intersect(
+                ray, ray_flags=mi.RayFlags.All, coherent=depth == 0, active=active
+            )
+            # Emission found by the continuation (or the camera), MIS against NEE.
+            ds = mi.DirectionSample3f(scene, si=si, ref=prev_si)
+            em_pdf = scene.pdf_emitter_direction(prev_si, ds, ~prev_delta)
+            mis_bsdf = _mis_weight(prev_pdf, em_pdf)
+            emitted = ds.emitter.eval(si, active)
+            L[active] += beta * mis_bsdf * emitted
+            valid = active & si.is_valid()
+            escaped = active & ~si.is_valid() & (depth > 0)
+            active_next = valid & ((self.max_depth < 0) | (depth + 1 < self.max_depth))
+            bsdf = si.bsdf(ray)
+            flags = bsdf.flags()
+            guidable = (
+                active_next
+                & ~mi.has_flag(flags, mi.BSDFFlags.Delta)
+                & mi.has_flag(flags, mi.BSDFFlags.Smooth)
+            )
+            wo_world = -ray.d
+            dr.eval(si, emitted, mis_bsdf, guidable, active_next, valid, escaped)
+            times.mitsuba += time.perf_counter() - t0
+            if recorder is not None:
+                t1 = time.perf_counter()
+                self._record_hits(recorder, slots, si, wo_world, emitted, mis_bsdf, valid,
+                                  escaped, depth, guidable)
+                times.recording += time.perf_counter() - t1
+            if not dr.any(active_next):
+                break
+
+            # The guide at the guidable vertices.
+            t2 = time.perf_counter()
+            gmask = np.asarray(guidable, dtype=bool)
+            gidx = np.nonzero(gmask)[0].astype(np.uint32)
+            lane = np.full(n, 0, dtype=np.uint32)
+            lane[gidx] = np.arange(gidx.size, dtype=np.uint32)
+            c_full = np.zeros(n, dtype=np.float32)
+            batch = None
+            if field is not None and gidx.size > 0:
+                batch = field.decode(
+                    _rows(si.p)[gidx],
+                    _rows(si.sh_frame.n)[gidx],
+                    _rows(wo_world)[gidx],
+                    np.ones(gidx.size, dtype=np.float32),
+                )
+                c_full[gidx] = batch.selection_probability()
+            c = mi.Float(c_full)
+            times.guide += time.perf_counter() - t2
+
+            # Next-event estimation.
+            t3 = time.perf_counter()
+            active_em = active_next & mi.has_flag(flags, mi.BSDFFlags.Smooth)
+            ds_em, em_weight = scene.sample_emitter_direction(
+                si, sampler.next_2d(), True, active_em
+            )
+            active_em &= ds_em.pdf != 0.0
+            s1, s2 = sampler.next_1d(), sampler.next_2d()
+            bsdf_val_em, bsdf_pdf_em, bs, bsdf_weight = bsdf.eval_pdf_sample(
+                ctx, si, si.to_local(ds_em.d), s1, s2, active_next
+            )
+            u_select, u_guide = sampler.next_1d(), sampler.next_2d()
+            dr.eval(ds_em, em_weight, active_em, bsdf_val_em, bsdf_pdf_em, bs, bsdf_weight,
+                    u_select, u_guide)
+            times.mitsuba += time.perf_counter() - t3
+
+            # Guide densities at the NEE directions, guide samples, guide densities of the
+            # BSDF's samples.
+            t4 = time.perf_counter()
+            c_np = c_full
+            use_guide_np = gmask & (np.asarray(u_select) < c_np)
+            em_np = np.asarray(active_em, dtype=bool)
+            g_em = np.zeros(n, dtype=np.float32)
+            g_dir = np.zeros((n, 3), dtype=np.float32)
+            g_pdf = np.zeros(n, dtype=np.float32)
+            bsdf_dir = _rows(si.to_world(bs.wo))
+            final_dir = bsdf_dir.copy()
+            if batch is not None:
+                q = np.nonzero(gmask & em_np & (c_np > 0))[0]
+                if q.size:
+                    g_em[q] = field.pdf(batch, lane[q], _rows(ds_em.d)[q])
+                q = np.nonzero(use_guide_np)[0]
+                if q.size:
+                    u = np.stack([np.asarray(u_guide.x), np.asarray(u_guide.y)], axis=1)[q]
+                    d, pdf = field.sample(batch, lane[q], np.ascontiguousarray(u, np.float32))
+                    final_dir[q] = d
+                q = np.nonzero(gmask & (c_np > 0))[0]
+                if q.size:
+                    g_pdf[q] = field.pdf(batch, lane[q], final_dir[q])
+            g_pdf *= self._guide_pdf_scale
+            g_em *= self._guide_pdf_scale
+            times.guide += time.perf_counter() - t4
+
+            # Direct light with the combined density; the continuation.
+            t5 = time.perf_counter()
+            g_em_dr = mi.Float(g_em)
+            pdf_em = dr.select(guidable, c * g_em_dr + (1.0 - c) * bsdf_pdf_em, bsdf_pdf_em)
+            mis_em = dr.select(ds_em.delta, 1.0, _mis_weight(ds_em.pdf, pdf_em))
+            direct = bsdf_val_em * em_weight * mis_em
+            direct = dr.select(active_em, direct, 0.0)
+            L[active_em] += beta * direct
+
+            wi_world = _vec3(final_dir)
+            bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(wi_world), guidable)
+            pdf_mix = c * mi.Float(g_pdf) + (1.0 - c) * bsdf_pdf
+            ok = guidable & (pdf_mix > 0.0) & dr.isfinite(pdf_mix)
+            weight = dr.select(guidable, dr.select(ok, bsdf_val / pdf_mix, 0.0), bsdf_weight)
+            pdf = dr.select(guidable, pdf_mix, bs.pdf)
+            sampled_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+            # The recorder's f·|cos| and density (a delta sample: the weight over a pdf of 1).
+            rec_f = dr.select(guidable, bsdf_val, dr.select(sampled_delta, bsdf_weight,
+                                                            bsdf_weight * bs.pdf))
+            rec_pdf = dr.select(guidable, pdf_mix, dr.select(sampled_delta, 1.0, bs.pdf))
+            rec_pdf = dr.select(active_next & (dr.max(weight) > 0.0), rec_pdf, 0.0)
+            bsdf_pdf_rec = dr.select(guidable, bsdf_pdf, bs.pdf)
+
+            ray = si.spawn_ray(wi_world)
+            beta *= weight
+            eta *= dr.select(guidable, 1.0, bs.eta)
+            prev_si = si
+            prev_pdf = pdf
+            prev_delta = ~guidable & sampled_delta
+
+            # Russian roulette, as Mitsuba's path.
+            beta_max = dr.max(beta)
+            # Mitsuba's path counts this vertex before its roulette.
+            rr_active = mi.Bool(depth + 1 >= self.rr_depth)
+            rr_prob = dr.minimum(beta_max * dr.square(eta), 0.95)
+            rr_continue = sampler.next_1d() < rr_prob
+            beta[rr_active] *= dr.rcp(rr_prob)
+            active = active_next & (~rr_active | rr_continue) & (beta_max != 0.0)
+            dr.eval(ray, beta, eta, prev_si, prev_pdf, prev_delta, active, L, direct, rec_f,
+                    rec_pdf, bsdf_pdf_rec, rr_prob, rr_active)
+            times.mitsuba += time.perf_counter() - t5
+
+            if recorder is not None:
+                t6 = time.perf_counter()
+                q = np.nonzero(em_np)[0].astype(np.uint32)
+                if q.size:
+                    recorder.add_direct(q, _rows(direct)[q])
+                # Paths that go on (not those the roulette ended: they record nothing).
+                going_on = np.asarray(active, dtype=bool)
+                q = np.nonzero(going_on)[0].astype(np.uint32)
+                if q.size:
+                    recorder.set_continuations(
+                        q,
+                        final_dir[q],
+                        np.asarray(rec_pdf, dtype=np.float32)[q],
+                        np.asarray(bsdf_pdf_rec, dtype=np.float32)[q],
+                        _rows(rec_f)[q],
+                    )
+                if depth + 1 >= self.rr_depth and q.size:
+                    factor = 1.0 / np.asarray(rr_prob, dtype=np.float32)[q]
+                    recorder.scale_continuations(q, factor.astype(np.float32))
+                times.recording += time.perf_counter() - t6
+            depth += 1
+        return L
+
+    @staticmethod
+    def _record_hits(recorder, slots, si, wo_world, emitted, mis_bsdf, valid, escaped, depth,
+                     guidable):
+        """The recorder's calls for the hits and escapes of one bounce (a vertex that the
+        guide does not sample trains nothing: it is recorded as delta)."""
+        valid_np = np.asarray(valid, dtype=bool)
+        q = slots[valid_np]
+        emitted_rows = _rows(emitted)
+        mis = np.asarray(mis_bsdf, dtype=np.float32)
+        if depth == 0:
+            mis = np.ones_like(mis)
+        if q.size:
+            delta = ~np.asarray(guidable, dtype=bool)[valid_np]
+            recorder.add_vertices(
+                q,
+                _rows(si.p)[valid_np],
+                _rows(si.sh_frame.n)[valid_np],
+                _rows(wo_world)[valid_np],
+                np.ones(q.size, dtype=np.float32),
+                emitted_rows[valid_np],
+                mis[valid_np],
+                delta,
+            )
+        esc = np.asarray(escaped, dtype=bool)
+        if esc.any():
+            recorder.add_escaped_radiance(slots[esc], emitted_rows[esc], mis[esc])
+
+
+def register():
+    """Registers ``guided_path`` with Mitsuba (done on import of this module)."""
+    mi.register_integrator("guided_path", lambda props: GuidedPath(props))
+
+
+register()

@@ -1,0 +1,173 @@
+"""The Python API of ``guiding``: results, round trips and error paths.
+
+Run: ``python -m unittest discover -s guiding-py/tests`` after ``pip install ./guiding-py``.
+"""
+
+import os
+import tempfile
+import unittest
+
+import numpy as np
+
+import guiding
+
+
+def field(**kw):
+    return guiding.Field([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], size="small", threads=1, **kw)
+
+
+def points(n, seed=0):
+    rng = np.random.default_rng(seed)
+    return rng.uniform(-0.9, 0.9, size=(n, 3)).astype(np.float32)
+
+
+def lanes(n):
+    return np.arange(n, dtype=np.uint32)
+
+
+def record_one_bounce(rec, n, radiance=2.0):
+    """``n`` paths with one diffuse-like vertex each that escape to a light of ``radiance``."""
+    rng = np.random.default_rng(1)
+    wi = rng.normal(size=(n, 3)).astype(np.float32)
+    wi[:, 2] = np.abs(wi[:, 2])
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    slots = lanes(n)
+    rec.start(n)
+    z = np.zeros((n, 3), np.float32)
+    normal = np.tile(np.float32([0, 0, 1]), (n, 1))
+    rec.add_vertices(slots, points(n), normal, normal, np.ones(n, np.float32), z,
+                     np.ones(n, np.float32), np.zeros(n, bool))
+    pdf = np.full(n, 1.0 / (2.0 * np.pi), np.float32)
+    rec.set_continuations(slots, wi, pdf, pdf, np.tile(np.float32([0.25, 0.25, 0.25]), (n, 1)))
+    rec.add_escaped_radiance(slots, np.full((n, 3), radiance, np.float32), np.ones(n, np.float32))
+    return rec.end()
+
+
+class Results(unittest.TestCase):
+    def test_sample_and_pdf_agree(self):
+        f = field()
+        b = f.decode(points(64))
+        self.assertEqual(len(b), 64)
+        u = np.random.default_rng(2).uniform(size=(64, 2)).astype(np.float32)
+        d, pdf = f.sample(b, lanes(64), u)
+        self.assertEqual(d.shape, (64, 3))
+        np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, rtol=1e-5)
+        np.testing.assert_allclose(f.pdf(b, lanes(64), d), pdf, rtol=1e-4)
+        c = b.selection_probability()
+        self.assertTrue(np.all((c >= 0) & (c <= 1)))
+
+    def test_recorder_estimates_and_trains(self):
+        f = field()
+        rec = guiding.BatchRecorder()
+        est = record_one_bounce(rec, 256)
+        # L_o(0) = f·cos / pdf · L = 0.25 · 2π · 2 per path.
+        np.testing.assert_allclose(est, 0.25 * 2.0 * np.pi * 2.0, rtol=1e-5)
+        self.assertEqual(len(rec), 256)
+        self.assertEqual(rec.flush_into(f), 256)
+        self.assertEqual(f.stats().buffered_samples, 256)
+        report = f.update()
+        self.assertGreater(report.steps, 0)
+        self.assertEqual(f.generation, 1)
+        rec.add_direct(np.uint32([7]), np.ones((1, 3), np.float32))  # no block open
+        self.assertEqual(rec.ignored_calls, 1)
+
+    def test_schedule_trains_when_due(self):
+        f = field()
+        # 20 % of 10 passes: passes 0 and 1 train; an answer "no" ends the phase for good.
+        late = guiding.Schedule(spp=10)
+        self.assertFalse(late.in_training_phase(0.0, 2))
+        self.assertTrue(late.training_over)
+        s = guiding.Schedule(spp=10)
+        self.assertTrue(s.in_training_phase(0.0, 1))
+        rec = guiding.BatchRecorder()
+        record_one_bounce(rec, 512)
+        rec.flush_into(f)
+        s.record_traced(0.5, 512)
+        r = f.train_scheduled(s)
+        self.assertGreater(r.steps, 0)
+        self.assertEqual(s.report().steps, r.steps)
+
+    def test_save_load_round_trip(self):
+        f = field(representation="nasg")
+        rec = guiding.BatchRecorder()
+        record_one_bounce(rec, 256)
+        rec.flush_into(f)
+        f.update()
+        with tempfile.TemporaryDirectory() as d:
+            path = os.path.join(d, "scene.guide")
+            f.save(path)
+            g = guiding.Field.load(path)
+        self.assertEqual((g.representation, g.target, g.size), ("nasg", "radiance", "small"))
+        p = points(32)
+        dirs = np.tile(np.float32([0, 0, 1]), (32, 1))
+        np.testing.assert_array_equal(
+            f.pdf(f.decode(p), lanes(32), dirs), g.pdf(g.decode(p), lanes(32), dirs)
+        )
+
+
+class Errors(unittest.TestCase):
+    def test_bad_names(self):
+        with self.assertRaisesRegex(ValueError, "representation"):
+            field(representation="vmf")
+        with self.assertRaisesRegex(ValueError, "target"):
+            field(target="irradiance")
+        with self.assertRaisesRegex(ValueError, "size"):
+            guiding.Field([-1.0] * 3, [1.0] * 3, size="huge")
+
+    def test_bad_bounds(self):
+        with self.assertRaises(guiding.GuidingError):
+            guiding.Field([1.0, 1.0, 1.0], [-1.0, -1.0, -1.0])
+
+    def test_bad_shapes_and_lengths(self):
+        f = field()
+        with self.assertRaisesRegex(ValueError, r"position: expected an array of shape \(n, 3\)"):
+            f.decode(np.zeros((4, 2), np.float32))
+        b = f.decode(points(4))
+        with self.assertRaisesRegex(ValueError, "u: expected"):
+            f.sample(b, lanes(4), np.zeros((4, 3), np.float32))
+        with self.assertRaises(guiding.GuidingError):  # 3 lanes, 4 random pairs
+            f.sample(b, lanes(3), np.zeros((4, 2), np.float32))
+        with self.assertRaises(guiding.GuidingError):  # lane out of range
+            f.pdf(b, np.uint32([9]), np.float32([[0, 0, 1]]))
+        with self.assertRaisesRegex(ValueError, "normal has 3 rows where position has 4"):
+            f.decode(points(4), normal=np.zeros((3, 3), np.float32))
+        with self.assertRaises(TypeError):  # float64 is not converted silently
+            f.decode(np.zeros((4, 3)))
+
+    def test_non_finite_query_is_refused(self):
+        p = points(4)
+        p[2, 1] = np.nan
+        with self.assertRaisesRegex(ValueError, "row 2 is not finite"):
+            field().decode(p)
+
+    def test_stale_batch_is_refused(self):
+        f = field()
+        b = f.decode(points(8))
+        rec = guiding.BatchRecorder()
+        record_one_bounce(rec, 256)
+        rec.flush_into(f)
+        f.update()
+        with self.assertRaisesRegex(guiding.GuidingError, "stale|generation"):
+            f.pdf(b, lanes(8), np.tile(np.float32([0, 0, 1]), (8, 1)))
+
+    def test_schedule_needs_one_budget(self):
+        with self.assertRaisesRegex(ValueError, "exactly one"):
+            guiding.Schedule()
+        with self.assertRaisesRegex(ValueError, "exactly one"):
+            guiding.Schedule(spp=4, seconds=1.0)
+        with self.assertRaises(guiding.GuidingError):
+            guiding.Schedule(spp=4, train_fraction=1.5)
+
+    def test_missing_and_corrupt_files(self):
+        with tempfile.TemporaryDirectory() as d:
+            with self.assertRaises(guiding.GuidingError):
+                guiding.Field.load(os.path.join(d, "missing.guide"))
+            bad = os.path.join(d, "bad.guide")
+            with open(bad, "wb") as fh:
+                fh.write(b"not a guide file at all")
+            with self.assertRaises(guiding.GuidingError):
+                guiding.Field.load(bad)
+
+
+if __name__ == "__main__":
+    unittest.main()
