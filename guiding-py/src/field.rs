@@ -31,6 +31,12 @@ pub struct Batch {
     inner: DistributionBatch,
 }
 
+impl From<DistributionBatch> for Batch {
+    fn from(inner: DistributionBatch) -> Self {
+        Self { inner }
+    }
+}
+
 /// `Field.sample`'s result: directions `(m, 3)` and pdfs `(m,)`.
 type Samples<'py> = (Bound<'py, PyArray2<f32>>, Bound<'py, PyArray1<f32>>);
 
@@ -258,6 +264,18 @@ impl Field {
             })
             .map_err(py_err)?;
         Ok(UpdateReport::from(&r))
+    }
+
+    /// A cache of the decoded guide over the cells of `position` `(n, 3)` (typically the
+    /// vertices of the last training pass), `resolution` cells along the box's longest axis.
+    /// Radiance targets only (`GuidingError` otherwise).
+    #[pyo3(signature = (position, resolution = 64))]
+    fn build_cache(&self, position: Rows, resolution: u32) -> PyResult<crate::cache::Cache> {
+        let options = guiding::CacheOptions {
+            resolution,
+            ..guiding::CacheOptions::default()
+        };
+        crate::cache::Cache::build(position.py(), self, &position, options)
     }
 
     /// Ends training: the field keeps its parameters and refuses further updates.

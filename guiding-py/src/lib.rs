@@ -9,6 +9,7 @@
 //! `guiding.GuidingError` with the library's message.
 
 mod arrays;
+mod cache;
 mod field;
 mod recorder;
 mod reports;
@@ -35,6 +36,7 @@ fn _guiding(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("GuidingError", m.py().get_type::<GuidingError>())?;
     m.add_class::<field::Field>()?;
     m.add_class::<field::Batch>()?;
+    m.add_class::<cache::Cache>()?;
     m.add_class::<recorder::Recorder>()?;
     m.add_class::<schedule::Schedule>()?;
     m.add_class::<reports::UpdateReport>()?;

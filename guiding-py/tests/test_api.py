@@ -105,6 +105,35 @@ class Results(unittest.TestCase):
         )
 
 
+    def test_guide_cache_serves_the_fields_distributions(self):
+        f = field()
+        rec = guiding.BatchRecorder()
+        record_one_bounce(rec, 256)
+        rec.flush_into(f)
+        f.update()
+        p = points(500, seed=3)
+        cache = f.build_cache(p, resolution=16)
+        self.assertGreater(cache.cells, 0)
+        batch = cache.decode(f, p, np.full((500, 3), 0.5, np.float32))
+        self.assertEqual(cache.misses.size, 0)  # every point made or shares a cell
+        u = np.random.default_rng(4).uniform(size=(500, 2)).astype(np.float32)
+        d, pdf = f.sample(batch, lanes(500), u)
+        np.testing.assert_allclose(f.pdf(batch, lanes(500), d), pdf, rtol=1e-4)
+        far = np.float32([[0.95, -0.95, 0.95]])  # outside every occupied cell
+        cache.decode(f, far, np.full((1, 3), 0.5, np.float32))
+        self.assertEqual(list(cache.misses), [0])
+        self.assertEqual(cache.extend(f, far), 1)
+        # After an update the cache is stale until refreshed.
+        rec2 = guiding.BatchRecorder()
+        record_one_bounce(rec2, 256)
+        rec2.flush_into(f)
+        f.update()
+        with self.assertRaises(guiding.GuidingError):
+            cache.decode(f, p, np.full((500, 3), 0.5, np.float32))
+        cache.refresh(f)
+        cache.decode(f, p, np.full((500, 3), 0.5, np.float32))
+
+
 class Errors(unittest.TestCase):
     def test_bad_names(self):
         with self.assertRaisesRegex(ValueError, "representation"):
@@ -113,6 +142,10 @@ class Errors(unittest.TestCase):
             field(target="irradiance")
         with self.assertRaisesRegex(ValueError, "size"):
             guiding.Field([-1.0] * 3, [1.0] * 3, size="huge")
+
+    def test_product_guides_have_no_cache(self):
+        with self.assertRaisesRegex(guiding.GuidingError, "radiance-target"):
+            field(target="product").build_cache(points(8))
 
     def test_bad_bounds(self):
         with self.assertRaises(guiding.GuidingError):

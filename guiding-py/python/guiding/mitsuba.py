@@ -19,7 +19,8 @@ splats its samples) is unbiased.
 Properties: ``max_depth`` (default -1, unbounded), ``rr_depth`` (5), as ``path``; ``guide``
 (``npm``, ``nasg``, ``df-n``, ``df-l``; default ``npm``), ``target`` (``radiance``, ``product``),
 ``size`` (``small``, ``compact``, ``paper``), ``train_fraction`` (the library's default when
-absent), ``guiding`` (``false``: the same wavefront loop without a guide, to measure what the
+absent), ``guide_cache`` (default ``true``: after training, radiance guides are looked up in the
+library's ``GuideCache`` instead of decoded by the network per vertex), ``guiding`` (``false``: the same wavefront loop without a guide, to measure what the
 loop itself costs), ``threads`` (the library's threads, 0: all cores).
 
 After a render, ``integrator.field`` is the trained ``guiding.Field`` (save it with
@@ -36,15 +37,14 @@ from . import BatchRecorder, Field, Schedule
 
 
 def _rows(v):
-    """A Dr.Jit 3-vector (or colour) as an ``(n, 3)`` float32 array."""
-    return np.ascontiguousarray(
-        np.stack([np.asarray(v.x), np.asarray(v.y), np.asarray(v.z)], axis=1), dtype=np.float32
-    )
+    """A Dr.Jit 3-vector (or colour) as an ``(n, 3)`` float32 array (a transposed view of one
+    copy; the bindings take any strides)."""
+    return np.asarray(v, dtype=np.float32).T
 
 
 def _vec3(rows):
     """An ``(n, 3)`` array as a ``mi.Vector3f``."""
-    return mi.Vector3f(mi.Float(rows[:, 0]), mi.Float(rows[:, 1]), mi.Float(rows[:, 2]))
+    return mi.Vector3f(np.ascontiguousarray(rows.T))
 
 
 def _mis_weight(pdf_a, pdf_b):
@@ -67,6 +67,57 @@ class _Times:
         return dict(self.__dict__)
 
 
+class _Guide:
+    """The field and, once training has stopped, its cache: decodes a bounce's guidable
+    vertices. The cache is built from the guidable vertices of the last training pass and
+    extended after each pass with the positions it missed (host-demo's policy)."""
+
+    def __init__(self, field, use_cache, seed):
+        self.field = field
+        self.cache = None
+        self.use_cache = use_cache
+        self.rng = np.random.default_rng(seed)
+        self.positions = []
+        self.missed = []
+        self.training = True
+        self.hits = 0
+        self.misses = 0
+
+    def begin_pass(self, training):
+        if not training and self.training:
+            self.field.stop_training()
+            if self.use_cache and self.positions:
+                self.cache = self.field.build_cache(np.concatenate(self.positions))
+        self.training = training
+        self.positions = []
+
+    def decode(self, pos, nrm, wo):
+        if self.cache is None:
+            if self.training and self.use_cache:
+                self.positions.append(pos)
+            return self.field.decode(pos, nrm, wo, np.ones(len(pos), dtype=np.float32))
+        jitter = self.rng.random((len(pos), 3), dtype=np.float32)
+        batch = self.cache.decode(self.field, pos, jitter)
+        missed = self.cache.misses
+        self.hits += len(pos) - missed.size
+        self.misses += missed.size
+        if missed.size:
+            self.missed.append(pos[missed])
+        return batch
+
+    def end_pass(self):
+        if self.cache is not None and self.missed:
+            self.cache.extend(self.field, np.concatenate(self.missed))
+        self.missed = []
+
+    def stats(self):
+        return {
+            "cells": self.cache.cells if self.cache is not None else 0,
+            "hits": self.hits,
+            "misses": self.misses,
+        }
+
+
 class GuidedPath(mi.SamplingIntegrator):
     """``guided_path``: see the module documentation."""
 
@@ -83,6 +134,7 @@ class GuidedPath(mi.SamplingIntegrator):
         self.train_fraction = None if fraction < 0 else float(fraction)
         self.guiding = props.get("guiding", True)
         self.threads = props.get("threads", 0)
+        self.guide_cache = props.get("guide_cache", True)
         self.field = None
         self.stats = {}
         # Test hook: multiplies the guide's density in the MIS weights (a wrong estimator,
@@ -106,7 +158,7 @@ class GuidedPath(mi.SamplingIntegrator):
         film = sensor.film()
         spp = spp if spp > 0 else sensor.sampler().sample_count()
         times = _Times()
-        field, schedule, recorder = None, None, None
+        field, schedule, recorder, guide = None, None, None, None
         if self.guiding:
             bbox = scene.bbox()
             field = Field(
@@ -119,6 +171,8 @@ class GuidedPath(mi.SamplingIntegrator):
             )
             schedule = Schedule(spp=spp, train_fraction=self.train_fraction)
             recorder = BatchRecorder()
+            use_cache = self.guide_cache and self.target == "radiance"
+            guide = _Guide(field, use_cache, int(seed))
         self.field = field
         with dr.suspend_grad():
             film.prepare([])
@@ -131,13 +185,21 @@ class GuidedPath(mi.SamplingIntegrator):
                 )
                 if schedule is not None and not train and not schedule.training_over:
                     schedule.end_training()
+                if guide is not None:
+                    t_cache = time.perf_counter()
+                    guide.begin_pass(train)
+                    times.guide += time.perf_counter() - t_cache
                 t0 = time.perf_counter()
                 sampler, n = self._pass_sampler(sensor, (int(seed) * spp + p) & 0xFFFFFFFF)
                 ray, weight, pos = self._sample_rays(sensor, sampler)
-                L = self._trace(scene, sampler, ray, n, field, recorder if train else None, times)
+                L = self._trace(scene, sampler, ray, n, guide, recorder if train else None, times)
                 self._splat(block, film, pos, L * weight)
                 dr.eval(block.tensor())
                 traced = time.perf_counter() - t0
+                if guide is not None:
+                    t_cache = time.perf_counter()
+                    guide.end_pass()
+                    times.guide += time.perf_counter() - t_cache
                 if train:
                     training_passes += 1
                     t1 = time.perf_counter()
@@ -156,6 +218,7 @@ class GuidedPath(mi.SamplingIntegrator):
                 "time_split": times.as_dict(),
                 "schedule": schedule.report() if schedule is not None else None,
                 "field": field.stats() if field is not None else None,
+                "guide_cache": guide.stats() if guide is not None else None,
             }
             return film.develop() if develop else None
 
@@ -207,8 +270,9 @@ class GuidedPath(mi.SamplingIntegrator):
             values = [rgb.x, rgb.y, rgb.z, mi.Float(1.0)]
         block.put(pos, values)
 
-    def _trace(self, scene, sampler, ray, n, field, recorder, times):
+    def _trace(self, scene, sampler, ray, n, guide, recorder, times):
         """One wavefront of ``n`` paths; returns their radiance."""
+        field = guide.field if guide is not None else None
         slots = np.arange(n, dtype=np.uint32)
         ctx = mi.BSDFContext()
         beta = mi.Spectrum(1.0)
@@ -263,11 +327,8 @@ class GuidedPath(mi.SamplingIntegrator):
             c_full = np.zeros(n, dtype=np.float32)
             batch = None
             if field is not None and gidx.size > 0:
-                batch = field.decode(
-                    _rows(si.p)[gidx],
-                    _rows(si.sh_frame.n)[gidx],
-                    _rows(wo_world)[gidx],
-                    np.ones(gidx.size, dtype=np.float32),
+                batch = guide.decode(
+                    _rows(si.p)[gidx], _rows(si.sh_frame.n)[gidx], _rows(wo_world)[gidx]
                 )
                 c_full[gidx] = batch.selection_probability()
             c = mi.Float(c_full)

@@ -202,6 +202,15 @@ enum Cmd {
         /// The reference (EXR).
         reference: PathBuf,
     },
+    /// Write a scene (a built-in one, say) as a Mitsuba 3 scene: DIR/scene.xml and its OBJ
+    /// meshes, so that Mitsuba renders what host-demo renders.
+    Export {
+        /// `builtin:NAME` or a Mitsuba XML path.
+        scene: String,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+    },
 }
 
 /// Parses the command line and runs it.
@@ -219,6 +228,12 @@ pub fn main() -> ExitCode {
 fn run(cli: Cli) -> host_demo::Result<()> {
     match cli.cmd {
         Cmd::Compare { image, reference } => compare(&image, &reference),
+        Cmd::Export { scene, out } => {
+            let scene = host_demo::scene::load::load_scene(&scene)?;
+            let path = host_demo::scene::export::write_mitsuba(&scene, &out)?;
+            println!("wrote {}", path.display());
+            Ok(())
+        }
         Cmd::Bench { .. } => bench::bench_cmd(cli.cmd),
         Cmd::Render { .. } => render::render_cmd(cli.cmd),
     }

@@ -5,6 +5,7 @@ pub mod bsdf;
 pub mod builtin;
 pub mod conductors;
 pub mod emitter;
+pub mod export;
 pub mod load;
 pub mod mesh;
 pub mod spectrum;

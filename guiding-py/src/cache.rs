@@ -1,0 +1,96 @@
+//! `guiding.GuideCache`: the decoded guide per cell of a fine grid, so that a query costs a
+//! lookup instead of a network pass (the library's `GuideCache`, what `host-demo` renders
+//! with once training has stopped).
+
+use crate::arrays::{rows, same_lengths, Rows};
+use crate::field::{Batch, Field};
+use crate::py_err;
+use guiding::{CacheOptions, DistributionBatch, GuideCache, QueryPoint};
+use guiding_core::glam::Vec3;
+use pyo3::prelude::*;
+
+/// A field's guide decoded per occupied cell: `Field.build_cache(position, resolution=64)`
+/// (radiance targets). Valid for the field's generation at the build
+/// (`refresh(field)` after an update); `GuidingError` otherwise.
+#[pyclass(module = "guiding", name = "GuideCache")]
+pub struct Cache {
+    inner: GuideCache,
+    /// Queries the last `decode` answered from the network (no cell near them).
+    misses: Vec<u32>,
+}
+
+/// Query points at `position` (the cache's guide depends on the position alone).
+fn at(position: &Rows<'_>) -> PyResult<Vec<QueryPoint>> {
+    Ok(rows(position, "position")?
+        .into_iter()
+        .map(|p| QueryPoint::from_vec3(Vec3::from(p), Vec3::Z, Vec3::Z, 1.0))
+        .collect())
+}
+
+impl Cache {
+    /// `field.build_cache(…)`.
+    pub fn build(
+        py: Python<'_>,
+        field: &Field,
+        position: &Rows<'_>,
+        options: CacheOptions,
+    ) -> PyResult<Self> {
+        let points = at(position)?;
+        let inner = py
+            .allow_threads(|| field.inner.build_cache(&points, &options))
+            .map_err(py_err)?;
+        Ok(Self {
+            inner,
+            misses: Vec::new(),
+        })
+    }
+}
+
+#[pymethods]
+impl Cache {
+    /// Stored distributions (occupied cells, times their normal bins with the cosine product).
+    #[getter]
+    fn cells(&self) -> usize {
+        self.inner.cells()
+    }
+
+    /// One distribution per row of `position` `(n, 3)`: the cell found by the stochastic
+    /// trilinear lookup with the uniform numbers `jitter` `(n, 3)`, or the network's decode
+    /// where no cell is near (counted in `misses`). Sample and pdf the batch through the field.
+    fn decode(&mut self, field: &Field, position: Rows, jitter: Rows) -> PyResult<Batch> {
+        let py = position.py();
+        let points = at(&position)?;
+        let jitter: Vec<Vec3> = rows(&jitter, "jitter")?
+            .into_iter()
+            .map(Vec3::from)
+            .collect();
+        same_lengths("position, jitter", &[points.len(), jitter.len()])?;
+        let mut out = DistributionBatch::new();
+        let (cache, misses) = (&self.inner, &mut self.misses);
+        py.allow_threads(|| cache.decode_batch(&field.inner, &points, &jitter, &mut out, misses))
+            .map_err(py_err)?;
+        Ok(Batch::from(out))
+    }
+
+    /// Indices (into the last `decode`'s rows) of the queries no cell answered, `(m,)`
+    /// `uint32`: their positions are what `extend` wants.
+    #[getter]
+    fn misses<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray1<u32>> {
+        numpy::PyArray1::from_slice(py, &self.misses)
+    }
+
+    /// Adds the cells of `position` `(n, 3)` not in the cache yet; returns how many.
+    fn extend(&mut self, py: Python<'_>, field: &Field, position: Rows) -> PyResult<usize> {
+        let points = at(&position)?;
+        let cache = &mut self.inner;
+        py.allow_threads(|| cache.extend(&field.inner, &points))
+            .map_err(py_err)
+    }
+
+    /// Decodes every cell again after the field's update.
+    fn refresh(&mut self, py: Python<'_>, field: &Field) -> PyResult<()> {
+        let cache = &mut self.inner;
+        py.allow_threads(|| cache.refresh(&field.inner))
+            .map_err(py_err)
+    }
+}
