@@ -18,7 +18,8 @@ use std::path::PathBuf;
 /// `Field(bounds_min, bounds_max, representation="npm", target="radiance", size="compact",
 /// threads=0)`: the library's preset for the representation (`npm`, `nasg`, `df-n`, `df-l`) and
 /// target (`radiance`, `product`); `size` is `small`, `compact` or `paper`; `threads` runs the
-/// batched calls (0: all cores).
+/// batched calls (0: all cores); `selection_probability` replaces the preset's probability of
+/// sampling the guide rather than the BSDF (NPM and DF; NASG learns its own).
 #[pyclass(module = "guiding", name = "Field")]
 pub struct Field {
     pub(crate) inner: GuidingField,
@@ -95,7 +96,8 @@ impl Field {
 #[pymethods]
 impl Field {
     #[new]
-    #[pyo3(signature = (bounds_min, bounds_max, representation = "npm", target = "radiance", size = "compact", threads = 0))]
+    #[allow(clippy::too_many_arguments)] // Python keyword arguments with defaults
+    #[pyo3(signature = (bounds_min, bounds_max, representation = "npm", target = "radiance", size = "compact", threads = 0, selection_probability = None))]
     fn new(
         py: Python<'_>,
         bounds_min: [f32; 3],
@@ -104,6 +106,7 @@ impl Field {
         target: &str,
         size: &str,
         threads: usize,
+        selection_probability: Option<f32>,
     ) -> PyResult<Self> {
         let rep: Representation = representation
             .parse()
@@ -114,6 +117,9 @@ impl Field {
         let mut config = GuidingConfig::for_representation(rep, parse_target(target)?);
         config.size = size;
         config.training.threads = threads;
+        if let Some(c) = selection_probability {
+            config.selection_probability = c;
+        }
         let inner = py
             .allow_threads(|| GuidingField::new(config, bounds_min, bounds_max))
             .map_err(py_err)?;

@@ -63,6 +63,7 @@ class Field:
         target: str = "radiance",
         size: str = "compact",
         threads: int = 0,
+        selection_probability: Optional[float] = None,
     ) -> None: ...
     @staticmethod
     def load(path: Union[str, PathLike]) -> "Field": ...

@@ -19,9 +19,11 @@ splats its samples) is unbiased.
 Properties: ``max_depth`` (default -1, unbounded), ``rr_depth`` (5), as ``path``; ``guide``
 (``npm``, ``nasg``, ``df-n``, ``df-l``; default ``npm``), ``target`` (``radiance``, ``product``),
 ``size`` (``small``, ``compact``, ``paper``), ``train_fraction`` (the library's default when
-absent), ``guide_cache`` (default ``true``: after training, radiance guides are looked up in the
-library's ``GuideCache`` instead of decoded by the network per vertex), ``guiding`` (``false``: the same wavefront loop without a guide, to measure what the
-loop itself costs), ``threads`` (the library's threads, 0: all cores).
+absent), ``selection_probability`` (the library's preset when absent), ``guide_cache``
+(default ``true``: after training, radiance guides are looked up in the library's
+``GuideCache`` instead of decoded by the network per vertex), ``guiding`` (``false``: the same
+wavefront loop without a guide, to measure what the loop itself costs), ``threads`` (the
+library's threads, 0: all cores).
 
 After a render, ``integrator.field`` is the trained ``guiding.Field`` (save it with
 ``field.save``) and ``integrator.stats`` says what the render did and where its time went.
@@ -55,16 +57,44 @@ def _mis_weight(pdf_a, pdf_b):
 
 
 class _Times:
-    """Seconds spent per part of a render."""
+    """Seconds spent per part of a render: Mitsuba's kernels, the library's guide calls
+    (decode, sample, pdf, cache upkeep), its recorder calls, training, and the transfers
+    between Dr.Jit and numpy arrays around them."""
 
     def __init__(self):
         self.mitsuba = 0.0
         self.guide = 0.0
         self.recording = 0.0
         self.training = 0.0
+        self.transfers = 0.0
+
+    def library(self):
+        return self.guide + self.recording
 
     def as_dict(self):
         return dict(self.__dict__)
+
+
+class _Timed:
+    """Forwards method calls to ``target``, adding their seconds to ``times.<bucket>``."""
+
+    def __init__(self, target, times, bucket):
+        self._target, self._times, self._bucket = target, times, bucket
+
+    def __getattr__(self, name):
+        attr = getattr(self._target, name)
+        if not callable(attr):
+            return attr
+
+        def call(*args, **kwargs):
+            t = time.perf_counter()
+            try:
+                return attr(*args, **kwargs)
+            finally:
+                setattr(self._times, self._bucket,
+                        getattr(self._times, self._bucket) + time.perf_counter() - t)
+
+        return call
 
 
 class _Guide:
@@ -72,8 +102,10 @@ class _Guide:
     vertices. The cache is built from the guidable vertices of the last training pass and
     extended after each pass with the positions it missed (host-demo's policy)."""
 
-    def __init__(self, field, use_cache, seed):
-        self.field = field
+    def __init__(self, field, use_cache, seed, times):
+        self.raw_field = field
+        self.field = _Timed(field, times, "guide")
+        self.times = times
         self.cache = None
         self.use_cache = use_cache
         self.rng = np.random.default_rng(seed)
@@ -87,7 +119,9 @@ class _Guide:
         if not training and self.training:
             self.field.stop_training()
             if self.use_cache and self.positions:
-                self.cache = self.field.build_cache(np.concatenate(self.positions))
+                self.cache = _Timed(
+                    self.field.build_cache(np.concatenate(self.positions)), self.times, "guide"
+                )
         self.training = training
         self.positions = []
 
@@ -97,7 +131,7 @@ class _Guide:
                 self.positions.append(pos)
             return self.field.decode(pos, nrm, wo, np.ones(len(pos), dtype=np.float32))
         jitter = self.rng.random((len(pos), 3), dtype=np.float32)
-        batch = self.cache.decode(self.field, pos, jitter)
+        batch = self.cache.decode(self.raw_field, pos, jitter)
         missed = self.cache.misses
         self.hits += len(pos) - missed.size
         self.misses += missed.size
@@ -107,7 +141,7 @@ class _Guide:
 
     def end_pass(self):
         if self.cache is not None and self.missed:
-            self.cache.extend(self.field, np.concatenate(self.missed))
+            self.cache.extend(self.raw_field, np.concatenate(self.missed))
         self.missed = []
 
     def stats(self):
@@ -135,6 +169,8 @@ class GuidedPath(mi.SamplingIntegrator):
         self.guiding = props.get("guiding", True)
         self.threads = props.get("threads", 0)
         self.guide_cache = props.get("guide_cache", True)
+        c = props.get("selection_probability", -1.0)
+        self.selection_probability = None if c < 0 else float(c)
         self.field = None
         self.stats = {}
         # Test hook: multiplies the guide's density in the MIS weights (a wrong estimator,
@@ -168,11 +204,13 @@ class GuidedPath(mi.SamplingIntegrator):
                 target=self.target,
                 size=self.size,
                 threads=self.threads,
+                selection_probability=self.selection_probability,
             )
             schedule = Schedule(spp=spp, train_fraction=self.train_fraction)
             recorder = BatchRecorder()
             use_cache = self.guide_cache and self.target == "radiance"
-            guide = _Guide(field, use_cache, int(seed))
+            guide = _Guide(field, use_cache, int(seed), times)
+            recorder = _Timed(recorder, times, "recording")
         self.field = field
         with dr.suspend_grad():
             film.prepare([])
@@ -186,9 +224,7 @@ class GuidedPath(mi.SamplingIntegrator):
                 if schedule is not None and not train and not schedule.training_over:
                     schedule.end_training()
                 if guide is not None:
-                    t_cache = time.perf_counter()
                     guide.begin_pass(train)
-                    times.guide += time.perf_counter() - t_cache
                 t0 = time.perf_counter()
                 sampler, n = self._pass_sampler(sensor, (int(seed) * spp + p) & 0xFFFFFFFF)
                 ray, weight, pos = self._sample_rays(sensor, sampler)
@@ -197,15 +233,11 @@ class GuidedPath(mi.SamplingIntegrator):
                 dr.eval(block.tensor())
                 traced = time.perf_counter() - t0
                 if guide is not None:
-                    t_cache = time.perf_counter()
                     guide.end_pass()
-                    times.guide += time.perf_counter() - t_cache
                 if train:
                     training_passes += 1
-                    t1 = time.perf_counter()
                     recorder.end()
                     recorder.flush_into(field)
-                    times.recording += time.perf_counter() - t1
                     schedule.record_traced(traced, n)
                     t2 = time.perf_counter()
                     field.train_scheduled(schedule)
@@ -308,18 +340,18 @@ class GuidedPath(mi.SamplingIntegrator):
                 & mi.has_flag(flags, mi.BSDFFlags.Smooth)
             )
             wo_world = -ray.d
-            dr.eval(si, emitted, mis_bsdf, guidable, active_next, valid, escaped)
+            dr.eval(si, wo_world, emitted, mis_bsdf, guidable, active_next, valid, escaped)
             times.mitsuba += time.perf_counter() - t0
             if recorder is not None:
-                t1 = time.perf_counter()
+                t1, lib = time.perf_counter(), times.library()
                 self._record_hits(recorder, slots, si, wo_world, emitted, mis_bsdf, valid,
                                   escaped, depth, guidable)
-                times.recording += time.perf_counter() - t1
+                times.transfers += time.perf_counter() - t1 - (times.library() - lib)
             if not dr.any(active_next):
                 break
 
             # The guide at the guidable vertices.
-            t2 = time.perf_counter()
+            t2, lib = time.perf_counter(), times.library()
             gmask = np.asarray(guidable, dtype=bool)
             gidx = np.nonzero(gmask)[0].astype(np.uint32)
             lane = np.full(n, 0, dtype=np.uint32)
@@ -332,7 +364,7 @@ class GuidedPath(mi.SamplingIntegrator):
                 )
                 c_full[gidx] = batch.selection_probability()
             c = mi.Float(c_full)
-            times.guide += time.perf_counter() - t2
+            times.transfers += time.perf_counter() - t2 - (times.library() - lib)
 
             # Next-event estimation.
             t3 = time.perf_counter()
@@ -346,20 +378,21 @@ class GuidedPath(mi.SamplingIntegrator):
                 ctx, si, si.to_local(ds_em.d), s1, s2, active_next
             )
             u_select, u_guide = sampler.next_1d(), sampler.next_2d()
+            bsdf_wo_world = si.to_world(bs.wo)
             dr.eval(ds_em, em_weight, active_em, bsdf_val_em, bsdf_pdf_em, bs, bsdf_weight,
-                    u_select, u_guide)
+                    u_select, u_guide, bsdf_wo_world)
             times.mitsuba += time.perf_counter() - t3
 
             # Guide densities at the NEE directions, guide samples, guide densities of the
             # BSDF's samples.
-            t4 = time.perf_counter()
+            t4, lib = time.perf_counter(), times.library()
             c_np = c_full
             use_guide_np = gmask & (np.asarray(u_select) < c_np)
             em_np = np.asarray(active_em, dtype=bool)
             g_em = np.zeros(n, dtype=np.float32)
             g_dir = np.zeros((n, 3), dtype=np.float32)
             g_pdf = np.zeros(n, dtype=np.float32)
-            bsdf_dir = _rows(si.to_world(bs.wo))
+            bsdf_dir = _rows(bsdf_wo_world)
             final_dir = bsdf_dir.copy()
             if batch is not None:
                 q = np.nonzero(gmask & em_np & (c_np > 0))[0]
@@ -375,7 +408,7 @@ class GuidedPath(mi.SamplingIntegrator):
                     g_pdf[q] = field.pdf(batch, lane[q], final_dir[q])
             g_pdf *= self._guide_pdf_scale
             g_em *= self._guide_pdf_scale
-            times.guide += time.perf_counter() - t4
+            times.transfers += time.perf_counter() - t4 - (times.library() - lib)
 
             # Direct light with the combined density; the continuation.
             t5 = time.perf_counter()
@@ -420,7 +453,7 @@ class GuidedPath(mi.SamplingIntegrator):
             times.mitsuba += time.perf_counter() - t5
 
             if recorder is not None:
-                t6 = time.perf_counter()
+                t6, lib = time.perf_counter(), times.library()
                 q = np.nonzero(em_np)[0].astype(np.uint32)
                 if q.size:
                     recorder.add_direct(q, _rows(direct)[q])
@@ -438,7 +471,7 @@ class GuidedPath(mi.SamplingIntegrator):
                 if depth + 1 >= self.rr_depth and q.size:
                     factor = 1.0 / np.asarray(rr_prob, dtype=np.float32)[q]
                     recorder.scale_continuations(q, factor.astype(np.float32))
-                times.recording += time.perf_counter() - t6
+                times.transfers += time.perf_counter() - t6 - (times.library() - lib)
             depth += 1
         return L
 
