@@ -73,6 +73,14 @@ def main():
             parts.append(img)
         ref = np.mean(parts, axis=0)
         mi.Bitmap(ref).write(ref_file)
+    # Warm-up: Dr.Jit compiles each kernel once (then caches it); neither integrator's first
+    # timed render should pay for it.
+    for warm in (
+        {"type": "guided_path", **depths},
+        {"type": "guided_path", "guiding": False, **depths},
+    ):
+        render(scene, mi.load_dict(warm), 8, 9999)
+    render(scene, path, 1, 9999)
     rows = []
     for seed in range(a.seeds):
         guided = mi.load_dict(

@@ -7,7 +7,10 @@ use crate::field::{Batch, Field};
 use crate::py_err;
 use guiding::{CacheOptions, DistributionBatch, GuideCache, QueryPoint};
 use guiding_core::glam::Vec3;
+use guiding_core::model::npm::NPM_LOBES;
+use numpy::{PyArray1, PyArrayMethods};
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 
 /// A field's guide decoded per occupied cell: `Field.build_cache(position, resolution=64)`
 /// (radiance targets). Valid for the field's generation at the build
@@ -85,6 +88,29 @@ impl Cache {
         let cache = &mut self.inner;
         py.allow_threads(|| cache.extend(&field.inner, &points))
             .map_err(py_err)
+    }
+
+    /// The cache as plain arrays for a renderer's own kernels, or `None` unless the guide is
+    /// NPM's vMF mixtures: a dict with `lo` `(3,)`, `cell` (the side `h`), `res` `(3,)`,
+    /// `index` (per cell `(z·res_y + y)·res_x + x`: its lane, or `0xffffffff`), `lanes`
+    /// `(L, 7, 8)` (per lane and row `weight, mean_x, mean_y, mean_z, kappa, norm,
+    /// one_minus_e2k`, per lobe), `lane_selection` `(L,)` (empty: `selection` for all) and
+    /// `selection`. The lookup: the library's `VmfTable`.
+    fn vmf_table<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(t) = self.inner.vmf_table() else {
+            return Ok(None);
+        };
+        let d = PyDict::new(py);
+        d.set_item("lo", PyArray1::from_slice(py, &t.lo))?;
+        d.set_item("cell", t.cell)?;
+        d.set_item("res", PyArray1::from_slice(py, &t.res))?;
+        d.set_item("index", PyArray1::from_slice(py, t.index))?;
+        let flat: &[f32] = bytemuck::cast_slice(t.lanes);
+        let lanes = PyArray1::from_slice(py, flat).reshape([t.lanes.len(), 7, NPM_LOBES])?;
+        d.set_item("lanes", lanes)?;
+        d.set_item("lane_selection", PyArray1::from_slice(py, t.lane_selection))?;
+        d.set_item("selection", t.selection)?;
+        Ok(Some(d))
     }
 
     /// Decodes every cell again after the field's update.

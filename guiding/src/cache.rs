@@ -52,6 +52,8 @@ use crate::error::{same_lengths, GuidingError};
 use crate::field::GuidingField;
 use crate::models::{with_df_field, with_field, BatchItems, Decode, Lanes};
 use glam::Vec3;
+use guiding_core::mixture::vmf::VmfMixture;
+use guiding_core::model::npm::NPM_LOBES;
 use guiding_core::model::QueryPoint;
 use std::sync::Arc;
 
@@ -226,7 +228,50 @@ impl GuidingField {
     }
 }
 
+/// A vMF guide cache as plain tables ([`GuideCache::vmf_table`]), for a renderer that
+/// evaluates the guide inside its own kernels (a shader, a Dr.Jit loop): the lookup of the
+/// [module docs](self) is `lane = index[cell(x + (ξ − ½) h)]`, falling back to the cell of `x`
+/// itself, with `cell(p) = (z·res_y + y)·res_x + x` for `(x, y, z) = ⌊(p − lo) / h⌋` inside
+/// `res`; where both are empty the renderer samples the BSDF alone (`c = 0`), which keeps its
+/// estimator unbiased.
+#[derive(Clone, Copy, Debug)]
+pub struct VmfTable<'a> {
+    /// The grid's lower corner.
+    pub lo: [f32; 3],
+    /// Cell side `h`.
+    pub cell: f32,
+    /// Cells along x, y, z.
+    pub res: [u32; 3],
+    /// Per cell: its lane, or `u32::MAX` where the cell is empty.
+    pub index: &'a [u32],
+    /// Per lane: the decoded mixture.
+    pub lanes: &'a [VmfMixture<NPM_LOBES>],
+    /// Per lane: the fitted selection probability ([`GuideCache::fit_selection`]); empty
+    /// before a fit, when every lane has [`Self::selection`].
+    pub lane_selection: &'a [f32],
+    /// The constant selection probability.
+    pub selection: f32,
+}
+
 impl GuideCache {
+    /// The cache as plain tables ([`VmfTable`]); `None` unless the guide is NPM's vMF mixtures
+    /// without the cosine product (one lane per cell).
+    #[must_use]
+    pub fn vmf_table(&self) -> Option<VmfTable<'_>> {
+        match (&self.items.lanes, self.product) {
+            (Lanes::Vmf(lanes), false) => Some(VmfTable {
+                lo: self.lo.to_array(),
+                cell: self.cell,
+                res: self.res,
+                index: &self.index,
+                lanes,
+                lane_selection: &self.items.lane_selection,
+                selection: self.items.selection,
+            }),
+            _ => None,
+        }
+    }
+
     /// Stored distributions: occupied cells, times their normal bins with
     /// the cosine product.
     #[must_use]

@@ -1921,3 +1921,65 @@ fn fit_selection_without_prior_keeps_a_lane_own_fit_next_to_a_sample_without_bsd
     let (got, _) = selections(&cache, &field, &points);
     assert_eq!(got, want);
 }
+
+/// `GuideCache::vmf_table` is the cache as its docs say: for queries looked up with the
+/// jitter ½ (their own cell), the table's lane by the documented cell formula holds the
+/// mixture whose density `pdf_decoded` gives for that query (to rounding); a miss is an empty
+/// cell; NASG and DF caches have no vMF table.
+#[test]
+fn the_vmf_table_is_the_caches_lookup() {
+    let mut rng = Pcg32::new(41, 7);
+    for (name, config) in radiance_presets() {
+        let field = trained(config, 5);
+        let points: Vec<Vec3> = (0..400).map(|_| in_box(&mut rng)).collect();
+        let cache = field
+            .build_cache(&queries_at(&points, &mut rng), &OPTIONS)
+            .unwrap();
+        let Some(t) = cache.vmf_table() else {
+            assert_ne!(
+                name, "npm",
+                "an NPM cache without the product has a vMF table"
+            );
+            continue;
+        };
+        assert_eq!(name, "npm");
+        assert_eq!(t.lanes.len(), cache.cells());
+        // Points of the cache (occupied cells) and random ones (mostly empty cells).
+        let mut probes: Vec<Vec3> = points[..200].to_vec();
+        probes.extend((0..100).map(|_| in_box(&mut rng)));
+        let queries = queries_at(&probes, &mut rng);
+        let jitter = vec![Vec3::splat(0.5); queries.len()];
+        let (mut batch, mut missed) = (DistributionBatch::new(), Vec::new());
+        cache
+            .decode_batch(&field, &queries, &jitter, &mut batch, &mut missed)
+            .unwrap();
+        let dirs: Vec<Vec3> = (0..queries.len()).map(|_| unit(&mut rng)).collect();
+        let lanes: Vec<u32> = (0..queries.len() as u32).collect();
+        let mut pdfs = vec![0.0f32; queries.len()];
+        field.pdf_decoded(&batch, &lanes, &dirs, &mut pdfs).unwrap();
+        let mut checked = 0;
+        for (i, p) in probes.iter().enumerate() {
+            let c = (*p - Vec3::from_array(t.lo)) / t.cell;
+            let (x, y, z) = (c.x as u32, c.y as u32, c.z as u32);
+            let cell = ((z * t.res[1] + y) * t.res[0] + x) as usize;
+            let lane = t.index[cell];
+            assert_eq!(lane == u32::MAX, missed.contains(&(i as u32)), "query {i}");
+            if lane != u32::MAX {
+                // The batched kernel sums the lobes with fused multiply-adds and its own exp:
+                // equal up to f32 rounding over 8 lobes (relative 1e-5).
+                let pdf = t.lanes[lane as usize].pdf(dirs[i]);
+                let tol = 1e-5 * pdf.abs().max(pdfs[i].abs());
+                assert!(
+                    (pdf - pdfs[i]).abs() <= tol,
+                    "query {i}: {pdf} vs {}",
+                    pdfs[i]
+                );
+                checked += 1;
+            }
+        }
+        assert!(
+            checked >= 200,
+            "only {checked} probes fell in occupied cells"
+        );
+    }
+}

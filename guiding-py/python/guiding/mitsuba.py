@@ -21,8 +21,11 @@ Properties: ``max_depth`` (default -1, unbounded), ``rr_depth`` (5), as ``path``
 ``size`` (``small``, ``compact``, ``paper``), ``train_fraction`` (the library's default when
 absent), ``selection_probability`` (the library's preset when absent), ``guide_cache``
 (default ``true``: after training, radiance guides are looked up in the library's
-``GuideCache`` instead of decoded by the network per vertex), ``guiding`` (``false``: the same
-wavefront loop without a guide, to measure what the loop itself costs), ``threads`` (the
+``GuideCache`` instead of decoded by the network per vertex), ``native_guide`` (default
+``true``: an NPM guide's cache is read inside Mitsuba's kernels, its vMF mixtures sampled and
+evaluated in Dr.Jit, with no transfer to numpy; a vertex whose cells are empty is sampled by
+its BSDF alone and its position extends the cache after the pass), ``guiding`` (``false``: the
+same wavefront loop without a guide, to measure what the loop itself costs), ``threads`` (the
 library's threads, 0: all cores).
 
 After a render, ``integrator.field`` is the trained ``guiding.Field`` (save it with
@@ -97,12 +100,103 @@ class _Timed:
         return call
 
 
+class _NativeVmf:
+    """The guide cache's vMF table (``GuideCache.vmf_table``) as Dr.Jit arrays: the cell
+    lookup, the mixture's sample and its pdf run inside Mitsuba's kernels, with no transfer to
+    numpy. A vertex whose cells are empty gets ``c = 0`` (the BSDF alone: unbiased)."""
+
+    EMPTY = 0xFFFFFFFF
+
+    def __init__(self, table):
+        self.lo = [float(x) for x in table["lo"]]
+        self.h = float(table["cell"])
+        self.res = [int(x) for x in table["res"]]
+        self.index = mi.UInt32(np.ascontiguousarray(table["index"]))
+        lanes = table["lanes"]  # (L, 7, K): weight, mean x/y/z, kappa, norm, 1 - e^-2k
+        self.k = lanes.shape[2]
+        self.rows = [
+            [mi.Float(np.ascontiguousarray(lanes[:, r, k])) for k in range(self.k)]
+            for r in range(7)
+        ]
+        fitted = table["lane_selection"]
+        self.lane_selection = mi.Float(np.ascontiguousarray(fitted)) if fitted.size else None
+        self.selection = float(table["selection"])
+
+    def _cell(self, p):
+        c = (p - mi.Point3f(*self.lo)) / self.h
+        inside = (
+            (c.x >= 0) & (c.y >= 0) & (c.z >= 0)
+            & (c.x < self.res[0]) & (c.y < self.res[1]) & (c.z < self.res[2])
+        )
+        i = mi.UInt32(dr.select(inside, c.x, 0))
+        j = mi.UInt32(dr.select(inside, c.y, 0))
+        k = mi.UInt32(dr.select(inside, c.z, 0))
+        idx = (k * self.res[1] + j) * self.res[0] + i
+        lane = dr.gather(mi.UInt32, self.index, idx, inside)
+        return dr.select(inside, lane, self.EMPTY)
+
+    def lookup(self, p, jitter, active):
+        """The lane of the cell of ``p + (ξ − ½) h``, else of ``p``'s own; and whether found."""
+        lane = self._cell(p + (jitter - 0.5) * self.h)
+        lane = dr.select(lane == self.EMPTY, self._cell(p), lane)
+        found = active & (lane != self.EMPTY)
+        return dr.select(found, lane, 0), found
+
+    def selection_probability(self, lane, found):
+        if self.lane_selection is None:
+            return dr.select(found, self.selection, 0.0)
+        return dr.select(found, dr.gather(mi.Float, self.lane_selection, lane, found), 0.0)
+
+    def _lobe(self, r, k, lane, active):
+        return dr.gather(mi.Float, self.rows[r][k], lane, active)
+
+    def pdf(self, lane, active, d):
+        """``Σ_k w_k · norm_k · exp(κ_k (μ_k·d − 1))`` (0 where not ``active``)."""
+        total = mi.Float(0.0)
+        for k in range(self.k):
+            w, mx, my, mz, kappa, norm = (self._lobe(r, k, lane, active) for r in range(6))
+            cos = mx * d.x + my * d.y + mz * d.z
+            total += w * norm * dr.exp(kappa * (cos - 1.0))
+        return dr.select(active, total, 0.0)
+
+    def sample(self, lane, active, u):
+        """A direction of the mixture: ``u.x`` picks the lobe and, rescaled, its ``cos θ``;
+        ``u.y`` the azimuth."""
+        cdf = mi.Float(0.0)
+        chosen = mi.Bool(False)
+        mean = mi.Vector3f(0.0, 0.0, 1.0)
+        kappa = mi.Float(0.0)
+        ome = mi.Float(0.0)
+        v = mi.Float(u.x)
+        for k in range(self.k):
+            w = self._lobe(0, k, lane, active)
+            last = k == self.k - 1
+            take = ~chosen & (((u.x < cdf + w) & (w > 0.0)) | last)
+            mean = dr.select(take, mi.Vector3f(*(self._lobe(r, k, lane, active)
+                                                 for r in (1, 2, 3))), mean)
+            kappa = dr.select(take, self._lobe(4, k, lane, active), kappa)
+            ome = dr.select(take, self._lobe(6, k, lane, active), ome)
+            v = dr.select(take, dr.clip((u.x - cdf) / dr.maximum(w, 1e-30), 0.0, 0.99999994), v)
+            chosen |= take
+            cdf += w
+        # cos θ = 1 + ln(1 − v (1 − e^{−2κ})) / κ, the uniform sphere's 1 − 2v as κ → 0.
+        cos_t = dr.select(kappa > 1e-4, 1.0 + dr.log(1.0 - v * ome) / dr.maximum(kappa, 1e-4),
+                          1.0 - 2.0 * v)
+        cos_t = dr.clip(cos_t, -1.0, 1.0)
+        sin_t = dr.safe_sqrt(1.0 - cos_t * cos_t)
+        phi = 2.0 * dr.pi * u.y
+        local = mi.Vector3f(sin_t * dr.cos(phi), sin_t * dr.sin(phi), cos_t)
+        return mi.Frame3f(dr.normalize(mean)).to_world(local)
+
+
 class _Guide:
     """The field and, once training has stopped, its cache: decodes a bounce's guidable
     vertices. The cache is built from the guidable vertices of the last training pass and
     extended after each pass with the positions it missed (host-demo's policy)."""
 
-    def __init__(self, field, use_cache, seed, times):
+    def __init__(self, field, use_cache, seed, times, native=True):
+        self.allow_native = native
+        self.native = None
         self.raw_field = field
         self.field = _Timed(field, times, "guide")
         self.times = times
@@ -122,6 +216,9 @@ class _Guide:
                 self.cache = _Timed(
                     self.field.build_cache(np.concatenate(self.positions)), self.times, "guide"
                 )
+                table = self.cache.vmf_table() if self.allow_native else None
+                if table is not None:
+                    self.native = _NativeVmf(table)
         self.training = training
         self.positions = []
 
@@ -141,12 +238,15 @@ class _Guide:
 
     def end_pass(self):
         if self.cache is not None and self.missed:
-            self.cache.extend(self.raw_field, np.concatenate(self.missed))
+            added = self.cache.extend(self.raw_field, np.concatenate(self.missed))
+            if added and self.native is not None:
+                self.native = _NativeVmf(self.cache.vmf_table())
         self.missed = []
 
     def stats(self):
         return {
             "cells": self.cache.cells if self.cache is not None else 0,
+            "in_kernel": self.native is not None,
             "hits": self.hits,
             "misses": self.misses,
         }
@@ -169,6 +269,7 @@ class GuidedPath(mi.SamplingIntegrator):
         self.guiding = props.get("guiding", True)
         self.threads = props.get("threads", 0)
         self.guide_cache = props.get("guide_cache", True)
+        self.native_guide = props.get("native_guide", True)
         c = props.get("selection_probability", -1.0)
         self.selection_probability = None if c < 0 else float(c)
         self.field = None
@@ -209,7 +310,7 @@ class GuidedPath(mi.SamplingIntegrator):
             schedule = Schedule(spp=spp, train_fraction=self.train_fraction)
             recorder = BatchRecorder()
             use_cache = self.guide_cache and self.target == "radiance"
-            guide = _Guide(field, use_cache, int(seed), times)
+            guide = _Guide(field, use_cache, int(seed), times, self.native_guide)
             recorder = _Timed(recorder, times, "recording")
         self.field = field
         with dr.suspend_grad():
@@ -350,21 +451,23 @@ class GuidedPath(mi.SamplingIntegrator):
             if not dr.any(active_next):
                 break
 
-            # The guide at the guidable vertices.
-            t2, lib = time.perf_counter(), times.library()
-            gmask = np.asarray(guidable, dtype=bool)
-            gidx = np.nonzero(gmask)[0].astype(np.uint32)
-            lane = np.full(n, 0, dtype=np.uint32)
-            lane[gidx] = np.arange(gidx.size, dtype=np.uint32)
-            c_full = np.zeros(n, dtype=np.float32)
-            batch = None
-            if field is not None and gidx.size > 0:
-                batch = guide.decode(
-                    _rows(si.p)[gidx], _rows(si.sh_frame.n)[gidx], _rows(wo_world)[gidx]
-                )
-                c_full[gidx] = batch.selection_probability()
-            c = mi.Float(c_full)
-            times.transfers += time.perf_counter() - t2 - (times.library() - lib)
+            # The guide at the guidable vertices: in Mitsuba's kernels after training (the
+            # cache's vMF table), else through the library on numpy arrays.
+            native = guide.native if guide is not None and recorder is None else None
+            gmask, lane, c_full, batch = None, None, None, None
+            if native is None:
+                t2, lib = time.perf_counter(), times.library()
+                gmask = np.asarray(guidable, dtype=bool)
+                gidx = np.nonzero(gmask)[0].astype(np.uint32)
+                lane = np.full(n, 0, dtype=np.uint32)
+                lane[gidx] = np.arange(gidx.size, dtype=np.uint32)
+                c_full = np.zeros(n, dtype=np.float32)
+                if field is not None and gidx.size > 0:
+                    batch = guide.decode(
+                        _rows(si.p)[gidx], _rows(si.sh_frame.n)[gidx], _rows(wo_world)[gidx]
+                    )
+                    c_full[gidx] = batch.selection_probability()
+                times.transfers += time.perf_counter() - t2 - (times.library() - lib)
 
             # Next-event estimation.
             t3 = time.perf_counter()
@@ -379,49 +482,40 @@ class GuidedPath(mi.SamplingIntegrator):
             )
             u_select, u_guide = sampler.next_1d(), sampler.next_2d()
             bsdf_wo_world = si.to_world(bs.wo)
-            dr.eval(ds_em, em_weight, active_em, bsdf_val_em, bsdf_pdf_em, bs, bsdf_weight,
-                    u_select, u_guide, bsdf_wo_world)
+            if native is not None:
+                jitter = mi.Vector3f(sampler.next_1d(), sampler.next_1d(), sampler.next_1d())
+                lane_k, found = native.lookup(si.p, jitter, guidable)
+                c = native.selection_probability(lane_k, found)
+                scale = self._guide_pdf_scale
+                g_em_dr = native.pdf(lane_k, found & active_em & (c > 0.0), ds_em.d) * scale
+                use_guide = found & (u_select < c)
+                wi_world = dr.select(use_guide, native.sample(lane_k, use_guide, u_guide),
+                                     bsdf_wo_world)
+                g_pdf_dr = native.pdf(lane_k, found & (c > 0.0), wi_world) * scale
+                missed = guidable & ~found
+            if native is None:
+                # The numpy path reads these; in-kernel, they fuse into the bounce's last kernel.
+                dr.eval(ds_em, em_weight, active_em, bsdf_val_em, bsdf_pdf_em, bs, bsdf_weight,
+                        u_select, u_guide, bsdf_wo_world)
             times.mitsuba += time.perf_counter() - t3
 
             # Guide densities at the NEE directions, guide samples, guide densities of the
-            # BSDF's samples.
-            t4, lib = time.perf_counter(), times.library()
-            c_np = c_full
-            use_guide_np = gmask & (np.asarray(u_select) < c_np)
-            em_np = np.asarray(active_em, dtype=bool)
-            g_em = np.zeros(n, dtype=np.float32)
-            g_dir = np.zeros((n, 3), dtype=np.float32)
-            g_pdf = np.zeros(n, dtype=np.float32)
-            bsdf_dir = _rows(bsdf_wo_world)
-            final_dir = bsdf_dir.copy()
-            if batch is not None:
-                q = np.nonzero(gmask & em_np & (c_np > 0))[0]
-                if q.size:
-                    g_em[q] = field.pdf(batch, lane[q], _rows(ds_em.d)[q])
-                q = np.nonzero(use_guide_np)[0]
-                if q.size:
-                    u = np.stack([np.asarray(u_guide.x), np.asarray(u_guide.y)], axis=1)[q]
-                    d, pdf = field.sample(batch, lane[q], np.ascontiguousarray(u, np.float32))
-                    final_dir[q] = d
-                q = np.nonzero(gmask & (c_np > 0))[0]
-                if q.size:
-                    g_pdf[q] = field.pdf(batch, lane[q], final_dir[q])
-            g_pdf *= self._guide_pdf_scale
-            g_em *= self._guide_pdf_scale
-            times.transfers += time.perf_counter() - t4 - (times.library() - lib)
+            # BSDF's samples (through the library).
+            if native is None:
+                c, g_em_dr, wi_world, g_pdf_dr, final_dir, em_np = self._guide_numpy(
+                    field, batch, lane, gmask, c_full, u_select, u_guide, active_em, ds_em,
+                    bsdf_wo_world, n, times)
 
             # Direct light with the combined density; the continuation.
             t5 = time.perf_counter()
-            g_em_dr = mi.Float(g_em)
             pdf_em = dr.select(guidable, c * g_em_dr + (1.0 - c) * bsdf_pdf_em, bsdf_pdf_em)
             mis_em = dr.select(ds_em.delta, 1.0, _mis_weight(ds_em.pdf, pdf_em))
             direct = bsdf_val_em * em_weight * mis_em
             direct = dr.select(active_em, direct, 0.0)
             L[active_em] += beta * direct
 
-            wi_world = _vec3(final_dir)
             bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(wi_world), guidable)
-            pdf_mix = c * mi.Float(g_pdf) + (1.0 - c) * bsdf_pdf
+            pdf_mix = c * g_pdf_dr + (1.0 - c) * bsdf_pdf
             ok = guidable & (pdf_mix > 0.0) & dr.isfinite(pdf_mix)
             weight = dr.select(guidable, dr.select(ok, bsdf_val / pdf_mix, 0.0), bsdf_weight)
             pdf = dr.select(guidable, pdf_mix, bs.pdf)
@@ -448,8 +542,16 @@ class GuidedPath(mi.SamplingIntegrator):
             rr_continue = sampler.next_1d() < rr_prob
             beta[rr_active] *= dr.rcp(rr_prob)
             active = active_next & (~rr_active | rr_continue) & (beta_max != 0.0)
-            dr.eval(ray, beta, eta, prev_si, prev_pdf, prev_delta, active, L, direct, rec_f,
-                    rec_pdf, bsdf_pdf_rec, rr_prob, rr_active)
+            if recorder is None:
+                dr.eval(ray, beta, eta, prev_si, prev_pdf, prev_delta, active, L)
+                if native is not None and dr.any(missed):
+                    # Cells the cache lacks: their positions extend it after the pass.
+                    t7 = time.perf_counter()
+                    guide.missed.append(_rows(si.p)[np.asarray(missed, dtype=bool)].copy())
+                    times.transfers += time.perf_counter() - t7
+            else:
+                dr.eval(ray, beta, eta, prev_si, prev_pdf, prev_delta, active, L, direct, rec_f,
+                        rec_pdf, bsdf_pdf_rec, rr_prob, rr_active)
             times.mitsuba += time.perf_counter() - t5
 
             if recorder is not None:
@@ -474,6 +576,37 @@ class GuidedPath(mi.SamplingIntegrator):
                 times.transfers += time.perf_counter() - t6 - (times.library() - lib)
             depth += 1
         return L
+
+    def _guide_numpy(self, field, batch, lane, gmask, c_full, u_select, u_guide, active_em,
+                     ds_em, bsdf_wo_world, n, times):
+        """The guide's densities at the NEE directions, its samples and its densities at the
+        continuations through the library on numpy arrays; returns them as Dr.Jit arrays
+        (and the continuation directions and NEE mask as numpy, for the recorder)."""
+        t4, lib = time.perf_counter(), times.library()
+        c_np = c_full
+        use_guide_np = gmask & (np.asarray(u_select) < c_np)
+        em_np = np.asarray(active_em, dtype=bool)
+        g_em = np.zeros(n, dtype=np.float32)
+        g_pdf = np.zeros(n, dtype=np.float32)
+        bsdf_dir = _rows(bsdf_wo_world)
+        final_dir = bsdf_dir.copy()
+        if batch is not None:
+            q = np.nonzero(gmask & em_np & (c_np > 0))[0]
+            if q.size:
+                g_em[q] = field.pdf(batch, lane[q], _rows(ds_em.d)[q])
+            q = np.nonzero(use_guide_np)[0]
+            if q.size:
+                u = np.stack([np.asarray(u_guide.x), np.asarray(u_guide.y)], axis=1)[q]
+                d, pdf = field.sample(batch, lane[q], np.ascontiguousarray(u, np.float32))
+                final_dir[q] = d
+            q = np.nonzero(gmask & (c_np > 0))[0]
+            if q.size:
+                g_pdf[q] = field.pdf(batch, lane[q], final_dir[q])
+        g_pdf *= self._guide_pdf_scale
+        g_em *= self._guide_pdf_scale
+        times.transfers += time.perf_counter() - t4 - (times.library() - lib)
+        return (mi.Float(c_np), mi.Float(g_em), _vec3(final_dir), mi.Float(g_pdf), final_dir,
+                em_np)
 
     @staticmethod
     def _record_hits(recorder, slots, si, wo_world, emitted, mis_bsdf, valid, escaped, depth,
