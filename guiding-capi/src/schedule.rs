@@ -8,7 +8,6 @@ use crate::ptr;
 use crate::status::{guard, Failure, PgStatus};
 use crate::types::PgUpdateReport;
 use guiding::{Budget, ScheduleOptions, StepRule, TrainingSchedule};
-use std::time::Instant;
 
 /// How a schedule's updates choose their Adam steps (`PG_STEP_RULE_*`).
 pub type PgStepRule = u32;
@@ -332,22 +331,17 @@ pub unsafe extern "C" fn pg_field_train_scheduled(
         let s = unsafe { ptr::as_mut(schedule, "schedule") }?;
         let report = unsafe { ptr::as_mut_opt(report, "report") }?;
         let mut f = write(&field.inner)?;
-        let buffered = f.buffered_samples();
-        let training = f.config().training;
-        let due = s.inner.steps_due(buffered, &training);
-        let r = if due > 0 {
-            let start = Instant::now();
-            let r = f.try_update_steps(due)?;
-            s.inner
-                .record_update(r.steps, start.elapsed().as_secs_f64());
-            r.into()
-        } else {
-            PgUpdateReport {
-                buffered_samples: buffered as u64,
-                batch_size: training.batch_size.min(buffered) as u64,
-                converged: u32::from(f.is_converged()),
-                mean_loss: f64::NAN,
-                ..PgUpdateReport::default()
+        let r = match s.inner.train(&mut f)? {
+            Some(r) => r.into(),
+            None => {
+                let buffered = f.buffered_samples();
+                PgUpdateReport {
+                    buffered_samples: buffered as u64,
+                    batch_size: f.config().training.batch_size.min(buffered) as u64,
+                    converged: u32::from(f.is_converged()),
+                    mean_loss: f64::NAN,
+                    ..PgUpdateReport::default()
+                }
             }
         };
         if let Some(out) = report {

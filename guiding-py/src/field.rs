@@ -255,20 +255,11 @@ impl Field {
         py: Python<'_>,
         mut schedule: PyRefMut<'_, crate::schedule::Schedule>,
     ) -> PyResult<UpdateReport> {
-        let s = &mut schedule.inner;
-        let field = &mut self.inner;
+        let (s, field) = (&mut schedule.inner, &mut self.inner);
         let r = py
-            .allow_threads(|| {
-                let due = s.steps_due(field.buffered_samples(), &field.config().training);
-                if due == 0 {
-                    return Ok(guiding::UpdateReport::default());
-                }
-                let start = std::time::Instant::now();
-                let r = field.try_update_steps(due)?;
-                s.record_update(r.steps, start.elapsed().as_secs_f64());
-                Ok(r)
-            })
-            .map_err(py_err)?;
+            .allow_threads(|| s.train(field))
+            .map_err(py_err)?
+            .unwrap_or_default();
         Ok(UpdateReport::from(&r))
     }
 

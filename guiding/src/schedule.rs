@@ -273,6 +273,27 @@ impl TrainingSchedule {
         steps as u32
     }
 
+    /// Runs the Adam steps due now on `field` ([`Self::steps_due`] of its buffered samples)
+    /// and records their time ([`Self::record_update`]); `None` when none are due. The one
+    /// training call of host-demo, the C ABI (`pg_field_train_scheduled`) and the Python
+    /// bindings.
+    ///
+    /// # Errors
+    /// As [`crate::GuidingField::try_update_steps`]; nothing is recorded then.
+    pub fn train(
+        &mut self,
+        field: &mut crate::GuidingField,
+    ) -> Result<Option<guiding_core::field::UpdateReport>, GuidingError> {
+        let due = self.steps_due(field.buffered_samples(), &field.config().training);
+        if due == 0 {
+            return Ok(None);
+        }
+        let start = std::time::Instant::now();
+        let report = field.try_update_steps(due)?;
+        self.record_update(report.steps, start.elapsed().as_secs_f64());
+        Ok(Some(report))
+    }
+
     /// How many paths to trace before asking [`Self::steps_due`] again, at most `pass_paths`
     /// (one pass): `update_interval / seconds_per_path`, or `first_piece · pass_paths` before
     /// anything was measured; at least 1.

@@ -1383,14 +1383,7 @@ impl<'g> Strategy for Guided<'g> {
             self.guide.add_samples(&samples);
             // The steps the library's schedule says are due, on the CPU threads or on the
             // guide's device: one training loop.
-            let due = self
-                .schedule
-                .steps_due(self.guide.buffered_samples(), &self.guide.config().training);
-            if due > 0 {
-                let t_steps = Instant::now();
-                let rep = self.guide.try_update_steps(due)?;
-                self.schedule
-                    .record_update(rep.steps, t_steps.elapsed().as_secs_f64());
+            if let Some(rep) = self.schedule.train(self.guide)? {
                 updated = rep.steps > 0;
                 if rep.steps > 0 {
                     st.last_loss = rep.mean_loss;
