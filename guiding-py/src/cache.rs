@@ -5,7 +5,9 @@
 use crate::arrays::{rows, same_lengths, Rows};
 use crate::field::{Batch, Field};
 use crate::py_err;
-use guiding::{CacheOptions, DistributionBatch, GuideCache, QueryPoint};
+use crate::recorder::Recorder;
+use crate::reports::SelectionReport;
+use guiding::{CacheOptions, DistributionBatch, GuideCache, QueryPoint, SelectionFit};
 use guiding_core::glam::Vec3;
 use guiding_core::model::npm::NPM_LOBES;
 use numpy::{PyArray1, PyArrayMethods};
@@ -111,6 +113,33 @@ impl Cache {
         d.set_item("lane_selection", PyArray1::from_slice(py, t.lane_selection))?;
         d.set_item("selection", t.selection)?;
         Ok(Some(d))
+    }
+
+    /// Fits a guide-selection probability per cell to the samples `recorder` kept (its last
+    /// `flush_into(field, keep=True)`): per cell the candidate `c` of least estimated second
+    /// moment of the one-sample MIS estimator, shrunk towards the fit over all samples, with
+    /// `guide_cost` the extra cost of a vertex that queries the guide (the library's
+    /// `GuideCache::fit_selection` and `SelectionFit` document the formulas and the other
+    /// settings, its defaults here). Later `decode`s and `vmf_table`s carry the fitted
+    /// probabilities.
+    #[pyo3(signature = (field, recorder, guide_cost = 0.0))]
+    fn fit_selection(
+        &mut self,
+        py: Python<'_>,
+        field: &Field,
+        recorder: &Recorder,
+        guide_cost: f32,
+    ) -> PyResult<SelectionReport> {
+        let fit = SelectionFit {
+            guide_cost,
+            ..SelectionFit::default()
+        };
+        let (cache, samples, mis) = (&mut self.inner, &recorder.kept, &recorder.kept_mis);
+        let mis = (mis.len() == samples.len()).then_some(mis.as_slice());
+        let report = py
+            .allow_threads(|| cache.fit_selection(&field.inner, samples, mis, &fit))
+            .map_err(py_err)?;
+        Ok(SelectionReport::from(&report))
     }
 
     /// Decodes every cell again after the field's update.

@@ -9,10 +9,12 @@
 //! `guiding.GuidingError` with the library's message.
 
 mod arrays;
+#[macro_use]
+mod reports;
 mod cache;
+mod combine;
 mod field;
 mod recorder;
-mod reports;
 mod schedule;
 
 use pyo3::create_exception;
@@ -30,18 +32,30 @@ pub(crate) fn py_err(e: guiding::GuidingError) -> PyErr {
     GuidingError::new_err(e.to_string())
 }
 
+/// `m.add_class::<T>()?` for every `T`.
+macro_rules! add_classes {
+    ($m:ident, $($t:ty),* $(,)?) => { $($m.add_class::<$t>()?;)* };
+}
+
 /// The extension module.
 #[pymodule]
 fn _guiding(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("GuidingError", m.py().get_type::<GuidingError>())?;
-    m.add_class::<field::Field>()?;
-    m.add_class::<field::Batch>()?;
-    m.add_class::<cache::Cache>()?;
-    m.add_class::<recorder::Recorder>()?;
-    m.add_class::<schedule::Schedule>()?;
-    m.add_class::<reports::UpdateReport>()?;
-    m.add_class::<reports::FieldStats>()?;
-    m.add_class::<reports::ScheduleReport>()?;
+    add_classes!(
+        m,
+        field::Field,
+        field::Batch,
+        cache::Cache,
+        combine::Combiner,
+        combine::Combination,
+        combine::GroupWeight,
+        recorder::Recorder,
+        schedule::Schedule,
+        reports::UpdateReport,
+        reports::FieldStats,
+        reports::ScheduleReport,
+        reports::SelectionReport
+    );
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

@@ -4,6 +4,7 @@
 use crate::arrays::{column, from_rows3, rows, same_lengths, Floats, Indices, Rows};
 use crate::field::Field;
 use guiding::{BatchRecorder, Continuation, PathVertex};
+use guiding_core::sample::TrainingSample;
 use numpy::PyReadonlyArray1;
 use pyo3::prelude::*;
 
@@ -17,6 +18,10 @@ use pyo3::prelude::*;
 #[derive(Default)]
 pub struct Recorder {
     inner: BatchRecorder,
+    /// The samples of the last `flush_into(…, keep=True)` with their MIS-weighted incident
+    /// radiances: what `GuideCache.fit_selection` fits to.
+    pub(crate) kept: Vec<TrainingSample>,
+    pub(crate) kept_mis: Vec<[f32; 3]>,
 }
 
 impl Recorder {
@@ -166,10 +171,28 @@ impl Recorder {
         from_rows3(py, &est)
     }
 
-    /// Hands the recorded samples to `field` (which validates them); returns how many.
-    fn flush_into(&mut self, py: Python<'_>, mut field: PyRefMut<'_, Field>) -> usize {
+    /// Hands the recorded samples to `field` (which validates them); returns how many. With
+    /// `keep`, the recorder keeps a copy of them (replacing the last one kept) for
+    /// `GuideCache.fit_selection`.
+    #[pyo3(signature = (field, keep = false))]
+    fn flush_into(&mut self, py: Python<'_>, mut field: PyRefMut<'_, Field>, keep: bool) -> usize {
         let (rec, f) = (&mut self.inner, &mut field.inner);
-        py.allow_threads(|| rec.flush_into(f))
+        let (kept, kept_mis) = (&mut self.kept, &mut self.kept_mis);
+        py.allow_threads(|| {
+            if keep {
+                kept.clear();
+                kept.extend_from_slice(rec.samples());
+                kept_mis.clear();
+                kept_mis.extend_from_slice(rec.mis_radiance());
+            }
+            rec.flush_into(f)
+        })
+    }
+
+    /// Samples kept by the last `flush_into(…, keep=True)`.
+    #[getter]
+    fn kept_samples(&self) -> usize {
+        self.kept.len()
     }
 
     /// Training samples recorded and not yet handed over.

@@ -53,3 +53,16 @@ report_class! {
         training_share: f64 = r.training_share(),
     }
 }
+
+report_class! {
+    /// What a guide-selection fit found: samples used, cells fitted to their own samples, cells
+    /// given the global value, cells fitted to `c = 0` (the guide off), the fit over all
+    /// samples (`global_selection`), the mean fitted probability, and the estimated vertex
+    /// variance relative to BSDF sampling alone.
+    SelectionReport from guiding::SelectionReport as r {
+        samples_used: u64 = r.samples_used, cells_fitted: u64 = r.cells_fitted,
+        cells_global: u64 = r.cells_global, cells_off: u64 = r.cells_off,
+        global_selection: f32 = r.global,
+        mean: f32 = r.mean, variance_ratio: f64 = r.variance_ratio,
+    }
+}

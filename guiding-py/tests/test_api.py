@@ -133,8 +133,79 @@ class Results(unittest.TestCase):
         cache.refresh(f)
         cache.decode(f, p, np.full((500, 3), 0.5, np.float32))
 
+    def test_selection_fit_uses_the_kept_samples(self):
+        f = field()
+        rec = guiding.BatchRecorder()
+        record_one_bounce(rec, 512)
+        self.assertEqual(rec.flush_into(f, keep=True), 512)
+        self.assertEqual(rec.kept_samples, 512)
+        f.update()
+        p = points(512)
+        cache = f.build_cache(p, resolution=8)
+        r = cache.fit_selection(f, rec)
+        self.assertEqual(r.samples_used, 512)
+        self.assertEqual(r.cells_fitted + r.cells_global, cache.cells)
+        self.assertTrue(0.0 <= r.mean <= 0.9 and 0.0 <= r.global_selection <= 0.9)
+        # The fitted probabilities are what the cache's batches (and its table) carry.
+        c = cache.decode(f, p, np.full((512, 3), 0.5, np.float32)).selection_probability()
+        self.assertTrue(np.all((c >= 0.0) & (c <= 0.9)))
+        table = cache.vmf_table()
+        self.assertEqual(table["lane_selection"].size, cache.cells)
+        np.testing.assert_allclose(c.mean(), table["lane_selection"][
+            table["index"][table["index"] != 0xFFFFFFFF]].mean(), rtol=0.5)
+
+    def test_pass_combiner_weights_by_inverse_variance(self):
+        w, h = 16, 8
+        rng = np.random.default_rng(5)
+        truth = rng.uniform(0.5, 1.0, size=(w * h, 3)).astype(np.float32)
+        comb = guiding.PassCombiner(w, h)
+        noisy = [truth + rng.normal(0, 0.5, size=truth.shape).astype(np.float32)]
+        calm = [truth + rng.normal(0, 0.05, size=truth.shape).astype(np.float32)
+                for _ in range(6)]
+        comb.add_pass(0, noisy[0])
+        for x in calm:
+            comb.add_pass(1, x)
+        self.assertEqual((comb.passes, comb.group_count), (7, 2))
+        c = comb.combine()
+        self.assertFalse(c.fell_back)
+        self.assertLess(c.predicted_gain, 0.5)
+        by_id = {g.group: g for g in c.groups}
+        self.assertLess(by_id[0].share, 0.05)  # the noisy pass weighs little
+        # A pixel of half (x + y) mod 2 = k takes the weights estimated on half 1 - k.
+        x, y = np.arange(w * h) % w, np.arange(w * h) // w
+        half = (x + y) % 2
+        expect = np.zeros_like(truth, dtype=np.float64)
+        for g, passes in ((by_id[0], noisy), (by_id[1], calm)):
+            a = np.where(half == 0, g.pass_weight[1], g.pass_weight[0])
+            expect += a[:, None] * np.sum(passes, axis=0)
+        np.testing.assert_allclose(c.pixels, expect, rtol=1e-5, atol=1e-6)
+        self.assertEqual(c.var_of_mean.shape, (w * h, 3))
+        self.assertLess(np.abs(c.pixels - truth).mean(), np.abs(np.mean(noisy + calm, axis=0)
+                                                                 - truth).mean())
+
 
 class Errors(unittest.TestCase):
+    def test_pass_combiner_errors(self):
+        with self.assertRaises(guiding.GuidingError):
+            guiding.PassCombiner(0, 4)
+        with self.assertRaises(guiding.GuidingError):
+            guiding.PassCombiner(4, 4, epsilon=0.0)
+        comb = guiding.PassCombiner(4, 4)
+        with self.assertRaises(guiding.GuidingError):
+            comb.add_pass(0, np.zeros((15, 3), np.float32))
+        with self.assertRaisesRegex(ValueError, "pixels: expected"):
+            comb.add_pass(0, np.zeros((16, 4), np.float32))
+        self.assertEqual(comb.passes, 0)
+
+    def test_nasg_learns_its_own_selection(self):
+        f = field(representation="nasg")
+        rec = guiding.BatchRecorder()
+        record_one_bounce(rec, 64)
+        rec.flush_into(f, keep=True)
+        cache = f.build_cache(points(64), resolution=8)
+        with self.assertRaisesRegex(guiding.GuidingError, "NASG"):
+            cache.fit_selection(f, rec)
+
     def test_bad_names(self):
         with self.assertRaisesRegex(ValueError, "representation"):
             field(representation="vmf")

@@ -14,7 +14,8 @@ family-wise false-alarm rate of 1 % over the scene's blocks × channels.
 
 Negative control (committed): the guide's density scaled by 1.5 in the MIS weights
 (``GuidedPath._guide_pdf_scale``, a test hook, applied in-kernel after training) must be
-rejected on the Cornell box.
+rejected on the Cornell box, with the preset selection probability (which the unbiasedness
+tests cover too).
 """
 
 import os
@@ -96,10 +97,11 @@ class Unbiased(unittest.TestCase):
             self.cache[(name, width)] = (scene, max_depth, seed_blocks(scene, path))
         return self.cache[(name, width)]
 
-    def check(self, name, width, scale=1.0, native=True):
+    def check(self, name, width, scale=1.0, native=True, fit=True):
         scene, max_depth, ref = self.path_blocks(name, width)
         guided = mi.load_dict(
-            {"type": "guided_path", "max_depth": max_depth, "threads": 1, "native_guide": native}
+            {"type": "guided_path", "max_depth": max_depth, "threads": 1, "native_guide": native,
+             "fit_selection": fit}
         )
         guided._guide_pdf_scale = scale
         got = seed_blocks(scene, guided)
@@ -108,8 +110,8 @@ class Unbiased(unittest.TestCase):
         self.assertGreater(guided.stats["field"].steps, 0, "the guide never trained")
         return p, t, level
 
-    def assert_agrees(self, name, width, native=True):
-        p, t, level = self.check(name, width, native=native)
+    def assert_agrees(self, name, width, native=True, fit=True):
+        p, t, level = self.check(name, width, native=native, fit=fit)
         print(f"\n{name}: smallest p {p.min():.2e} of {p.size} tests (level {level:.2e}), "
               f"worst |t| {np.abs(t).max():.2f}")
         self.assertGreater(p.min(), level, f"worst |t| {np.abs(t).max():.2f}")
@@ -125,12 +127,44 @@ class Unbiased(unittest.TestCase):
     def test_veach_mis(self):
         self.assert_agrees("veach-mis", 48)
 
+    def test_cornell_box_with_the_preset_selection(self):
+        """The preset selection probability in every cell (no fit): the guide samples far
+        more of the Cornell box's vertices than where the fit leaves it on."""
+        self.assert_agrees("cornell-box", 32, fit=False)
+
     def test_a_scaled_guide_pdf_is_caught(self):
-        p, t, level = self.check("cornell-box", 32, scale=1.5)
+        # With the preset selection probability: on the Cornell box the fit turns the guide
+        # down where it does not pay, and with it the scaled pdf's effect (0 of 48 rejected,
+        # worst t -3.3, with the fit).
+        p, t, level = self.check("cornell-box", 32, scale=1.5, fit=False)
         rejected = int((p < level).sum())
         print(f"\nscaled guide pdf: {rejected} of {p.size} block-channel tests rejected, "
               f"worst t {t.flat[np.argmax(np.abs(t))]:.2f}")
         self.assertGreater(rejected, 0)
+
+
+@unittest.skipUnless(HAVE_MITSUBA, "mitsuba / scipy not installed")
+class Combined(unittest.TestCase):
+    def test_the_film_gets_the_combiners_image(self):
+        """With a box filter the developed image is the combiner's weighted mean, and the
+        cache's selection was fitted to the last training pass."""
+        scene, max_depth = load_small("cornell-box", 32)
+        guided = mi.load_dict({"type": "guided_path", "max_depth": max_depth, "threads": 1})
+        img = np.array(mi.render(scene, integrator=guided, spp=SPP, seed=3))
+        c = guided.combination
+        self.assertIsNotNone(c)
+        self.assertFalse(c.fell_back)
+        self.assertEqual(sum(g.passes for g in c.groups), SPP)
+        self.assertGreater(len(c.groups), 2)  # training passes, then one group
+        np.testing.assert_allclose(img[:, :, :3].reshape(-1, 3), c.pixels, rtol=1e-4,
+                                   atol=1e-6)
+        fit = guided.stats["guide_cache"]["selection_fit"]
+        self.assertGreater(fit["samples_used"], 0)
+        off = mi.load_dict({"type": "guided_path", "max_depth": max_depth, "threads": 1,
+                            "combine_passes": False, "fit_selection": False})
+        mi.render(scene, integrator=off, spp=SPP, seed=3)
+        self.assertIsNone(off.combination)
+        self.assertIsNone(off.stats["guide_cache"]["selection_fit"])
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """Type stubs of the extension module (``guiding-py/src``)."""
 
 from os import PathLike
-from typing import Optional, Sequence, Tuple, Union
+from typing import List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -41,6 +41,39 @@ class ScheduleReport:
     seconds_per_step: float
     training_share: float
 
+class SelectionReport:
+    samples_used: int
+    cells_fitted: int
+    cells_global: int
+    cells_off: int
+    global_selection: float
+    mean: float
+    variance_ratio: float
+
+class GroupWeight:
+    group: int
+    passes: int
+    relative_variance: Tuple[float, float]
+    pass_weight: Tuple[float, float]
+    share: float
+
+class Combination:
+    groups: List[GroupWeight]
+    predicted_gain: float
+    fell_back: bool
+    pixels: F32
+    var_of_mean: F32
+
+class PassCombiner:
+    def __init__(self, width: int, height: int, epsilon: float = 0.01, smoothing_radius: int = 2,
+                 cap_at_largest_group: bool = True) -> None: ...
+    def add_pass(self, group: int, pixels: F32) -> None: ...
+    @property
+    def passes(self) -> int: ...
+    @property
+    def group_count(self) -> int: ...
+    def combine(self) -> Combination: ...
+
 class DistributionBatch:
     def __len__(self) -> int: ...
     def selection_probability(self) -> F32: ...
@@ -54,6 +87,9 @@ class GuideCache:
     def extend(self, field: "Field", position: F32) -> int: ...
     def refresh(self, field: "Field") -> None: ...
     def vmf_table(self) -> Optional[dict]: ...
+    def fit_selection(
+        self, field: "Field", recorder: "BatchRecorder", guide_cost: float = 0.0
+    ) -> SelectionReport: ...
 
 class Field:
     def __init__(
@@ -113,7 +149,9 @@ class BatchRecorder:
     def scale_continuations(self, slots: U32, factor: F32) -> None: ...
     def add_escaped_radiance(self, slots: U32, rgb: F32, mis: F32) -> None: ...
     def end(self) -> F32: ...
-    def flush_into(self, field: Field) -> int: ...
+    def flush_into(self, field: Field, keep: bool = False) -> int: ...
+    @property
+    def kept_samples(self) -> int: ...
     def __len__(self) -> int: ...
     @property
     def ignored_calls(self) -> int: ...

@@ -13,8 +13,12 @@ against the continuation. Each of the ``spp`` passes traces one sample per pixel
 (one evaluated kernel per bounce, the guide called between them on numpy arrays); the passes
 of the training phase (the library's ``Schedule``: its default fraction of the passes) record
 their paths and train the guide between passes. Every pass is an unbiased estimate given the
-guide of the passes before it, so the image (all passes splatted into one block, as ``path``
-splats its samples) is unbiased.
+guide of the passes before it. The passes are combined as host-demo combines them
+(``guiding.PassCombiner``): each training pass is a group of its own, the passes after
+training one group, each group weighted by the inverse of its estimated variance, with the
+weights of a pixel estimated on the other half of a checkerboard, so that the image stays
+unbiased. When training stops, the guide cache is built and its selection probability fitted
+per cell (``GuideCache.fit_selection``) to the last training pass's paths, as in host-demo.
 
 Properties: ``max_depth`` (default -1, unbounded), ``rr_depth`` (5), as ``path``; ``guide``
 (``npm``, ``nasg``, ``df-n``, ``df-l``; default ``npm``), ``target`` (``radiance``, ``product``),
@@ -24,12 +28,15 @@ absent), ``selection_probability`` (the library's preset when absent), ``guide_c
 ``GuideCache`` instead of decoded by the network per vertex), ``native_guide`` (default
 ``true``: an NPM guide's cache is read inside Mitsuba's kernels, its vMF mixtures sampled and
 evaluated in Dr.Jit, with no transfer to numpy; a vertex whose cells are empty is sampled by
-its BSDF alone and its position extends the cache after the pass), ``guiding`` (``false``: the
-same wavefront loop without a guide, to measure what the loop itself costs), ``threads`` (the
-library's threads, 0: all cores).
+its BSDF alone and its position extends the cache after the pass), ``combine_passes`` (default
+``true``; ``false``: all passes splatted into one block, as ``path`` splats its samples),
+``fit_selection`` (default ``true``; ``false``: the preset selection probability everywhere),
+``guiding`` (``false``: the same wavefront loop without a guide, to measure what the loop
+itself costs), ``threads`` (the library's threads, 0: all cores).
 
 After a render, ``integrator.field`` is the trained ``guiding.Field`` (save it with
-``field.save``) and ``integrator.stats`` says what the render did and where its time went.
+``field.save``), ``integrator.combination`` the passes' ``guiding.Combination`` (None when
+not combined), and ``integrator.stats`` says what the render did and where its time went.
 """
 
 import time
@@ -38,7 +45,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from . import BatchRecorder, Field, Schedule
+from . import BatchRecorder, Field, PassCombiner, Schedule
 
 
 def _rows(v):
@@ -194,8 +201,12 @@ class _Guide:
     vertices. The cache is built from the guidable vertices of the last training pass and
     extended after each pass with the positions it missed (host-demo's policy)."""
 
-    def __init__(self, field, use_cache, seed, times, native=True):
+    def __init__(self, field, use_cache, seed, times, native=True, recorder=None):
         self.allow_native = native
+        # Fits the selection probability per cell to this recorder's kept samples (the last
+        # training pass's) when the cache is built, as host-demo does; None: the preset.
+        self.fit_recorder = recorder if field.representation != "nasg" else None
+        self.selection_fit = None
         self.native = None
         self.raw_field = field
         self.field = _Timed(field, times, "guide")
@@ -216,6 +227,9 @@ class _Guide:
                 self.cache = _Timed(
                     self.field.build_cache(np.concatenate(self.positions)), self.times, "guide"
                 )
+                if self.fit_recorder is not None and self.fit_recorder.kept_samples:
+                    self.selection_fit = self.cache.fit_selection(self.raw_field,
+                                                                  self.fit_recorder)
                 table = self.cache.vmf_table() if self.allow_native else None
                 if table is not None:
                     self.native = _NativeVmf(table)
@@ -249,7 +263,92 @@ class _Guide:
             "in_kernel": self.native is not None,
             "hits": self.hits,
             "misses": self.misses,
+            "selection_fit": _report(self.selection_fit),
         }
+
+
+def _report(r):
+    """A library report (frozen object with one attribute per value) as a dict, or None."""
+    if r is None:
+        return None
+    return {k: getattr(r, k) for k in dir(r) if not k.startswith("_")}
+
+
+class _PassImages:
+    """The render's passes, combined as host-demo combines them (``guiding.PassCombiner``):
+    each training pass is a group of its own (its guide is new), the passes after training one
+    group. Each pass is splatted into its own image block; the block's pixel values (its colour
+    over its filter weight, the border cropped) go to the combiner, and its tensor is summed
+    per group. The film gets ``Σ_g N·a_g(h)·S_g`` in the colour (and alpha) channels and
+    ``Σ_g W_g`` in the weight channel: with Mitsuba's box filter (one weight per sample per
+    pixel) that develops to the combiner's ``Σ_g a_g S_g`` exactly; with other filters the
+    weight sums differ between passes only by the filter's jitter. ``a_g(h)`` is the group's
+    per-pass weight for a pixel of checkerboard half ``h`` (estimated on the other half, which
+    keeps the weighted image unbiased; ``guiding::combine``'s documentation)."""
+
+    AFTER_TRAINING = 1 << 30
+
+    def __init__(self, film):
+        self.film = film
+        size = film.crop_size()
+        self.width, self.height = int(size[0]), int(size[1])
+        self.combiner = PassCombiner(self.width, self.height)
+        self.sums = {}
+        self.block = None
+        self.stats = None
+        self.combination = None
+
+    def begin(self):
+        self.block = self.film.create_block()
+        return self.block
+
+    def end(self, group):
+        t = self.block.tensor().numpy()
+        b = self.block.border_size() if self.block.has_border() else 0
+        inner = t[b : b + self.height, b : b + self.width]
+        w = inner[..., -1:]
+        rgb = np.where(w > 0.0, inner[..., :3] / np.where(w > 0.0, w, 1.0), 0.0)
+        self.combiner.add_pass(group, rgb.reshape(-1, 3).astype(np.float32))
+        if group in self.sums:
+            self.sums[group] += t
+        else:
+            self.sums[group] = t.astype(np.float64)
+        self.block = None
+
+    def develop_into(self, film):
+        """Puts the combined passes into ``film``; returns the combination's report."""
+        c = self.combination = self.combiner.combine()
+        n = self.combiner.passes
+        total = sum(self.sums.values())
+        if not c.fell_back:
+            block = self.film.create_block()
+            b = block.border_size() if block.has_border() else 0
+            rows, cols = total.shape[0], total.shape[1]
+            y, x = np.mgrid[0:rows, 0:cols]
+            half = (x - b + y - b) % 2
+            colour = np.zeros_like(total[..., :-1])
+            for g in c.groups:
+                # Pixels of half h take the weight estimated on half 1 - h.
+                scale = np.where(half == 0, g.pass_weight[1], g.pass_weight[0]) * n
+                colour += scale[..., None] * self.sums[g.group][..., :-1]
+            total = np.concatenate([colour, total[..., -1:]], axis=-1)
+        else:
+            block = self.film.create_block()
+        combined = mi.ImageBlock(
+            mi.TensorXf(total.astype(np.float32)),
+            block.offset(),
+            block.rfilter(),
+            block.has_border(),
+        )
+        film.put_block(combined)
+        self.stats = {
+            "fell_back": c.fell_back,
+            "predicted_gain": c.predicted_gain,
+            "groups": [
+                {"group": g.group, "passes": g.passes, "share": g.share} for g in c.groups
+            ],
+        }
+        return self.stats
 
 
 class GuidedPath(mi.SamplingIntegrator):
@@ -270,9 +369,12 @@ class GuidedPath(mi.SamplingIntegrator):
         self.threads = props.get("threads", 0)
         self.guide_cache = props.get("guide_cache", True)
         self.native_guide = props.get("native_guide", True)
+        self.combine_passes = props.get("combine_passes", True)
+        self.fit_selection = props.get("fit_selection", True)
         c = props.get("selection_probability", -1.0)
         self.selection_probability = None if c < 0 else float(c)
         self.field = None
+        self.combination = None
         self.stats = {}
         # Test hook: multiplies the guide's density in the MIS weights (a wrong estimator,
         # for the unbiasedness test's negative control).
@@ -310,12 +412,15 @@ class GuidedPath(mi.SamplingIntegrator):
             schedule = Schedule(spp=spp, train_fraction=self.train_fraction)
             recorder = BatchRecorder()
             use_cache = self.guide_cache and self.target == "radiance"
-            guide = _Guide(field, use_cache, int(seed), times, self.native_guide)
+            fit = recorder if use_cache and self.fit_selection else None
+            guide = _Guide(field, use_cache, int(seed), times, self.native_guide, fit)
             recorder = _Timed(recorder, times, "recording")
         self.field = field
+        self.combination = None
         with dr.suspend_grad():
             film.prepare([])
-            block = film.create_block()
+            passes = _PassImages(film) if guide is not None and self.combine_passes else None
+            block = film.create_block() if passes is None else None
             start = time.perf_counter()
             training_passes = 0
             for p in range(spp):
@@ -330,20 +435,27 @@ class GuidedPath(mi.SamplingIntegrator):
                 sampler, n = self._pass_sampler(sensor, (int(seed) * spp + p) & 0xFFFFFFFF)
                 ray, weight, pos = self._sample_rays(sensor, sampler)
                 L = self._trace(scene, sampler, ray, n, guide, recorder if train else None, times)
-                self._splat(block, film, pos, L * weight)
-                dr.eval(block.tensor())
+                target = block if passes is None else passes.begin()
+                self._splat(target, film, pos, L * weight)
+                dr.eval(target.tensor())
                 traced = time.perf_counter() - t0
+                if passes is not None:
+                    passes.end(p if train else _PassImages.AFTER_TRAINING)
                 if guide is not None:
                     guide.end_pass()
                 if train:
                     training_passes += 1
                     recorder.end()
-                    recorder.flush_into(field)
+                    recorder.flush_into(field, keep=guide.fit_recorder is not None)
                     schedule.record_traced(traced, n)
                     t2 = time.perf_counter()
                     field.train_scheduled(schedule)
                     times.training += time.perf_counter() - t2
-            film.put_block(block)
+            if passes is None:
+                film.put_block(block)
+            else:
+                passes.develop_into(film)
+                self.combination = passes.combination
             self.stats = {
                 "spp": spp,
                 "training_passes": training_passes,
@@ -352,6 +464,7 @@ class GuidedPath(mi.SamplingIntegrator):
                 "schedule": schedule.report() if schedule is not None else None,
                 "field": field.stats() if field is not None else None,
                 "guide_cache": guide.stats() if guide is not None else None,
+                "combination": passes.stats if passes is not None else None,
             }
             return film.develop() if develop else None
 
