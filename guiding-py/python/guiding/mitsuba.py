@@ -54,6 +54,13 @@ def _rows(v):
     return np.asarray(v, dtype=np.float32).T
 
 
+def _path_start(ray):
+    """A wavefront's loop state at the camera: throughput, radiance, relative IOR, active,
+    previous interaction, its density and whether it was a delta sample, the ray."""
+    return (mi.Spectrum(1.0), mi.Spectrum(0.0), mi.Float(1.0), mi.Bool(True),
+            dr.zeros(mi.Interaction3f), mi.Float(1.0), mi.Bool(True), mi.Ray3f(ray))
+
+
 def _vec3(rows):
     """An ``(n, 3)`` array as a ``mi.Vector3f``."""
     return mi.Vector3f(np.ascontiguousarray(rows.T))
@@ -434,7 +441,11 @@ class GuidedPath(mi.SamplingIntegrator):
                 t0 = time.perf_counter()
                 sampler, n = self._pass_sampler(sensor, (int(seed) * spp + p) & 0xFFFFFFFF)
                 ray, weight, pos = self._sample_rays(sensor, sampler)
-                L = self._trace(scene, sampler, ray, n, guide, recorder if train else None, times)
+                if guide is not None and not train and guide.native is not None:
+                    L = self._trace_native_timed(scene, sampler, ray, n, guide, times)
+                else:
+                    L = self._trace(scene, sampler, ray, n, guide, recorder if train else None,
+                                    times)
                 target = block if passes is None else passes.begin()
                 self._splat(target, film, pos, L * weight)
                 dr.eval(target.tensor())
@@ -516,19 +527,133 @@ class GuidedPath(mi.SamplingIntegrator):
             values = [rgb.x, rgb.y, rgb.z, mi.Float(1.0)]
         block.put(pos, values)
 
+    def _hit(self, scene, si, ray, prev_si, prev_pdf, prev_delta, active, depth):
+        """A bounce's hit: the emission found by the continuation (or the camera) and its MIS
+        weight against NEE, whether the path goes on, and whether the guide may sample it
+        (no delta lobe, a smooth one)."""
+        ds = mi.DirectionSample3f(scene, si=si, ref=prev_si)
+        em_pdf = scene.pdf_emitter_direction(prev_si, ds, ~prev_delta)
+        mis_bsdf = _mis_weight(prev_pdf, em_pdf)
+        emitted = ds.emitter.eval(si, active)
+        valid = active & si.is_valid()
+        limit = self.max_depth if self.max_depth >= 0 else 0xFFFFFFFF
+        active_next = valid & (depth + 1 < limit)
+        bsdf = si.bsdf(ray)
+        flags = bsdf.flags()
+        guidable = (
+            active_next
+            & ~mi.has_flag(flags, mi.BSDFFlags.Delta)
+            & mi.has_flag(flags, mi.BSDFFlags.Smooth)
+        )
+        return emitted, mis_bsdf, valid, active_next, bsdf, guidable
+
+    @staticmethod
+    def _nee_and_bsdf(scene, sampler, ctx, si, bsdf, active_next):
+        """Next-event estimation's emitter sample, the BSDF at it, the BSDF's own sample, and
+        the random numbers of the guide's selection and sample."""
+        active_em = active_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        ds_em, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(), True, active_em)
+        active_em &= ds_em.pdf != 0.0
+        s1, s2 = sampler.next_1d(), sampler.next_2d()
+        bsdf_val_em, bsdf_pdf_em, bs, bsdf_weight = bsdf.eval_pdf_sample(
+            ctx, si, si.to_local(ds_em.d), s1, s2, active_next
+        )
+        u_select, u_guide = sampler.next_1d(), sampler.next_2d()
+        return (active_em, ds_em, em_weight, bsdf_val_em, bsdf_pdf_em, bs, bsdf_weight,
+                u_select, u_guide)
+
+    @staticmethod
+    def _mixture(ctx, si, bsdf, guidable, c, nee, g_em, wi_world, g_pdf):
+        """Direct light weighed against the mixture ``p = c·p_guide + (1 − c)·p_bsdf``, and the
+        continuation ``wi_world`` with its weight and density (the BSDF's own sample where the
+        vertex is not guidable)."""
+        active_em, ds_em, em_weight, bsdf_val_em, bsdf_pdf_em, bs, bsdf_weight = nee[:7]
+        pdf_em = dr.select(guidable, c * g_em + (1.0 - c) * bsdf_pdf_em, bsdf_pdf_em)
+        mis_em = dr.select(ds_em.delta, 1.0, _mis_weight(ds_em.pdf, pdf_em))
+        direct = dr.select(active_em, bsdf_val_em * em_weight * mis_em, 0.0)
+        bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(wi_world), guidable)
+        pdf_mix = c * g_pdf + (1.0 - c) * bsdf_pdf
+        ok = guidable & (pdf_mix > 0.0) & dr.isfinite(pdf_mix)
+        weight = dr.select(guidable, dr.select(ok, bsdf_val / pdf_mix, 0.0), bsdf_weight)
+        pdf = dr.select(guidable, pdf_mix, bs.pdf)
+        return direct, bsdf_val, bsdf_pdf, pdf_mix, weight, pdf
+
+    def _roulette(self, sampler, beta, eta, depth, active_next):
+        """Mitsuba's path's Russian roulette (it counts this vertex before its roulette):
+        survival ``min(max(β)·η², 0.95)`` from ``rr_depth``."""
+        beta_max = dr.max(beta)
+        rr_active = depth + 1 >= self.rr_depth
+        rr_prob = dr.minimum(beta_max * dr.square(eta), 0.95)
+        rr_continue = sampler.next_1d() < rr_prob
+        beta = dr.select(rr_active, beta * dr.rcp(rr_prob), beta)
+        active = active_next & (~rr_active | rr_continue) & (beta_max != 0.0)
+        return beta, active, rr_prob, rr_active
+
+    def _trace_native_timed(self, scene, sampler, ray, n, guide, times):
+        """``_trace_native``, its seconds in ``times.mitsuba``; the positions it missed go to
+        the guide, to extend the cache after the pass."""
+        t0 = time.perf_counter()
+        missed_at = dr.full(mi.Point3f, dr.nan, n)
+        L = self._trace_native(scene, sampler, ray, n, guide.native, missed_at)
+        dr.eval(L, missed_at)
+        times.mitsuba += time.perf_counter() - t0
+        t1 = time.perf_counter()
+        p = _rows(missed_at)
+        p = p[np.isfinite(p[:, 0])]
+        if p.size:
+            guide.missed.append(np.ascontiguousarray(p))
+        times.transfers += time.perf_counter() - t1
+        return L
+
+    @dr.syntax
+    def _trace_native(self, scene, sampler, ray, n, native, missed_at):
+        """One wavefront of ``n`` paths after training, the guide read in-kernel from the
+        cache's vMF table: one symbolic loop (one kernel per pass). Where a guidable vertex
+        finds no cell, its position is written to ``missed_at`` (the path's last such vertex;
+        ``NaN`` elsewhere) to extend the cache after the pass."""
+        ctx = mi.BSDFContext()
+        slot = dr.arange(mi.UInt32, n)
+        beta, L, eta, active, prev_si, prev_pdf, prev_delta, ray = _path_start(ray)
+        depth = mi.UInt32(0)
+        scale = self._guide_pdf_scale
+        while dr.hint(active, label="guided_path"):
+            si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=depth == 0,
+                                     active=active)
+            emitted, mis_bsdf, _, active_next, bsdf, guidable = self._hit(
+                scene, si, ray, prev_si, prev_pdf, prev_delta, active, depth)
+            L += dr.select(active, beta * mis_bsdf * emitted, 0.0)
+            nee = self._nee_and_bsdf(scene, sampler, ctx, si, bsdf, active_next)
+            active_em, ds_em, bs, u_select, u_guide = nee[0], nee[1], nee[5], nee[7], nee[8]
+            jitter = mi.Vector3f(sampler.next_1d(), sampler.next_1d(), sampler.next_1d())
+            lane, found = native.lookup(si.p, jitter, guidable)
+            dr.scatter(missed_at, si.p, slot, guidable & ~found)
+            c = native.selection_probability(lane, found)
+            g_em = native.pdf(lane, found & active_em & (c > 0.0), ds_em.d) * scale
+            use_guide = found & (u_select < c)
+            wi_world = dr.select(use_guide, native.sample(lane, use_guide, u_guide),
+                                 si.to_world(bs.wo))
+            g_pdf = native.pdf(lane, found & (c > 0.0), wi_world) * scale
+            direct, _, _, _, weight, pdf = self._mixture(ctx, si, bsdf, guidable, c, nee, g_em,
+                                                         wi_world, g_pdf)
+            L += beta * direct
+            ray = si.spawn_ray(wi_world)
+            beta *= weight
+            eta *= dr.select(guidable, 1.0, bs.eta)
+            prev_si = dr.detach(mi.Interaction3f(si))
+            prev_pdf = pdf
+            prev_delta = ~guidable & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+            beta, active, _, _ = self._roulette(sampler, beta, eta, depth, active_next)
+            depth += 1
+        return L
+
     def _trace(self, scene, sampler, ray, n, guide, recorder, times):
-        """One wavefront of ``n`` paths; returns their radiance."""
+        """One wavefront of ``n`` paths as an evaluated loop (the guide through the library on
+        numpy arrays between Mitsuba's kernels, the recorder's calls in the training passes);
+        returns their radiance."""
         field = guide.field if guide is not None else None
         slots = np.arange(n, dtype=np.uint32)
         ctx = mi.BSDFContext()
-        beta = mi.Spectrum(1.0)
-        L = mi.Spectrum(0.0)
-        eta = mi.Float(1.0)
-        active = mi.Bool(True)
-        prev_si = dr.zeros(mi.Interaction3f)
-        prev_pdf = mi.Float(1.0)
-        prev_delta = mi.Bool(True)
-        ray = mi.Ray3f(ray)
+        beta, L, eta, active, prev_si, prev_pdf, prev_delta, ray = _path_start(ray)
         if recorder is not None:
             recorder.start(n)
         depth = 0
@@ -537,22 +662,10 @@ class GuidedPath(mi.SamplingIntegrator):
             si = scene.ray_intersect(
                 ray, ray_flags=mi.RayFlags.All, coherent=depth == 0, active=active
             )
-            # Emission found by the continuation (or the camera), MIS against NEE.
-            ds = mi.DirectionSample3f(scene, si=si, ref=prev_si)
-            em_pdf = scene.pdf_emitter_direction(prev_si, ds, ~prev_delta)
-            mis_bsdf = _mis_weight(prev_pdf, em_pdf)
-            emitted = ds.emitter.eval(si, active)
+            emitted, mis_bsdf, valid, active_next, bsdf, guidable = self._hit(
+                scene, si, ray, prev_si, prev_pdf, prev_delta, active, depth)
             L[active] += beta * mis_bsdf * emitted
-            valid = active & si.is_valid()
             escaped = active & ~si.is_valid() & (depth > 0)
-            active_next = valid & ((self.max_depth < 0) | (depth + 1 < self.max_depth))
-            bsdf = si.bsdf(ray)
-            flags = bsdf.flags()
-            guidable = (
-                active_next
-                & ~mi.has_flag(flags, mi.BSDFFlags.Delta)
-                & mi.has_flag(flags, mi.BSDFFlags.Smooth)
-            )
             wo_world = -ray.d
             dr.eval(si, wo_world, emitted, mis_bsdf, guidable, active_next, valid, escaped)
             times.mitsuba += time.perf_counter() - t0
@@ -564,74 +677,40 @@ class GuidedPath(mi.SamplingIntegrator):
             if not dr.any(active_next):
                 break
 
-            # The guide at the guidable vertices: in Mitsuba's kernels after training (the
-            # cache's vMF table), else through the library on numpy arrays.
-            native = guide.native if guide is not None and recorder is None else None
-            gmask, lane, c_full, batch = None, None, None, None
-            if native is None:
-                t2, lib = time.perf_counter(), times.library()
-                gmask = np.asarray(guidable, dtype=bool)
-                gidx = np.nonzero(gmask)[0].astype(np.uint32)
-                lane = np.full(n, 0, dtype=np.uint32)
-                lane[gidx] = np.arange(gidx.size, dtype=np.uint32)
-                c_full = np.zeros(n, dtype=np.float32)
-                if field is not None and gidx.size > 0:
-                    batch = guide.decode(
-                        _rows(si.p)[gidx], _rows(si.sh_frame.n)[gidx], _rows(wo_world)[gidx]
-                    )
-                    c_full[gidx] = batch.selection_probability()
-                times.transfers += time.perf_counter() - t2 - (times.library() - lib)
+            # The guide at the guidable vertices, through the library on numpy arrays.
+            t2, lib = time.perf_counter(), times.library()
+            gmask = np.asarray(guidable, dtype=bool)
+            gidx = np.nonzero(gmask)[0].astype(np.uint32)
+            lane = np.full(n, 0, dtype=np.uint32)
+            lane[gidx] = np.arange(gidx.size, dtype=np.uint32)
+            c_full = np.zeros(n, dtype=np.float32)
+            batch = None
+            if field is not None and gidx.size > 0:
+                batch = guide.decode(
+                    _rows(si.p)[gidx], _rows(si.sh_frame.n)[gidx], _rows(wo_world)[gidx]
+                )
+                c_full[gidx] = batch.selection_probability()
+            times.transfers += time.perf_counter() - t2 - (times.library() - lib)
 
-            # Next-event estimation.
+            # Next-event estimation and the BSDF's sample.
             t3 = time.perf_counter()
-            active_em = active_next & mi.has_flag(flags, mi.BSDFFlags.Smooth)
-            ds_em, em_weight = scene.sample_emitter_direction(
-                si, sampler.next_2d(), True, active_em
-            )
-            active_em &= ds_em.pdf != 0.0
-            s1, s2 = sampler.next_1d(), sampler.next_2d()
-            bsdf_val_em, bsdf_pdf_em, bs, bsdf_weight = bsdf.eval_pdf_sample(
-                ctx, si, si.to_local(ds_em.d), s1, s2, active_next
-            )
-            u_select, u_guide = sampler.next_1d(), sampler.next_2d()
+            nee = self._nee_and_bsdf(scene, sampler, ctx, si, bsdf, active_next)
+            active_em, ds_em, bs, bsdf_weight = nee[0], nee[1], nee[5], nee[6]
             bsdf_wo_world = si.to_world(bs.wo)
-            if native is not None:
-                jitter = mi.Vector3f(sampler.next_1d(), sampler.next_1d(), sampler.next_1d())
-                lane_k, found = native.lookup(si.p, jitter, guidable)
-                c = native.selection_probability(lane_k, found)
-                scale = self._guide_pdf_scale
-                g_em_dr = native.pdf(lane_k, found & active_em & (c > 0.0), ds_em.d) * scale
-                use_guide = found & (u_select < c)
-                wi_world = dr.select(use_guide, native.sample(lane_k, use_guide, u_guide),
-                                     bsdf_wo_world)
-                g_pdf_dr = native.pdf(lane_k, found & (c > 0.0), wi_world) * scale
-                missed = guidable & ~found
-            if native is None:
-                # The numpy path reads these; in-kernel, they fuse into the bounce's last kernel.
-                dr.eval(ds_em, em_weight, active_em, bsdf_val_em, bsdf_pdf_em, bs, bsdf_weight,
-                        u_select, u_guide, bsdf_wo_world)
+            dr.eval(*nee, bsdf_wo_world)
             times.mitsuba += time.perf_counter() - t3
 
             # Guide densities at the NEE directions, guide samples, guide densities of the
             # BSDF's samples (through the library).
-            if native is None:
-                c, g_em_dr, wi_world, g_pdf_dr, final_dir, em_np = self._guide_numpy(
-                    field, batch, lane, gmask, c_full, u_select, u_guide, active_em, ds_em,
-                    bsdf_wo_world, n, times)
+            c, g_em_dr, wi_world, g_pdf_dr, final_dir, em_np = self._guide_numpy(
+                field, batch, lane, gmask, c_full, nee[7], nee[8], active_em, ds_em,
+                bsdf_wo_world, n, times)
 
             # Direct light with the combined density; the continuation.
             t5 = time.perf_counter()
-            pdf_em = dr.select(guidable, c * g_em_dr + (1.0 - c) * bsdf_pdf_em, bsdf_pdf_em)
-            mis_em = dr.select(ds_em.delta, 1.0, _mis_weight(ds_em.pdf, pdf_em))
-            direct = bsdf_val_em * em_weight * mis_em
-            direct = dr.select(active_em, direct, 0.0)
+            direct, bsdf_val, bsdf_pdf, pdf_mix, weight, pdf = self._mixture(
+                ctx, si, bsdf, guidable, c, nee, g_em_dr, wi_world, g_pdf_dr)
             L[active_em] += beta * direct
-
-            bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(wi_world), guidable)
-            pdf_mix = c * g_pdf_dr + (1.0 - c) * bsdf_pdf
-            ok = guidable & (pdf_mix > 0.0) & dr.isfinite(pdf_mix)
-            weight = dr.select(guidable, dr.select(ok, bsdf_val / pdf_mix, 0.0), bsdf_weight)
-            pdf = dr.select(guidable, pdf_mix, bs.pdf)
             sampled_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
             # The recorder's f·|cos| and density (a delta sample: the weight over a pdf of 1).
             rec_f = dr.select(guidable, bsdf_val, dr.select(sampled_delta, bsdf_weight,
@@ -646,22 +725,10 @@ class GuidedPath(mi.SamplingIntegrator):
             prev_si = si
             prev_pdf = pdf
             prev_delta = ~guidable & sampled_delta
-
-            # Russian roulette, as Mitsuba's path.
-            beta_max = dr.max(beta)
-            # Mitsuba's path counts this vertex before its roulette.
-            rr_active = mi.Bool(depth + 1 >= self.rr_depth)
-            rr_prob = dr.minimum(beta_max * dr.square(eta), 0.95)
-            rr_continue = sampler.next_1d() < rr_prob
-            beta[rr_active] *= dr.rcp(rr_prob)
-            active = active_next & (~rr_active | rr_continue) & (beta_max != 0.0)
+            beta, active, rr_prob, rr_active = self._roulette(
+                sampler, beta, eta, mi.UInt32(depth), active_next)
             if recorder is None:
                 dr.eval(ray, beta, eta, prev_si, prev_pdf, prev_delta, active, L)
-                if native is not None and dr.any(missed):
-                    # Cells the cache lacks: their positions extend it after the pass.
-                    t7 = time.perf_counter()
-                    guide.missed.append(_rows(si.p)[np.asarray(missed, dtype=bool)].copy())
-                    times.transfers += time.perf_counter() - t7
             else:
                 dr.eval(ray, beta, eta, prev_si, prev_pdf, prev_delta, active, L, direct, rec_f,
                         rec_pdf, bsdf_pdf_rec, rr_prob, rr_active)
