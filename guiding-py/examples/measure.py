@@ -53,10 +53,17 @@ def main():
         default=0,
         help="Russian roulette from this depth in both integrators (0: the scene's)",
     )
+    ap.add_argument(
+        "--define",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a scene parameter (<default name=…>), e.g. integrator=path",
+    )
     ap.add_argument("--out", required=True)
     a = ap.parse_args()
     os.makedirs(a.out, exist_ok=True)
-    scene = mi.load_file(a.scene)
+    scene = mi.load_file(a.scene, **dict(d.split("=", 1) for d in a.define))
     max_depth, rr_depth = path_depths(scene)
     if a.rr_depth > 0:
         rr_depth = a.rr_depth

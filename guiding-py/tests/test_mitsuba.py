@@ -14,8 +14,7 @@ family-wise false-alarm rate of 1 % over the scene's blocks × channels.
 
 Negative control (committed): the guide's density scaled by 1.5 in the MIS weights
 (``GuidedPath._guide_pdf_scale``, a test hook, applied in-kernel after training) must be
-rejected on the Cornell box, with the preset selection probability (which the unbiasedness
-tests cover too).
+rejected on the Cornell box.
 """
 
 import os
@@ -97,7 +96,7 @@ class Unbiased(unittest.TestCase):
             self.cache[(name, width)] = (scene, max_depth, seed_blocks(scene, path))
         return self.cache[(name, width)]
 
-    def check(self, name, width, scale=1.0, native=True, fit=True):
+    def check(self, name, width, scale=1.0, native=True, fit=False):
         scene, max_depth, ref = self.path_blocks(name, width)
         guided = mi.load_dict(
             {"type": "guided_path", "max_depth": max_depth, "threads": 1, "native_guide": native,
@@ -110,7 +109,7 @@ class Unbiased(unittest.TestCase):
         self.assertGreater(guided.stats["field"].steps, 0, "the guide never trained")
         return p, t, level
 
-    def assert_agrees(self, name, width, native=True, fit=True):
+    def assert_agrees(self, name, width, native=True, fit=False):
         p, t, level = self.check(name, width, native=native, fit=fit)
         print(f"\n{name}: smallest p {p.min():.2e} of {p.size} tests (level {level:.2e}), "
               f"worst |t| {np.abs(t).max():.2f}")
@@ -127,16 +126,15 @@ class Unbiased(unittest.TestCase):
     def test_veach_mis(self):
         self.assert_agrees("veach-mis", 48)
 
-    def test_cornell_box_with_the_preset_selection(self):
-        """The preset selection probability in every cell (no fit): the guide samples far
-        more of the Cornell box's vertices than where the fit leaves it on."""
-        self.assert_agrees("cornell-box", 32, fit=False)
+    def test_cornell_box_with_a_fitted_selection(self):
+        """The selection probability fitted per cell (``fit_selection``)."""
+        self.assert_agrees("cornell-box", 32, fit=True)
 
     def test_a_scaled_guide_pdf_is_caught(self):
-        # With the preset selection probability: on the Cornell box the fit turns the guide
-        # down where it does not pay, and with it the scaled pdf's effect (0 of 48 rejected,
-        # worst t -3.3, with the fit).
-        p, t, level = self.check("cornell-box", 32, scale=1.5, fit=False)
+        # With the preset selection probability (the default): on the Cornell box the fit
+        # turns the guide down where it does not pay, and with it the scaled pdf's effect (0 of
+        # 48 rejected, worst t -3.3, with the fit).
+        p, t, level = self.check("cornell-box", 32, scale=1.5)
         rejected = int((p < level).sum())
         print(f"\nscaled guide pdf: {rejected} of {p.size} block-channel tests rejected, "
               f"worst t {t.flat[np.argmax(np.abs(t))]:.2f}")
@@ -149,7 +147,8 @@ class Combined(unittest.TestCase):
         """With a box filter the developed image is the combiner's weighted mean, and the
         cache's selection was fitted to the last training pass."""
         scene, max_depth = load_small("cornell-box", 32)
-        guided = mi.load_dict({"type": "guided_path", "max_depth": max_depth, "threads": 1})
+        guided = mi.load_dict({"type": "guided_path", "max_depth": max_depth, "threads": 1,
+                               "fit_selection": True})
         img = np.array(mi.render(scene, integrator=guided, spp=SPP, seed=3))
         c = guided.combination
         self.assertIsNotNone(c)
@@ -161,7 +160,7 @@ class Combined(unittest.TestCase):
         fit = guided.stats["guide_cache"]["selection_fit"]
         self.assertGreater(fit["samples_used"], 0)
         off = mi.load_dict({"type": "guided_path", "max_depth": max_depth, "threads": 1,
-                            "combine_passes": False, "fit_selection": False})
+                            "combine_passes": False})
         mi.render(scene, integrator=off, spp=SPP, seed=3)
         self.assertIsNone(off.combination)
         self.assertIsNone(off.stats["guide_cache"]["selection_fit"])
