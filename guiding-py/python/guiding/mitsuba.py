@@ -163,19 +163,23 @@ class _NativeVmf:
             return dr.select(found, self.selection, 0.0)
         return dr.select(found, dr.gather(mi.Float, self.lane_selection, lane, found), 0.0)
 
-    def _lobe(self, r, k, lane, active):
-        return dr.gather(mi.Float, self.rows[r][k], lane, active)
+    def lobes(self, lane, active):
+        """The mixture of ``lane``: per lobe its weight, mean x / y / z, κ, normaliser and
+        ``1 − e^{−2κ}``, gathered once (the pdfs and the sample of a vertex share them)."""
+        return [[dr.gather(mi.Float, self.rows[r][k], lane, active) for r in range(7)]
+                for k in range(self.k)]
 
-    def pdf(self, lane, active, d):
+    @staticmethod
+    def pdf(lobes, active, d):
         """``Σ_k w_k · norm_k · exp(κ_k (μ_k·d − 1))`` (0 where not ``active``)."""
         total = mi.Float(0.0)
-        for k in range(self.k):
-            w, mx, my, mz, kappa, norm = (self._lobe(r, k, lane, active) for r in range(6))
+        for w, mx, my, mz, kappa, norm, _ in lobes:
             cos = mx * d.x + my * d.y + mz * d.z
             total += w * norm * dr.exp(kappa * (cos - 1.0))
         return dr.select(active, total, 0.0)
 
-    def sample(self, lane, active, u):
+    @staticmethod
+    def sample(lobes, u):
         """A direction of the mixture: ``u.x`` picks the lobe and, rescaled, its ``cos θ``;
         ``u.y`` the azimuth."""
         cdf = mi.Float(0.0)
@@ -184,14 +188,12 @@ class _NativeVmf:
         kappa = mi.Float(0.0)
         ome = mi.Float(0.0)
         v = mi.Float(u.x)
-        for k in range(self.k):
-            w = self._lobe(0, k, lane, active)
-            last = k == self.k - 1
+        for k, (w, mx, my, mz, kap, _, om) in enumerate(lobes):
+            last = k == len(lobes) - 1
             take = ~chosen & (((u.x < cdf + w) & (w > 0.0)) | last)
-            mean = dr.select(take, mi.Vector3f(*(self._lobe(r, k, lane, active)
-                                                 for r in (1, 2, 3))), mean)
-            kappa = dr.select(take, self._lobe(4, k, lane, active), kappa)
-            ome = dr.select(take, self._lobe(6, k, lane, active), ome)
+            mean = dr.select(take, mi.Vector3f(mx, my, mz), mean)
+            kappa = dr.select(take, kap, kappa)
+            ome = dr.select(take, om, ome)
             v = dr.select(take, dr.clip((u.x - cdf) / dr.maximum(w, 1e-30), 0.0, 0.99999994), v)
             chosen |= take
             cdf += w
@@ -632,11 +634,11 @@ class GuidedPath(mi.SamplingIntegrator):
             lane, found = native.lookup(si.p, jitter, guidable)
             dr.scatter(missed_at, si.p, slot, guidable & ~found)
             c = native.selection_probability(lane, found)
-            g_em = native.pdf(lane, found & active_em & (c > 0.0), ds_em.d) * scale
+            lobes = native.lobes(lane, found & (c > 0.0))
+            g_em = native.pdf(lobes, found & active_em & (c > 0.0), ds_em.d) * scale
             use_guide = found & (u_select < c)
-            wi_world = dr.select(use_guide, native.sample(lane, use_guide, u_guide),
-                                 si.to_world(bs.wo))
-            g_pdf = native.pdf(lane, found & (c > 0.0), wi_world) * scale
+            wi_world = dr.select(use_guide, native.sample(lobes, u_guide), si.to_world(bs.wo))
+            g_pdf = native.pdf(lobes, found & (c > 0.0), wi_world) * scale
             direct, _, _, _, weight, pdf = self._mixture(ctx, si, bsdf, guidable, c, nee, g_em,
                                                          wi_world, g_pdf)
             L += beta * direct
