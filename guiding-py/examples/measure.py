@@ -6,9 +6,11 @@
 Per seed: ``guided_path`` at ``--spp``, ``path`` at ``--spp`` (equal spp), ``path`` with
 the spp that fills the guided render's wall time (equal time, from ``path``'s measured seconds
 per spp), and ``guided_path`` with ``guiding`` off at ``--spp`` (what the Python wavefront loop
-costs by itself). The reference is ``path`` at ``--reference-spp`` (cached in the output directory).
-relMSE is host-demo's (``host-demo compare``): the channel mean of ``(I − R)² / (R² + 0.01)``
-per pixel, the highest 0.1 % of pixels dropped. Writes ``results.json`` and prints a table.
+costs by itself). With ``--timeout T`` the guided render is given ``T`` seconds (its
+``timeout``) instead of ``--spp`` passes, and equal spp means its pass count. The reference is
+``path`` at ``--reference-spp`` (cached in the output directory). relMSE is host-demo's
+(``host-demo compare``): the channel mean of ``(I − R)² / (R² + 0.01)`` per pixel, the highest
+0.1 % of pixels dropped. Writes ``results.json`` and prints a table.
 """
 
 import argparse
@@ -60,6 +62,13 @@ def main():
         metavar="NAME=VALUE",
         help="a scene parameter (<default name=…>), e.g. integrator=path",
     )
+    ap.add_argument(
+        "--timeout",
+        type=float,
+        default=0.0,
+        help="guided_path renders for this many seconds (its timeout) instead of --spp passes;"
+        " equal spp then means its pass count",
+    )
     ap.add_argument("--out", required=True)
     a = ap.parse_args()
     os.makedirs(a.out, exist_ok=True)
@@ -95,24 +104,26 @@ def main():
                 "type": "guided_path",
                 "guide": a.guide,
                 "selection_probability": a.selection_probability,
+                "timeout": a.timeout if a.timeout > 0 else -1.0,
                 **depths,
             }
         )
-        g_img, g_s = render(scene, guided, a.spp, seed)
-        p_img, p_s = render(scene, path, a.spp, seed)
+        g_img, g_s = render(scene, guided, 1_000_000 if a.timeout > 0 else a.spp, seed)
+        spp = guided.stats["spp"]
+        p_img, p_s = render(scene, path, spp, seed)
         loop = mi.load_dict(
             {"type": "guided_path", "guiding": False, **depths}
         )
-        l_img, l_s = render(scene, loop, a.spp, 2000 + seed)
-        spp_eq = max(1, int(round(g_s / (p_s / a.spp))))
+        l_img, l_s = render(scene, loop, spp, 2000 + seed)
+        spp_eq = max(1, int(round(g_s / (p_s / spp))))
         t_img, t_s = render(scene, path, spp_eq, 1000 + seed)
         rows.append(
             {
                 "seed": seed,
-                "guided": {"spp": a.spp, "seconds": g_s, "relmse": relmse(g_img, ref)},
-                "path_equal_spp": {"spp": a.spp, "seconds": p_s, "relmse": relmse(p_img, ref)},
+                "guided": {"spp": spp, "seconds": g_s, "relmse": relmse(g_img, ref)},
+                "path_equal_spp": {"spp": spp, "seconds": p_s, "relmse": relmse(p_img, ref)},
                 "path_equal_time": {"spp": spp_eq, "seconds": t_s, "relmse": relmse(t_img, ref)},
-                "loop_without_guide": {"spp": a.spp, "seconds": l_s, "relmse": relmse(l_img, ref)},
+                "loop_without_guide": {"spp": spp, "seconds": l_s, "relmse": relmse(l_img, ref)},
                 "guided_stats": {
                     k: (v if isinstance(v, (int, float, dict, type(None))) else repr(v))
                     for k, v in guided.stats.items()
@@ -130,6 +141,7 @@ def main():
     summary = {
         "scene": a.scene,
         "spp": a.spp,
+        "timeout": a.timeout,
         "seeds": a.seeds,
         "reference_spp": a.reference_spp,
         "max_depth": max_depth,

@@ -166,5 +166,23 @@ class Combined(unittest.TestCase):
         self.assertIsNone(off.stats["guide_cache"]["selection_fit"])
 
 
+@unittest.skipUnless(HAVE_MITSUBA, "mitsuba / scipy not installed")
+class Timeout(unittest.TestCase):
+    def test_a_timeout_ends_the_render_and_the_training_by_time(self):
+        """``timeout``: far fewer passes than the spp asked for, at least one after training,
+        and the schedule's training phase a share of the time, not of the passes."""
+        scene, max_depth = load_small("cornell-box", 32)
+        guided = mi.load_dict({"type": "guided_path", "max_depth": max_depth, "threads": 1,
+                               "timeout": 1.5})
+        img = np.array(mi.render(scene, integrator=guided, spp=100_000, seed=1))
+        st = guided.stats
+        self.assertLess(st["spp"], 100_000)
+        self.assertGreater(st["spp"], st["training_passes"])
+        self.assertGreater(st["training_passes"], 0)
+        self.assertGreater(st["field"].steps, 0)
+        self.assertTrue(np.all(np.isfinite(img)))
+        self.assertEqual(sum(g.passes for g in guided.combination.groups), st["spp"])
+
+
 if __name__ == "__main__":
     unittest.main()

@@ -29,7 +29,9 @@ absent), ``selection_probability`` (the library's preset when absent), ``guide_c
 evaluated in Dr.Jit, with no transfer to numpy; a vertex whose cells are empty is sampled by
 its BSDF alone and its position extends the cache after the pass), ``combine_passes`` (default
 ``true``; ``false``: all passes splatted into one block, as ``path`` splats its samples),
-``fit_selection`` (default ``false``; ``true``: the selection probability fitted per cell to
+``timeout`` (seconds, as Mitsuba's integrators: no pass starts after it, and ``spp`` passes at
+most; the library's schedule then trains for its share of the time,
+not of the passes), ``fit_selection`` (default ``false``; ``true``: the selection probability fitted per cell to
 the last training pass's paths, ``GuideCache.fit_selection``, as host-demo does; off by default
 because with Mitsuba's roulette the fit is dominated by a few survivors' ``1/q`` weights: on the
 door at 64 spp its global value came out 0.8, 0.0 and 0.7 on three seeds, and relMSE 0.89x
@@ -378,6 +380,8 @@ class GuidedPath(mi.SamplingIntegrator):
         self.train_fraction = None if fraction < 0 else float(fraction)
         self.guiding = props.get("guiding", True)
         self.threads = props.get("threads", 0)
+        # Mitsuba's integrators' time limit (seconds; <= 0: none).
+        self.timeout = float(props.get("timeout", -1.0))
         self.guide_cache = props.get("guide_cache", True)
         self.native_guide = props.get("native_guide", True)
         self.combine_passes = props.get("combine_passes", True)
@@ -420,7 +424,8 @@ class GuidedPath(mi.SamplingIntegrator):
                 threads=self.threads,
                 selection_probability=self.selection_probability,
             )
-            schedule = Schedule(spp=spp, train_fraction=self.train_fraction)
+            budget = {"seconds": self.timeout} if self.timeout > 0 else {"spp": spp}
+            schedule = Schedule(train_fraction=self.train_fraction, **budget)
             recorder = BatchRecorder()
             use_cache = self.guide_cache and self.target == "radiance"
             fit = recorder if use_cache and self.fit_selection else None
@@ -434,10 +439,12 @@ class GuidedPath(mi.SamplingIntegrator):
             block = film.create_block() if passes is None else None
             start = time.perf_counter()
             training_passes = 0
+            passes_done = 0
             for p in range(spp):
-                train = schedule is not None and schedule.in_training_phase(
-                    time.perf_counter() - start, p
-                )
+                elapsed = time.perf_counter() - start
+                if self.timeout > 0 and p > 0 and elapsed >= self.timeout:
+                    break
+                train = schedule is not None and schedule.in_training_phase(elapsed, p)
                 if schedule is not None and not train and not schedule.training_over:
                     schedule.end_training()
                 if guide is not None:
@@ -456,6 +463,7 @@ class GuidedPath(mi.SamplingIntegrator):
                 traced = time.perf_counter() - t0
                 if passes is not None:
                     passes.end(p if train else _PassImages.AFTER_TRAINING)
+                passes_done += 1
                 if guide is not None:
                     guide.end_pass()
                 if train:
@@ -472,7 +480,7 @@ class GuidedPath(mi.SamplingIntegrator):
                 passes.develop_into(film)
                 self.combination = passes.combination
             self.stats = {
-                "spp": spp,
+                "spp": passes_done,
                 "training_passes": training_passes,
                 "seconds": time.perf_counter() - start,
                 "time_split": times.as_dict(),
