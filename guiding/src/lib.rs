@@ -96,6 +96,7 @@ pub mod field;
 pub mod file;
 mod models;
 pub mod recorder;
+pub mod roulette;
 pub mod schedule;
 pub mod trial;
 
@@ -113,6 +114,7 @@ pub use guiding_core::model::QueryPoint;
 pub use guiding_core::optim::AdamConfig;
 pub use guiding_core::sample::{Rejection, TrainingSample};
 pub use recorder::{BatchRecorder, Continuation, PathRecorder, PathVertex};
+pub use roulette::{continuation_count, WeightWindow};
 pub use schedule::{Budget, ScheduleOptions, ScheduleReport, StepRule, TrainingSchedule};
 pub use trial::{GuideTrial, TrialArm, TrialOptions, TrialVerdict};
 
