@@ -30,9 +30,9 @@ evaluated in Dr.Jit, with no transfer to numpy; a vertex whose cells are empty i
 its BSDF alone and its position extends the cache after the pass), ``combine_passes`` (default
 ``true``; ``false``: all passes splatted into one block, as ``path`` splats its samples),
 ``timeout`` (seconds, as Mitsuba's integrators: no pass starts after it, and ``spp`` passes at
-most; the library's schedule then trains for its share of the time,
-not of the passes), ``fit_selection`` (default ``false``; ``true``: the selection probability fitted per cell to
-the last training pass's paths, ``GuideCache.fit_selection``, as host-demo does; off by default
+most; the library's schedule then trains for its share of the time, not of the passes),
+``fit_selection`` (default ``false``; ``true``: the selection probability fitted per cell to the
+last training pass's paths, ``GuideCache.fit_selection``, as host-demo does; off by default
 because with Mitsuba's roulette the fit is dominated by a few survivors' ``1/q`` weights: on the
 door at 64 spp its global value came out 0.8, 0.0 and 0.7 on three seeds, and relMSE 0.89x
 ``path``'s instead of 0.66x), ``guiding`` (``false``: the same wavefront loop without a guide,
@@ -44,6 +44,7 @@ not combined), and ``integrator.stats`` says what the render did and where its t
 """
 
 import time
+from typing import NamedTuple
 
 import drjit as dr
 import mitsuba as mi
@@ -63,6 +64,20 @@ def _path_start(ray):
     previous interaction, its density and whether it was a delta sample, the ray."""
     return (mi.Spectrum(1.0), mi.Spectrum(0.0), mi.Float(1.0), mi.Bool(True),
             dr.zeros(mi.Interaction3f), mi.Float(1.0), mi.Bool(True), mi.Ray3f(ray))
+
+
+class _Nee(NamedTuple):
+    """What ``GuidedPath._nee_and_bsdf`` draws at a bounce's vertices."""
+
+    active_em: object  # mi.Bool: vertices with an emitter sample
+    ds_em: object  # mi.DirectionSample3f: the emitter sample
+    em_weight: object  # mi.Spectrum: its radiance over its density
+    bsdf_val_em: object  # mi.Spectrum: the BSDF (× cos) towards it
+    bsdf_pdf_em: object  # mi.Float: the BSDF's density of it
+    bs: object  # mi.BSDFSample3f: the BSDF's own sample
+    bsdf_weight: object  # mi.Spectrum: that sample's weight
+    u_select: object  # mi.Float: the guide-or-BSDF choice
+    u_guide: object  # mi.Point2f: the guide's sample
 
 
 def _vec3(rows):
@@ -333,8 +348,8 @@ class _PassImages:
         c = self.combination = self.combiner.combine()
         n = self.combiner.passes
         total = sum(self.sums.values())
+        block = self.film.create_block()
         if not c.fell_back:
-            block = self.film.create_block()
             b = block.border_size() if block.has_border() else 0
             rows, cols = total.shape[0], total.shape[1]
             y, x = np.mgrid[0:rows, 0:cols]
@@ -345,8 +360,6 @@ class _PassImages:
                 scale = np.where(half == 0, g.pass_weight[1], g.pass_weight[0]) * n
                 colour += scale[..., None] * self.sums[g.group][..., :-1]
             total = np.concatenate([colour, total[..., -1:]], axis=-1)
-        else:
-            block = self.film.create_block()
         combined = mi.ImageBlock(
             mi.TensorXf(total.astype(np.float32)),
             block.offset(),
@@ -571,23 +584,22 @@ class GuidedPath(mi.SamplingIntegrator):
             ctx, si, si.to_local(ds_em.d), s1, s2, active_next
         )
         u_select, u_guide = sampler.next_1d(), sampler.next_2d()
-        return (active_em, ds_em, em_weight, bsdf_val_em, bsdf_pdf_em, bs, bsdf_weight,
-                u_select, u_guide)
+        return _Nee(active_em, ds_em, em_weight, bsdf_val_em, bsdf_pdf_em, bs, bsdf_weight,
+                    u_select, u_guide)
 
     @staticmethod
     def _mixture(ctx, si, bsdf, guidable, c, nee, g_em, wi_world, g_pdf):
         """Direct light weighed against the mixture ``p = c·p_guide + (1 − c)·p_bsdf``, and the
         continuation ``wi_world`` with its weight and density (the BSDF's own sample where the
         vertex is not guidable)."""
-        active_em, ds_em, em_weight, bsdf_val_em, bsdf_pdf_em, bs, bsdf_weight = nee[:7]
-        pdf_em = dr.select(guidable, c * g_em + (1.0 - c) * bsdf_pdf_em, bsdf_pdf_em)
-        mis_em = dr.select(ds_em.delta, 1.0, _mis_weight(ds_em.pdf, pdf_em))
-        direct = dr.select(active_em, bsdf_val_em * em_weight * mis_em, 0.0)
+        pdf_em = dr.select(guidable, c * g_em + (1.0 - c) * nee.bsdf_pdf_em, nee.bsdf_pdf_em)
+        mis_em = dr.select(nee.ds_em.delta, 1.0, _mis_weight(nee.ds_em.pdf, pdf_em))
+        direct = dr.select(nee.active_em, nee.bsdf_val_em * nee.em_weight * mis_em, 0.0)
         bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(wi_world), guidable)
         pdf_mix = c * g_pdf + (1.0 - c) * bsdf_pdf
         ok = guidable & (pdf_mix > 0.0) & dr.isfinite(pdf_mix)
-        weight = dr.select(guidable, dr.select(ok, bsdf_val / pdf_mix, 0.0), bsdf_weight)
-        pdf = dr.select(guidable, pdf_mix, bs.pdf)
+        weight = dr.select(guidable, dr.select(ok, bsdf_val / pdf_mix, 0.0), nee.bsdf_weight)
+        pdf = dr.select(guidable, pdf_mix, nee.bs.pdf)
         return direct, bsdf_val, bsdf_pdf, pdf_mix, weight, pdf
 
     def _roulette(self, sampler, beta, eta, depth, active_next):
@@ -637,16 +649,17 @@ class GuidedPath(mi.SamplingIntegrator):
                 scene, si, ray, prev_si, prev_pdf, prev_delta, active, depth)
             L += dr.select(active, beta * mis_bsdf * emitted, 0.0)
             nee = self._nee_and_bsdf(scene, sampler, ctx, si, bsdf, active_next)
-            active_em, ds_em, bs, u_select, u_guide = nee[0], nee[1], nee[5], nee[7], nee[8]
+            bs = nee.bs
             jitter = mi.Vector3f(sampler.next_1d(), sampler.next_1d(), sampler.next_1d())
             lane, found = native.lookup(si.p, jitter, guidable)
             dr.scatter(missed_at, si.p, slot, guidable & ~found)
             c = native.selection_probability(lane, found)
-            lobes = native.lobes(lane, found & (c > 0.0))
-            g_em = native.pdf(lobes, found & active_em & (c > 0.0), ds_em.d) * scale
-            use_guide = found & (u_select < c)
-            wi_world = dr.select(use_guide, native.sample(lobes, u_guide), si.to_world(bs.wo))
-            g_pdf = native.pdf(lobes, found & (c > 0.0), wi_world) * scale
+            guided = found & (c > 0.0)
+            lobes = native.lobes(lane, guided)
+            g_em = native.pdf(lobes, guided & nee.active_em, nee.ds_em.d) * scale
+            use_guide = guided & (nee.u_select < c)
+            wi_world = dr.select(use_guide, native.sample(lobes, nee.u_guide), si.to_world(bs.wo))
+            g_pdf = native.pdf(lobes, guided, wi_world) * scale
             direct, _, _, _, weight, pdf = self._mixture(ctx, si, bsdf, guidable, c, nee, g_em,
                                                          wi_world, g_pdf)
             L += beta * direct
@@ -709,7 +722,7 @@ class GuidedPath(mi.SamplingIntegrator):
             # Next-event estimation and the BSDF's sample.
             t3 = time.perf_counter()
             nee = self._nee_and_bsdf(scene, sampler, ctx, si, bsdf, active_next)
-            active_em, ds_em, bs, bsdf_weight = nee[0], nee[1], nee[5], nee[6]
+            active_em, ds_em, bs, bsdf_weight = nee.active_em, nee.ds_em, nee.bs, nee.bsdf_weight
             bsdf_wo_world = si.to_world(bs.wo)
             dr.eval(*nee, bsdf_wo_world)
             times.mitsuba += time.perf_counter() - t3
@@ -717,7 +730,7 @@ class GuidedPath(mi.SamplingIntegrator):
             # Guide densities at the NEE directions, guide samples, guide densities of the
             # BSDF's samples (through the library).
             c, g_em_dr, wi_world, g_pdf_dr, final_dir, em_np = self._guide_numpy(
-                field, batch, lane, gmask, c_full, nee[7], nee[8], active_em, ds_em,
+                field, batch, lane, gmask, c_full, nee.u_select, nee.u_guide, active_em, ds_em,
                 bsdf_wo_world, n, times)
 
             # Direct light with the combined density; the continuation.
