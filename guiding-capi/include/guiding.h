@@ -172,6 +172,13 @@ typedef struct PgDistributions PgDistributions;
 typedef struct PgField PgField;
 
 /**
+ * A radiance grid (opaque), internally synchronised: estimates may run from many threads at
+ * once; adding takes it exclusively. Create with `pg_radiance_grid_new`, release with
+ * `pg_radiance_grid_release`.
+ */
+typedef struct PgRadianceGrid PgRadianceGrid;
+
+/**
  * A path recorder (opaque). Not synchronised: use one per render thread.
  * Create with `pg_recorder_new`, release with `pg_recorder_release`.
  */
@@ -649,6 +656,87 @@ typedef struct PgScheduleReport {
 } PgScheduleReport;
 
 /**
+ * The weight window's settings (`guiding::WeightWindow`).
+ */
+typedef struct PgWeightWindow {
+    /**
+     * `s > 1`: the window's upper bound over its lower bound (5).
+     */
+    float ratio;
+    /**
+     * The most continuations one vertex may spawn, `≥ 1` (8).
+     */
+    uint32_t max_split;
+    /**
+     * The least survival probability of roulette, in `(0, 1]` (0.05).
+     */
+    float min_survival;
+} PgWeightWindow;
+
+/**
+ * What the window decided for one path at one vertex (`guiding::Decision`).
+ */
+typedef struct PgDecision {
+    /**
+     * Continuations to trace from the vertex (0: the path ends here).
+     */
+    uint32_t count;
+    /**
+     * The factor on each continuation's throughput.
+     */
+    float weight;
+} PgDecision;
+
+/**
+ * Options of a `PgRadianceGrid` (`guiding::GridOptions`) and the box it covers.
+ */
+typedef struct PgRadianceGridArgs {
+    /**
+     * The scene's bounding box (finite, `min ≤ max`); positions outside fall into the
+     * nearest cell.
+     */
+    float bounds_min[3];
+    /**
+     * See `bounds_min`.
+     */
+    float bounds_max[3];
+    /**
+     * Fine cells along the longest side, `≥ 1` (32).
+     */
+    uint32_t resolution;
+    /**
+     * Coarse cells along the longest side, `≥ 1` (8).
+     */
+    uint32_t coarse_resolution;
+    /**
+     * Estimates a cell's own mean needs to weigh as much as its parent's, `≥ 1` (16).
+     */
+    uint32_t prior_weight;
+} PgRadianceGridArgs;
+
+/**
+ * What a `PgRadianceGrid` holds (`guiding::GridStats`).
+ */
+typedef struct PgRadianceGridStats {
+    /**
+     * Estimates added.
+     */
+    uint64_t samples;
+    /**
+     * Estimates refused (a non-finite position, a negative or non-finite radiance).
+     */
+    uint64_t rejected;
+    /**
+     * Fine cells with at least `prior_weight` estimates.
+     */
+    uint64_t fine_cells;
+    /**
+     * Coarse cells with at least `prior_weight` estimates.
+     */
+    uint64_t coarse_cells;
+} PgRadianceGridStats;
+
+/**
  * Neural Parametric Mixtures (Dong et al. 2023): 8 vMF lobes.
  */
 #define PG_REPRESENTATION_NPM 0
@@ -1119,6 +1207,29 @@ enum PgStatus pg_recorder_flush_into(struct PgRecorder *recorder,
                                      size_t *out_count);
 
 /**
+ * Whether the recorder keeps, for every vertex whose path went on, its reflected radiance
+ * `L̃_r = D + β L̃_i` (the path estimate of the light it reflects towards the previous vertex,
+ * see `guiding::recorder`), for `pg_recorder_flush_reflected_into`; off by default, and
+ * turning it off drops what was kept.
+ *
+ * # Safety
+ * `recorder` must be NULL or a live handle.
+ */
+enum PgStatus pg_recorder_keep_reflected(struct PgRecorder *recorder, bool keep);
+
+/**
+ * Adds the reflected radiance the finished paths kept to `grid` and clears it; writes how
+ * many estimates the grid kept to `*out_count` unless it is NULL. The training samples stay.
+ *
+ * # Safety
+ * `recorder` NULL or a live handle; `grid` NULL or a live handle; `out_count` NULL or
+ * writable.
+ */
+enum PgStatus pg_recorder_flush_reflected_into(struct PgRecorder *recorder,
+                                               const struct PgRadianceGrid *grid,
+                                               uint64_t *out_count);
+
+/**
  * Fills `args` with the library's defaults (Rust `ScheduleOptions::DEFAULT`: training
  * fraction 0.2, `PG_STEP_RULE_TIME_SHARE` with share 1/3, updates every 0.25 s of tracing, a
  * first piece of 1/32 pass, at most 4 epochs per update) and a budget of `NaN` seconds, which
@@ -1238,6 +1349,127 @@ enum PgStatus pg_schedule_report(const struct PgSchedule *schedule, struct PgSch
 enum PgStatus pg_field_train_scheduled(struct PgField *field,
                                        struct PgSchedule *schedule,
                                        struct PgUpdateReport *report);
+
+/**
+ * Fills `*window` with the library's defaults (`ratio` 5, `max_split` 8, `min_survival`
+ * 0.05).
+ *
+ * # Safety
+ * `window` must be NULL or writable.
+ */
+enum PgStatus pg_weight_window_set_defaults(struct PgWeightWindow *window);
+
+/**
+ * The window's decision for `n` path vertices: path `i` has throughput
+ * `beta[3i..3i+3]` (RGB), the vertex reflects `radiance[3i..3i+3]` towards it (an estimate
+ * such as `pg_radiance_grid_estimate`'s; a negative or non-finite channel means none), its
+ * pixel is estimated at `pixel[i]` (luminance; `≤ 0` or non-finite means none), `u[i]` is a
+ * uniform number in `[0, 1]` and `room[i]` how many more continuations the path may spawn.
+ * Writes `out[i]`: `m = Y(β ⊙ L̂) / Î` outside the window `[2/(1+s), 2s/(1+s)]` (1 inside it
+ * and where an estimate is missing) clamped to `[min_survival, max_split]`; below 1 one
+ * continuation of weight `1/m` if `u < m`, else none; from 1 on
+ * `k = min(⌊m⌋ + [u < m − ⌊m⌋], 1 + room)` continuations of weight `1/k`.
+ *
+ * Returns `PG_INVALID_ARGUMENT` (outputs untouched) for window settings out of range or a
+ * `u` outside `[0, 1]`.
+ *
+ * # Safety
+ * `window` NULL or readable; each array NULL or of the stated length.
+ */
+enum PgStatus pg_weight_window_decide(const struct PgWeightWindow *window,
+                                      size_t n,
+                                      const float *beta,
+                                      const float *radiance,
+                                      const float *pixel,
+                                      const float *u,
+                                      const uint32_t *room,
+                                      struct PgDecision *out);
+
+/**
+ * Fills `*args` with the library's defaults (32 fine and 8 coarse cells along the longest
+ * side, prior weight 16) and a box of NaN, which the caller must set.
+ *
+ * # Safety
+ * `args` must be NULL or writable.
+ */
+enum PgStatus pg_radiance_grid_args_set_defaults(struct PgRadianceGridArgs *args);
+
+/**
+ * Creates an empty radiance grid over `args`' box in `*out` (NULL on failure).
+ *
+ * Returns `PG_INVALID_ARGUMENT` for a box that is not finite with `min ≤ max`, or an option
+ * of 0.
+ *
+ * # Safety
+ * `args` NULL or readable; `out` NULL or writable.
+ */
+enum PgStatus pg_radiance_grid_new(const struct PgRadianceGridArgs *args,
+                                   struct PgRadianceGrid **out);
+
+/**
+ * Releases a radiance grid (NULL: no-op).
+ *
+ * # Safety
+ * `grid` must be NULL or a live handle that no other call is using.
+ */
+void pg_radiance_grid_release(struct PgRadianceGrid *grid);
+
+/**
+ * Adds `n` estimates of reflected radiance: `radiance[3i..3i+3]` (RGB) leaving
+ * `positions[3i..3i+3]` (shading normal `normals[3i..3i+3]`, zeros if unknown). Estimates
+ * with a non-finite position or a negative or non-finite radiance are refused and counted;
+ * writes how many were kept to `*kept` unless it is NULL.
+ *
+ * # Safety
+ * `grid` NULL or a live handle; each array NULL or of the stated length; `kept` NULL or
+ * writable.
+ */
+enum PgStatus pg_radiance_grid_add(const struct PgRadianceGrid *grid,
+                                   size_t n,
+                                   const float *positions,
+                                   const float *normals,
+                                   const float *radiance,
+                                   uint64_t *kept);
+
+/**
+ * The grid's reflected radiance at `n` points (`positions[3i..3i+3]`, shading normals
+ * `normals[3i..3i+3]`) into `out[3i..3i+3]` (RGB): the fine cell's mean shrunk towards the
+ * coarse cell's, shrunk towards the global mean; `-1, -1, -1` where there is none (an empty
+ * grid, a non-finite position), which `pg_weight_window_decide` reads as missing.
+ *
+ * # Safety
+ * `grid` NULL or a live handle; each array NULL or of the stated length.
+ */
+enum PgStatus pg_radiance_grid_estimate(const struct PgRadianceGrid *grid,
+                                        size_t n,
+                                        const float *positions,
+                                        const float *normals,
+                                        float *out);
+
+/**
+ * What the grid holds, into `*out`.
+ *
+ * # Safety
+ * `grid` NULL or a live handle; `out` NULL or writable.
+ */
+enum PgStatus pg_radiance_grid_stats(const struct PgRadianceGrid *grid,
+                                     struct PgRadianceGridStats *out);
+
+/**
+ * The pixel estimates `Î` of a `width × height` image (row-major) from its running sums
+ * `sum[3p..3p+3]` (RGB, double) over `passes` passes: the luminance of the mean,
+ * box-filtered over `(2·radius + 1)²` pixels (clipped at the border), into `out[p]`; all 0
+ * when `passes` is 0. Returns `PG_INVALID_ARGUMENT` if `width × height` overflows.
+ *
+ * # Safety
+ * `sum` NULL or of `3 · width · height` doubles; `out` NULL or of `width · height` floats.
+ */
+enum PgStatus pg_pixel_estimates(uint32_t width,
+                                 uint32_t height,
+                                 const double *sum,
+                                 uint32_t passes,
+                                 uint32_t radius,
+                                 float *out);
 
 #ifdef __cplusplus
 }  // extern "C"

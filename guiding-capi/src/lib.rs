@@ -80,7 +80,7 @@
 //! # Ownership
 //!
 //! - Each handle written to an `out` pointer (`PgField`, `PgDistributions`,
-//!   `PgRecorder`, `PgSchedule`) belongs to the caller, who releases it exactly once with
+//!   `PgRecorder`, `PgSchedule`, `PgRadianceGrid`) belongs to the caller, who releases it exactly once with
 //!   its `*_release` function (NULL is a no-op). On failure the `out`
 //!   pointer is set to NULL. Using a handle after releasing it is undefined
 //!   behaviour, as with `free`.
@@ -103,6 +103,9 @@
 //! - `PgRecorder` is not synchronised: one per render thread.
 //! - `PgSchedule` is not synchronised: the render loop's thread uses it (any
 //!   thread, one call at a time).
+//! - `PgRadianceGrid` is internally synchronised: `pg_radiance_grid_estimate`
+//!   and `_stats` may run from many threads at once; `pg_radiance_grid_add`
+//!   and `pg_recorder_flush_reflected_into` take it exclusively.
 //! - A `*_release` must not overlap any other use of its handle.
 //! - The field's own worker threads (`PgFieldArgs.threads`, 0 = all cores)
 //!   run updates and batched queries; set `threads = 1` when the renderer
@@ -126,11 +129,14 @@ pub mod recorder;
 
 pub mod schedule;
 
+pub mod roulette;
+
 mod ptr;
 
 pub use distributions::*;
 pub use field::*;
 pub use recorder::*;
+pub use roulette::*;
 pub use schedule::*;
 pub use status::PgStatus;
 pub use types::*;
@@ -145,6 +151,7 @@ const _: () = {
     send_sync::<PgDistributions>();
     send::<PgRecorder>();
     send::<PgSchedule>();
+    send_sync::<PgRadianceGrid>();
 };
 
 /// The library version, `"MAJOR.MINOR.PATCH"` (static storage, never freed).

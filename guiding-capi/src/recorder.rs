@@ -4,6 +4,7 @@
 
 use crate::field::{write, PgField};
 use crate::ptr;
+use crate::roulette::PgRadianceGrid;
 use crate::status::{guard, PgStatus};
 use crate::types::PgPathVertex;
 use guiding::PathRecorder;
@@ -178,6 +179,58 @@ pub unsafe extern "C" fn pg_recorder_flush_into(
         let n = r.inner.flush_into(&mut *write(&field.inner)?);
         if let Some(out) = out {
             *out = n;
+        }
+        Ok(())
+    })
+}
+
+/// Whether the recorder keeps, for every vertex whose path went on, its reflected radiance
+/// `L̃_r = D + β L̃_i` (the path estimate of the light it reflects towards the previous vertex,
+/// see `guiding::recorder`), for `pg_recorder_flush_reflected_into`; off by default, and
+/// turning it off drops what was kept.
+///
+/// # Safety
+/// `recorder` must be NULL or a live handle.
+#[no_mangle]
+pub unsafe extern "C" fn pg_recorder_keep_reflected(
+    recorder: *mut PgRecorder,
+    keep: bool,
+) -> PgStatus {
+    guard("pg_recorder_keep_reflected", || {
+        unsafe { ptr::as_mut(recorder, "recorder") }?
+            .inner
+            .keep_reflected(keep);
+        Ok(())
+    })
+}
+
+/// Adds the reflected radiance the finished paths kept to `grid` and clears it; writes how
+/// many estimates the grid kept to `*out_count` unless it is NULL. The training samples stay.
+///
+/// # Safety
+/// `recorder` NULL or a live handle; `grid` NULL or a live handle; `out_count` NULL or
+/// writable.
+#[no_mangle]
+pub unsafe extern "C" fn pg_recorder_flush_reflected_into(
+    recorder: *mut PgRecorder,
+    grid: *const PgRadianceGrid,
+    out_count: *mut u64,
+) -> PgStatus {
+    guard("pg_recorder_flush_reflected_into", || {
+        let r = unsafe { ptr::as_mut(recorder, "recorder") }?;
+        let g = unsafe { ptr::as_ref(grid, "grid") }?;
+        let out = unsafe { ptr::as_mut_opt(out_count, "out_count") }?;
+        let mut samples = Vec::new();
+        r.inner.drain_reflected_into(&mut samples);
+        let kept = {
+            let mut inner = g.write();
+            samples
+                .iter()
+                .filter(|s| inner.add(s.position, s.normal, s.radiance))
+                .count()
+        };
+        if let Some(o) = out {
+            *o = kept as u64;
         }
         Ok(())
     })

@@ -38,6 +38,15 @@
 //! along `ω_i`. The guide learns the full radiance, but the variance of the
 //! one-sample MIS of guide and BSDF next to NEE depends on this share
 //! ([`crate::GuideCache::fit_selection`]).
+//!
+//! On request ([`BatchRecorder::keep_reflected`]) the recorders also keep, for every vertex
+//! whose path went on (delta vertices included), its **reflected radiance**
+//! `L̃_r(k) = D_k + β_k L̃_i(k)` (the path estimate of the light leaving `k` towards `k − 1`
+//! without `k`'s own emission, MIS weights as in the pixel estimate): an unbiased one-sample
+//! estimate of `L_r(x_k, ω_o)`, what Russian roulette and splitting weigh a path by
+//! ([`crate::roulette::RadianceGrid`]). A vertex whose path ended there keeps none: its
+//! continuation was not sampled (a roulette kill, a failed sample), so its `D_k` alone would
+//! underestimate `L_r`.
 
 pub mod batch;
 
@@ -163,6 +172,7 @@ fn propagate<'a>(
     let RecordedSamples {
         samples,
         mis_radiance,
+        reflected,
     } = recorded;
     // Incident radiance along the current vertex's `wi`: the training
     // target (emission in full) and the path estimate (MIS-weighted).
@@ -183,6 +193,15 @@ fn propagate<'a>(
             [0.0; 3]
         };
         let rest = add(v.direct, scattered);
+        if continues {
+            if let Some(out) = reflected.as_mut() {
+                out.push(ReflectedSample {
+                    position: v.position,
+                    normal: v.normal,
+                    radiance: rest,
+                });
+            }
+        }
         incident = add(v.emitted, rest);
         incident_mis = add(scale(v.emitted, v.emitted_mis_weight), rest);
     }
@@ -193,12 +212,26 @@ fn propagate<'a>(
     incident_mis
 }
 
+/// One vertex's reflected radiance estimate `L̃_r` (see the [module docs](self)).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ReflectedSample {
+    /// The vertex's position.
+    pub position: [f32; 3],
+    /// Its shading normal as recorded (zero if the renderer gave none).
+    pub normal: [f32; 3],
+    /// `L̃_r = D + β L̃_i`, RGB.
+    pub radiance: [f32; 3],
+}
+
 /// The training samples of finished paths and, per sample, its MIS-weighted
-/// incident radiance: what both recorders keep between flushes.
+/// incident radiance: what both recorders keep between flushes; and, when asked
+/// for, the reflected radiance of every vertex whose path went on.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct RecordedSamples {
     pub(crate) samples: Vec<TrainingSample>,
     pub(crate) mis_radiance: Vec<[f32; 3]>,
+    /// `Some` while reflected radiance is kept.
+    pub(crate) reflected: Option<Vec<ReflectedSample>>,
 }
 
 impl RecordedSamples {
@@ -210,9 +243,31 @@ impl RecordedSamples {
         n
     }
 
+    /// Whether to keep reflected radiance (off drops what was kept).
+    pub(crate) fn keep_reflected(&mut self, keep: bool) {
+        match (keep, &self.reflected) {
+            (true, None) => self.reflected = Some(Vec::new()),
+            (false, Some(_)) => self.reflected = None,
+            _ => {}
+        }
+    }
+
+    pub(crate) fn reflected(&self) -> &[ReflectedSample] {
+        self.reflected.as_deref().unwrap_or(&[])
+    }
+
+    pub(crate) fn drain_reflected_into(&mut self, out: &mut Vec<ReflectedSample>) {
+        if let Some(r) = &mut self.reflected {
+            out.append(r);
+        }
+    }
+
     pub(crate) fn clear(&mut self) {
         self.samples.clear();
         self.mis_radiance.clear();
+        if let Some(r) = &mut self.reflected {
+            r.clear();
+        }
     }
 }
 
@@ -284,5 +339,18 @@ impl PathRecorder {
     /// Drops the finished paths' samples.
     pub fn clear_samples(&mut self) {
         self.recorded.clear();
+    }
+
+    /// Moves the kept reflected radiance (see [`Self::keep_reflected`]) to
+    /// the end of `out`.
+    pub fn drain_reflected_into(&mut self, out: &mut Vec<ReflectedSample>) {
+        self.recorded.drain_reflected_into(out);
+    }
+
+    /// Whether to keep each continuing vertex's reflected radiance (see the
+    /// [module docs](self)), off by default; turning it off drops what was
+    /// kept.
+    pub fn keep_reflected(&mut self, keep: bool) {
+        self.recorded.keep_reflected(keep);
     }
 }

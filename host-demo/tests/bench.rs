@@ -45,8 +45,21 @@ fn methods_and_budgets_parse() {
         Method::parse("guided-notrial").unwrap().args,
         ["--integrator", "guided", "--guide-trial", "off"]
     );
+    // `-grr` on every method, the unguided ones included.
+    for (method, args) in [
+        ("pt-nee-grr", "--integrator pt-nee --rr guided"),
+        ("pt-grr", "--integrator pt --rr guided"),
+        (
+            "npm-radiance-notrial-grr",
+            "--integrator guided --guide npm --target radiance --guide-trial off --rr guided",
+        ),
+    ] {
+        assert_eq!(Method::parse(method).unwrap().args.join(" "), args);
+    }
     for bad in [
         "",
+        "pt-nee-notrial",
+        "grr",
         "guided-radiance",
         "npm",
         "npm-",

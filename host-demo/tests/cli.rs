@@ -228,7 +228,9 @@ fn render_and_compare_end_to_end() {
     let sched = &s["stages"]["training"]["schedule"];
     assert!(sched["updates"].as_u64() >= Some(1), "{s}");
     assert_eq!(sched["steps"], s["stages"]["training"]["steps"], "{s}");
+    // A bare `--rr` is Mitsuba's throughput roulette.
     assert_eq!(s["stages"]["russian_roulette"]["ran"], true);
+    assert_eq!(s["stages"]["russian_roulette"]["mode"], "throughput", "{s}");
     assert_eq!(s["stages"]["product_inputs"]["all_materials_diffuse"], true);
     // A time budget with NEE: the probe ran (its first training pass unguided) and the passes
     // were weighted.
@@ -238,6 +240,50 @@ fn render_and_compare_end_to_end() {
     assert!(s["training_samples_used"].as_u64().is_some());
     assert!(s["time_s"]["inference"].as_f64().expect("inference") >= 0.0);
     assert!(exr_b.with_extension("png").exists());
+
+    // `--rr guided`: the weight window's statistics (the grid learned in the first fifth of
+    // the 10 passes, then split and killed paths).
+    let stats_c = dir.join("c.json");
+    run_ok(
+        bin()
+            .args(["render", "builtin:cornell-box", "--integrator", "pt-nee"])
+            .args(["--spp", "10", "--rr", "guided"])
+            .args(size)
+            .arg("--out")
+            .arg(dir.join("c.exr"))
+            .arg("--stats")
+            .arg(&stats_c),
+    );
+    let s = read_json(&stats_c);
+    let rr = &s["stages"]["russian_roulette"];
+    assert_eq!(
+        (&rr["ran"], &rr["mode"]),
+        (&true.into(), &"guided".into()),
+        "{s}"
+    );
+    let g = &rr["guided"];
+    assert_eq!(g["learning_passes"], 2, "{s}");
+    assert!(g["grid_samples"].as_u64() > Some(0), "{s}");
+    for k in ["decisions", "killed", "split_vertices", "extra_paths"] {
+        assert!(g[k].as_u64() > Some(0), "{k}: {s}");
+    }
+    let (mean, max) = (
+        g["mean_split"].as_f64().unwrap(),
+        g["max_split"].as_f64().unwrap(),
+    );
+    assert!(mean >= 2.0 && mean <= max && max <= 8.0, "{s}");
+    let bad = bin()
+        .args([
+            "render",
+            "builtin:furnace",
+            "--spp",
+            "1",
+            "--rr",
+            "sometimes",
+        ])
+        .output()
+        .expect("runs");
+    assert!(!bad.status.success());
 
     let out = run_ok(bin().arg("compare").arg(&exr_a).arg(&exr_b));
     let m: serde_json::Value = serde_json::from_str(&out).expect("compare prints JSON");

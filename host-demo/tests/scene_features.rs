@@ -775,7 +775,7 @@ fn russian_roulette_is_unbiased() {
         &sc,
         &RenderOptions {
             seed: 61,
-            rr: true,
+            rr: host_demo::render::Roulette::Throughput,
             ..base
         },
     );

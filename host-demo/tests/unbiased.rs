@@ -33,7 +33,9 @@ mod common;
 use common::{guide, npm_guide, sidak, training_config};
 use guiding::{ModelSize, Representation};
 use guiding_core::loss::Target;
-use host_demo::render::{render, Image, IntegratorKind, RenderOptions};
+use host_demo::render::{
+    render, render_with_stats, Image, IntegratorKind, RenderOptions, Roulette,
+};
 use host_demo::render::{render_guided, CacheMode, GuidedOptions, GuidedStats, TestHooks};
 use host_demo::scene::builtin::load_builtin;
 use host_demo::scene::Scene;
@@ -657,4 +659,96 @@ fn sharp_frozen_guides_agree_per_block() {
         );
     }
     assert!(failures.is_empty(), "biased:\n{}", failures.join("\n"));
+}
+
+/// A render with the library's guided roulette and splitting (`--rr guided`, or its negative
+/// control): `pt-nee`, or `guided npm` (the guide as in [`guided_with`]). Asserts that the
+/// window both killed and split paths, so the comparison tests what it claims to.
+fn with_guided_roulette(scene: &Scene, rr: Roulette, guided_npm: bool, seed: u64) -> Image {
+    let o = RenderOptions {
+        rr,
+        ..opts(IntegratorKind::PtNee, SPP, seed)
+    };
+    let (img, roulette) = if guided_npm {
+        let config = training_config(1024, 2, seed as u32 + 7);
+        let mut g = guide(
+            Representation::Npm,
+            Target::Product,
+            ModelSize::Small,
+            scene,
+            0.5,
+            config,
+        );
+        let gopts = GuidedOptions {
+            schedule: REPRODUCIBLE,
+            ..GuidedOptions::default()
+        };
+        let (img, st) = render_guided(scene, &o, &gopts, &mut g).expect("guided render");
+        (img, st.roulette)
+    } else {
+        let (img, st) = render_with_stats(scene, &o);
+        (img, st.roulette)
+    };
+    let r = roulette.expect("guided roulette ran");
+    assert!(
+        r.killed > 0 && r.split_vertices > 0 && r.learning_passes > 0,
+        "the window did not both kill and split: {r:?}"
+    );
+    img
+}
+
+/// Guided Russian roulette and splitting (`--rr guided`: the library's weight window, its
+/// radiance grid learned in the first passes) keep `pt-nee` and `guided npm` unbiased: per
+/// block, against plain `pt-nee`, with the Welch test and Šidák level of
+/// [`all_integrators_agree_per_block`] over this test's own `2 × blocks × channels` tests.
+/// The negative control, `pt-nee` whose split copies keep the full weight instead of `β / k`
+/// (`Roulette::GuidedUnweighted`: the splitting adds light), must fail the same comparison.
+#[test]
+fn guided_roulette_and_splitting_agree_per_block() {
+    let scene = load_builtin("cornell-box").expect("builtin");
+    let reference = reference_statistics(&scene);
+    let blocks = (RES / BLOCK * RES / BLOCK) as usize;
+    let level = sidak(ALPHA, 2 * blocks * 3);
+    let mut failures = Vec::new();
+    let nee = seed_statistics(|s| with_guided_roulette(&scene, Roulette::Guided, false, 700 + s));
+    compare_blocks(
+        "pt-nee --rr guided",
+        "pt-nee",
+        &nee,
+        &reference,
+        level,
+        &mut failures,
+    );
+    let npm = seed_statistics(|s| with_guided_roulette(&scene, Roulette::Guided, true, 800 + s));
+    compare_blocks(
+        "guided npm --rr guided",
+        "pt-nee",
+        &npm,
+        &reference,
+        level,
+        &mut failures,
+    );
+    assert!(failures.is_empty(), "biased:\n{}", failures.join("\n"));
+
+    let unweighted = seed_statistics(|s| {
+        with_guided_roulette(&scene, Roulette::GuidedUnweighted, false, 700 + s)
+    });
+    let mut control = Vec::new();
+    compare_blocks(
+        "pt-nee --rr guided, split copies unweighted",
+        "pt-nee",
+        &unweighted,
+        &reference,
+        level,
+        &mut control,
+    );
+    eprintln!(
+        "negative control: {} of {} block-channel tests rejected",
+        control.len(),
+        blocks * 3
+    );
+    assert!(
+        !control.is_empty(),
+        "the per-block comparison did not detect split copies that keep the full weight"
+    );
 }

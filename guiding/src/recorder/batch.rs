@@ -50,7 +50,7 @@
 //! estimates it reaches, and [`GuidingField::add_samples`] rejects (and
 //! counts) such samples; a NaN `sample_pdf` ends the path like `0`.
 
-use super::{add, propagate, Escaped, PathVertex, RecordedSamples};
+use super::{add, propagate, Escaped, PathVertex, RecordedSamples, ReflectedSample};
 use crate::field::GuidingField;
 use guiding_core::sample::TrainingSample;
 
@@ -309,6 +309,25 @@ impl BatchRecorder {
     ) {
         samples.append(&mut self.recorded.samples);
         mis_radiance.append(&mut self.recorded.mis_radiance);
+    }
+
+    /// Whether to keep each continuing vertex's reflected radiance
+    /// ([`Self::reflected`], see [`crate::recorder`]); off by default. Turning
+    /// it off drops what was kept.
+    pub fn keep_reflected(&mut self, keep: bool) {
+        self.recorded.keep_reflected(keep);
+    }
+
+    /// The reflected radiance of every continuing vertex of the finished blocks
+    /// (in the order of [`Self::end`]'s propagation: slot by slot, each path
+    /// from its last vertex back); empty unless [`Self::keep_reflected`].
+    pub fn reflected(&self) -> &[ReflectedSample] {
+        self.recorded.reflected()
+    }
+
+    /// Moves the kept reflected radiance to the end of `out`.
+    pub fn drain_reflected_into(&mut self, out: &mut Vec<ReflectedSample>) {
+        self.recorded.drain_reflected_into(out);
     }
 
     /// Hands every finished block's samples to `field` and clears them;

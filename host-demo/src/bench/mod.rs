@@ -48,9 +48,12 @@ impl Method {
     /// guided integrator without next-event estimation, the papers' setting, compared with
     /// `pt`), `-nocache` / `-frozen` (`--guide-cache off` / `frozen` instead of the default),
     /// `-notrial` (`--guide-trial off`: the guide stays on whether it pays or not), `-noweights`
-    /// (`--pass-weights off`: the plain mean of all passes), `-noprobe` (`--training-probe off`).
+    /// (`--pass-weights off`: the plain mean of all passes), `-noprobe` (`--training-probe off`),
+    /// and on every method, `pt` and `pt-nee` included, `-grr` (`--rr guided`: the library's
+    /// weight window with splitting).
     pub fn parse(full: &str) -> Result<Self> {
-        const SUFFIXES: [(&str, [&str; 2]); 6] = [
+        const SUFFIXES: [(&str, [&str; 2]); 7] = [
+            ("-grr", ["--rr", "guided"]),
             ("-nonee", ["--nee", "off"]),
             ("-nocache", ["--guide-cache", "off"]),
             ("-frozen", ["--guide-cache", "frozen"]),
@@ -63,7 +66,11 @@ impl Method {
         'strip: loop {
             for (suffix, flags) in SUFFIXES {
                 match name.strip_suffix(suffix) {
-                    Some(base) if base != "pt" && base != "pt-nee" && !base.is_empty() => {
+                    // Only `-grr` applies to the unguided methods.
+                    Some(base)
+                        if !base.is_empty()
+                            && (suffix == "-grr" || (base != "pt" && base != "pt-nee")) =>
+                    {
                         name = base;
                         extra.splice(0..0, flags);
                         continue 'strip;

@@ -31,6 +31,26 @@ enum Integrator {
 }
 
 #[derive(Clone, Copy, ValueEnum)]
+enum RouletteArg {
+    /// No roulette: paths go on to max_depth.
+    Off,
+    /// Mitsuba's: survival min(max(throughput), 0.95) from the scene's rr_depth.
+    Throughput,
+    /// The library's weight window (ADRRS) with splitting, from a learned radiance grid.
+    Guided,
+}
+
+impl From<RouletteArg> for host_demo::render::Roulette {
+    fn from(r: RouletteArg) -> Self {
+        match r {
+            RouletteArg::Off => Self::Off,
+            RouletteArg::Throughput => Self::Throughput,
+            RouletteArg::Guided => Self::Guided,
+        }
+    }
+}
+
+#[derive(Clone, Copy, ValueEnum)]
 enum TargetArg {
     /// Learn the incident radiance.
     Radiance,
@@ -97,9 +117,17 @@ enum Cmd {
         /// `--train-fraction` applies to this budget.
         #[arg(long, value_name = "SECONDS")]
         time: Option<f64>,
-        /// Russian roulette from the scene's rr_depth on (default off, like the papers).
-        #[arg(long)]
-        rr: bool,
+        /// Russian roulette: off (the default, like the papers), throughput (Mitsuba's, from
+        /// the scene's rr_depth; a bare `--rr`) or guided (the library's weight window with
+        /// splitting, at every vertex).
+        #[arg(
+            long,
+            value_enum,
+            num_args = 0..=1,
+            default_value = "off",
+            default_missing_value = "throughput"
+        )]
+        rr: RouletteArg,
         /// Write run statistics (spp, time split, rays/s, training samples, stages) as JSON.
         #[arg(long, value_name = "FILE.json")]
         stats: Option<PathBuf>,

@@ -51,7 +51,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         },
         spp: spp.unwrap_or(sc.settings.spp).max(1),
         time_budget,
-        rr,
+        rr: rr.into(),
         progress: true,
         max_depth: max_depth.unwrap_or(sc.settings.max_depth),
         threads,
@@ -420,7 +420,11 @@ impl Finished<'_> {
             Outcome::Plain(p) => (p.nee, self.integrator == Integrator::PtNee),
             Outcome::Guided(g) => (g.stats.nee, g.options.nee),
         };
-        let common = CommonStages::new(nee_ran, nee_asked, opts.rr, sc.settings.rr_depth);
+        let roulette = match self.outcome {
+            Outcome::Plain(p) => p.roulette.as_ref(),
+            Outcome::Guided(g) => g.stats.roulette.as_ref(),
+        };
+        let common = CommonStages::new(nee_ran, nee_asked, opts.rr, sc.settings.rr_depth, roulette);
         let run = match self.outcome {
             Outcome::Plain(p) => RunStats::Plain(PlainRun::new(p, common)),
             Outcome::Guided(g) => RunStats::Guided(Box::new(GuidedRun::new(

@@ -9,6 +9,7 @@
 
 use host_demo::render::strategy::guided::{GROUP_GUIDED, GROUP_UNGUIDED};
 use host_demo::render::{GuidedStats, PassWeightStats, ProbeStats, RenderStats, TrialStats};
+use host_demo::render::{Roulette, RouletteStats};
 use serde::Serialize;
 
 /// A JSON number, or `null` where it is not finite (JSON has no NaN or infinity).
@@ -80,11 +81,53 @@ impl Stage {
     }
 }
 
-/// Russian roulette: on with `--rr`, from the scene's `rr_depth`.
+/// Russian roulette: `--rr throughput` from the scene's `rr_depth`, `--rr guided` (the
+/// library's weight window with splitting, at every vertex) with what it did.
 #[derive(Serialize)]
 struct RrStage {
     ran: bool,
+    mode: &'static str,
     rr_depth: u32,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    guided: Option<Box<GuidedRr>>,
+}
+
+/// What the weight window did (`--rr guided`).
+#[derive(Serialize)]
+struct GuidedRr {
+    decisions: u64,
+    no_estimate: u64,
+    killed: u64,
+    survived: u64,
+    split_vertices: u64,
+    extra_paths: u64,
+    mean_split: f64,
+    max_split: u32,
+    learning_passes: u32,
+    grid_samples: u64,
+    grid_rejected: u64,
+    grid_fine_cells: u64,
+    grid_coarse_cells: u64,
+}
+
+impl GuidedRr {
+    fn new(s: &RouletteStats) -> Self {
+        Self {
+            decisions: s.decisions,
+            no_estimate: s.missing,
+            killed: s.killed,
+            survived: s.survived,
+            split_vertices: s.split_vertices,
+            extra_paths: s.extra_paths,
+            mean_split: s.mean_split(),
+            max_split: s.max_split,
+            learning_passes: s.learning_passes,
+            grid_samples: s.grid.samples,
+            grid_rejected: s.grid.rejected,
+            grid_fine_cells: s.grid.fine_cells,
+            grid_coarse_cells: s.grid.coarse_cells,
+        }
+    }
 }
 
 /// The NEE and Russian-roulette stages, the same for every integrator.
@@ -96,7 +139,13 @@ pub(super) struct CommonStages {
 impl CommonStages {
     /// `nee_ran`: the NEE stage ran; `nee_asked`: it was requested (the reason why it did not
     /// run tells the two cases apart).
-    pub fn new(nee_ran: bool, nee_asked: bool, rr: bool, rr_depth: u32) -> Self {
+    pub fn new(
+        nee_ran: bool,
+        nee_asked: bool,
+        rr: Roulette,
+        rr_depth: u32,
+        guided: Option<&RouletteStats>,
+    ) -> Self {
         let reason = if nee_ran {
             "NEE + MIS on every non-delta vertex (delta BSDFs are not connected)"
         } else if !nee_asked {
@@ -109,7 +158,17 @@ impl CommonStages {
                 ran: nee_ran,
                 reason,
             },
-            russian_roulette: RrStage { ran: rr, rr_depth },
+            russian_roulette: RrStage {
+                ran: rr != Roulette::Off,
+                mode: match rr {
+                    Roulette::Off => "off",
+                    Roulette::Throughput => "throughput",
+                    Roulette::Guided => "guided",
+                    Roulette::GuidedUnweighted => "guided-unweighted",
+                },
+                rr_depth,
+                guided: guided.map(|g| Box::new(GuidedRr::new(g))),
+            },
         }
     }
 }

@@ -17,6 +17,8 @@ pub struct RenderStats {
     pub rays: u64,
     /// The NEE stage ran (NEE on, and the scene has an emitter NEE can sample).
     pub nee: bool,
+    /// What guided roulette and splitting did (`--rr guided`).
+    pub roulette: Option<crate::render::roulette::RouletteStats>,
 }
 
 /// A rendered image plus per-pixel variance information for statistical tests.

@@ -10,12 +10,14 @@ pub mod image;
 pub mod options;
 pub mod output;
 pub mod queues;
+pub mod roulette;
 pub mod schedule;
 pub mod strategy;
 pub mod wavefront;
 
 pub use image::{Image, RenderStats};
-pub use options::{IntegratorKind, RenderOptions};
+pub use options::{IntegratorKind, RenderOptions, Roulette};
+pub use roulette::RouletteStats;
 #[cfg(feature = "testing")]
 pub use strategy::guided::TestHooks;
 pub use strategy::guided::{CacheMode, GuidedOptions, GuidedStats, PassWeightStats, TrialStats};

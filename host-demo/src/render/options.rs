@@ -12,6 +12,33 @@ pub enum IntegratorKind {
     PtNee,
 }
 
+/// Russian roulette (and splitting) of the wavefront's paths.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Roulette {
+    /// Every path goes on to `max_depth` (the papers' setting; the default).
+    #[default]
+    Off,
+    /// Mitsuba's rule from the scene's `rr_depth` on: survival probability
+    /// `min(max(throughput), 0.95)`.
+    Throughput,
+    /// The library's weight window (ADRRS, [`guiding::WeightWindow`]) at every vertex:
+    /// roulette and splitting by the path's expected contribution against its pixel's, from a
+    /// [`guiding::RadianceGrid`] learned in the library's training phase (see
+    /// [`crate::render::roulette`]).
+    Guided,
+    /// [`Roulette::Guided`] with the split continuations' weights *not* divided by `k`: a
+    /// biased estimator, the negative control of the unbiasedness tests.
+    #[doc(hidden)]
+    GuidedUnweighted,
+}
+
+impl Roulette {
+    /// Whether the guided rule (or its negative control) runs.
+    pub fn is_guided(self) -> bool {
+        matches!(self, Roulette::Guided | Roulette::GuidedUnweighted)
+    }
+}
+
 /// Render parameters.
 #[derive(Clone, Copy, Debug)]
 pub struct RenderOptions {
@@ -22,9 +49,8 @@ pub struct RenderOptions {
     /// Render passes until this much wall time is used instead of a fixed spp
     /// (see [`crate::render::schedule`]).
     pub time_budget: Option<std::time::Duration>,
-    /// Russian roulette from the scene's `rr_depth` on (Mitsuba's rule: survival probability
-    /// `min(max(throughput), 0.95)`). Off by default; unbiased either way.
-    pub rr: bool,
+    /// Russian roulette and splitting; off by default, unbiased in every mode.
+    pub rr: Roulette,
     /// Show a progress bar on stderr (only when stderr is a terminal).
     pub progress: bool,
     /// Mitsuba max_depth.
@@ -46,7 +72,7 @@ impl Default for RenderOptions {
             integrator: IntegratorKind::PtNee,
             spp: 16,
             time_budget: None,
-            rr: false,
+            rr: Roulette::Off,
             progress: false,
             max_depth: 8,
             threads: 0,

@@ -26,7 +26,10 @@
 //! Depth follows Mitsuba: `max_depth = 1` only shows directly visible emission; a hit at
 //! bounce `b` (0 = camera hit) adds emission when `b < max_depth` and does NEE/continues when
 //! `b + 1 < max_depth`. No Russian roulette by default (keeps variance comparable; the estimator
-//! is unbiased either way); `--rr` enables Mitsuba's Russian roulette from the scene's `rr_depth`.
+//! is unbiased either way); `--rr throughput` is Mitsuba's Russian roulette from the scene's
+//! `rr_depth`, `--rr guided` the library's weight window with splitting at every vertex
+//! ([`crate::render::roulette`]): a split vertex enters the bounce's [`Vertices`] `k` times,
+//! each copy with `β / k`, all in the same path slot (they add to the same pixel).
 //!
 //! Rays that leave the scene pick up the environment (MIS-weighted against environment NEE);
 //! `twosided` materials are resolved per hit (a back hit flips the frame), and the
@@ -35,13 +38,15 @@
 use crate::math::{power_heuristic, Frame, Rng};
 use crate::render::image::{accumulate, finish_image, Image, RenderStats};
 use crate::render::options::RenderOptions;
+use crate::render::options::Roulette;
 use crate::render::queues::{Continuations, LightSamples, RayQueue, ShadowQueue, Vertices};
+use crate::render::roulette::{GuidedRoulette, RouletteStats, MAX_PATHS_PER_SAMPLE};
 use crate::render::schedule::Schedule;
 use crate::render::strategy::{PassImage, PassSamples, Strategy, Traced, VertexStrategy};
 use crate::scene::emitter::EmitterSample;
 use crate::scene::Scene;
 use glam::Vec3;
-use guiding::{BatchRecorder, Continuation, PathVertex};
+use guiding::{BatchRecorder, Continuation, PathVertex, ReflectedSample};
 use guiding_core::sample::TrainingSample;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
@@ -106,8 +111,20 @@ struct Worker<'s, V> {
     /// Rays traced by this worker (closest-hit and shadow).
     rays: u64,
     strategy: V,
-    /// The library's wavefront recorder, on passes the strategy trains on.
+    /// The library's wavefront recorder, on passes the strategy trains on or the roulette's
+    /// grid learns in.
     recorder: Option<BatchRecorder>,
+    /// The strategy asked for this pass's training samples.
+    strategy_records: bool,
+    /// The guided roulette's state (`--rr guided`).
+    roulette: Option<&'s GuidedRoulette>,
+    /// Per slot: the pixel (row-major) it traces, and how many more paths it may split into.
+    pixel_of_slot: Vec<u32>,
+    room: Vec<u32>,
+    /// What the roulette did in this worker.
+    rr_stats: RouletteStats,
+    /// Reflected radiance of the recorded vertices, for the roulette's grid.
+    reflected: Vec<ReflectedSample>,
     /// Training samples of this pass's current block, and their MIS-weighted incident
     /// radiances.
     samples: Vec<TrainingSample>,
@@ -115,7 +132,20 @@ struct Worker<'s, V> {
 }
 
 impl<'s, V: VertexStrategy> Worker<'s, V> {
-    fn new(scene: &'s Scene, opts: RenderOptions, nee: bool, strategy: V, record: bool) -> Self {
+    fn new(
+        scene: &'s Scene,
+        opts: RenderOptions,
+        nee: bool,
+        strategy: V,
+        strategy_records: bool,
+        roulette: Option<&'s GuidedRoulette>,
+    ) -> Self {
+        let learning = roulette.is_some_and(|r| r.learning);
+        let recorder = (strategy_records || learning).then(|| {
+            let mut r = BatchRecorder::new();
+            r.keep_reflected(learning);
+            r
+        });
         Worker {
             scene,
             opts,
@@ -130,7 +160,13 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
             radiance: Vec::new(),
             rays: 0,
             strategy,
-            recorder: record.then(BatchRecorder::new),
+            recorder,
+            strategy_records,
+            roulette,
+            pixel_of_slot: Vec::new(),
+            room: Vec::new(),
+            rr_stats: RouletteStats::default(),
+            reflected: Vec::new(),
             samples: Vec::new(),
             mis_radiance: Vec::new(),
         }
@@ -145,12 +181,22 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
         self.rng.clear();
         self.radiance.clear();
         self.radiance.resize(count, Vec3::ZERO);
+        self.pixel_of_slot.clear();
+        self.room.clear();
+        // A recorded pass follows one path per slot: roulette, no splitting.
+        let room = if self.recorder.is_some() {
+            0
+        } else {
+            MAX_PATHS_PER_SAMPLE - 1
+        };
+        self.room.resize(count, room);
         if let Some(r) = &mut self.recorder {
             r.start(count);
         }
         let cam = &self.scene.camera;
         for i in 0..count {
             let pix = rows[i / w] as usize * w + i % w;
+            self.pixel_of_slot.push(pix as u32);
             let (x, y) = ((pix % w) as f32, (pix / w) as f32);
             let mut rng = Rng::from_keys(self.opts.seed, pix as u64, s as u64);
             let (u, v) = (
@@ -182,6 +228,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
         if let Some(r) = &mut self.recorder {
             r.end();
             r.drain_into(&mut self.samples, &mut self.mis_radiance);
+            r.drain_reflected_into(&mut self.reflected);
         }
     }
 
@@ -191,8 +238,10 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
         let scene = self.scene;
         self.verts.clear();
         let continue_path = bounce + 1 < self.opts.max_depth;
-        let rr = self.opts.rr && bounce + 1 >= scene.settings.rr_depth;
-        let q = &self.rays_in;
+        let rr = self.opts.rr == Roulette::Throughput && bounce + 1 >= scene.settings.rr_depth;
+        // Taken out for the loop (the roulette's decision borrows the worker), put back after.
+        let queue = std::mem::take(&mut self.rays_in);
+        let q = &queue;
         self.rays += q.len() as u64;
         for i in 0..q.len() {
             let (o, d, slot) = (q.origin[i], q.dir[i], q.slot[i]);
@@ -252,8 +301,8 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                 vertex.wo = (-d).to_array();
                 vertex.roughness = mat.roughness();
                 // Radiance propagates through every vertex; only those the strategy guides
-                // make training samples.
-                vertex.is_delta = !self.strategy.trains(&mat);
+                // make training samples (none when only the roulette's grid records).
+                vertex.is_delta = !(self.strategy_records && self.strategy.trains(&mat));
                 r.add_vertex(slot, vertex);
             }
             if mat.is_black() || (mat.one_sided() && ns.dot(-d) <= 0.0) {
@@ -271,14 +320,80 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                     r.scale_continuation(slot, 1.0 / q);
                 }
             }
+            let mut copies = 1;
+            if let Some(g) = self.roulette {
+                let Some((k, weight)) = self.guided_roulette(g, slot, hit.p, ns, beta) else {
+                    continue;
+                };
+                copies = k;
+                beta *= weight;
+            }
             let v = &mut self.verts;
-            v.slot.push(slot);
-            v.position.push(hit.p);
-            v.ng.push(ng);
-            v.ns.push(ns);
-            v.wo.push(-d);
-            v.beta.push(beta);
-            v.bsdf.push(mat);
+            for _ in 0..copies {
+                v.slot.push(slot);
+                v.position.push(hit.p);
+                v.ng.push(ng);
+                v.ns.push(ns);
+                v.wo.push(-d);
+                v.beta.push(beta);
+                v.bsdf.push(mat);
+            }
+        }
+        self.rays_in = queue;
+    }
+
+    /// The weight window's decision for the path in `slot` at a vertex at `p` (shading normal
+    /// `ns`) with throughput `beta`: `None` if roulette ends it, else the number of copies of
+    /// the vertex and the factor on their throughput.
+    fn guided_roulette(
+        &mut self,
+        g: &GuidedRoulette,
+        slot: u32,
+        p: Vec3,
+        ns: Vec3,
+        beta: Vec3,
+    ) -> Option<(u32, f32)> {
+        let s = slot as usize;
+        let radiance = g.grid.estimate(p.to_array(), ns.to_array());
+        let pixel = g
+            .pixel
+            .get(self.pixel_of_slot[s] as usize)
+            .copied()
+            .unwrap_or(0.0);
+        let stats = &mut self.rr_stats;
+        stats.decisions += 1;
+        if radiance.is_none() || pixel <= 0.0 {
+            stats.missing += 1;
+        }
+        let u = self.rng[s].next_f32();
+        let d = g.window.decide(
+            beta.to_array(),
+            radiance.unwrap_or([-1.0; 3]),
+            pixel,
+            u,
+            self.room[s],
+        );
+        match d.count {
+            0 => {
+                stats.killed += 1;
+                None
+            }
+            1 => {
+                if d.weight > 1.0 {
+                    stats.survived += 1;
+                }
+                if let Some(r) = &mut self.recorder {
+                    r.scale_continuation(slot, d.weight);
+                }
+                Some((1, d.weight))
+            }
+            k => {
+                stats.split_vertices += 1;
+                stats.extra_paths += u64::from(k - 1);
+                stats.max_split = stats.max_split.max(k);
+                self.room[s] -= k - 1;
+                Some((k, if g.unweighted { 1.0 } else { d.weight }))
+            }
         }
     }
 
@@ -395,8 +510,14 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
     }
 }
 
-/// What one thread did in a work item: its rows' radiance and training samples.
-type BlockResult = (Vec<Vec3>, Vec<TrainingSample>, Vec<[f32; 3]>);
+/// What one thread did in a work item: its rows' radiance, training samples (with their
+/// MIS-weighted radiance) and the reflected radiance of its recorded vertices.
+type BlockResult = (
+    Vec<Vec3>,
+    Vec<TrainingSample>,
+    Vec<[f32; 3]>,
+    Vec<ReflectedSample>,
+);
 
 /// The rows of an image of `height` rows in van der Corput order (bit-reversed indices,
 /// skipping those `≥ height`): every run of consecutive entries is spread evenly over the
@@ -456,9 +577,17 @@ pub fn render_passes<S: Strategy>(
         nee,
         ..RenderStats::default()
     };
+    // Valid options make a valid grid and schedule; a failure leaves the roulette off.
+    let mut roulette = GuidedRoulette::new(scene, opts).ok().flatten();
     while let Some(pass) = sched.next_pass() {
         let record = strategy.begin_pass(&pass);
-        sched.training_ended(&pass, record);
+        if let Some(g) = &mut roulette {
+            g.begin_pass(pass.elapsed.as_secs_f64(), pass.index, width, height, &sum);
+        }
+        sched.training_ended(
+            &pass,
+            record || roulette.as_ref().is_some_and(|g| g.learning),
+        );
         let wants_image = strategy.wants_pass_image(&pass);
         let rows = if record { &spread } else { &in_order };
         let mut pass_seconds = 0.0f64;
@@ -479,11 +608,14 @@ pub fn render_passes<S: Strategy>(
                 Mutex::new((0..items.len()).map(|_| None).collect());
             let reports = Mutex::new(Vec::new());
             let rays = AtomicUsize::new(0);
+            let rr_stats = Mutex::new(RouletteStats::default());
             let shared: &S = strategy;
+            let shared_rr = roulette.as_ref();
             std::thread::scope(|sc| {
                 for _ in 0..threads.min(items.len()) {
                     sc.spawn(|| {
-                        let mut w = Worker::new(scene, *opts, nee, shared.worker(), record);
+                        let mut w =
+                            Worker::new(scene, *opts, nee, shared.worker(), record, shared_rr);
                         loop {
                             let b = next.fetch_add(1, Ordering::Relaxed);
                             if b >= items.len() {
@@ -494,10 +626,15 @@ pub fn render_passes<S: Strategy>(
                                 std::mem::take(&mut w.radiance),
                                 std::mem::take(&mut w.samples),
                                 std::mem::take(&mut w.mis_radiance),
+                                std::mem::take(&mut w.reflected),
                             );
                             results.lock().unwrap_or_else(|e| e.into_inner())[b] = Some(result);
                         }
                         rays.fetch_add(w.rays as usize, Ordering::Relaxed);
+                        rr_stats
+                            .lock()
+                            .unwrap_or_else(|e| e.into_inner())
+                            .merge(&w.rr_stats);
                         let report = shared.report(w.strategy);
                         reports
                             .lock()
@@ -512,10 +649,17 @@ pub fn render_passes<S: Strategy>(
             stats.rays += rays.into_inner() as u64;
             let mut samples = PassSamples::default();
             let results = results.into_inner().unwrap_or_else(|e| e.into_inner());
+            if let Some(g) = &mut roulette {
+                g.stats
+                    .merge(&rr_stats.into_inner().unwrap_or_else(|e| e.into_inner()));
+            }
             for (item, r) in items.iter().zip(results) {
-                let Some((rad, s, m)) = r else {
+                let Some((rad, s, m, reflected)) = r else {
                     continue;
                 };
+                if let Some(g) = &mut roulette {
+                    g.learn(&reflected);
+                }
                 let w = width as usize;
                 for (k, &row) in item.iter().enumerate() {
                     let at = row as usize * w;
@@ -549,6 +693,7 @@ pub fn render_passes<S: Strategy>(
         accumulate(&mut sum, &mut sum2, &pass_radiance);
     }
     stats.passes = sched.passes();
+    stats.roulette = roulette.map(|g| g.finish());
     let mut image = finish_image(width, height, stats.passes, &sum, &sum2);
     if let Some((pixels, var_of_mean)) = strategy.combined_image() {
         if pixels.len() == npix && var_of_mean.len() == npix {

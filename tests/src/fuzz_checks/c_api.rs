@@ -229,6 +229,9 @@ struct State {
     held: [usize; SLOTS],
     recorder: *mut PgRecorder,
     schedule: *mut PgSchedule,
+    grid: *mut PgRadianceGrid,
+    /// Estimates offered to the grid since it was made (kept or refused).
+    grid_offered: u64,
     path: CString,
 }
 
@@ -244,6 +247,7 @@ impl Drop for State {
             }
             pg_recorder_release(self.recorder);
             pg_schedule_release(self.schedule);
+            pg_radiance_grid_release(self.grid);
         }
         let path = std::path::PathBuf::from(self.path.to_str().unwrap_or_default());
         let _ = std::fs::remove_file(path);
@@ -350,6 +354,8 @@ pub fn c_api(data: &[u8]) {
         held: [0; SLOTS],
         recorder: null_mut(),
         schedule: null_mut(),
+        grid: null_mut(),
+        grid_offered: 0,
         path: temp_path(),
     };
     for _ in 0..MAX_OPS {
@@ -374,7 +380,7 @@ pub fn c_api(data: &[u8]) {
         // cleared on release), arrays are locals of at least the stated
         // length or NULL.
         // The slot and NULL-handle bits do not take part in the choice.
-        match (op & 0x3f) % 22 {
+        match (op & 0x3f) % 23 {
             0 | 1 => op_new_field(&mut r, &mut s, slot),
             2 => {
                 unsafe { pg_field_release(s.fields[slot]) };
@@ -449,6 +455,7 @@ pub fn c_api(data: &[u8]) {
             }
             19 => op_schedule(&mut r, &mut s, null_handle),
             20 => op_train_scheduled(&mut r, &s, field, null_handle),
+            21 => op_roulette(&mut r, &mut s, null_handle),
             _ => null_sweep(),
         }
     }
@@ -848,8 +855,89 @@ fn null_sweep() {
     let mut report = PgScheduleReport::default();
     let mut up = PgUpdateReport::default();
     let mut paths = 0u64;
+    let mut grid: *mut PgRadianceGrid = std::ptr::dangling_mut();
+    let mut window = PgWeightWindow {
+        ratio: 5.0,
+        max_split: 8,
+        min_survival: 0.05,
+    };
+    let mut decision = PgDecision::default();
+    let mut grid_stats = PgRadianceGridStats::default();
+    let one = [0.5f32];
+    let room = [0u32];
     unsafe {
-        let calls: [(PgStatus, &str); 44] = [
+        let calls: [(PgStatus, &str); 58] = [
+            (pg_weight_window_set_defaults(null_mut()), "window defaults"),
+            (
+                pg_weight_window_decide(
+                    null(),
+                    1,
+                    o.as_ptr(),
+                    o.as_ptr(),
+                    one.as_ptr(),
+                    one.as_ptr(),
+                    room.as_ptr(),
+                    &mut decision,
+                ),
+                "decide",
+            ),
+            (
+                pg_weight_window_decide(
+                    &window,
+                    1,
+                    o.as_ptr(),
+                    o.as_ptr(),
+                    one.as_ptr(),
+                    null(),
+                    room.as_ptr(),
+                    &mut decision,
+                ),
+                "decide u",
+            ),
+            (
+                pg_weight_window_decide(
+                    &window,
+                    1,
+                    o.as_ptr(),
+                    o.as_ptr(),
+                    one.as_ptr(),
+                    one.as_ptr(),
+                    room.as_ptr(),
+                    null_mut(),
+                ),
+                "decide out",
+            ),
+            (
+                pg_radiance_grid_args_set_defaults(null_mut()),
+                "grid defaults",
+            ),
+            (pg_radiance_grid_new(null(), &mut grid), "grid new"),
+            (
+                pg_radiance_grid_add(null(), 0, null(), null(), null(), null_mut()),
+                "grid add",
+            ),
+            (
+                pg_radiance_grid_estimate(null(), 1, o.as_ptr(), o.as_ptr(), null_mut()),
+                "grid estimate",
+            ),
+            (
+                pg_radiance_grid_stats(null(), &mut grid_stats),
+                "grid stats",
+            ),
+            (pg_pixel_estimates(1, 1, null(), 1, 0, null_mut()), "pixels"),
+            (
+                pg_recorder_keep_reflected(null_mut(), true),
+                "keep reflected",
+            ),
+            (
+                pg_recorder_flush_reflected_into(null_mut(), null(), null_mut()),
+                "flush reflected",
+            ),
+            (
+                pg_weight_window_set_defaults(null_mut()),
+                "window defaults 2",
+            ),
+            (pg_radiance_grid_new(null(), null_mut()), "grid new out"),
             (pg_field_args_set_defaults(null_mut(), 0), "defaults"),
             (pg_field_new(null(), &mut f), "new"),
             (pg_field_new(null(), null_mut()), "new out"),
@@ -942,6 +1030,9 @@ fn null_sweep() {
             (pg_schedule_report(null(), null_mut()), "report out"),
         ];
         assert!(f.is_null(), "new/load leave *out NULL on failure");
+        assert!(grid.is_null(), "pg_radiance_grid_new leaves *out NULL");
+        assert_eq!(pg_weight_window_set_defaults(&mut window), PgStatus::PG_OK);
+        assert_eq!(window.max_split, 8);
         assert!(
             sched.is_null(),
             "pg_schedule_new leaves *out NULL on failure"
@@ -955,6 +1046,7 @@ fn null_sweep() {
         pg_distributions_release(null_mut());
         pg_recorder_release(null_mut());
         pg_schedule_release(null_mut());
+        pg_radiance_grid_release(null_mut());
         check(PgStatus::PG_OK, "release NULL");
     }
 }
@@ -1220,5 +1312,243 @@ fn op_train_scheduled(r: &mut ByteReader<'_>, s: &State, field: *mut PgField, nu
             report.mean_loss.is_finite() || report.steps == 0,
             "{report:?}"
         );
+    }
+}
+
+/// Rec. 709 luminance (the library's, written out).
+fn luminance(c: &[f32]) -> f32 {
+    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+}
+
+/// Roulette and splitting: `pg_weight_window_decide` with any settings, throughputs,
+/// estimates, pixels, `u` and room; the radiance grid's new (any box and options), add,
+/// estimate, stats and release; a recorder's reflected radiance into it; pixel estimates of
+/// small images with any sums.
+fn op_roulette(r: &mut ByteReader<'_>, s: &mut State, null_handle: bool) {
+    let grid = if null_handle { null_mut() } else { s.grid };
+    match r.byte() % 6 {
+        0 => {
+            let mut w = PgWeightWindow {
+                ratio: 0.0,
+                max_split: 0,
+                min_survival: 0.0,
+            };
+            assert_ok(unsafe { pg_weight_window_set_defaults(&mut w) }, "window");
+            if r.byte() % 2 == 0 {
+                w.ratio = r.c_value() * 10.0;
+                w.max_split = u32::from(r.byte() % 12);
+                w.min_survival = r.c_value();
+            }
+            let valid = w.ratio.is_finite()
+                && w.ratio > 1.0
+                && w.max_split >= 1
+                && w.min_survival > 0.0
+                && w.min_survival <= 1.0;
+            let n = usize::from(r.byte()) % (MAX_N + 1);
+            let beta: Vec<f32> = (0..3 * n).map(|_| r.c_value() * 4.0).collect();
+            let radiance: Vec<f32> = (0..3 * n).map(|_| r.c_value() * 4.0).collect();
+            let pixel: Vec<f32> = (0..n).map(|_| r.c_value()).collect();
+            let (u, valid_u) = random_numbers(r, n);
+            let room: Vec<u32> = (0..n).map(|_| u32::from(r.byte()) % 20).collect();
+            let mut out = vec![PgDecision::default(); n];
+            let st = check(
+                unsafe {
+                    pg_weight_window_decide(
+                        &w,
+                        n,
+                        beta.as_ptr(),
+                        radiance.as_ptr(),
+                        pixel.as_ptr(),
+                        u.as_ptr(),
+                        room.as_ptr(),
+                        out.as_mut_ptr(),
+                    )
+                },
+                "pg_weight_window_decide",
+            );
+            let u_ok = u.iter().all(|x| (0.0..=1.0).contains(x));
+            assert_eq!(
+                st == PgStatus::PG_OK,
+                valid && u_ok,
+                "{st:?} {w:?} {u:?} {valid_u}"
+            );
+            if st != PgStatus::PG_OK {
+                return;
+            }
+            for (i, d) in out.iter().enumerate() {
+                let y = luminance(&beta[3 * i..3 * i + 3]);
+                if !(y.is_finite() && y > 0.0) {
+                    assert_eq!(d.count, 0, "dead path {i}: {d:?}");
+                    continue;
+                }
+                match d.count {
+                    0 => {}
+                    1 => assert!(
+                        d.weight.is_finite()
+                            && d.weight >= 1.0
+                            && d.weight <= 1.0 / w.min_survival * 1.0001
+                            || d.weight == 1.0,
+                        "{d:?} {w:?}"
+                    ),
+                    k => {
+                        assert!(
+                            k <= w.max_split && k <= room[i] + 1,
+                            "{d:?} room {}",
+                            room[i]
+                        );
+                        assert_eq!(d.weight, 1.0 / k as f32, "{d:?}");
+                    }
+                }
+            }
+        }
+        1 => {
+            // A fresh or released grid, over any box with any options.
+            unsafe { pg_radiance_grid_release(s.grid) };
+            s.grid = null_mut();
+            s.grid_offered = 0;
+            if r.byte() % 4 == 0 {
+                return;
+            }
+            let mut a = PgRadianceGridArgs {
+                bounds_min: [0.0; 3],
+                bounds_max: [0.0; 3],
+                resolution: 0,
+                coarse_resolution: 0,
+                prior_weight: 0,
+            };
+            assert_ok(
+                unsafe { pg_radiance_grid_args_set_defaults(&mut a) },
+                "grid args",
+            );
+            a.bounds_min = r.c_position();
+            a.bounds_max = r.c_position();
+            if r.byte() % 2 == 0 {
+                a.resolution = u32::from(r.byte() % 40);
+                a.coarse_resolution = u32::from(r.byte() % 10);
+                a.prior_weight = u32::from(r.byte() % 20);
+            }
+            let valid = (0..3).all(|k| {
+                a.bounds_min[k].is_finite()
+                    && a.bounds_max[k].is_finite()
+                    && a.bounds_min[k] <= a.bounds_max[k]
+            }) && a.resolution > 0
+                && a.coarse_resolution > 0
+                && a.prior_weight > 0;
+            let mut g = std::ptr::dangling_mut();
+            let st = check(
+                unsafe { pg_radiance_grid_new(&a, &mut g) },
+                "pg_radiance_grid_new",
+            );
+            assert_eq!(st == PgStatus::PG_OK, valid, "{st:?} {a:?}");
+            assert_eq!(g.is_null(), !valid);
+            s.grid = g;
+        }
+        2 => {
+            let n = usize::from(r.byte()) % (MAX_N + 1);
+            let pos: Vec<f32> = (0..n).flat_map(|_| r.c_position()).collect();
+            let nrm: Vec<f32> = (0..n).flat_map(|_| r.c_dir3()).collect();
+            let rad: Vec<f32> = (0..3 * n).map(|_| r.c_value()).collect();
+            let mut kept = u64::MAX;
+            let st = check(
+                unsafe {
+                    pg_radiance_grid_add(
+                        grid,
+                        n,
+                        pos.as_ptr(),
+                        nrm.as_ptr(),
+                        rad.as_ptr(),
+                        &mut kept,
+                    )
+                },
+                "pg_radiance_grid_add",
+            );
+            expect_null(st, grid.is_null());
+            if st == PgStatus::PG_OK {
+                let good = (0..n)
+                    .filter(|&i| {
+                        pos[3 * i..3 * i + 3].iter().all(|x| x.is_finite())
+                            && rad[3 * i..3 * i + 3]
+                                .iter()
+                                .all(|x| x.is_finite() && *x >= 0.0)
+                    })
+                    .count();
+                assert_eq!(kept, good as u64);
+                s.grid_offered += n as u64;
+            }
+        }
+        3 => {
+            let n = usize::from(r.byte()) % (MAX_N + 1);
+            let pos: Vec<f32> = (0..n).flat_map(|_| r.c_position()).collect();
+            let nrm: Vec<f32> = (0..n).flat_map(|_| r.c_dir3()).collect();
+            let mut out = vec![f32::NAN; 3 * n];
+            let st = check(
+                unsafe {
+                    pg_radiance_grid_estimate(grid, n, pos.as_ptr(), nrm.as_ptr(), out.as_mut_ptr())
+                },
+                "pg_radiance_grid_estimate",
+            );
+            expect_null(st, grid.is_null());
+            if st == PgStatus::PG_OK {
+                for e in out.chunks_exact(3) {
+                    assert!(
+                        e == [-1.0; 3] || e.iter().all(|x| x.is_finite() && *x >= 0.0),
+                        "{e:?}"
+                    );
+                }
+            }
+            let mut stats = PgRadianceGridStats::default();
+            let st = check(
+                unsafe { pg_radiance_grid_stats(grid, &mut stats) },
+                "grid stats",
+            );
+            expect_null(st, grid.is_null());
+            if st == PgStatus::PG_OK {
+                assert_eq!(stats.samples + stats.rejected, s.grid_offered, "{stats:?}");
+            }
+        }
+        4 => {
+            // The recorder's reflected radiance into the grid.
+            let rec = if null_handle { null_mut() } else { s.recorder };
+            let keep = r.byte() % 4 != 0;
+            let st = check(
+                unsafe { pg_recorder_keep_reflected(rec, keep) },
+                "keep_reflected",
+            );
+            expect_null(st, rec.is_null());
+            let mut count = u64::MAX;
+            let st = check(
+                unsafe { pg_recorder_flush_reflected_into(rec, grid, &mut count) },
+                "flush_reflected_into",
+            );
+            expect_null(st, rec.is_null() || grid.is_null());
+            if st == PgStatus::PG_OK {
+                // The grid counts what it kept and refused alike; re-read its total.
+                let mut stats = PgRadianceGridStats::default();
+                assert_ok(unsafe { pg_radiance_grid_stats(grid, &mut stats) }, "stats");
+                assert!(stats.samples + stats.rejected >= s.grid_offered + count);
+                s.grid_offered = stats.samples + stats.rejected;
+            }
+        }
+        _ => {
+            let (w, h) = (u32::from(r.byte() % 5), u32::from(r.byte() % 5));
+            let n = (w * h) as usize;
+            let sum: Vec<f64> = (0..3 * n).map(|_| f64::from(r.c_value()) * 8.0).collect();
+            let passes = u32::from(r.byte() % 4);
+            let radius = if r.byte() % 8 == 0 {
+                u32::MAX
+            } else {
+                u32::from(r.byte() % 4)
+            };
+            let mut out = vec![f32::NAN; n];
+            let st = check(
+                unsafe { pg_pixel_estimates(w, h, sum.as_ptr(), passes, radius, out.as_mut_ptr()) },
+                "pg_pixel_estimates",
+            );
+            assert_eq!(st, PgStatus::PG_OK);
+            assert!(out.iter().all(|x| x.is_finite()), "{out:?}");
+            if passes == 0 {
+                assert!(out.iter().all(|&x| x == 0.0));
+            }
+        }
     }
 }

@@ -249,6 +249,8 @@ pub struct GuidedStats {
     pub training: Duration,
     /// Rays traced (closest-hit and shadow).
     pub rays: u64,
+    /// What guided roulette and splitting did (`--rr guided`).
+    pub roulette: Option<crate::render::roulette::RouletteStats>,
     /// The guide cache: `None` when off, else why it was not used or its size.
     pub cache: Option<String>,
     /// Guidable vertices answered by the cache / by the network because no cell was near.
@@ -816,6 +818,7 @@ impl<'g> Guided<'g> {
         stats.trace = rs.trace;
         stats.wall = rs.wall;
         stats.rays = rs.rays;
+        stats.roulette = rs.roulette;
         let fs = self.guide.stats();
         stats.training_steps = fs.steps;
         stats.rejected_samples = fs.rejected_samples.iter().sum();

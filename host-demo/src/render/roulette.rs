@@ -1,0 +1,159 @@
+//! Guided Russian roulette and splitting (`--rr guided`): the wavefront's use of the library's
+//! weight window ([`guiding::WeightWindow`], ADRRS).
+//!
+//! * **What a path is weighed by.** At each vertex, before NEE and direction sampling, the
+//!   driver asks the window for a [`guiding::Decision`] from the path's throughput `β`, the
+//!   vertex's reflected radiance `L̂` from a [`guiding::RadianceGrid`] and the pixel's value `Î`
+//!   ([`guiding::pixel_estimates`]: the running mean over the passes so far, box-filtered over
+//!   5 × 5 pixels). Zero continuations end the path, one goes on with its weight (roulette),
+//!   `k > 1` put `k` copies of the vertex in the bounce's batch, each with `β / k`; each copy
+//!   runs its own NEE and samples its own direction, and all add to the same pixel.
+//! * **When the grid learns.** In the library's training phase ([`guiding::TrainingSchedule`]
+//!   with the default options: the first fifth of the budget, the guide's own training phase):
+//!   the driver records every path of those passes (whatever the strategy) and adds each
+//!   continuing vertex's reflected radiance ([`guiding::BatchRecorder::keep_reflected`]) to the
+//!   grid after each piece. The recorder follows one path per slot, so recorded passes
+//!   roulette but never split; after the training phase the grid is frozen and the window
+//!   splits too.
+//! * **Caps.** At most [`guiding::WeightWindow::max_split`] continuations per vertex and
+//!   [`MAX_PATHS_PER_SAMPLE`] paths per camera sample (so a block's queues hold at most that
+//!   many times its pixels, which also caps the paths of a pass).
+//!
+//! Every decision keeps the estimator unbiased (see [`guiding::roulette`]); `--stats` shows
+//! what the window did ([`RouletteStats`]).
+
+use crate::render::options::{RenderOptions, Roulette};
+use crate::scene::Scene;
+use guiding::{
+    Budget, GridOptions, GridStats, GuidingError, RadianceGrid, ReflectedSample, ScheduleOptions,
+    TrainingSchedule, WeightWindow,
+};
+
+/// The most paths one camera sample may become by splitting.
+pub const MAX_PATHS_PER_SAMPLE: u32 = 16;
+
+/// Radius of the box filter of the pixel estimates (5 × 5 pixels).
+pub const PIXEL_FILTER_RADIUS: u32 = 2;
+
+/// What the window did in a render.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RouletteStats {
+    /// Vertices the window decided on.
+    pub decisions: u64,
+    /// Of those, where the grid or the pixel had no estimate (the path went on untouched).
+    pub missing: u64,
+    /// Paths ended by roulette.
+    pub killed: u64,
+    /// Paths that survived a roulette (weight `1/m > 1`).
+    pub survived: u64,
+    /// Vertices split into `k > 1` continuations.
+    pub split_vertices: u64,
+    /// Continuations added by splitting (`Σ (k − 1)`).
+    pub extra_paths: u64,
+    /// The largest `k` of one vertex.
+    pub max_split: u32,
+    /// Passes in which the grid learned (recorded, no splitting).
+    pub learning_passes: u32,
+    /// The grid at the end of the render.
+    pub grid: GridStats,
+}
+
+impl RouletteStats {
+    /// Mean continuations of a split vertex (0 without splits).
+    pub fn mean_split(&self) -> f64 {
+        if self.split_vertices == 0 {
+            0.0
+        } else {
+            1.0 + self.extra_paths as f64 / self.split_vertices as f64
+        }
+    }
+
+    /// Adds a worker's counters.
+    pub(crate) fn merge(&mut self, other: &RouletteStats) {
+        self.decisions += other.decisions;
+        self.missing += other.missing;
+        self.killed += other.killed;
+        self.survived += other.survived;
+        self.split_vertices += other.split_vertices;
+        self.extra_paths += other.extra_paths;
+        self.max_split = self.max_split.max(other.max_split);
+    }
+}
+
+/// The guided roulette's state: read by the workers during a piece of a pass, updated by the
+/// driver between pieces.
+pub(crate) struct GuidedRoulette {
+    pub window: WeightWindow,
+    pub grid: RadianceGrid,
+    /// Per pixel (row-major), `Î`.
+    pub pixel: Vec<f32>,
+    /// The grid learns in this pass (recorded, no splitting).
+    pub learning: bool,
+    /// The negative control: split copies keep the full weight.
+    pub unweighted: bool,
+    schedule: TrainingSchedule,
+    pub stats: RouletteStats,
+}
+
+impl GuidedRoulette {
+    /// The state for a render of `scene` with `opts` (`None` unless `opts.rr` is guided).
+    pub fn new(scene: &Scene, opts: &RenderOptions) -> Result<Option<Self>, GuidingError> {
+        if !opts.rr.is_guided() {
+            return Ok(None);
+        }
+        let (lo, hi) = scene.bounds();
+        let budget = match opts.time_budget {
+            Some(t) => Budget::Seconds(t.as_secs_f64()),
+            None => Budget::Spp(opts.spp),
+        };
+        Ok(Some(Self {
+            window: WeightWindow::default(),
+            grid: RadianceGrid::new(lo.to_array(), hi.to_array(), GridOptions::default())?,
+            pixel: Vec::new(),
+            learning: true,
+            unweighted: opts.rr == Roulette::GuidedUnweighted,
+            schedule: TrainingSchedule::new(ScheduleOptions::default(), budget)?,
+            stats: RouletteStats::default(),
+        }))
+    }
+
+    /// Before a pass: whether the grid learns in it, and `Î` from the passes so far.
+    pub fn begin_pass(
+        &mut self,
+        elapsed: f64,
+        pass: u32,
+        width: u32,
+        height: u32,
+        sum: &[[f64; 3]],
+    ) {
+        self.learning = self.schedule.in_training_phase(elapsed, pass);
+        if self.learning {
+            self.stats.learning_passes += 1;
+        }
+        if guiding::pixel_estimates(
+            width,
+            height,
+            sum,
+            pass,
+            PIXEL_FILTER_RADIUS,
+            &mut self.pixel,
+        )
+        .is_err()
+        {
+            self.pixel.clear();
+        }
+    }
+
+    /// After a piece: the reflected radiance the workers recorded.
+    pub fn learn(&mut self, samples: &[ReflectedSample]) {
+        self.grid.add_samples(samples);
+    }
+
+    /// The render's statistics.
+    pub fn finish(&self) -> RouletteStats {
+        RouletteStats {
+            grid: self.grid.stats(),
+            ..self.stats
+        }
+    }
+}
