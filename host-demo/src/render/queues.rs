@@ -72,17 +72,29 @@ soa_queue! {
         pub pdf: Vec<f32>,
         /// The ray is a camera ray (emission seen directly: no MIS).
         pub from_camera: Vec<bool>,
+        /// The ray continues the path the recorder follows in its slot (after a split, only
+        /// the first copy's does).
+        pub tracked: Vec<bool>,
     }
 }
 
 impl RayQueue {
-    pub(crate) fn push(&mut self, slot: u32, origin: Vec3, dir: Vec3, beta: Vec3, pdf: f32) {
+    pub(crate) fn push(
+        &mut self,
+        slot: u32,
+        origin: Vec3,
+        dir: Vec3,
+        beta: Vec3,
+        pdf: f32,
+        tracked: bool,
+    ) {
         self.slot.push(slot);
         self.origin.push(origin);
         self.dir.push(dir);
         self.beta.push(beta);
         self.pdf.push(pdf);
         self.from_camera.push(false);
+        self.tracked.push(tracked);
     }
 }
 
@@ -105,6 +117,9 @@ soa_queue! {
         pub beta: Vec<Vec3>,
         /// The material with its textures evaluated at the hit (what NEE and sampling use).
         pub bsdf: Vec<Material>,
+        /// The vertex is on the path the recorder follows in its slot (a split vertex's first
+        /// copy; see [`RayQueue::tracked`]).
+        pub tracked: Vec<bool>,
     }
 }
 

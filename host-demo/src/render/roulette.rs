@@ -12,9 +12,13 @@
 //!   with the default options: the first fifth of the budget, the guide's own training phase):
 //!   the driver records every path of those passes (whatever the strategy) and adds each
 //!   continuing vertex's reflected radiance ([`guiding::BatchRecorder::keep_reflected`]) to the
-//!   grid after each piece. The recorder follows one path per slot, so recorded passes
-//!   roulette but never split; after the training phase the grid is frozen and the window
-//!   splits too.
+//!   grid after each piece; then the grid is frozen. Recording in every pass instead cost more
+//!   than the better estimates gained (`builtin:door`, 20 s, 160 px, 3 seeds: `pt-nee-grr`
+//!   relMSE 0.061 against 0.054, `npm-radiance-grr` 0.047 against 0.039).
+//! * **Splitting while recording.** The recorder follows one path per slot: after a split only
+//!   the first copy is recorded (`tracked` in the queues), with no `1/k` on its continuation:
+//!   one copy's estimate of the vertex's reflected radiance is unbiased by itself. So the
+//!   window splits in every pass, the training passes of a guide included.
 //! * **Caps.** At most [`guiding::WeightWindow::max_split`] continuations per vertex and
 //!   [`MAX_PATHS_PER_SAMPLE`] paths per camera sample (so a block's queues hold at most that
 //!   many times its pixels, which also caps the paths of a pass).
@@ -32,7 +36,10 @@ use guiding::{
 /// The most paths one camera sample may become by splitting.
 pub const MAX_PATHS_PER_SAMPLE: u32 = 16;
 
-/// Radius of the box filter of the pixel estimates (5 × 5 pixels).
+/// Radius of the box filter of the pixel estimates (5 × 5 pixels). On `builtin:door` (20 s,
+/// 160 px, 3 seeds) a filter that shrinks to one pixel once 16 passes are in made `pt-nee-grr`
+/// 0.061 (against 0.054) and radius 6 made it 0.058: a noisy `Î` splits paths where the pixel
+/// only looks dark, a wide one blurs the lit edges.
 pub const PIXEL_FILTER_RADIUS: u32 = 2;
 
 /// What the window did in a render.

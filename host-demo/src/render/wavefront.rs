@@ -183,13 +183,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
         self.radiance.resize(count, Vec3::ZERO);
         self.pixel_of_slot.clear();
         self.room.clear();
-        // A recorded pass follows one path per slot: roulette, no splitting.
-        let room = if self.recorder.is_some() {
-            0
-        } else {
-            MAX_PATHS_PER_SAMPLE - 1
-        };
-        self.room.resize(count, room);
+        self.room.resize(count, MAX_PATHS_PER_SAMPLE - 1);
         if let Some(r) = &mut self.recorder {
             r.start(count);
         }
@@ -209,7 +203,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                 cam.ray(u, v)
             };
             self.rng.push(rng);
-            self.rays_in.push(i as u32, o, d, Vec3::ONE, 0.0);
+            self.rays_in.push(i as u32, o, d, Vec3::ONE, 0.0, true);
             self.rays_in.from_camera[i] = true;
         }
         let mut bounce = 0u32;
@@ -245,6 +239,8 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
         self.rays += q.len() as u64;
         for i in 0..q.len() {
             let (o, d, slot) = (q.origin[i], q.dir[i], q.slot[i]);
+            // The recorder follows one path per slot: the tracked copy's.
+            let mut recorder = self.recorder.as_mut().filter(|_| q.tracked[i]);
             let mis = |pdf_light: f32| {
                 if q.from_camera[i] || !self.nee || q.pdf[i].is_infinite() {
                     1.0
@@ -259,7 +255,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                     let le = scene.env_radiance(d);
                     let w = mis(scene.env_pdf(d));
                     self.radiance[slot as usize] += q.beta[i] * le * w;
-                    if let Some(r) = &mut self.recorder {
+                    if let Some(r) = &mut recorder {
                         r.add_escaped_radiance(slot, le.to_array(), w);
                     }
                 }
@@ -282,7 +278,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                 ..PathVertex::default()
             };
             if !continue_path {
-                if let Some(r) = &mut self.recorder {
+                if let Some(r) = &mut recorder {
                     r.add_vertex(slot, vertex);
                 }
                 continue;
@@ -295,7 +291,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                 hit.uv,
                 &mut self.rng[slot as usize],
             );
-            if let Some(r) = &mut self.recorder {
+            if let Some(r) = &mut recorder {
                 vertex.position = hit.p.to_array();
                 vertex.normal = ns.to_array();
                 vertex.wo = (-d).to_array();
@@ -316,20 +312,23 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                     continue;
                 }
                 beta /= q;
-                if let Some(r) = &mut self.recorder {
+                if let Some(r) = &mut recorder {
                     r.scale_continuation(slot, 1.0 / q);
                 }
             }
+            let tracked = q.tracked[i];
             let mut copies = 1;
             if let Some(g) = self.roulette {
-                let Some((k, weight)) = self.guided_roulette(g, slot, hit.p, ns, beta) else {
+                let decided = self.guided_roulette(g, slot, tracked, hit.p, ns, beta);
+                let Some((k, weight)) = decided else {
                     continue;
                 };
                 copies = k;
                 beta *= weight;
             }
             let v = &mut self.verts;
-            for _ in 0..copies {
+            for copy in 0..copies {
+                v.tracked.push(tracked && copy == 0);
                 v.slot.push(slot);
                 v.position.push(hit.p);
                 v.ng.push(ng);
@@ -345,10 +344,15 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
     /// The weight window's decision for the path in `slot` at a vertex at `p` (shading normal
     /// `ns`) with throughput `beta`: `None` if roulette ends it, else the number of copies of
     /// the vertex and the factor on their throughput.
+    ///
+    /// For the recorder (`tracked`: the path it follows), a roulette survival scales the
+    /// continuation by `1/m`; a split does not scale it: the tracked copy's estimate alone is
+    /// an unbiased estimate of the vertex's reflected radiance (as is the mean of the `k`).
     fn guided_roulette(
         &mut self,
         g: &GuidedRoulette,
         slot: u32,
+        tracked: bool,
         p: Vec3,
         ns: Vec3,
         beta: Vec3,
@@ -382,7 +386,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                 if d.weight > 1.0 {
                     stats.survived += 1;
                 }
-                if let Some(r) = &mut self.recorder {
+                if let Some(r) = self.recorder.as_mut().filter(|_| tracked) {
                     r.scale_continuation(slot, d.weight);
                 }
                 Some((1, d.weight))
@@ -458,7 +462,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
             let i = sh.vertex[k] as usize;
             let slot = v.slot[i];
             self.radiance[slot as usize] += v.beta[i] * sh.local[k];
-            if let Some(r) = &mut self.recorder {
+            if let Some(r) = self.recorder.as_mut().filter(|_| v.tracked[i]) {
                 // The roulette factor of this vertex scales its NEE too (the recorder's
                 // continuation scale covers only the scattered radiance).
                 let rr = r.last_vertex(slot).map_or(1.0, |v| v.continuation_scale);
@@ -485,7 +489,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
             {
                 continue;
             }
-            if let Some(r) = &mut self.recorder {
+            if let Some(r) = self.recorder.as_mut().filter(|_| v.tracked[i]) {
                 // A vertex that makes no sample only propagates: its weight as `f·cos / p`
                 // with `p = 1`.
                 let trains = r.last_vertex(slot).is_some_and(|v| !v.is_delta);
@@ -505,7 +509,8 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                 );
             }
             let o = offset(v.position[i], ng, wi);
-            self.rays_out.push(slot, o, wi, beta, c.pdf[i]);
+            self.rays_out
+                .push(slot, o, wi, beta, c.pdf[i], v.tracked[i]);
         }
     }
 }
