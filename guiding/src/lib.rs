@@ -115,8 +115,8 @@ pub use guiding_core::optim::AdamConfig;
 pub use guiding_core::sample::{Rejection, TrainingSample};
 pub use recorder::{BatchRecorder, Continuation, PathRecorder, PathVertex, ReflectedSample};
 pub use roulette::{
-    continuation_count, pixel_estimates, Decision, GridOptions, GridStats, RadianceGrid,
-    WeightWindow,
+    continuation_count, pixel_estimates, pixel_variances, Decision, GridOptions, GridStats,
+    RadianceGrid, WeightWindow,
 };
 pub use schedule::{Budget, ScheduleOptions, ScheduleReport, StepRule, TrainingSchedule};
 pub use trial::{GuideTrial, TrialArm, TrialOptions, TrialVerdict};

@@ -49,6 +49,7 @@ fn methods_and_budgets_parse() {
     for (method, args) in [
         ("pt-nee-grr", "--integrator pt-nee --rr guided"),
         ("pt-grr", "--integrator pt --rr guided"),
+        ("pt-nee-err", "--integrator pt-nee --rr efficiency"),
         (
             "npm-radiance-notrial-grr",
             "--integrator guided --guide npm --target radiance --guide-trial off --rr guided",

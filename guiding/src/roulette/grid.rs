@@ -64,6 +64,8 @@ const BINS: usize = 7;
 #[derive(Clone, Copy, Debug, Default)]
 struct Cell {
     sum: [f64; 3],
+    /// Sums of squares (the second moment).
+    sum2: [f64; 3],
     count: u32,
 }
 
@@ -203,8 +205,10 @@ impl RadianceGrid {
             &mut self.coarse.cells[coarse],
             &mut self.global,
         ] {
-            for (sum, r) in cell.sum.iter_mut().zip(radiance) {
-                *sum += f64::from(r);
+            for (c, r) in radiance.into_iter().enumerate() {
+                let r = f64::from(r);
+                cell.sum[c] += r;
+                cell.sum2[c] += r * r;
             }
             cell.count = cell.count.saturating_add(1);
         }
@@ -224,20 +228,37 @@ impl RadianceGrid {
     /// docs](self)); `None` for an empty grid or a non-finite position.
     #[must_use]
     pub fn estimate(&self, position: [f32; 3], normal: [f32; 3]) -> Option<[f32; 3]> {
+        self.shrunk(position, normal, |c| c.sum)
+    }
+
+    /// The second moment `E[L_r²]` per channel at `position`, shrunk across the levels as
+    /// [`Self::estimate`] (what [`super::WeightWindow::efficiency_continuations`] weighs).
+    #[must_use]
+    pub fn second_moment(&self, position: [f32; 3], normal: [f32; 3]) -> Option<[f32; 3]> {
+        self.shrunk(position, normal, |c| c.sum2)
+    }
+
+    /// The shrunk mean of the per-cell sums `sums` (see the [module docs](self)).
+    fn shrunk(
+        &self,
+        position: [f32; 3],
+        normal: [f32; 3],
+        sums: impl Fn(&Cell) -> [f64; 3],
+    ) -> Option<[f32; 3]> {
         let local = self.local(position)?;
         if self.global.count == 0 {
             return None;
         }
         let b = bin(normal);
         let k = f64::from(self.options.prior_weight);
-        let shrink = |cell: Cell, prior: [f64; 3]| {
-            let n = f64::from(cell.count) + k;
-            [0, 1, 2].map(|c| (cell.sum[c] + k * prior[c]) / n)
+        let shrink = |cell: &Cell, prior: [f64; 3]| {
+            let (s, n) = (sums(cell), f64::from(cell.count) + k);
+            [0, 1, 2].map(|c| (s[c] + k * prior[c]) / n)
         };
         let n = f64::from(self.global.count);
-        let global = self.global.sum.map(|s| s / n);
-        let coarse = shrink(self.coarse.cells[self.coarse.index(local, b)], global);
-        let fine = shrink(self.fine.cells[self.fine.index(local, b)], coarse);
+        let global = sums(&self.global).map(|s| s / n);
+        let coarse = shrink(&self.coarse.cells[self.coarse.index(local, b)], global);
+        let fine = shrink(&self.fine.cells[self.fine.index(local, b)], coarse);
         Some(fine.map(|x| x as f32))
     }
 
@@ -342,6 +363,12 @@ mod tests {
             (s.samples, s.rejected, s.fine_cells, s.coarse_cells),
             (4, 0, 2, 2)
         );
+        // Second moments the same way: global (1+9+64+64, 4+4+64+64, 9+1+64+64)/4; the
+        // fine (3,1,0) down cell (128 + 2·coarse)/4 with coarse (128 + 2·global)/4.
+        let global = [138.0 / 4.0, 136.0 / 4.0, 138.0 / 4.0];
+        let coarse = global.map(|g: f32| (128.0 + 2.0 * g) / 4.0);
+        let fine = coarse.map(|c| (128.0 + 2.0 * c) / 4.0);
+        assert!(close(g.second_moment([3.5, 1.5, 0.5], down), fine));
     }
 
     /// The two sides of a wall (opposite normals) and vertices without a normal are kept

@@ -38,7 +38,7 @@ mod grid;
 mod pixel;
 
 pub use grid::{GridOptions, GridStats, RadianceGrid};
-pub use pixel::pixel_estimates;
+pub use pixel::{pixel_estimates, pixel_variances};
 
 use crate::GuidingError;
 
@@ -138,7 +138,12 @@ impl WeightWindow {
             beta[1] * radiance[1],
             beta[2] * radiance[2],
         ];
-        let m = luminance(weighted) / pixel;
+        self.windowed(luminance(weighted) / pixel)
+    }
+
+    /// A raw expected count `m ≥ 0` through the window: 1 inside `[2/(1+s), 2s/(1+s)]`, else
+    /// clamped to `[min_survival, max_split]` (`max_split` for a non-finite `m`).
+    fn windowed(&self, m: f32) -> f32 {
         let (lower, upper) = self.bounds();
         if !m.is_finite() {
             return self.max_split as f32;
@@ -148,6 +153,37 @@ impl WeightWindow {
         } else {
             m.clamp(self.min_survival, self.max_split as f32)
         }
+    }
+
+    /// The efficiency-aware `m` (after EARS, Rath et al. 2022, without its cost term): with
+    /// `M` the second moment of the reflected radiance at the vertex (RGB,
+    /// [`RadianceGrid::second_moment`]) and `σ²` the variance of one sample of the pixel
+    /// (luminance-weighted, [`pixel_variances`]), `m = √(Y(β² ⊙ M) / σ²)`, through the window
+    /// as [`Self::continuations`]. Minimising variance × cost of the pixel over the factor
+    /// `q` applied to the subpath from the vertex (variance `β²M/q`, cost `q·C_x`, the rest of
+    /// the pixel `σ²` and `C`) gives `q* = β√M/σ · √(C / C_x)`; the cost ratio `C / C_x ≥ 1`
+    /// is taken as 1 (less splitting than the optimum, never more). Where the pixel is
+    /// already precise (`σ` small) paths are split rather than killed; where it is noisy,
+    /// roulette removes what its variance hardly changes. Missing estimates (a negative or
+    /// non-finite moment, `σ²` not finite and positive) leave the path alone; a dead path
+    /// (no finite positive luminance of `β`) gets 0.
+    #[must_use]
+    pub fn efficiency_continuations(
+        &self,
+        beta: [f32; 3],
+        second_moment: [f32; 3],
+        pixel_variance: f32,
+    ) -> f32 {
+        let y_beta = luminance(beta);
+        if !(y_beta.is_finite() && y_beta > 0.0) {
+            return 0.0;
+        }
+        let moment_ok = (0..3).all(|c| second_moment[c].is_finite() && second_moment[c] >= 0.0);
+        if !(moment_ok && pixel_variance.is_finite() && pixel_variance > 0.0) {
+            return 1.0;
+        }
+        let weighted = [0, 1, 2].map(|c| beta[c] * beta[c] * second_moment[c]);
+        self.windowed((luminance(weighted) / pixel_variance).sqrt())
     }
 
     /// The decision for one path: `m` from [`Self::continuations`], then roulette (`m < 1`:
@@ -163,7 +199,27 @@ impl WeightWindow {
         u: f32,
         room: u32,
     ) -> Decision {
-        let m = self.continuations(beta, radiance, pixel);
+        self.decide_expected(self.continuations(beta, radiance, pixel), u, room)
+    }
+
+    /// [`Self::decide`] with the efficiency-aware `m` ([`Self::efficiency_continuations`]).
+    #[must_use]
+    pub fn decide_efficiency(
+        &self,
+        beta: [f32; 3],
+        second_moment: [f32; 3],
+        pixel_variance: f32,
+        u: f32,
+        room: u32,
+    ) -> Decision {
+        let m = self.efficiency_continuations(beta, second_moment, pixel_variance);
+        self.decide_expected(m, u, room)
+    }
+
+    /// The decision for an expected count `m` (from [`Self::continuations`] or
+    /// [`Self::efficiency_continuations`]): roulette below 1, splitting from 1 on.
+    #[must_use]
+    pub fn decide_expected(&self, m: f32, u: f32, room: u32) -> Decision {
         if m < 1.0 {
             return if u < m {
                 Decision {
@@ -255,6 +311,26 @@ mod tests {
         assert_eq!(w.continuations(GREY(100.0), GREY(1.0), 1.0), 8.0);
         assert_eq!(w.continuations(GREY(1e30), GREY(1e30), 1e-30), 8.0);
         assert_eq!(w.continuations(GREY(1e-3), GREY(1.0), 1.0), 0.05);
+    }
+
+    /// The efficiency-aware rule written out: `m = √(Y(β² ⊙ M)/σ²)` through the same window.
+    #[test]
+    fn the_efficiency_rule_written_out() {
+        let w = WeightWindow::default();
+        // √(2² · 4 / 1) = 4: four continuations.
+        let m = w.efficiency_continuations(GREY(2.0), GREY(4.0), 1.0);
+        assert!((m - 4.0).abs() < 1e-5, "{m}");
+        // √(1 · 1 / 100) = 0.1: roulette.
+        let m = w.efficiency_continuations(GREY(1.0), GREY(1.0), 100.0);
+        assert!((m - 0.1).abs() < 1e-6, "{m}");
+        // √(1 · 1.44 / 1) = 1.2: inside the window.
+        assert_eq!(w.efficiency_continuations(GREY(1.0), GREY(1.44), 1.0), 1.0);
+        // Missing estimates, a dead path.
+        assert_eq!(w.efficiency_continuations(GREY(1.0), GREY(1.0), 0.0), 1.0);
+        assert_eq!(w.efficiency_continuations(GREY(1.0), [-1.0; 3], 1.0), 1.0);
+        assert_eq!(w.efficiency_continuations(GREY(0.0), GREY(1.0), 1.0), 0.0);
+        let d = w.decide_efficiency(GREY(2.0), GREY(4.0), 1.0, 0.5, 8);
+        assert_eq!((d.count, d.weight), (4, 0.25));
     }
 
     #[test]

@@ -52,8 +52,9 @@ impl Method {
     /// and on every method, `pt` and `pt-nee` included, `-grr` (`--rr guided`: the library's
     /// weight window with splitting).
     pub fn parse(full: &str) -> Result<Self> {
-        const SUFFIXES: [(&str, [&str; 2]); 7] = [
+        const SUFFIXES: [(&str, [&str; 2]); 8] = [
             ("-grr", ["--rr", "guided"]),
+            ("-err", ["--rr", "efficiency"]),
             ("-nonee", ["--nee", "off"]),
             ("-nocache", ["--guide-cache", "off"]),
             ("-frozen", ["--guide-cache", "frozen"]),
@@ -69,7 +70,7 @@ impl Method {
                     // Only `-grr` applies to the unguided methods.
                     Some(base)
                         if !base.is_empty()
-                            && (suffix == "-grr" || (base != "pt" && base != "pt-nee")) =>
+                            && (suffix.ends_with("rr") || (base != "pt" && base != "pt-nee")) =>
                     {
                         name = base;
                         extra.splice(0..0, flags);

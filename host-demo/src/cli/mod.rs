@@ -38,6 +38,8 @@ enum RouletteArg {
     Throughput,
     /// The library's weight window (ADRRS) with splitting, from a learned radiance grid.
     Guided,
+    /// The same with the efficiency-aware rule (second moment against the pixel's variance).
+    Efficiency,
 }
 
 impl From<RouletteArg> for host_demo::render::Roulette {
@@ -46,6 +48,7 @@ impl From<RouletteArg> for host_demo::render::Roulette {
             RouletteArg::Off => Self::Off,
             RouletteArg::Throughput => Self::Throughput,
             RouletteArg::Guided => Self::Guided,
+            RouletteArg::Efficiency => Self::Efficiency,
         }
     }
 }

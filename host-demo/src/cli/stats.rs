@@ -164,6 +164,7 @@ impl CommonStages {
                     Roulette::Off => "off",
                     Roulette::Throughput => "throughput",
                     Roulette::Guided => "guided",
+                    Roulette::Efficiency => "efficiency",
                     Roulette::GuidedUnweighted => "guided-unweighted",
                 },
                 rr_depth,

@@ -26,6 +26,10 @@ pub enum Roulette {
     /// [`guiding::RadianceGrid`] learned in the library's training phase (see
     /// [`crate::render::roulette`]).
     Guided,
+    /// The efficiency-aware rule ([`guiding::WeightWindow::efficiency_continuations`]): the
+    /// path's second moment against the pixel's variance instead of its mean against the
+    /// pixel's value; the same grid, window and caps as [`Roulette::Guided`].
+    Efficiency,
     /// [`Roulette::Guided`] with the split continuations' weights *not* divided by `k`: a
     /// biased estimator, the negative control of the unbiasedness tests.
     #[doc(hidden)]
@@ -35,7 +39,10 @@ pub enum Roulette {
 impl Roulette {
     /// Whether the guided rule (or its negative control) runs.
     pub fn is_guided(self) -> bool {
-        matches!(self, Roulette::Guided | Roulette::GuidedUnweighted)
+        matches!(
+            self,
+            Roulette::Guided | Roulette::Efficiency | Roulette::GuidedUnweighted
+        )
     }
 }
 

@@ -1,7 +1,12 @@
 //! Guided Russian roulette and splitting (`--rr guided`): the wavefront's use of the library's
 //! weight window ([`guiding::WeightWindow`], ADRRS).
 //!
-//! * **What a path is weighed by.** At each vertex, before NEE and direction sampling, the
+//! * **Where the window decides.** Past the camera vertex (there `m = L_r / I` is 1 for exact
+//!   estimates, so only their errors could move it) and at Lambertian vertices (`diffuse`,
+//!   `roughdiffuse`): the grid's estimate ignores `ω_o`, which a glossy lobe's reflected light
+//!   does not. On `veach-mis` (glossy plates; 20 s, 256 px, 2 seeds) deciding everywhere made
+//!   `pt-nee-grr` 1.17× `pt-nee`'s relMSE, these two rules 1.08×.
+//! * **What a path is weighed by.** At each such vertex, before NEE and direction sampling, the
 //!   driver asks the window for a [`guiding::Decision`] from the path's throughput `β`, the
 //!   vertex's reflected radiance `L̂` from a [`guiding::RadianceGrid`] and the pixel's value `Î`
 //!   ([`guiding::pixel_estimates`]: the running mean over the passes so far, box-filtered over
@@ -22,6 +27,12 @@
 //! * **Caps.** At most [`guiding::WeightWindow::max_split`] continuations per vertex and
 //!   [`MAX_PATHS_PER_SAMPLE`] paths per camera sample (so a block's queues hold at most that
 //!   many times its pixels, which also caps the paths of a pass).
+//!
+//! `--rr efficiency` swaps ADRRS's `m = Y(β ⊙ L̂)/Î` for the efficiency-aware
+//! `m = √(Y(β² ⊙ M)/σ²)` ([`guiding::WeightWindow::efficiency_continuations`]: the grid's second
+//! moment against the pixel's variance, [`guiding::pixel_variances`]); measured on the suite it
+//! lost to ADRRS on three scenes of five (see `docs/bench-2026-12-07-roulette`), so `guided` is
+//! ADRRS.
 //!
 //! Every decision keeps the estimator unbiased (see [`guiding::roulette`]); `--stats` shows
 //! what the window did ([`RouletteStats`]).
@@ -92,8 +103,10 @@ impl RouletteStats {
 pub(crate) struct GuidedRoulette {
     pub window: WeightWindow,
     pub grid: RadianceGrid,
-    /// Per pixel (row-major), `Î`.
+    /// Per pixel (row-major), `Î` (the adjoint rule) or `σ²` (the efficiency rule).
     pub pixel: Vec<f32>,
+    /// The efficiency-aware rule instead of ADRRS's.
+    pub efficiency: bool,
     /// The grid learns in this pass (recorded, no splitting).
     pub learning: bool,
     /// The negative control: split copies keep the full weight.
@@ -119,34 +132,33 @@ impl GuidedRoulette {
             pixel: Vec::new(),
             learning: true,
             unweighted: opts.rr == Roulette::GuidedUnweighted,
+            efficiency: opts.rr == Roulette::Efficiency,
             schedule: TrainingSchedule::new(ScheduleOptions::default(), budget)?,
             stats: RouletteStats::default(),
         }))
     }
 
-    /// Before a pass: whether the grid learns in it, and `Î` from the passes so far.
+    /// Before a pass: whether the grid learns in it, and `Î` (or `σ²`) from the passes so far
+    /// (`sum`, `sum2`: the per-pixel sums and sums of squares).
     pub fn begin_pass(
         &mut self,
         elapsed: f64,
         pass: u32,
-        width: u32,
-        height: u32,
+        (width, height): (u32, u32),
         sum: &[[f64; 3]],
+        sum2: &[[f64; 3]],
     ) {
         self.learning = self.schedule.in_training_phase(elapsed, pass);
         if self.learning {
             self.stats.learning_passes += 1;
         }
-        if guiding::pixel_estimates(
-            width,
-            height,
-            sum,
-            pass,
-            PIXEL_FILTER_RADIUS,
-            &mut self.pixel,
-        )
-        .is_err()
-        {
+        let r = PIXEL_FILTER_RADIUS;
+        let done = if self.efficiency {
+            guiding::pixel_variances(width, height, sum, sum2, pass, r, &mut self.pixel)
+        } else {
+            guiding::pixel_estimates(width, height, sum, pass, r, &mut self.pixel)
+        };
+        if done.is_err() {
             self.pixel.clear();
         }
     }

@@ -43,6 +43,7 @@ use crate::render::queues::{Continuations, LightSamples, RayQueue, ShadowQueue, 
 use crate::render::roulette::{GuidedRoulette, RouletteStats, MAX_PATHS_PER_SAMPLE};
 use crate::render::schedule::Schedule;
 use crate::render::strategy::{PassImage, PassSamples, Strategy, Traced, VertexStrategy};
+use crate::scene::bsdf::Material;
 use crate::scene::emitter::EmitterSample;
 use crate::scene::Scene;
 use glam::Vec3;
@@ -318,7 +319,17 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
             }
             let tracked = q.tracked[i];
             let mut copies = 1;
-            if let Some(g) = self.roulette {
+            // The window decides past the camera vertex (there `m = L_r / I` is 1 for exact
+            // estimates: only their errors could move it) and at Lambertian vertices (its
+            // estimate ignores `ω_o`: a glossy lobe's reflected light is not its cell's mean).
+            let window = self.roulette.filter(|_| {
+                bounce > 0
+                    && matches!(
+                        mat,
+                        Material::Diffuse { .. } | Material::RoughDiffuse { .. }
+                    )
+            });
+            if let Some(g) = window {
                 let decided = self.guided_roulette(g, slot, tracked, hit.p, ns, beta);
                 let Some((k, weight)) = decided else {
                     continue;
@@ -358,7 +369,11 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
         beta: Vec3,
     ) -> Option<(u32, f32)> {
         let s = slot as usize;
-        let radiance = g.grid.estimate(p.to_array(), ns.to_array());
+        let radiance = if g.efficiency {
+            g.grid.second_moment(p.to_array(), ns.to_array())
+        } else {
+            g.grid.estimate(p.to_array(), ns.to_array())
+        };
         let pixel = g
             .pixel
             .get(self.pixel_of_slot[s] as usize)
@@ -370,13 +385,12 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
             stats.missing += 1;
         }
         let u = self.rng[s].next_f32();
-        let d = g.window.decide(
-            beta.to_array(),
-            radiance.unwrap_or([-1.0; 3]),
-            pixel,
-            u,
-            self.room[s],
-        );
+        let (b, estimate, room) = (beta.to_array(), radiance.unwrap_or([-1.0; 3]), self.room[s]);
+        let d = if g.efficiency {
+            g.window.decide_efficiency(b, estimate, pixel, u, room)
+        } else {
+            g.window.decide(b, estimate, pixel, u, room)
+        };
         match d.count {
             0 => {
                 stats.killed += 1;
@@ -587,7 +601,8 @@ pub fn render_passes<S: Strategy>(
     while let Some(pass) = sched.next_pass() {
         let record = strategy.begin_pass(&pass);
         if let Some(g) = &mut roulette {
-            g.begin_pass(pass.elapsed.as_secs_f64(), pass.index, width, height, &sum);
+            let size = (width, height);
+            g.begin_pass(pass.elapsed.as_secs_f64(), pass.index, size, &sum, &sum2);
         }
         sched.training_ended(
             &pass,
