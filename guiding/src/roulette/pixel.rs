@@ -14,7 +14,8 @@
 use crate::GuidingError;
 
 /// Per pixel (row-major), the luminance of the mean `sum / passes` box-filtered with radius
-/// `radius`, into `out` (cleared first); every value 0 when `passes` is 0.
+/// `radius`, into `out` (cleared first); every value 0 when `passes` is 0. Non-finite sums
+/// count as 0, values beyond the `f32` range saturate at `±f32::MAX`.
 ///
 /// # Errors
 /// [`GuidingError::LengthMismatch`] if `sum` does not hold `width × height` pixels; `out` is
@@ -129,7 +130,9 @@ fn box_filter(w: usize, h: usize, values: &[f64], r: usize, out: &mut Vec<f32>) 
         }
         for row in 0..h {
             let (a, b) = (row.saturating_sub(r), row.saturating_add(r + 1).min(h));
-            out[row * w + x] = ((prefix[b] - prefix[a]) / (b - a) as f64) as f32;
+            // Saturated to the f32 range: sums beyond it give f32::MAX, not infinity.
+            let mean = (prefix[b] - prefix[a]) / (b - a) as f64;
+            out[row * w + x] = mean.clamp(-f64::from(f32::MAX), f64::from(f32::MAX)) as f32;
         }
     }
 }
@@ -180,6 +183,11 @@ mod tests {
         assert_eq!(out, [0.0, 0.0]);
         assert!(pixel_estimates(2, 2, &[[1.0; 3]; 2], 1, 1, &mut out).is_err());
         assert_eq!(out, [0.0, 0.0]);
+        // Sums beyond the f32 range saturate (found by the c_api fuzz target: infinities).
+        pixel_estimates(2, 1, &[[1e39; 3], [-1e39; 3]], 1, 0, &mut out).unwrap();
+        assert_eq!(out, [f32::MAX, -f32::MAX]);
+        pixel_variances(1, 1, &[[0.0; 3]], &[[1e300; 3]], 2, 0, &mut out).unwrap();
+        assert_eq!(out, [f32::MAX]);
         pixel_estimates(2, 1, &[[f64::NAN; 3], [2.0; 3]], 1, 0, &mut out).unwrap();
         assert_eq!(out[0], 0.0);
         assert!((out[1] - 2.0).abs() < 1e-6);
