@@ -34,8 +34,8 @@
 //! EARS (Rath et al. 2022), which chooses `m` from estimated cost and variance instead of the
 //! pixel value, is not implemented: the window is the baseline the issue names.
 
-mod grid;
-mod pixel;
+pub mod grid;
+pub mod pixel;
 
 pub use grid::{GridOptions, GridStats, RadianceGrid};
 pub use pixel::{pixel_estimates, pixel_variances};
