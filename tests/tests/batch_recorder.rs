@@ -335,23 +335,6 @@ fn by_the_rule(p: &Path, rule: Rule, out: &mut Vec<TrainingSample>) -> [f32; 3] 
     estimate
 }
 
-/// The bits of `estimates`, every NaN as one pattern: Rust leaves the payload and sign of a
-/// NaN that arithmetic makes unspecified (the operand order the compiler picks decides it),
-/// so only NaN-ness is part of the rule.
-fn bits(estimates: &[[f32; 3]]) -> Vec<u32> {
-    estimates
-        .iter()
-        .flatten()
-        .map(|x| {
-            if x.is_nan() {
-                f32::NAN.to_bits()
-            } else {
-                x.to_bits()
-            }
-        })
-        .collect()
-}
-
 /// `Ok` if both give the same samples and estimates bit for bit, else where
 /// they first differ.
 fn compare(
@@ -370,7 +353,7 @@ fn compare(
             return Err(format!("sample {i}: {a:?} vs {b:?}"));
         }
     }
-    if bits(estimates.0) != bits(estimates.1) {
+    if nan_bits(estimates.0) != nan_bits(estimates.1) {
         return Err(format!("estimates {:?} vs {:?}", estimates.0, estimates.1));
     }
     Ok(())
@@ -393,7 +376,7 @@ fn batch_recorder_matches_one_path_recorder_per_path() {
         assert_eq!(batch.vertex_count(), total_hits);
         let estimates = batch.end().to_vec();
         assert_eq!(batch.paths(), 0);
-        assert_eq!(bits(batch.estimates()), bits(&estimates));
+        assert_eq!(nan_bits(batch.estimates()), nan_bits(&estimates));
         let expected = record_one_by_one(&mut single, &paths);
         assert_eq!(estimates.len(), paths.len());
         if let Err(e) = compare((batch.samples(), single.samples()), (&estimates, &expected)) {
