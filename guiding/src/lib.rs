@@ -116,7 +116,7 @@ pub use guiding_core::sample::{Rejection, TrainingSample};
 pub use recorder::{BatchRecorder, Continuation, PathRecorder, PathVertex, ReflectedSample};
 pub use roulette::{
     continuation_count, pixel_estimates, pixel_variances, Decision, GridOptions, GridStats,
-    RadianceGrid, WeightWindow,
+    RadianceGrid, WeightWindow, WindowTrial,
 };
 pub use schedule::{Budget, ScheduleOptions, ScheduleReport, StepRule, TrainingSchedule};
 pub use trial::{GuideTrial, TrialArm, TrialOptions, TrialVerdict};

@@ -51,6 +51,10 @@ fn methods_and_budgets_parse() {
         ("pt-grr", "--integrator pt --rr guided"),
         ("pt-nee-err", "--integrator pt-nee --rr efficiency"),
         (
+            "pt-nee-grra",
+            "--integrator pt-nee --rr guided --rr-trial off",
+        ),
+        (
             "npm-radiance-notrial-grr",
             "--integrator guided --guide npm --target radiance --guide-trial off --rr guided",
         ),

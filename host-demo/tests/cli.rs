@@ -272,6 +272,51 @@ fn render_and_compare_end_to_end() {
         g["max_split"].as_f64().unwrap(),
     );
     assert!(mean >= 2.0 && mean <= max && max <= 8.0, "{s}");
+    // Without a time budget the window decides in every pass: no trial.
+    assert_eq!(
+        (&g["trial_passes"], &g["window_off_passes"]),
+        (&0.into(), &0.into())
+    );
+    assert!(g.get("trial").is_none(), "{s}");
+
+    // With one, the window's efficiency trial runs once the grid has learned: its passes,
+    // those without the window, and its verdict (or where it stood) in `--stats`.
+    for (trial, stats) in [("on", "t.json"), ("off", "u.json")] {
+        let stats = dir.join(stats);
+        run_ok(
+            bin()
+                .args(["render", "builtin:cornell-box", "--integrator", "pt-nee"])
+                .args(["--time", "2", "--rr", "guided", "--rr-trial", trial])
+                .args(size)
+                .arg("--out")
+                .arg(dir.join("t.exr"))
+                .arg("--stats")
+                .arg(&stats),
+        );
+        let s = read_json(&stats);
+        let g = &s["stages"]["russian_roulette"]["guided"];
+        let passes = g["trial_passes"].as_u64().unwrap();
+        let off = g["window_off_passes"].as_u64().unwrap();
+        if trial == "off" {
+            assert_eq!((passes, off), (0, 0), "{s}");
+            continue;
+        }
+        assert!(passes >= 4, "{s}");
+        let t = &g["trial"];
+        let (on_arm, off_arm) = (t["on_passes"].as_u64(), t["off_passes"].as_u64());
+        assert!(on_arm.unwrap() + off_arm.unwrap() <= passes, "{s}");
+        assert!(off >= off_arm.unwrap(), "{s}");
+        let state = t["state"].as_str().unwrap();
+        assert!(state == "verdict" || state == "unfinished", "{s}");
+        if state == "verdict" {
+            assert_eq!(on_arm, off_arm, "ABBA: a look sees equal arms: {s}");
+        }
+        let (lo, hi) = (t["ratio_low"].as_f64(), t["ratio_high"].as_f64());
+        assert!(
+            lo <= t["cost_ratio"].as_f64() && t["cost_ratio"].as_f64() <= hi,
+            "{s}"
+        );
+    }
     let bad = bin()
         .args([
             "render",

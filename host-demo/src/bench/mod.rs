@@ -50,30 +50,33 @@ impl Method {
     /// `-notrial` (`--guide-trial off`: the guide stays on whether it pays or not), `-noweights`
     /// (`--pass-weights off`: the plain mean of all passes), `-noprobe` (`--training-probe off`),
     /// and on every method, `pt` and `pt-nee` included, `-grr` (`--rr guided`: the library's
-    /// weight window with splitting).
+    /// weight window with splitting, kept where its efficiency trial says it pays), `-grra`
+    /// (`--rr guided --rr-trial off`: the window in every pass) and `-err`
+    /// (`--rr efficiency`).
     pub fn parse(full: &str) -> Result<Self> {
-        const SUFFIXES: [(&str, [&str; 2]); 8] = [
-            ("-grr", ["--rr", "guided"]),
-            ("-err", ["--rr", "efficiency"]),
-            ("-nonee", ["--nee", "off"]),
-            ("-nocache", ["--guide-cache", "off"]),
-            ("-frozen", ["--guide-cache", "frozen"]),
-            ("-notrial", ["--guide-trial", "off"]),
-            ("-noweights", ["--pass-weights", "off"]),
-            ("-noprobe", ["--training-probe", "off"]),
+        const SUFFIXES: [(&str, &[&str]); 9] = [
+            ("-grr", &["--rr", "guided"]),
+            ("-grra", &["--rr", "guided", "--rr-trial", "off"]),
+            ("-err", &["--rr", "efficiency"]),
+            ("-nonee", &["--nee", "off"]),
+            ("-nocache", &["--guide-cache", "off"]),
+            ("-frozen", &["--guide-cache", "frozen"]),
+            ("-notrial", &["--guide-trial", "off"]),
+            ("-noweights", &["--pass-weights", "off"]),
+            ("-noprobe", &["--training-probe", "off"]),
         ];
         let mut name = full;
         let mut extra: Vec<&str> = Vec::new();
         'strip: loop {
             for (suffix, flags) in SUFFIXES {
                 match name.strip_suffix(suffix) {
-                    // Only `-grr` applies to the unguided methods.
+                    // Only the roulette suffixes apply to the unguided methods.
                     Some(base)
                         if !base.is_empty()
-                            && (suffix.ends_with("rr") || (base != "pt" && base != "pt-nee")) =>
+                            && (flags[0] == "--rr" || (base != "pt" && base != "pt-nee")) =>
                     {
                         name = base;
-                        extra.splice(0..0, flags);
+                        extra.splice(0..0, flags.iter().copied());
                         continue 'strip;
                     }
                     _ => {}

@@ -131,6 +131,11 @@ enum Cmd {
             default_missing_value = "throughput"
         )]
         rr: RouletteArg,
+        /// With --time and a guided --rr: once the grid has learned, alternate passes with and
+        /// without the weight window, compare relMSE per pass x seconds per pass on the image,
+        /// and keep the window only where it pays (off: the window decides in every pass).
+        #[arg(long, value_enum, default_value = "on")]
+        rr_trial: OnOff,
         /// Write run statistics (spp, time split, rays/s, training samples, stages) as JSON.
         #[arg(long, value_name = "FILE.json")]
         stats: Option<PathBuf>,

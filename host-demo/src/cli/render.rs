@@ -22,6 +22,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         spp,
         time,
         rr,
+        rr_trial,
         stats: stats_path,
         threads,
         define,
@@ -52,6 +53,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         spp: spp.unwrap_or(sc.settings.spp).max(1),
         time_budget,
         rr: rr.into(),
+        rr_trial: matches!(rr_trial, OnOff::On),
         progress: true,
         max_depth: max_depth.unwrap_or(sc.settings.max_depth),
         threads,
@@ -64,7 +66,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         run_guided(&sc, &opts, &tuning, guide_args)?
     } else {
         let (img, stats) = render_with_stats(&sc, &opts);
-        (img, Outcome::Plain(stats))
+        (img, Outcome::Plain(Box::new(stats)))
     };
     let render_s = t1.elapsed().as_secs_f64();
     let png = write_images(&img, &out)?;
@@ -264,7 +266,7 @@ impl TuningArgs {
 /// What the integrator reported.
 enum Outcome {
     /// `pt` or `pt-nee`.
-    Plain(RenderStats),
+    Plain(Box<RenderStats>),
     /// `guided`.
     Guided(Box<GuidedOutcome>),
 }

@@ -108,6 +108,41 @@ struct GuidedRr {
     grid_rejected: u64,
     grid_fine_cells: u64,
     grid_coarse_cells: u64,
+    trial_passes: u32,
+    window_off_passes: u32,
+    /// The window's efficiency trial: its verdict, or where it stood when the render ended.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    trial: Option<WindowTrial>,
+}
+
+/// The window's efficiency trial (`--rr-trial`): the window ("on") against no window ("off"),
+/// relMSE per pass × seconds per pass, and the interval of their ratio.
+#[derive(Serialize)]
+struct WindowTrial {
+    /// `verdict` (the interval excluded 1) or `unfinished` (the render ended first).
+    state: &'static str,
+    keep_window: bool,
+    on_passes: u32,
+    off_passes: u32,
+    cost_ratio: f64,
+    ratio_low: f64,
+    ratio_high: f64,
+    z: f64,
+}
+
+impl WindowTrial {
+    fn new(state: &'static str, v: &guiding::TrialVerdict) -> Self {
+        Self {
+            state,
+            keep_window: guiding::WindowTrial::window_pays(v),
+            on_passes: v.guided_passes,
+            off_passes: v.unguided_passes,
+            cost_ratio: v.cost_ratio,
+            ratio_low: v.ratio_low,
+            ratio_high: v.ratio_high,
+            z: v.z,
+        }
+    }
 }
 
 impl GuidedRr {
@@ -126,6 +161,13 @@ impl GuidedRr {
             grid_rejected: s.grid.rejected,
             grid_fine_cells: s.grid.fine_cells,
             grid_coarse_cells: s.grid.coarse_cells,
+            trial_passes: s.trial_passes,
+            window_off_passes: s.window_off_passes,
+            trial: match (&s.verdict, &s.latest) {
+                (Some(v), _) => Some(WindowTrial::new("verdict", v)),
+                (None, Some(v)) => Some(WindowTrial::new("unfinished", v)),
+                (None, None) => None,
+            },
         }
     }
 }

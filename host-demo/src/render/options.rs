@@ -58,6 +58,9 @@ pub struct RenderOptions {
     pub time_budget: Option<std::time::Duration>,
     /// Russian roulette and splitting; off by default, unbiased in every mode.
     pub rr: Roulette,
+    /// With a time budget and a guided rule: the window's efficiency trial after the learning
+    /// phase ([`crate::render::roulette`]); off, the window decides in every pass.
+    pub rr_trial: bool,
     /// Show a progress bar on stderr (only when stderr is a terminal).
     pub progress: bool,
     /// Mitsuba max_depth.
@@ -80,6 +83,7 @@ impl Default for RenderOptions {
             spp: 16,
             time_budget: None,
             rr: Roulette::Off,
+            rr_trial: true,
             progress: false,
             max_depth: 8,
             threads: 0,

@@ -24,15 +24,25 @@
 //!   the first copy is recorded (`tracked` in the queues), with no `1/k` on its continuation:
 //!   one copy's estimate of the vertex's reflected radiance is unbiased by itself. So the
 //!   window splits in every pass, the training passes of a guide included.
+//! * **Is the window worth it?** With a time budget the window does not decide while the grid
+//!   learns (nothing shows yet that it pays); then the passes run with and without it in the
+//!   order of [`guiding::WindowTrial`] (without: the paths go on as `--rr off` would take
+//!   them), which compares relMSE per pass × seconds per pass on the image: the window stays
+//!   for the rest of the render when the interval of that ratio lies below 1, goes when it
+//!   lies above, and while it straddles the cheaper-looking arm runs two passes of three
+//!   (`--rr-trial off`: the window in every pass, the learning passes included). The grid
+//!   learns in the learning passes only, from paths the window did not touch. On the Cornell
+//!   box (20 s, 256 px, 2 seeds) the window in every pass made `pt-nee`'s relMSE 1.25× worse;
+//!   the trial switches it off after 2 + 2 passes. Without a time budget (a fixed spp, the
+//!   unbiasedness tests) the window decides in every pass.
 //! * **Caps.** At most [`guiding::WeightWindow::max_split`] continuations per vertex and
 //!   [`MAX_PATHS_PER_SAMPLE`] paths per camera sample (so a block's queues hold at most that
 //!   many times its pixels, which also caps the paths of a pass).
 //!
-//! `--rr efficiency` swaps ADRRS's `m = Y(β ⊙ L̂)/Î` for the efficiency-aware
-//! `m = √(Y(β² ⊙ M)/σ²)` ([`guiding::WeightWindow::efficiency_continuations`]: the grid's second
-//! moment against the pixel's variance, [`guiding::pixel_variances`]); measured on the suite it
-//! lost to ADRRS on three scenes of five (see `docs/bench-2026-12-07-roulette`), so `guided` is
-//! ADRRS.
+//! `--rr efficiency` swaps ADRRS's `m = Y(β ⊙ L̂)/Î` for the efficiency-aware rule
+//! ([`guiding::WeightWindow::efficiency_continuations`]: the grid's variance and second moment
+//! against the pixel's variance, [`guiding::pixel_variances`]); measured on the suite it did
+//! not beat ADRRS (see `docs/bench-2026-12-07-roulette`), so `guided` is ADRRS.
 //!
 //! Every decision keeps the estimator unbiased (see [`guiding::roulette`]); `--stats` shows
 //! what the window did ([`RouletteStats`]).
@@ -41,7 +51,7 @@ use crate::render::options::{RenderOptions, Roulette};
 use crate::scene::Scene;
 use guiding::{
     Budget, GridOptions, GridStats, GuidingError, RadianceGrid, ReflectedSample, ScheduleOptions,
-    TrainingSchedule, WeightWindow,
+    TrainingSchedule, TrialOptions, TrialVerdict, WeightWindow, WindowTrial,
 };
 
 /// The most paths one camera sample may become by splitting.
@@ -74,6 +84,15 @@ pub struct RouletteStats {
     pub learning_passes: u32,
     /// The grid at the end of the render.
     pub grid: GridStats,
+    /// Passes of the window's efficiency trial (both arms).
+    pub trial_passes: u32,
+    /// Passes that ran without the window with a time budget (the learning passes, the trial
+    /// passes of its "off" arm, and every pass after a verdict that it does not pay).
+    pub window_off_passes: u32,
+    /// The trial's verdict, at its first look ([`WindowTrial::window_pays`]: what it decided).
+    pub verdict: Option<TrialVerdict>,
+    /// A trial still running when the render ended: its estimate from all its passes.
+    pub latest: Option<TrialVerdict>,
 }
 
 impl RouletteStats {
@@ -113,6 +132,14 @@ pub(crate) struct GuidedRoulette {
     pub unweighted: bool,
     schedule: TrainingSchedule,
     pub stats: RouletteStats,
+    /// The window applies in the current pass (always while the grid learns).
+    pub active: bool,
+    /// A time budget: the window's efficiency trial runs after the learning phase.
+    timed: bool,
+    /// The window's trial (created at the first pass after the learning phase).
+    trial: Option<WindowTrial>,
+    /// The current pass is a trial pass.
+    in_trial: bool,
 }
 
 impl GuidedRoulette {
@@ -135,6 +162,10 @@ impl GuidedRoulette {
             efficiency: opts.rr == Roulette::Efficiency,
             schedule: TrainingSchedule::new(ScheduleOptions::default(), budget)?,
             stats: RouletteStats::default(),
+            active: true,
+            timed: opts.time_budget.is_some() && opts.rr_trial,
+            trial: None,
+            in_trial: false,
         }))
     }
 
@@ -152,6 +183,7 @@ impl GuidedRoulette {
         if self.learning {
             self.stats.learning_passes += 1;
         }
+        self.plan_trial_pass(pass, (width, height), sum);
         let r = PIXEL_FILTER_RADIUS;
         let done = if self.efficiency {
             guiding::pixel_variances(width, height, sum, sum2, pass, r, &mut self.pixel)
@@ -163,6 +195,64 @@ impl GuidedRoulette {
         }
     }
 
+    /// Whether the window applies in this pass: always without a time budget; with one, not
+    /// while the grid learns, then what the [`WindowTrial`] says (see the [module
+    /// docs](self)).
+    fn plan_trial_pass(&mut self, pass: u32, (width, height): (u32, u32), sum: &[[f64; 3]]) {
+        self.in_trial = false;
+        self.active = true;
+        if !self.timed || pass == 0 {
+            return;
+        }
+        if self.learning {
+            // No evidence yet that the window pays: the grid learns from plain paths.
+            self.active = false;
+            self.stats.window_off_passes += 1;
+            return;
+        }
+        if self.trial.is_none() {
+            // The image before the trial: the mean of the passes so far.
+            let n = f64::from(pass);
+            let mean: Vec<[f32; 3]> = sum.iter().map(|s| s.map(|x| (x / n) as f32)).collect();
+            let (w, h) = (width as usize, height as usize);
+            match WindowTrial::new(w, h, &mean, TrialOptions::default()) {
+                Ok(t) => self.trial = Some(t),
+                Err(_) => {
+                    self.timed = false;
+                    return;
+                }
+            }
+        }
+        if let Some(t) = &self.trial {
+            self.active = t.next_pass_uses_window();
+            self.in_trial = t.running();
+        }
+        if !self.active {
+            self.stats.window_off_passes += 1;
+        }
+    }
+
+    /// Whether the pass just traced is a trial pass ([`Self::end_pass`] wants its image).
+    pub fn wants_pass_image(&self) -> bool {
+        self.in_trial
+    }
+
+    /// After a pass: a trial pass's pixel values (row-major) and seconds go to the trial.
+    pub fn end_pass(&mut self, pixels: &[[f32; 3]], seconds: f64) {
+        let Some(trial) = self.trial.as_mut().filter(|_| self.in_trial) else {
+            return;
+        };
+        if trial.record(self.active, pixels, seconds).is_err() {
+            // Cannot happen for passes of the trial's own size and order; the window then
+            // stays on.
+            self.trial = None;
+            self.timed = false;
+            return;
+        }
+        self.stats.trial_passes = trial.passes();
+        self.stats.verdict = trial.verdict();
+    }
+
     /// After a piece: the reflected radiance the workers recorded.
     pub fn learn(&mut self, samples: &[ReflectedSample]) {
         self.grid.add_samples(samples);
@@ -172,6 +262,11 @@ impl GuidedRoulette {
     pub fn finish(&self) -> RouletteStats {
         RouletteStats {
             grid: self.grid.stats(),
+            latest: self
+                .trial
+                .as_ref()
+                .filter(|t| t.running())
+                .and_then(WindowTrial::current),
             ..self.stats
         }
     }

@@ -322,8 +322,10 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
             // The window decides past the camera vertex (there `m = L_r / I` is 1 for exact
             // estimates: only their errors could move it) and at Lambertian vertices (its
             // estimate ignores `ω_o`: a glossy lobe's reflected light is not its cell's mean).
-            let window = self.roulette.filter(|_| {
-                bounce > 0
+            // The window's trial may leave it out of this pass (the grid still learns).
+            let window = self.roulette.filter(|g| {
+                g.active
+                    && bounce > 0
                     && matches!(
                         mat,
                         Material::Diffuse { .. } | Material::RoughDiffuse { .. }
@@ -369,10 +371,12 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
         beta: Vec3,
     ) -> Option<(u32, f32)> {
         let s = slot as usize;
-        let radiance = if g.efficiency {
-            g.grid.second_moment(p.to_array(), ns.to_array())
+        let (p, ns) = (p.to_array(), ns.to_array());
+        let radiance = g.grid.estimate(p, ns);
+        let moment = if g.efficiency {
+            g.grid.second_moment(p, ns)
         } else {
-            g.grid.estimate(p.to_array(), ns.to_array())
+            None
         };
         let pixel = g
             .pixel
@@ -387,7 +391,9 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
         let u = self.rng[s].next_f32();
         let (b, estimate, room) = (beta.to_array(), radiance.unwrap_or([-1.0; 3]), self.room[s]);
         let d = if g.efficiency {
-            g.window.decide_efficiency(b, estimate, pixel, u, room)
+            let moment = moment.unwrap_or([-1.0; 3]);
+            g.window
+                .decide_efficiency(b, estimate, moment, pixel, u, room)
         } else {
             g.window.decide(b, estimate, pixel, u, room)
         };
@@ -591,6 +597,8 @@ pub fn render_passes<S: Strategy>(
     // The current pass's pixel values (row-major).
     let mut pass_radiance = vec![Vec3::ZERO; npix];
     let mut pass_image: Vec<[f32; 3]> = Vec::new();
+    // A trial pass of the roulette's window ([`GuidedRoulette::end_pass`]).
+    let mut rr_image: Vec<[f32; 3]> = Vec::new();
     let nee = nee && scene.has_samplable_emitter();
     let mut stats = RenderStats {
         nee,
@@ -709,6 +717,11 @@ pub fn render_passes<S: Strategy>(
                     seconds: pass_seconds,
                 },
             );
+        }
+        if let Some(g) = roulette.as_mut().filter(|g| g.wants_pass_image()) {
+            rr_image.clear();
+            rr_image.extend(pass_radiance.iter().map(|v| v.to_array()));
+            g.end_pass(&rr_image, pass_seconds);
         }
         accumulate(&mut sum, &mut sum2, &pass_radiance);
     }
