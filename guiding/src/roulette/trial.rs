@@ -44,9 +44,6 @@ pub struct WindowTrial {
     trial: GuideTrial,
     /// Passes recorded so far (both arms).
     passes: u32,
-    /// The verdict, once the interval excluded 1 (or the trial ended at its first look without
-    /// continuation).
-    verdict: Option<TrialVerdict>,
 }
 
 impl WindowTrial {
@@ -64,7 +61,6 @@ impl WindowTrial {
         Ok(Self {
             trial: GuideTrial::new(width, height, image, options)?,
             passes: 0,
-            verdict: None,
         })
     }
 
@@ -73,8 +69,8 @@ impl WindowTrial {
     /// count) while the trial continues, then the verdict ([`Self::window_pays`]).
     #[must_use]
     pub fn next_pass_uses_window(&self) -> bool {
-        if let Some(v) = &self.verdict {
-            return Self::window_pays(v);
+        if let Some(v) = self.trial.verdict() {
+            return Self::window_pays(&v);
         }
         if self.trial.first_look().is_none() {
             return matches!(self.passes % 4, 0 | 3);
@@ -95,7 +91,7 @@ impl WindowTrial {
     /// Whether the trial still runs (the next pass is a trial pass).
     #[must_use]
     pub fn running(&self) -> bool {
-        self.verdict.is_none()
+        self.trial.verdict().is_none()
     }
 
     /// Adds one trial pass: whether it ran with the window (it must be what
@@ -129,7 +125,6 @@ impl WindowTrial {
         };
         self.trial.record(arm, pixels, seconds)?;
         self.passes += 1;
-        self.verdict = self.trial.verdict();
         Ok(())
     }
 
@@ -144,7 +139,7 @@ impl WindowTrial {
     /// with the window, its "unguided" fields the arm without.
     #[must_use]
     pub fn verdict(&self) -> Option<TrialVerdict> {
-        self.verdict
+        self.trial.verdict()
     }
 
     /// An estimate from all passes so far, for a render that ends before the first look
@@ -156,13 +151,10 @@ impl WindowTrial {
 }
 
 /// Whether pass `n` of a continuing trial goes to the less-favoured arm: one pass in three,
-/// which one drawn by a hash of `n` (SplitMix64's finaliser), so that the order has no period.
+/// which one drawn by a hash of `n` ([`guiding_core::rng::mix64`]), so that the order has no
+/// period.
 fn third_of(n: u32) -> bool {
-    let mut z = u64::from(n).wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^= z >> 31;
-    z % 3 == 0
+    guiding_core::rng::mix64(u64::from(n)) % 3 == 0
 }
 
 #[cfg(test)]

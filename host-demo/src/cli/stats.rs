@@ -112,13 +112,13 @@ struct GuidedRr {
     window_off_passes: u32,
     /// The window's efficiency trial: its verdict, or where it stood when the render ended.
     #[serde(skip_serializing_if = "Option::is_none")]
-    trial: Option<WindowTrial>,
+    trial: Option<WindowTrialStats>,
 }
 
 /// The window's efficiency trial (`--rr-trial`): the window ("on") against no window ("off"),
 /// relMSE per pass × seconds per pass, and the interval of their ratio.
 #[derive(Serialize)]
-struct WindowTrial {
+struct WindowTrialStats {
     /// `verdict` (the interval excluded 1) or `unfinished` (the render ended first).
     state: &'static str,
     keep_window: bool,
@@ -130,7 +130,7 @@ struct WindowTrial {
     z: f64,
 }
 
-impl WindowTrial {
+impl WindowTrialStats {
     fn new(state: &'static str, v: &guiding::TrialVerdict) -> Self {
         Self {
             state,
@@ -164,8 +164,8 @@ impl GuidedRr {
             trial_passes: s.trial_passes,
             window_off_passes: s.window_off_passes,
             trial: match (&s.verdict, &s.latest) {
-                (Some(v), _) => Some(WindowTrial::new("verdict", v)),
-                (None, Some(v)) => Some(WindowTrial::new("unfinished", v)),
+                (Some(v), _) => Some(WindowTrialStats::new("verdict", v)),
+                (None, Some(v)) => Some(WindowTrialStats::new("unfinished", v)),
                 (None, None) => None,
             },
         }

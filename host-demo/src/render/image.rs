@@ -79,6 +79,13 @@ pub(crate) fn accumulate(sum: &mut [[f64; 3]], sum2: &mut [[f64; 3]], radiance: 
 }
 
 /// Per-pixel mean and variance of the mean from the running sums over `passes` samples.
+/// The mean of `passes` passes from their per-pixel sums (what an efficiency trial weighs
+/// its passes by: the image before the trial); no passes count as one.
+pub(crate) fn mean_image(sum: &[[f64; 3]], passes: u32) -> Vec<[f32; 3]> {
+    let n = f64::from(passes.max(1));
+    sum.iter().map(|s| s.map(|x| (x / n) as f32)).collect()
+}
+
 pub(crate) fn finish_image(
     width: u32,
     height: u32,

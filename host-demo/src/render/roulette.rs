@@ -23,7 +23,8 @@
 //! * **Splitting while recording.** The recorder follows one path per slot: after a split only
 //!   the first copy is recorded (`tracked` in the queues), with no `1/k` on its continuation:
 //!   one copy's estimate of the vertex's reflected radiance is unbiased by itself. So the
-//!   window splits in every pass, the training passes of a guide included.
+//!   window may split in every pass, the training passes of a guide included (without a time
+//!   budget, or with `--rr-trial off`).
 //! * **Is the window worth it?** With a time budget the window does not decide while the grid
 //!   learns (nothing shows yet that it pays); then the passes run with and without it in the
 //!   order of [`guiding::WindowTrial`] (without: the paths go on as `--rr off` would take
@@ -47,6 +48,7 @@
 //! Every decision keeps the estimator unbiased (see [`guiding::roulette`]); `--stats` shows
 //! what the window did ([`RouletteStats`]).
 
+use crate::render::image::mean_image;
 use crate::render::options::{RenderOptions, Roulette};
 use crate::scene::Scene;
 use guiding::{
@@ -132,7 +134,8 @@ pub(crate) struct GuidedRoulette {
     pub unweighted: bool,
     schedule: TrainingSchedule,
     pub stats: RouletteStats,
-    /// The window applies in the current pass (always while the grid learns).
+    /// The window applies in the current pass (always without a time budget or with
+    /// `--rr-trial off`; else not while the grid learns, then as its trial says).
     pub active: bool,
     /// A time budget: the window's efficiency trial runs after the learning phase.
     timed: bool,
@@ -201,19 +204,18 @@ impl GuidedRoulette {
     fn plan_trial_pass(&mut self, pass: u32, (width, height): (u32, u32), sum: &[[f64; 3]]) {
         self.in_trial = false;
         self.active = true;
-        if !self.timed || pass == 0 {
+        if !self.timed {
             return;
         }
-        if self.learning {
+        if self.learning || pass == 0 {
             // No evidence yet that the window pays: the grid learns from plain paths.
             self.active = false;
             self.stats.window_off_passes += 1;
             return;
         }
         if self.trial.is_none() {
-            // The image before the trial: the mean of the passes so far.
-            let n = f64::from(pass);
-            let mean: Vec<[f32; 3]> = sum.iter().map(|s| s.map(|x| (x / n) as f32)).collect();
+            // Weighted by the image before the trial (the mean of the passes so far).
+            let mean = mean_image(sum, pass);
             let (w, h) = (width as usize, height as usize);
             match WindowTrial::new(w, h, &mean, TrialOptions::default()) {
                 Ok(t) => self.trial = Some(t),

@@ -597,8 +597,6 @@ pub fn render_passes<S: Strategy>(
     // The current pass's pixel values (row-major).
     let mut pass_radiance = vec![Vec3::ZERO; npix];
     let mut pass_image: Vec<[f32; 3]> = Vec::new();
-    // A trial pass of the roulette's window ([`GuidedRoulette::end_pass`]).
-    let mut rr_image: Vec<[f32; 3]> = Vec::new();
     let nee = nee && scene.has_samplable_emitter();
     let mut stats = RenderStats {
         nee,
@@ -703,9 +701,14 @@ pub fn render_passes<S: Strategy>(
             };
             strategy.end_chunk(&pass, record, reports, samples, traced)?;
         }
-        if wants_image {
+        // The pass's pixel values, once, for the strategy and for a trial pass of the
+        // roulette's window ([`GuidedRoulette::end_pass`]).
+        let rr_wants_image = roulette.as_ref().is_some_and(|g| g.wants_pass_image());
+        if wants_image || rr_wants_image {
             pass_image.clear();
             pass_image.extend(pass_radiance.iter().map(|v| v.to_array()));
+        }
+        if wants_image {
             strategy.observe_pass_image(
                 &pass,
                 &PassImage {
@@ -718,10 +721,8 @@ pub fn render_passes<S: Strategy>(
                 },
             );
         }
-        if let Some(g) = roulette.as_mut().filter(|g| g.wants_pass_image()) {
-            rr_image.clear();
-            rr_image.extend(pass_radiance.iter().map(|v| v.to_array()));
-            g.end_pass(&rr_image, pass_seconds);
+        if let Some(g) = roulette.as_mut().filter(|_| rr_wants_image) {
+            g.end_pass(&pass_image, pass_seconds);
         }
         accumulate(&mut sum, &mut sum2, &pass_radiance);
     }

@@ -72,7 +72,7 @@
 //! BSDF: still unbiased through the combined density, just less efficient on glossy surfaces.
 
 use crate::math::{Frame, Rng};
-use crate::render::image::RenderStats;
+use crate::render::image::{mean_image, RenderStats};
 use crate::render::queues::{
     Continuations, GuidePdfQueue, GuideSampleQueue, LightSamples, Vertices,
 };
@@ -1290,12 +1290,7 @@ impl<'g> Strategy for Guided<'g> {
         };
         if self.trial.is_none() {
             // Weighted by the image before the trial (the mean of the passes so far).
-            let n = f64::from(image.passes_before.max(1));
-            let before: Vec<[f32; 3]> = image
-                .sum_before
-                .iter()
-                .map(|s| s.map(|x| (x / n) as f32))
-                .collect();
+            let before = mean_image(image.sum_before, image.passes_before);
             let (w, h) = (image.width as usize, image.height as usize);
             // Only an empty image fails: the trial then never decides (the guide stays on).
             self.trial = GuideTrial::new(w, h, &before, TrialOptions::default()).ok();
