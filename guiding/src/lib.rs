@@ -119,7 +119,7 @@ pub use roulette::{
     RadianceGrid, WeightWindow, WindowTrial,
 };
 pub use schedule::{Budget, ScheduleOptions, ScheduleReport, StepRule, TrainingSchedule};
-pub use trial::{GuideTrial, TrialArm, TrialOptions, TrialVerdict};
+pub use trial::{GuideTrial, TrialArm, TrialOptions, TrialVerdict, TRIAL_TRIM};
 
 /// The code examples of the embedding guide, `docs/manual/embedding.md` (the
 /// embedding API and the `guiding-core` kernels), compiled and run as doctests.

@@ -381,6 +381,12 @@ fn bad_arguments_are_errors() {
         },
         TrialOptions { z: 0.0, ..ok },
         TrialOptions { z: f64::NAN, ..ok },
+        TrialOptions { trim: -0.1, ..ok },
+        TrialOptions { trim: 0.5, ..ok },
+        TrialOptions {
+            trim: f64::NAN,
+            ..ok
+        },
     ] {
         assert!(GuideTrial::new(3, 2, &image, bad).is_err());
     }
@@ -524,4 +530,67 @@ fn a_restart_measures_the_new_estimator() {
     assert_eq!(latest.guided_passes, 2);
     assert_eq!(latest.guided_seconds, 2.0, "only the new passes' seconds");
     assert!(latest.unguided_passes >= 4);
+}
+
+/// Fireflies do not decide a trial: two arms of the same Gaussian noise and pass time (true
+/// cost ratio 1), except that the unguided arm's first two passes (one in each half) carry one
+/// enormous value (1000× the mean) in one pixel of every band. The trial winsorises the largest
+/// 0.1 % of each half's pixel terms, and those 16 pixels per half are fewer than the 32 it
+/// trims: the interval straddles 1 around a point estimate near 1. Negative control: with
+/// `trim = 0` the same passes make the guide look many times cheaper and "pay".
+#[test]
+fn rare_fireflies_in_one_arm_do_not_decide_the_trial() {
+    const FW: usize = 512;
+    const FH: usize = 128;
+    let bands = guiding::evidence::band_count(FH);
+    // One firefly pixel per band in each half: fewer than the half's trimmed pixels.
+    assert!(bands < (guiding::TRIAL_TRIM * (FW * FH) as f64) as usize);
+    let run = |trim: f64| {
+        let options = TrialOptions {
+            early_verdict: false,
+            continuation: false,
+            trim,
+            ..TrialOptions::default()
+        };
+        let image = vec![MEAN; FW * FH];
+        let mut trial = GuideTrial::new(FW, FH, &image, options).expect("valid trial");
+        let mut rng = Rng::new(61);
+        let mut unguided = 0;
+        while let Some(arm) = trial.next_arm() {
+            let mut pixels: Vec<[f32; 3]> = (0..FW * FH)
+                .map(|p| MEAN.map(|m| Noise::Gauss(1.0).draw(p, f64::from(m), &mut rng) as f32))
+                .collect();
+            if arm == TrialArm::Unguided {
+                if unguided < 2 {
+                    for b in 0..bands {
+                        let row = b * FH / bands;
+                        pixels[row * FW + 17 + unguided] = MEAN.map(|m| 1000.0 * m);
+                    }
+                }
+                unguided += 1;
+            }
+            trial.record(arm, &pixels, 1.0).expect("a valid pass");
+        }
+        trial.verdict().expect("finished")
+    };
+    let v = run(guiding::TRIAL_TRIM);
+    assert_eq!(
+        v.evidence,
+        guiding::Verdict::Undecided,
+        "{} [{}, {}]",
+        v.cost_ratio,
+        v.ratio_low,
+        v.ratio_high
+    );
+    assert!((v.cost_ratio - 1.0).abs() < 0.1, "{}", v.cost_ratio);
+    let control = run(0.0);
+    assert_eq!(
+        control.evidence,
+        guiding::Verdict::Pays,
+        "untrimmed: {} [{}, {}]",
+        control.cost_ratio,
+        control.ratio_low,
+        control.ratio_high
+    );
+    assert!(control.cost_ratio < 0.2, "{}", control.cost_ratio);
 }
