@@ -356,6 +356,69 @@ fn render_and_compare_end_to_end() {
 }
 
 /// A scene with no emitter NEE can sample skips the NEE stage and says so.
+/// With a guide, the window's efficiency trial waits for the guide's first look: run beside
+/// its first passes, it would weigh the window on a mix of guided and unguided passes, not on
+/// the estimator that renders the rest (on `builtin:door` it measured the unguided arm's gain
+/// while the window did nothing for the guided image). Without a guide (pt-nee) nothing waits.
+/// Without the wait, `waited_passes` is 0 and the window's trial starts with the guide's.
+#[test]
+fn window_trial_waits_for_the_guide_trial() {
+    let dir = scratch("window-waits");
+    let size = ["--width", "64", "--height", "64"];
+    let stats = dir.join("g.json");
+    run_ok(
+        bin()
+            .args(["render", "builtin:door", "--integrator", "guided"])
+            .args(["--guide", "npm", "--model-size", "small", "--time", "3"])
+            .args(["--rr", "guided"])
+            .args(size)
+            .arg("--out")
+            .arg(dir.join("g.exr"))
+            .arg("--stats")
+            .arg(&stats),
+    );
+    let s = read_json(&stats);
+    let g = &s["stages"]["russian_roulette"]["guided"];
+    let guide = &s["stages"]["efficiency_trial"];
+    let waited = g["waited_passes"].as_u64().unwrap();
+    let window_passes = g["trial_passes"].as_u64().unwrap();
+    assert!(g["window_off_passes"].as_u64() >= Some(waited), "{s}");
+    if guide["ran"] == true {
+        // The training passes (the grid learned in them), the warm-up pass after training and
+        // every guide-trial pass up to its first look ran without the window; the window's
+        // trial only after that look.
+        let before_window = g["learning_passes"].as_u64().unwrap() + waited;
+        let training = s["stages"]["training"]["passes"].as_u64().unwrap();
+        let look = &guide["first_look"];
+        let guide_passes = if look.is_null() {
+            // A verdict at the first look, or no look yet (then no window trial either).
+            if guide["finished"] != true {
+                assert_eq!(window_passes, 0, "no look, no window trial: {s}");
+            }
+            guide["passes"].as_u64().unwrap()
+        } else {
+            look["guided_passes"].as_u64().unwrap() + look["unguided_passes"].as_u64().unwrap()
+        };
+        assert!(before_window > training + guide_passes, "{s}");
+    }
+    // The plain estimator has no trial of its own: the window's trial starts at once.
+    let plain = dir.join("p.json");
+    run_ok(
+        bin()
+            .args(["render", "builtin:door", "--integrator", "pt-nee"])
+            .args(["--time", "2", "--rr", "guided"])
+            .args(size)
+            .arg("--out")
+            .arg(dir.join("p.exr"))
+            .arg("--stats")
+            .arg(&plain),
+    );
+    let s = read_json(&plain);
+    let g = &s["stages"]["russian_roulette"]["guided"];
+    assert_eq!(g["waited_passes"], 0, "{s}");
+    assert!(g["trial_passes"].as_u64() > Some(0), "{s}");
+}
+
 #[test]
 fn stats_report_skipped_nee() {
     let dir = scratch("nolight");

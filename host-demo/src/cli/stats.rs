@@ -110,6 +110,7 @@ struct GuidedRr {
     grid_coarse_cells: u64,
     trial_passes: u32,
     window_off_passes: u32,
+    waited_passes: u32,
     /// The window's efficiency trial: its verdict, or where it stood when the render ended.
     #[serde(skip_serializing_if = "Option::is_none")]
     trial: Option<WindowTrialStats>,
@@ -163,6 +164,7 @@ impl GuidedRr {
             grid_coarse_cells: s.grid.coarse_cells,
             trial_passes: s.trial_passes,
             window_off_passes: s.window_off_passes,
+            waited_passes: s.waited_passes,
             trial: match (&s.verdict, &s.latest) {
                 (Some(v), _) => Some(WindowTrialStats::new("verdict", v)),
                 (None, Some(v)) => Some(WindowTrialStats::new("unfinished", v)),

@@ -31,7 +31,17 @@
 //!   them), which compares relMSE per pass × seconds per pass on the image: the window stays
 //!   for the rest of the render when the interval of that ratio lies below 1, goes when it
 //!   lies above, and while it straddles the cheaper-looking arm runs two passes of three
-//!   (`--rr-trial off`: the window in every pass, the learning passes included). The grid
+//!   (`--rr-trial off`: the window in every pass, the learning passes included). The trial
+//!   starts only once the strategy's estimator is settled
+//!   ([`crate::render::strategy::Strategy::estimator_settled`]: the guide's own efficiency
+//!   trial has had its first look, so it has a verdict or goes on between two arms it found
+//!   alike); until then the window is off (`waited_passes` in `--stats`). Run beside the
+//!   guide's first passes, half of each of its arms' passes were unguided: on `builtin:door`
+//!   (20 s, 256 px, 3 seeds) it measured the window at 0.50–0.61 of the plain passes' cost,
+//!   about its gain on `pt-nee` (0.72x), while the guided image with the window came out at
+//!   1.00x the guided image without it (after the wait: 0.82x). Waiting for the guide's
+//!   verdict instead of its first look cost the scenes whose guide trial goes on (classroom:
+//!   the window 0.91x against 0.62x). The grid
 //!   learns in the learning passes only, from paths the window did not touch. On the Cornell
 //!   box (20 s, 256 px, 2 seeds) the window in every pass made `pt-nee`'s relMSE 1.25× worse;
 //!   the trial switches it off after 2 + 2 passes. Without a time budget (a fixed spp, the
@@ -88,9 +98,13 @@ pub struct RouletteStats {
     pub grid: GridStats,
     /// Passes of the window's efficiency trial (both arms).
     pub trial_passes: u32,
-    /// Passes that ran without the window with a time budget (the learning passes, the trial
-    /// passes of its "off" arm, and every pass after a verdict that it does not pay).
+    /// Passes that ran without the window with a time budget (the learning passes, the passes
+    /// that waited for the guide's verdict, the trial passes of its "off" arm, and every pass
+    /// after a verdict that it does not pay).
     pub window_off_passes: u32,
+    /// Of those, the passes after the learning phase that waited for the strategy's estimator
+    /// to be final (the guide's efficiency trial) before the window's trial began.
+    pub waited_passes: u32,
     /// The trial's verdict, at its first look ([`WindowTrial::window_pays`]: what it decided).
     pub verdict: Option<TrialVerdict>,
     /// A trial still running when the render ended: its estimate from all its passes.
@@ -173,7 +187,8 @@ impl GuidedRoulette {
     }
 
     /// Before a pass: whether the grid learns in it, and `Î` (or `σ²`) from the passes so far
-    /// (`sum`, `sum2`: the per-pixel sums and sums of squares).
+    /// (`sum`, `sum2`: the per-pixel sums and sums of squares); `settled`: whether the
+    /// strategy's estimator is final ([`crate::render::strategy::Strategy::estimator_settled`]).
     pub fn begin_pass(
         &mut self,
         elapsed: f64,
@@ -181,12 +196,13 @@ impl GuidedRoulette {
         (width, height): (u32, u32),
         sum: &[[f64; 3]],
         sum2: &[[f64; 3]],
+        settled: bool,
     ) {
         self.learning = self.schedule.in_training_phase(elapsed, pass);
         if self.learning {
             self.stats.learning_passes += 1;
         }
-        self.plan_trial_pass(pass, (width, height), sum);
+        self.plan_trial_pass(pass, (width, height), sum, settled);
         let r = PIXEL_FILTER_RADIUS;
         let done = if self.efficiency {
             guiding::pixel_variances(width, height, sum, sum2, pass, r, &mut self.pixel)
@@ -199,9 +215,15 @@ impl GuidedRoulette {
     }
 
     /// Whether the window applies in this pass: always without a time budget; with one, not
-    /// while the grid learns, then what the [`WindowTrial`] says (see the [module
-    /// docs](self)).
-    fn plan_trial_pass(&mut self, pass: u32, (width, height): (u32, u32), sum: &[[f64; 3]]) {
+    /// while the grid learns or the strategy's estimator is not final (`settled`), then what
+    /// the [`WindowTrial`] says (see the [module docs](self)).
+    fn plan_trial_pass(
+        &mut self,
+        pass: u32,
+        (width, height): (u32, u32),
+        sum: &[[f64; 3]],
+        settled: bool,
+    ) {
         self.in_trial = false;
         self.active = true;
         if !self.timed {
@@ -211,6 +233,14 @@ impl GuidedRoulette {
             // No evidence yet that the window pays: the grid learns from plain paths.
             self.active = false;
             self.stats.window_off_passes += 1;
+            return;
+        }
+        if self.trial.is_none() && !settled {
+            // The guide's trial still runs: the window's trial waits for the estimator that
+            // will render the rest of the image.
+            self.active = false;
+            self.stats.window_off_passes += 1;
+            self.stats.waited_passes += 1;
             return;
         }
         if self.trial.is_none() {

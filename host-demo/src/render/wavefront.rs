@@ -608,7 +608,15 @@ pub fn render_passes<S: Strategy>(
         let record = strategy.begin_pass(&pass);
         if let Some(g) = &mut roulette {
             let size = (width, height);
-            g.begin_pass(pass.elapsed.as_secs_f64(), pass.index, size, &sum, &sum2);
+            let settled = strategy.estimator_settled();
+            g.begin_pass(
+                pass.elapsed.as_secs_f64(),
+                pass.index,
+                size,
+                &sum,
+                &sum2,
+                settled,
+            );
         }
         sched.training_ended(
             &pass,

@@ -1133,6 +1133,23 @@ impl<'g> Strategy for Guided<'g> {
     type Report = WorkerReport;
     type Error = GuidingError;
 
+    /// Settled once the guide is abandoned, or training has stopped and the efficiency trial
+    /// (when on) has had its first look: a verdict, or a continuation between two arms whose
+    /// cost ratio's interval straddles 1.
+    fn estimator_settled(&self) -> bool {
+        match self.phase {
+            Phase::Abandoned => true,
+            Phase::Training => false,
+            _ if !self.gopts.efficiency_trial => true,
+            Phase::Stopped => false,
+            Phase::Trial => self
+                .stats
+                .trial
+                .as_ref()
+                .is_some_and(|t| t.verdict.is_some() || t.first_look.is_some()),
+        }
+    }
+
     fn worker(&self) -> GuidedWorker<'_> {
         GuidedWorker::new(self.guide, self.cache.as_ref(), self.gopts, self.guide_off)
     }

@@ -78,6 +78,17 @@ pub trait Strategy: Sync {
     /// Called before pass `pass`; returns whether its paths are recorded for training.
     fn begin_pass(&mut self, pass: &Pass) -> bool;
 
+    /// Whether the estimator of the passes from this one on is settled, asked after
+    /// [`Strategy::begin_pass`]: training is over and a trial of the strategy's own (the
+    /// guide's efficiency trial) has had its first look, so it is either decided or goes on
+    /// between two arms it found alike (their cost ratio's interval straddles 1). Another trial
+    /// (the weight window's) starts only then: one that ran beside the guide's first passes
+    /// would weigh the window on a mix of guided and unguided passes whose efficiencies may
+    /// differ by 2x, not on the estimator that renders the rest. The default: always settled.
+    fn estimator_settled(&self) -> bool {
+        true
+    }
+
     /// Whether the strategy wants the image of pass `pass` (its pixel values alone, not the
     /// running mean) through [`Strategy::observe_pass_image`]; asked after
     /// [`Strategy::begin_pass`].
