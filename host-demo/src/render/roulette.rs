@@ -39,9 +39,9 @@
 //!   guide's first passes, half of each of its arms' passes were unguided: on `builtin:door`
 //!   (20 s, 256 px, 3 seeds) it measured the window at 0.50–0.61 of the plain passes' cost,
 //!   about its gain on `pt-nee` (0.72x), while the guided image with the window came out at
-//!   1.00x the guided image without it (after the wait: 0.82x). Waiting for the guide's
+//!   1.00x the guided image without it (after the wait: 0.86x). Waiting for the guide's
 //!   verdict instead of its first look cost the scenes whose guide trial goes on (classroom:
-//!   the window 0.91x against 0.62x). The grid
+//!   the window 0.91x against 0.65x). The grid
 //!   learns in the learning passes only, from paths the window did not touch. On the Cornell
 //!   box (20 s, 256 px, 2 seeds) the window in every pass made `pt-nee`'s relMSE 1.25× worse;
 //!   the trial switches it off after 2 + 2 passes. Without a time budget (a fixed spp, the
@@ -99,11 +99,12 @@ pub struct RouletteStats {
     /// Passes of the window's efficiency trial (both arms).
     pub trial_passes: u32,
     /// Passes that ran without the window with a time budget (the learning passes, the passes
-    /// that waited for the guide's verdict, the trial passes of its "off" arm, and every pass
-    /// after a verdict that it does not pay).
+    /// that waited for the guide trial's first look, the trial passes of its "off" arm, and
+    /// every pass after a verdict that it does not pay).
     pub window_off_passes: u32,
     /// Of those, the passes after the learning phase that waited for the strategy's estimator
-    /// to be final (the guide's efficiency trial) before the window's trial began.
+    /// to settle (the guide's efficiency trial to have its first look) before the window's
+    /// trial began.
     pub waited_passes: u32,
     /// The trial's verdict, at its first look ([`WindowTrial::window_pays`]: what it decided).
     pub verdict: Option<TrialVerdict>,
@@ -188,7 +189,7 @@ impl GuidedRoulette {
 
     /// Before a pass: whether the grid learns in it, and `Î` (or `σ²`) from the passes so far
     /// (`sum`, `sum2`: the per-pixel sums and sums of squares); `settled`: whether the
-    /// strategy's estimator is final ([`crate::render::strategy::Strategy::estimator_settled`]).
+    /// strategy's estimator is settled ([`crate::render::strategy::Strategy::estimator_settled`]).
     pub fn begin_pass(
         &mut self,
         elapsed: f64,
@@ -215,7 +216,7 @@ impl GuidedRoulette {
     }
 
     /// Whether the window applies in this pass: always without a time budget; with one, not
-    /// while the grid learns or the strategy's estimator is not final (`settled`), then what
+    /// while the grid learns or the strategy's estimator is not settled, then what
     /// the [`WindowTrial`] says (see the [module docs](self)).
     fn plan_trial_pass(
         &mut self,
@@ -235,15 +236,15 @@ impl GuidedRoulette {
             self.stats.window_off_passes += 1;
             return;
         }
-        if self.trial.is_none() && !settled {
-            // The guide's trial still runs: the window's trial waits for the estimator that
-            // will render the rest of the image.
-            self.active = false;
-            self.stats.window_off_passes += 1;
-            self.stats.waited_passes += 1;
-            return;
-        }
         if self.trial.is_none() {
+            if !settled {
+                // The guide's trial has not looked yet: the window's trial waits for the
+                // estimator that will render the rest of the image.
+                self.active = false;
+                self.stats.window_off_passes += 1;
+                self.stats.waited_passes += 1;
+                return;
+            }
             // Weighted by the image before the trial (the mean of the passes so far).
             let mean = mean_image(sum, pass);
             let (w, h) = (width as usize, height as usize);
