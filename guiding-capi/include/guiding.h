@@ -324,7 +324,8 @@ typedef struct PgTrainingSample {
      */
     float roughness;
     /**
-     * Unit shading normal (product targets; zero if unknown).
+     * Unit shading normal (product targets). Zero: no surface (a scattering point inside
+     * a participating medium; the guide covers the whole sphere) or unknown.
      */
     float normal[3];
     /**
@@ -473,7 +474,8 @@ typedef struct PgQueryPoint {
      */
     float roughness;
     /**
-     * Unit shading normal (product targets; zero if unknown).
+     * Unit shading normal (product targets). Zero: no surface (a scattering point inside
+     * a participating medium; the guide covers the whole sphere) or unknown.
      */
     float normal[3];
     /**

@@ -137,7 +137,8 @@ pub struct PgTrainingSample {
     pub position: [f32; 3],
     /// Surface roughness in `[0, 1]` (product targets).
     pub roughness: f32,
-    /// Unit shading normal (product targets; zero if unknown).
+    /// Unit shading normal (product targets). Zero: no surface (a scattering point inside
+    /// a participating medium; the guide covers the whole sphere) or unknown.
     pub normal: [f32; 3],
     /// Density (solid angle) with which `wi` was sampled, `> 0`.
     pub sample_pdf: f32,
@@ -188,7 +189,8 @@ pub struct PgQueryPoint {
     pub position: [f32; 3],
     /// Surface roughness in `[0, 1]` (product targets).
     pub roughness: f32,
-    /// Unit shading normal (product targets; zero if unknown).
+    /// Unit shading normal (product targets). Zero: no surface (a scattering point inside
+    /// a participating medium; the guide covers the whole sphere) or unknown.
     pub normal: [f32; 3],
     /// Padding (0).
     pub pad0: f32,

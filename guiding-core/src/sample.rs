@@ -26,7 +26,8 @@ pub struct TrainingSample {
     pub position: [f32; 3],
     /// Surface roughness in `[0, 1]` (product models only).
     pub roughness: f32,
-    /// Unit world-space shading normal (product models only; zero if unknown).
+    /// Unit world-space shading normal (product models only). Zero: no surface, a
+    /// scattering point inside a participating medium, or unknown.
     pub normal: [f32; 3],
     /// Density, in solid angle, with which the renderer actually sampled
     /// `wi` (the one-sample MIS density of BSDF and guide sampling). `> 0`.

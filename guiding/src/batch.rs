@@ -244,6 +244,50 @@ impl DistributionBatch {
         true
     }
 
+    /// Multiplies the vMF mixtures of the lanes `lanes[j]` by the vMF lobe
+    /// `e^{κ_j (a_j·ω − 1)}` (`axes[j]` unit, `kappas[j] ≥ 0`), closed form
+    /// ([`VmfMixture::product_with_lobe`](guiding_core::mixture::vmf::VmfMixture::product_with_lobe)):
+    /// the product of a radiance guide with the vMF fit of a phase function
+    /// ([`guiding_core::lobe::vmf::hg_vmf_kappa`], its axis the forward or
+    /// backward direction) at scattering points inside media, as Open PGL
+    /// guides in volumes. Samples and pdfs of those lanes use the product
+    /// afterwards (exact densities of what is sampled). Returns `false` and
+    /// changes nothing for NASG and DF, for lanes on a device, when the
+    /// lengths differ or a lane is out of range.
+    pub fn apply_lobe_product(&mut self, lanes: &[u32], axes: &[Vec3], kappas: &[f32]) -> bool {
+        let n = self.len();
+        if lanes.len() != axes.len()
+            || lanes.len() != kappas.len()
+            || lanes.iter().any(|&i| i as usize >= n)
+        {
+            return false;
+        }
+        let has_vmf = match &self.location {
+            LaneLocation::Device(_) => false,
+            LaneLocation::Cache { cells, .. } => {
+                !self.items.lanes.vmf().is_empty() || !cells.lanes.vmf().is_empty()
+            }
+            LaneLocation::Owned => !self.items.lanes.vmf().is_empty(),
+        };
+        if !has_vmf {
+            return false;
+        }
+        if lanes.is_empty() {
+            return true;
+        }
+        self.materialize();
+        let vmf = self.items.lanes.vmf_mut();
+        for j in 0..lanes.len() {
+            let (axis, kappa) = (axes[j], kappas[j]);
+            if !(kappa > 0.0 && kappa.is_finite() && axis.is_finite()) {
+                continue;
+            }
+            let m = &mut vmf[lanes[j] as usize];
+            *m = m.product_with_lobe(guiding_core::frame::normalize_or(axis, Vec3::Z), kappa);
+        }
+        true
+    }
+
     /// Lane `i` as a plain value, to [attach](GuidingField::attach) to its
     /// field later (`None` out of range, and for lanes decoded on a device,
     /// which stay there).

@@ -62,7 +62,8 @@ use guiding_core::sample::TrainingSample;
 pub struct PathVertex {
     /// Surface position.
     pub position: [f32; 3],
-    /// Unit shading normal (zero if unknown; product models need it).
+    /// Unit shading normal (product models need it). Zero: a scattering point inside a
+    /// participating medium (no surface), or unknown.
     pub normal: [f32; 3],
     /// `wo`: unit direction towards the previous vertex (the camera for
     /// vertex 0).

@@ -309,7 +309,11 @@ fn render_and_compare_end_to_end() {
         let state = t["state"].as_str().unwrap();
         assert!(state == "verdict" || state == "unfinished", "{s}");
         if state == "verdict" {
-            assert_eq!(on_arm, off_arm, "ABBA: a look sees equal arms: {s}");
+            // ABBA: the first look sees equal arms; a first look that straddles continues
+            // with the cheaper-looking arm in two passes of three, so a later verdict may
+            // see unequal ones (a loaded machine gets there: fewer, noisier passes). Either
+            // way each arm has run at least the first look's two passes.
+            assert!(on_arm >= Some(2) && off_arm >= Some(2), "{s}");
         }
         let (lo, hi) = (t["ratio_low"].as_f64(), t["ratio_high"].as_f64());
         assert!(

@@ -74,6 +74,17 @@ fn warned(sc: &Scene, line: u32, needle: &str) -> bool {
 
 #[test]
 fn other_integrators_render_with_path_at_their_depth() {
+    // `volpath` and its variants are read as `path` without a warning (media render with
+    // every integrator): `tests/media.rs`.
+    let volpath = doc(
+        "3.0.0",
+        r#"<integrator type="volpath"><integer name="max_depth" value="6"/><integer name="rr_depth" value="3"/></integrator>"#,
+        "",
+        DIFFUSE,
+    );
+    let sc = load(&volpath);
+    assert_eq!((sc.settings.max_depth, sc.settings.rr_depth), (6, 3));
+    assert!(sc.warnings.is_empty(), "{:?}", sc.warnings);
     for (integrator, depth, needle) in [
         (
             r#"<integrator type="sppm"><integer name="maxDepth" value="7"/><integer name="photonCount" value="250000"/><float name="initialRadius" value="0"/></integrator>"#,
@@ -84,11 +95,6 @@ fn other_integrators_render_with_path_at_their_depth() {
             r#"<integrator type="bdpt"><integer name="max_depth" value="9"/></integrator>"#,
             9,
             "bdpt",
-        ),
-        (
-            r#"<integrator type="volpath"><integer name="max_depth" value="6"/><integer name="rr_depth" value="3"/></integrator>"#,
-            6,
-            "volpath",
         ),
         (
             r#"<integrator type="photonmapper"><integer name="maxDepth" value="4"/><integer name="globalPhotons" value="1000"/></integrator>"#,
@@ -319,7 +325,7 @@ fn unknown_plugins_are_replaced_and_warned() {
 <shape type="sphere"><emitter type="area"><rgb name="radiance" value="1"/><float name="sampling_weight" value="2"/></emitter></shape>
 <emitter type="spot"><rgb name="intensity" value="5"/></emitter>
 <texture type="gridtexture" id="grid"/>
-<medium type="homogeneous" id="fog"/>
+<medium type="homogeneous" id="fog"><phase type="rayleigh"/></medium>
 </scene>"#;
     let sc = load(text);
     for (line, needle) in [
@@ -327,7 +333,7 @@ fn unknown_plugins_are_replaced_and_warned() {
         (4, "<float name=\"sampling_weight\">: ignored"),
         (5, "skipped"),
         (6, "constant 0.5 grey"),
-        (7, "<medium type=\"homogeneous\" id=\"fog\">: ignored"),
+        (7, "<phase type=\"rayleigh\">: rendered as \"isotropic\""),
     ] {
         assert!(
             warned(&sc, line, needle),

@@ -68,22 +68,8 @@ fn data_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/published")
 }
 
-/// `(name, width, height, mean, se)`: one row of `mitsuba3.csv`.
-type Reference = (String, u32, u32, [f64; 3], [f64; 3]);
-
-fn references() -> Vec<Reference> {
-    common::csv_rows(&data_dir().join("mitsuba3.csv"), 9)
-        .into_iter()
-        .map(|f| {
-            (
-                f[0].clone(),
-                f[1].parse().expect("width"),
-                f[2].parse().expect("height"),
-                [3, 4, 5].map(|i| common::number(&f[i])),
-                [6, 7, 8].map(|i| common::number(&f[i])),
-            )
-        })
-        .collect()
+fn references() -> Vec<common::MitsubaReference> {
+    common::mitsuba_references(&data_dir().join("mitsuba3.csv"))
 }
 
 /// The comparison lines whose `|z|` exceeds the Šidák threshold (empty: within noise).

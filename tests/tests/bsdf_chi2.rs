@@ -18,9 +18,10 @@
 //! grid it passes).
 //!
 //! Cases: GGX and Beckmann rough conductors, dielectrics (both sides) and plastics, `phong`,
-//! `ward`, `roughdiffuse`, `blendbsdf`; negative controls (`harness-selftest/...`) plant wrong
-//! densities (a Beckmann sampler against the GGX pdf or α·1.1, Phong's `n + 1`, Ward's quadrant
-//! slip) that must be rejected.
+//! `ward`, `roughdiffuse`, `blendbsdf`, the media's Henyey–Greenstein phase function; negative
+//! controls (`harness-selftest/...`) plant wrong densities (a Beckmann sampler against the GGX
+//! pdf or α·1.1, Phong's `n + 1`, Ward's quadrant slip, HG with `−g` or `1.1 g`) that must be
+//! rejected.
 //!
 //! Run with `cargo test --release -p guiding-tests --test bsdf_chi2` (about 1.5 minutes).
 
@@ -164,7 +165,17 @@ fn cases() -> Vec<(String, Material, Vec3, bool)> {
     cases.extend(phong_ward_cases());
     cases.extend(beckmann_cases());
     cases.extend(rough_diffuse_cases());
+    cases.extend(phase_cases());
     cases
+}
+
+/// The Henyey–Greenstein phase function of media (`Material::Phase`, exact CDF inversion):
+/// isotropic, forward and backward scattering, over the whole sphere around `ω_o = z`.
+fn phase_cases() -> Vec<(String, Material, Vec3, bool)> {
+    [0.0f32, 0.4, -0.7]
+        .into_iter()
+        .map(|g| (format!("hg g{g}"), Material::Phase { g }, Vec3::Z, false))
+        .collect()
 }
 
 /// Mitsuba 0.6 `roughdiffuse` (cosine-weighted sampling as in Mitsuba; the full and the fast
@@ -759,6 +770,22 @@ fn chi2_catches_wrong_phong_ward_pdf() {
     ];
     for (i, (name, sampled, claimed, quadrant_bug, ok)) in runs.into_iter().enumerate() {
         check_pairing(name, sampled, claimed, quadrant_bug, wi, 700 + i as u64, ok);
+    }
+}
+
+/// The chi² test catches a Henyey–Greenstein density with the sign convention of `g`
+/// flipped (forward samples against a backward pdf, the classic slip between `ω_o · ω_i` and
+/// the angle to the forward direction), and `g` 10 % too large; the right pairing passes.
+#[test]
+fn chi2_catches_wrong_phase_pdf() {
+    let hg = |g: f32| Material::Phase { g };
+    let runs = [
+        ("hg g0.5 right", hg(0.5), true),
+        ("hg g0.5 pdf of -g", hg(-0.5), false),
+        ("hg g0.5 pdf g0.55", hg(0.55), false),
+    ];
+    for (i, (name, claimed, ok)) in runs.into_iter().enumerate() {
+        check_pairing(name, hg(0.5), claimed, false, Vec3::Z, 900 + i as u64, ok);
     }
 }
 

@@ -291,7 +291,16 @@ impl<const K: usize> VmfMixture<K> {
     #[must_use]
     pub fn product_with_clamped_cosine(&self, normal: Vec3) -> Self {
         let n = crate::frame::normalize_or(normal, Vec3::Z);
-        let kc = CLAMPED_COSINE_KAPPA;
+        self.product_with_lobe(n, CLAMPED_COSINE_KAPPA)
+    }
+
+    /// Product with the (unnormalised) vMF lobe `e^{κ_c (n·ω − 1)}` around the unit `n`,
+    /// `κ_c ≥ 0`, normalised again: the closed form of
+    /// [`Self::product_with_clamped_cosine`] with any `κ_c` (e.g. a phase function's lobe,
+    /// [`crate::lobe::vmf::hg_vmf_kappa`]). `κ_c = 0` returns the mixture unchanged (up to
+    /// rounding).
+    #[must_use]
+    pub fn product_with_lobe(&self, n: Vec3, kc: f32) -> Self {
         let mut out = Self::ZERO;
         let mut log_w = [f32::MIN; K];
         let mut max_log = f32::MIN;

@@ -41,7 +41,9 @@ pub struct QueryPoint {
     pub position: [f32; 3],
     /// Surface roughness in `[0, 1]` (product models only).
     pub roughness: f32,
-    /// Unit world-space shading normal (product models only; zero if unknown).
+    /// Unit world-space shading normal (product models only). Zero: no surface, a
+    /// scattering point inside a participating medium (the guide covers the whole sphere;
+    /// no cosine product), or unknown.
     pub normal: [f32; 3],
     /// Padding (0).
     pub pad0: f32,

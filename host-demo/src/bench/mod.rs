@@ -251,7 +251,7 @@ impl std::fmt::Write for FnvWriter {
     }
 }
 
-/// Hash of what a scene renders: its primitives, materials, shapes, camera and settings as
+/// Hash of what a scene renders: its primitives, materials, shapes, media, camera and settings as
 /// loaded (so a change to a built-in scene's code or to a mesh file gives a new key; an envmap
 /// image's pixels are not included, only its settings through the XML bytes).
 fn scene_content_hash(spec: &str) -> Result<u64> {
@@ -260,13 +260,15 @@ fn scene_content_hash(spec: &str) -> Result<u64> {
     let mut w = FnvWriter(0xcbf2_9ce4_8422_2325);
     let _ = write!(
         w,
-        "{:?}{:?}{:?}{:?}{:?}{:?}",
+        "{:?}{:?}{:?}{:?}{:?}{:?}{:?}{:?}",
         scene.prims,
         scene.materials,
         scene.shapes,
         scene.point_lights,
         scene.camera,
-        scene.settings
+        scene.settings,
+        scene.media,
+        scene.camera_medium
     );
     Ok(w.0)
 }

@@ -426,9 +426,17 @@ impl Finished<'_> {
             Outcome::Plain(p) => p.roulette.as_ref(),
             Outcome::Guided(g) => g.stats.roulette.as_ref(),
         };
-        let common = CommonStages::new(nee_ran, nee_asked, opts.rr, sc.settings.rr_depth, roulette);
+        let (medium_vertices, media_guided) = match self.outcome {
+            Outcome::Plain(p) => (p.medium_vertices, false),
+            Outcome::Guided(g) => (
+                g.stats.medium_vertices,
+                g.options.guide_media && !sc.media.is_empty(),
+            ),
+        };
+        let media = (sc, medium_vertices, media_guided);
+        let common = CommonStages::new(nee_ran, nee_asked, opts.rr, media, roulette);
         let run = match self.outcome {
-            Outcome::Plain(p) => RunStats::Plain(PlainRun::new(p, common)),
+            Outcome::Plain(p) => RunStats::Plain(Box::new(PlainRun::new(p, common))),
             Outcome::Guided(g) => RunStats::Guided(Box::new(GuidedRun::new(
                 &g.stats,
                 threads,

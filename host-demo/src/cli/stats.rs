@@ -10,6 +10,8 @@
 use host_demo::render::strategy::guided::{GROUP_GUIDED, GROUP_UNGUIDED};
 use host_demo::render::{GuidedStats, PassWeightStats, ProbeStats, RenderStats, TrialStats};
 use host_demo::render::{Roulette, RouletteStats};
+use host_demo::scene::medium::NO_MEDIUM;
+use host_demo::scene::Scene;
 use serde::Serialize;
 
 /// A JSON number, or `null` where it is not finite (JSON has no NaN or infinity).
@@ -63,7 +65,7 @@ pub(super) struct OutputFiles {
 #[derive(Serialize)]
 #[serde(untagged)]
 pub(super) enum RunStats<'a> {
-    Plain(PlainRun),
+    Plain(Box<PlainRun>),
     Guided(Box<GuidedRun<'a>>),
 }
 
@@ -174,9 +176,24 @@ impl GuidedRr {
     }
 }
 
-/// The NEE and Russian-roulette stages, the same for every integrator.
+/// Participating media: whether the scene has any (or `null` surfaces), and the
+/// scattering points the render made in them.
+#[derive(Serialize, Clone, Copy)]
+struct MediaStage {
+    ran: bool,
+    reason: &'static str,
+    /// Media in the scene.
+    media: usize,
+    /// The camera sits in a medium.
+    camera_in_medium: bool,
+    /// Scattering points inside media (phase-function vertices).
+    medium_vertices: u64,
+}
+
+/// The NEE, media and Russian-roulette stages, the same for every integrator.
 pub(super) struct CommonStages {
     nee: Stage,
+    media: MediaStage,
     russian_roulette: RrStage,
 }
 
@@ -187,9 +204,10 @@ impl CommonStages {
         nee_ran: bool,
         nee_asked: bool,
         rr: Roulette,
-        rr_depth: u32,
+        (scene, medium_vertices, media_guided): (&Scene, u64, bool),
         guided: Option<&RouletteStats>,
     ) -> Self {
+        let rr_depth = scene.settings.rr_depth;
         let reason = if nee_ran {
             "NEE + MIS on every non-delta vertex (delta BSDFs are not connected)"
         } else if !nee_asked {
@@ -201,6 +219,22 @@ impl CommonStages {
             nee: Stage {
                 ran: nee_ran,
                 reason,
+            },
+            media: MediaStage {
+                ran: scene.has_volumes,
+                reason: if scene.has_volumes && media_guided {
+                    "free-flight sampling in homogeneous media, null surfaces crossed, shadow \
+                     rays carry transmittance; medium vertices are guided (the guide over the \
+                     whole sphere in MIS with the phase function; the cosine product is off)"
+                } else if scene.has_volumes {
+                    "free-flight sampling in homogeneous media, null surfaces crossed, shadow \
+                     rays carry transmittance; medium vertices sample the phase function"
+                } else {
+                    "skipped: no media and no null surfaces (one closest-hit query per ray)"
+                },
+                media: scene.media.len(),
+                camera_in_medium: scene.camera_medium != NO_MEDIUM,
+                medium_vertices,
             },
             russian_roulette: RrStage {
                 ran: rr != Roulette::Off,
@@ -246,6 +280,7 @@ struct PlainTimes {
 #[derive(Serialize)]
 struct PlainStages {
     nee: Stage,
+    media: MediaStage,
     guiding: Stage,
     product_inputs: Stage,
     training: Stage,
@@ -269,6 +304,7 @@ impl PlainRun {
             training_samples_used: 0,
             stages: PlainStages {
                 nee: common.nee,
+                media: common.media,
                 guiding: Stage::skipped(UNGUIDED),
                 product_inputs: Stage::skipped(UNGUIDED),
                 training: Stage::skipped(UNGUIDED),
@@ -325,6 +361,7 @@ struct TrainingSamples {
 #[derive(Serialize)]
 struct GuidedStages<'a> {
     nee: Stage,
+    media: MediaStage,
     guiding: GuidingStage,
     product_inputs: ProductInputsStage,
     training: TrainingStage<'a>,
@@ -626,6 +663,7 @@ impl<'a> GuidedStages<'a> {
     fn new(g: &'a GuidedStats, product: bool, all_diffuse: bool, common: CommonStages) -> Self {
         Self {
             nee: common.nee,
+            media: common.media,
             guiding: GuidingStage {
                 ran: g.guided_vertices > 0,
                 guided_vertices: g.guided_vertices,

@@ -15,6 +15,8 @@ pub struct RenderStats {
     pub trace: Duration,
     /// Rays traced: camera and continuation rays plus shadow rays.
     pub rays: u64,
+    /// Scattering points inside media (vertices with a phase function).
+    pub medium_vertices: u64,
     /// The NEE stage ran (NEE on, and the scene has an emitter NEE can sample).
     pub nee: bool,
     /// What guided roulette and splitting did (`--rr guided`).

@@ -61,11 +61,17 @@ pub fn render_guided(
     // The efficiency trial weighs time: only a time budget asks that question. Without NEE
     // its unguided arm is BSDF sampling alone, whose trial passes cost the image far more
     // than they can save on a scene with small emitters (see `GuidedOptions`).
+    let guided_media = gopts.guide_media && !scene.media.is_empty();
     let gopts = GuidedOptions {
         efficiency_trial: gopts.efficiency_trial
             && opts.time_budget.is_some()
             && gopts.nee
             && scene.has_samplable_emitter(),
+        // Guided medium vertices have no normal for the cache's product lanes, and the
+        // per-cell selection fit turns the guide off in nearly every cell of a scene with
+        // media (docs/bench-2026-12-07-media): both are off there.
+        cosine_product: gopts.cosine_product && (!guided_media),
+        fit_selection: gopts.fit_selection && (!guided_media),
         ..*gopts
     };
     let budget = match opts.time_budget {

@@ -75,10 +75,14 @@ soa_queue! {
         /// The ray continues the path the recorder follows in its slot (after a split, only
         /// the first copy's does).
         pub tracked: Vec<bool>,
+        /// The medium the ray starts in ([`NO_MEDIUM`](crate::scene::medium::NO_MEDIUM):
+        /// vacuum).
+        pub medium: Vec<u32>,
     }
 }
 
 impl RayQueue {
+    #[allow(clippy::too_many_arguments)] // one value per field of the queue
     pub(crate) fn push(
         &mut self,
         slot: u32,
@@ -87,6 +91,7 @@ impl RayQueue {
         beta: Vec3,
         pdf: f32,
         tracked: bool,
+        medium: u32,
     ) {
         self.slot.push(slot);
         self.origin.push(origin);
@@ -95,21 +100,27 @@ impl RayQueue {
         self.pdf.push(pdf);
         self.from_camera.push(false);
         self.tracked.push(tracked);
+        self.medium.push(medium);
     }
 }
 
 soa_queue! {
     /// The surviving path vertices of one bounce: the unit of work of NEE, of a strategy's batch
     /// (one batched guide decode) and of the continuation.
+    ///
+    /// A scattering point inside a medium is a vertex too: its material is a
+    /// [`Material::Phase`], its `ng` is zero (no surface: no offset, no side test) and its
+    /// `ns` is `wo` (the phase function's frame).
     #[derive(Default, Debug)]
     pub struct Vertices {
         /// Path slot (pixel within the block).
         pub slot: Vec<u32>,
         /// Hit position.
         pub position: Vec<Vec3>,
-        /// Geometric normal.
+        /// Geometric normal (zero at a medium vertex).
         pub ng: Vec<Vec3>,
-        /// Shading normal (flipped to the side of `wo` for two-sided materials).
+        /// Shading normal (flipped to the side of `wo` for two-sided materials; `wo` at a
+        /// medium vertex).
         pub ns: Vec<Vec3>,
         /// Unit direction towards the previous vertex.
         pub wo: Vec<Vec3>,
@@ -120,6 +131,23 @@ soa_queue! {
         /// The vertex is on the path the recorder follows in its slot (a split vertex's first
         /// copy; see [`RayQueue::tracked`]).
         pub tracked: Vec<bool>,
+        /// The media a ray leaving the vertex starts in: `[0]` on the side of `ng`, `[1]`
+        /// against it ([`Vertices::medium_toward`]); both the same unless the surface bounds
+        /// media.
+        pub media: Vec<[u32; 2]>,
+    }
+}
+
+impl Vertices {
+    /// The medium a ray leaving vertex `i` in direction `dir` starts in.
+    #[inline]
+    pub fn medium_toward(&self, i: usize, dir: Vec3) -> u32 {
+        let m = self.media[i];
+        if dir.dot(self.ng[i]) >= 0.0 {
+            m[0]
+        } else {
+            m[1]
+        }
     }
 }
 
@@ -155,6 +183,8 @@ soa_queue! {
         pub tmax: Vec<f32>,
         /// The MIS-weighted light contribution `f · L · w / p_light`, without the path throughput.
         pub local: Vec<Vec3>,
+        /// The medium the shadow ray starts in.
+        pub medium: Vec<u32>,
     }
 }
 

@@ -45,7 +45,7 @@ use crate::render::schedule::Schedule;
 use crate::render::strategy::{PassImage, PassSamples, Strategy, Traced, VertexStrategy};
 use crate::scene::bsdf::Material;
 use crate::scene::emitter::EmitterSample;
-use crate::scene::Scene;
+use crate::scene::{Scene, SurfaceHit, MAX_NULL_CROSSINGS};
 use glam::Vec3;
 use guiding::{BatchRecorder, Continuation, PathVertex, ReflectedSample};
 use guiding_core::sample::TrainingSample;
@@ -111,6 +111,8 @@ struct Worker<'s, V> {
     radiance: Vec<Vec3>,
     /// Rays traced by this worker (closest-hit and shadow).
     rays: u64,
+    /// Medium vertices made by this worker.
+    medium_vertices: u64,
     strategy: V,
     /// The library's wavefront recorder, on passes the strategy trains on or the roulette's
     /// grid learns in.
@@ -160,6 +162,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
             rng: Vec::new(),
             radiance: Vec::new(),
             rays: 0,
+            medium_vertices: 0,
             strategy,
             recorder,
             strategy_records,
@@ -189,6 +192,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
             r.start(count);
         }
         let cam = &self.scene.camera;
+        let scene_camera_medium = self.scene.camera_medium;
         for i in 0..count {
             let pix = rows[i / w] as usize * w + i % w;
             self.pixel_of_slot.push(pix as u32);
@@ -204,7 +208,8 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                 cam.ray(u, v)
             };
             self.rng.push(rng);
-            self.rays_in.push(i as u32, o, d, Vec3::ONE, 0.0, true);
+            self.rays_in
+                .push(i as u32, o, d, Vec3::ONE, 0.0, true, scene_camera_medium);
             self.rays_in.from_camera[i] = true;
         }
         let mut bounce = 0u32;
@@ -227,48 +232,134 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
         }
     }
 
-    /// Stages 1 and 2: closest hit, emission (with MIS), Russian roulette, compaction into
-    /// the vertex batch.
+    /// Stage 1 for one ray: the closest surface that scatters, crossing `null` surfaces (and
+    /// moving into the media they bound) on the way, or the point where the ray scatters in
+    /// a medium (free-flight sampling, [`crate::scene::medium`]). Returns where it ended and
+    /// the throughput factor of the media it went through. A scene without media or `null`
+    /// surfaces takes one closest-hit query.
+    fn trace_segment(&mut self, o: Vec3, d: Vec3, medium: u32, slot: u32) -> (SegmentEnd, Vec3) {
+        let scene = self.scene;
+        if !scene.has_volumes {
+            let end = match scene.intersect(o, d, 0.0, f32::INFINITY) {
+                Some(hit) => SegmentEnd::Surface {
+                    travelled: hit.t,
+                    hit,
+                    medium,
+                },
+                None => SegmentEnd::Escaped,
+            };
+            return (end, Vec3::ONE);
+        }
+        let (mut o, mut medium, mut travelled, mut weight) = (o, medium, 0.0f32, Vec3::ONE);
+        for _ in 0..=MAX_NULL_CROSSINGS {
+            let hit = scene.intersect(o, d, 0.0, f32::INFINITY);
+            if let Some(m) = scene.media.get(medium as usize) {
+                let rng = &mut self.rng[slot as usize];
+                let t_max = hit.as_ref().map_or(f32::INFINITY, |h| h.t);
+                let flight = m.free_flight(o, d, t_max, rng);
+                weight *= flight.weight;
+                if let Some(t) = flight.t {
+                    return (
+                        SegmentEnd::Medium {
+                            p: o + d * t,
+                            medium,
+                        },
+                        weight,
+                    );
+                }
+                if weight.max_element() <= 0.0 {
+                    return (SegmentEnd::Absorbed, Vec3::ZERO);
+                }
+            }
+            let Some(hit) = hit else {
+                return (SegmentEnd::Escaped, weight);
+            };
+            travelled += hit.t;
+            if !scene.is_null(hit.shape) {
+                return (
+                    SegmentEnd::Surface {
+                        hit,
+                        travelled,
+                        medium,
+                    },
+                    weight,
+                );
+            }
+            if let Some(i) = scene.shapes[hit.shape as usize].media {
+                medium = i.target(d, hit.ng);
+            }
+            o = offset(hit.p, hit.ng, d);
+        }
+        (SegmentEnd::Absorbed, Vec3::ZERO)
+    }
+
+    /// Stages 1 and 2: closest hit (or medium scattering point), emission (with MIS),
+    /// Russian roulette, compaction into the vertex batch.
     fn stage_intersect_and_emission(&mut self, bounce: u32) {
         let scene = self.scene;
         self.verts.clear();
         let continue_path = bounce + 1 < self.opts.max_depth;
         let rr = self.opts.rr == Roulette::Throughput && bounce + 1 >= scene.settings.rr_depth;
+        let nee = self.nee;
         // Taken out for the loop (the roulette's decision borrows the worker), put back after.
         let queue = std::mem::take(&mut self.rays_in);
         let q = &queue;
         self.rays += q.len() as u64;
         for i in 0..q.len() {
             let (o, d, slot) = (q.origin[i], q.dir[i], q.slot[i]);
+            let (end, weight) = self.trace_segment(o, d, q.medium[i], slot);
             // The recorder follows one path per slot: the tracked copy's.
             let mut recorder = self.recorder.as_mut().filter(|_| q.tracked[i]);
+            if weight != Vec3::ONE {
+                if let Some(r) = &mut recorder {
+                    // The media's factor belongs to the previous vertex's continuation. The
+                    // recorder's scale is one number: a chromatic factor enters as its mean
+                    // (training targets only; the image takes the exact factor).
+                    r.scale_continuation(slot, weight.element_sum() / 3.0);
+                }
+            }
             let mis = |pdf_light: f32| {
-                if q.from_camera[i] || !self.nee || q.pdf[i].is_infinite() {
+                if q.from_camera[i] || !nee || q.pdf[i].is_infinite() {
                     1.0
                 } else {
                     power_heuristic(q.pdf[i], pdf_light)
                 }
             };
-            let Some(hit) = scene.intersect(o, d, 0.0, f32::INFINITY) else {
-                if scene.env.is_some() {
-                    // The path leaves the scene: environment emission, MIS-weighted against
-                    // NEE's environment sampling.
-                    let le = scene.env_radiance(d);
-                    let w = mis(scene.env_pdf(d));
-                    self.radiance[slot as usize] += q.beta[i] * le * w;
-                    if let Some(r) = &mut recorder {
-                        r.add_escaped_radiance(slot, le.to_array(), w);
+            let (hit, travelled, medium) = match end {
+                SegmentEnd::Absorbed => continue,
+                SegmentEnd::Escaped => {
+                    if scene.env.is_some() {
+                        // The path leaves the scene: environment emission, MIS-weighted against
+                        // NEE's environment sampling.
+                        let le = scene.env_radiance(d);
+                        let w = mis(scene.env_pdf(d));
+                        self.radiance[slot as usize] += q.beta[i] * weight * le * w;
+                        if let Some(r) = &mut recorder {
+                            r.add_escaped_radiance(slot, le.to_array(), w);
+                        }
                     }
+                    continue;
                 }
-                continue;
+                SegmentEnd::Medium { p, medium } => {
+                    if continue_path {
+                        let beta = q.beta[i] * weight;
+                        self.medium_vertex(slot, q.tracked[i], p, d, medium, beta, rr);
+                    }
+                    continue;
+                }
+                SegmentEnd::Surface {
+                    hit,
+                    travelled,
+                    medium,
+                } => (hit, travelled, medium),
             };
-            let mut beta = q.beta[i];
+            let mut beta = q.beta[i] * weight;
             let shape = &scene.shapes[hit.shape as usize];
             let (mut le, mut w) = (Vec3::ZERO, 1.0);
             if let Some(emitted) = shape.emission {
                 let cos_l = hit.ns.dot(-d);
                 if cos_l > 0.0 {
-                    w = mis(scene.light_pdf_area(hit.shape) * hit.t * hit.t / cos_l);
+                    w = mis(scene.light_pdf_area(hit.shape) * travelled * travelled / cos_l);
                     le = emitted;
                     self.radiance[slot as usize] += beta * le * w;
                 }
@@ -339,6 +430,11 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                 copies = k;
                 beta *= weight;
             }
+            // The media a ray leaving the vertex enters, by the side of `ng` it leaves on.
+            let media = match shape.media {
+                Some(i) => [i.target(ng, hit.ng), i.target(-ng, hit.ng)],
+                None => [medium; 2],
+            };
             let v = &mut self.verts;
             for copy in 0..copies {
                 v.tracked.push(tracked && copy == 0);
@@ -349,9 +445,65 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                 v.wo.push(-d);
                 v.beta.push(beta);
                 v.bsdf.push(mat);
+                v.media.push(media);
             }
         }
         self.rays_in = queue;
+    }
+
+    /// A scattering point at `p` in medium `medium`, reached along `d` with throughput
+    /// `beta`: recorded (a training sample without a normal where the strategy guides
+    /// medium vertices, else it only propagates radiance), rouletted like a surface vertex
+    /// with `rr`, and added to the batch with the medium's phase function as its material.
+    #[allow(clippy::too_many_arguments)] // the ray's state, as the surface branch has it
+    fn medium_vertex(
+        &mut self,
+        slot: u32,
+        tracked: bool,
+        p: Vec3,
+        d: Vec3,
+        medium: u32,
+        mut beta: Vec3,
+        rr: bool,
+    ) {
+        let mat = Material::Phase {
+            g: self.scene.media[medium as usize].g,
+        };
+        let trains = self.strategy_records && self.strategy.trains(&mat);
+        if let Some(r) = self.recorder.as_mut().filter(|_| tracked) {
+            // No normal: a training sample of a point in a medium ("no surface").
+            r.add_vertex(
+                slot,
+                PathVertex {
+                    position: p.to_array(),
+                    wo: (-d).to_array(),
+                    roughness: 1.0,
+                    is_delta: !trains,
+                    ..PathVertex::default()
+                },
+            );
+        }
+        if rr {
+            let q = beta.max_element().min(0.95);
+            if q.is_nan() || q <= 0.0 || self.rng[slot as usize].next_f32() >= q {
+                return;
+            }
+            beta /= q;
+            if let Some(r) = self.recorder.as_mut().filter(|_| tracked) {
+                r.scale_continuation(slot, 1.0 / q);
+            }
+        }
+        self.medium_vertices += 1;
+        let v = &mut self.verts;
+        v.tracked.push(tracked);
+        v.slot.push(slot);
+        v.position.push(p);
+        v.ng.push(Vec3::ZERO);
+        v.ns.push(-d);
+        v.wo.push(-d);
+        v.beta.push(beta);
+        v.bsdf.push(mat);
+        v.media.push([medium; 2]);
     }
 
     /// The weight window's decision for the path in `slot` at a vertex at `p` (shading normal
@@ -460,6 +612,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
             let Some((o, d, tmax)) = shadow_ray(v.position[i], v.ng[i], es) else {
                 continue;
             };
+            self.shadow.medium.push(v.medium_toward(i, d));
             self.shadow.vertex.push(i as u32);
             self.shadow.origin.push(o);
             self.shadow.dir.push(d);
@@ -473,20 +626,28 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
         let (sh, v) = (&self.shadow, &self.verts);
         self.rays += sh.vertex.len() as u64;
         for k in 0..sh.vertex.len() {
-            if self
-                .scene
-                .occluded(sh.origin[k], sh.dir[k], 0.0, sh.tmax[k])
-            {
+            let (o, d, tmax) = (sh.origin[k], sh.dir[k], sh.tmax[k]);
+            let local = if self.scene.has_volumes {
+                let slot = v.slot[sh.vertex[k] as usize] as usize;
+                let rng = &mut self.rng[slot];
+                let tr = self.scene.transmittance(o, d, tmax, sh.medium[k], rng);
+                if tr.max_element() <= 0.0 {
+                    continue;
+                }
+                sh.local[k] * tr
+            } else if self.scene.occluded(o, d, 0.0, tmax) {
                 continue;
-            }
+            } else {
+                sh.local[k]
+            };
             let i = sh.vertex[k] as usize;
             let slot = v.slot[i];
-            self.radiance[slot as usize] += v.beta[i] * sh.local[k];
+            self.radiance[slot as usize] += v.beta[i] * local;
             if let Some(r) = self.recorder.as_mut().filter(|_| v.tracked[i]) {
                 // The roulette factor of this vertex scales its NEE too (the recorder's
                 // continuation scale covers only the scattered radiance).
                 let rr = r.last_vertex(slot).map_or(1.0, |v| v.continuation_scale);
-                r.add_direct(slot, (sh.local[k] * rr).to_array());
+                r.add_direct(slot, (local * rr).to_array());
             }
         }
     }
@@ -502,10 +663,11 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
             let (wi, slot) = (c.wi[i], v.slot[i]);
             let (wo, ng, ns) = (v.wo[i], v.ng[i], v.ns[i]);
             let beta = v.beta[i] * c.weight[i];
+            // A medium vertex has no surface to leak through.
             if wi == Vec3::ZERO
                 || beta.max_element() <= 0.0
                 || !beta.is_finite()
-                || !side_ok(wo, wi, ng, ns)
+                || (!v.bsdf[i].is_phase() && !side_ok(wo, wi, ng, ns))
             {
                 continue;
             }
@@ -529,10 +691,28 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                 );
             }
             let o = offset(v.position[i], ng, wi);
+            let medium = v.medium_toward(i, wi);
             self.rays_out
-                .push(slot, o, wi, beta, c.pdf[i], v.tracked[i]);
+                .push(slot, o, wi, beta, c.pdf[i], v.tracked[i], medium);
         }
     }
+}
+
+/// Where a ray's segment ended ([`Worker::trace_segment`]).
+enum SegmentEnd {
+    /// It left the scene.
+    Escaped,
+    /// It reached a surface that scatters, `travelled` from the ray's origin (through the
+    /// `null` surfaces it crossed), arriving in `medium`.
+    Surface {
+        hit: SurfaceHit,
+        travelled: f32,
+        medium: u32,
+    },
+    /// It scattered at `p` inside `medium`.
+    Medium { p: Vec3, medium: u32 },
+    /// It ended on the way (every channel absorbed, or too many `null` crossings).
+    Absorbed,
 }
 
 /// What one thread did in a work item: its rows' radiance, training samples (with their
@@ -642,6 +822,7 @@ pub fn render_passes<S: Strategy>(
                 Mutex::new((0..items.len()).map(|_| None).collect());
             let reports = Mutex::new(Vec::new());
             let rays = AtomicUsize::new(0);
+            let medium_vertices = AtomicUsize::new(0);
             let rr_stats = Mutex::new(RouletteStats::default());
             let shared: &S = strategy;
             let shared_rr = roulette.as_ref();
@@ -665,6 +846,7 @@ pub fn render_passes<S: Strategy>(
                             results.lock().unwrap_or_else(|e| e.into_inner())[b] = Some(result);
                         }
                         rays.fetch_add(w.rays as usize, Ordering::Relaxed);
+                        medium_vertices.fetch_add(w.medium_vertices as usize, Ordering::Relaxed);
                         rr_stats
                             .lock()
                             .unwrap_or_else(|e| e.into_inner())
@@ -681,6 +863,7 @@ pub fn render_passes<S: Strategy>(
             pass_seconds += piece_seconds.as_secs_f64();
             stats.trace += piece_seconds;
             stats.rays += rays.into_inner() as u64;
+            stats.medium_vertices += medium_vertices.into_inner() as u64;
             let mut samples = PassSamples::default();
             let results = results.into_inner().unwrap_or_else(|e| e.into_inner());
             if let Some(g) = &mut roulette {

@@ -207,6 +207,18 @@ pub enum Material {
         /// Material of the back side (seen with a flipped frame).
         back: u32,
     },
+    /// Mitsuba's `null` BSDF: an index-matched boundary (of a medium, usually) that rays
+    /// cross without scattering; the wavefront driver never makes a vertex of it, and shadow
+    /// rays pass through it.
+    Null,
+    /// A medium's Henyey–Greenstein phase function at a scattering point inside the medium
+    /// ([`crate::scene::medium`]), as a material of a vertex without a surface: the vertex's
+    /// frame has `ω_o` as its `z` axis, `eval` gives `(p, p)` (no cosine) and `sample` draws
+    /// `p` exactly (weight 1). Isotropic for `g = 0`.
+    Phase {
+        /// Asymmetry `g` in `(−1, 1)`.
+        g: f32,
+    },
 }
 
 /// Parameters of the plastic models (see the module docs).
@@ -1133,7 +1145,17 @@ impl Material {
             | Material::Dielectric { .. }
             | Material::ThinDielectric { .. }
             | Material::Blend { .. }
-            | Material::TwoSided { .. } => return (Vec3::ZERO, 0.0),
+            | Material::TwoSided { .. }
+            | Material::Null => return (Vec3::ZERO, 0.0),
+            // The phase function's frame has `wi` (Mitsuba's name for ω_o) along z.
+            Material::Phase { g } => {
+                let p = crate::scene::medium::hg_pdf(wo.z / wo.length().max(1e-30), g);
+                return if p.is_finite() && wo.is_finite() {
+                    (Vec3::splat(p), p)
+                } else {
+                    (Vec3::ZERO, 0.0)
+                };
+            }
             _ => {}
         }
         if wi.z <= 0.0 || wo.z <= 0.0 {
@@ -1249,7 +1271,16 @@ impl Material {
                 let r = thin_dielectric_reflectance(wi.z.abs(), eta);
                 sample_delta_pair(wi, u0, r, reflectance, -wi, transmittance)
             }
-            Material::TwoSided { .. } | Material::Blend { .. } => None,
+            Material::TwoSided { .. } | Material::Blend { .. } | Material::Null => None,
+            Material::Phase { g } => {
+                let wo = crate::scene::medium::hg_sample(g, u1, u2);
+                let pdf = crate::scene::medium::hg_pdf(wo.z, g);
+                (pdf > 0.0 && pdf.is_finite()).then_some(BsdfSample {
+                    wo,
+                    weight: Vec3::ONE,
+                    pdf,
+                })
+            }
             // The opaque BSDFs below reflect only into the upper hemisphere.
             _ if wi.z <= 0.0 => None,
             Material::Diffuse { reflectance } => sample_diffuse(reflectance, u1, u2),
@@ -1435,17 +1466,29 @@ impl Material {
 
     /// NEE may connect to a light here: the BSDF has a non-delta part.
     pub fn nee_connectable(&self) -> bool {
-        !self.is_delta() && !matches!(self, Material::TwoSided { .. } | Material::Blend { .. })
+        !self.is_delta()
+            && !matches!(
+                self,
+                Material::TwoSided { .. } | Material::Blend { .. } | Material::Null
+            )
+    }
+
+    /// A phase function (a scattering point inside a medium, no surface).
+    pub fn is_phase(&self) -> bool {
+        matches!(self, Material::Phase { .. })
     }
 
     /// The BSDF is one-sided (zero when `wi` is below the shading normal): everything but
-    /// the dielectrics (a `blendbsdf` is checked through its components at load time).
+    /// the dielectrics, `null` and phase functions (a `blendbsdf` is checked through its
+    /// components at load time).
     pub fn one_sided(&self) -> bool {
         !matches!(
             self,
             Material::Dielectric { .. }
                 | Material::RoughDielectric { .. }
                 | Material::ThinDielectric { .. }
+                | Material::Null
+                | Material::Phase { .. }
         )
     }
 

@@ -194,6 +194,9 @@ pub fn write_mitsuba(scene: &Scene, dir: &Path) -> Result<PathBuf> {
     if scene.camera.aperture_radius > 0.0 {
         return Err(unsupported("a thin-lens camera"));
     }
+    if scene.has_volumes {
+        return Err(unsupported("participating media or null surfaces"));
+    }
     let io = |path: &Path| {
         let path = path.to_path_buf();
         move |source| Error::Io { path, source }

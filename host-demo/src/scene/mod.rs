@@ -6,7 +6,9 @@ pub mod builtin;
 pub mod conductors;
 pub mod emitter;
 pub mod export;
+pub mod grid;
 pub mod load;
+pub mod medium;
 pub mod mesh;
 pub mod spectrum;
 pub mod sunsky;
@@ -16,6 +18,7 @@ use crate::error::{Error, Result};
 use crate::math::{sample_uniform_sphere, Frame, Rng};
 use crate::scene::bsdf::Material;
 use crate::scene::emitter::{EmitterSample, Environment, PointLight};
+use crate::scene::medium::{Medium, MediumInterface, NO_MEDIUM};
 use crate::scene::texture::{Param, Texture};
 use glam::{Mat4, Vec2, Vec3, Vec3A};
 use obvhs::aabb::Aabb;
@@ -246,6 +249,9 @@ pub struct Shape {
     /// Opacity of a `mask` BSDF: hits where it is below ½ are skipped by every ray
     /// (camera, bounce and shadow rays alike).
     pub opacity: Option<Param>,
+    /// The media on either side, if the shape bounds media (Mitsuba's `interior` /
+    /// `exterior`): a ray that crosses it enters [`MediumInterface::target`].
+    pub media: Option<MediumInterface>,
 }
 
 /// Textured parameters of a material (indices into [`Scene::textures`]); `None` keeps the
@@ -446,9 +452,20 @@ pub struct Scene {
     pub texture_bytes: usize,
     /// Warnings the loader printed (approximations, ignored elements).
     pub warnings: Vec<String>,
+    /// Participating media ([`Shape::media`] and `camera_medium` index them).
+    pub media: Vec<Medium>,
+    /// The medium the camera sits in ([`NO_MEDIUM`]: vacuum).
+    pub camera_medium: u32,
+    /// Some shape has a `null` BSDF or bounds a medium: rays may cross surfaces without
+    /// scattering and shadow rays carry transmittance ([`Scene::transmittance`]).
+    pub has_volumes: bool,
     has_opacity: bool,
     bvh: CwBvh,
 }
+
+/// The most `null` surfaces one ray crosses between two scattering events (a ray caught
+/// between coincident null surfaces ends there; no published scene comes close).
+pub const MAX_NULL_CROSSINGS: u32 = 256;
 
 /// Builder collecting shapes before the BVH is built.
 #[derive(Default)]
@@ -462,6 +479,8 @@ pub struct SceneBuilder {
     textures: Vec<Texture>,
     point_lights: Vec<PointLight>,
     env: Option<Environment>,
+    media: Vec<Medium>,
+    camera_medium: Option<u32>,
     /// Bytes of decoded texture data (set by the loader).
     pub texture_bytes: usize,
     /// Loader warnings.
@@ -480,6 +499,29 @@ impl SceneBuilder {
     /// Textured parameters of the materials added so far.
     pub fn material_textures(&self) -> &[MaterialTextures] {
         &self.material_textures
+    }
+
+    /// Adds a participating medium and returns its index.
+    pub fn medium(&mut self, m: Medium) -> u32 {
+        self.media.push(m);
+        self.media.len() as u32 - 1
+    }
+
+    /// Media added so far.
+    pub fn media(&self) -> &[Medium] {
+        &self.media
+    }
+
+    /// Makes the last shape added bound media (see [`Shape::media`]).
+    pub fn set_last_shape_media(&mut self, media: MediumInterface) {
+        if let Some(s) = self.shapes.last_mut() {
+            s.media = Some(media);
+        }
+    }
+
+    /// Puts the camera in medium `m`.
+    pub fn set_camera_medium(&mut self, m: u32) {
+        self.camera_medium = Some(m);
     }
 
     /// Adds a material and returns its index.
@@ -525,6 +567,7 @@ impl SceneBuilder {
             material,
             emission,
             opacity,
+            media: None,
         });
         self.prim_shape.extend(std::iter::repeat_n(id, prims.len()));
         match uvs {
@@ -688,6 +731,22 @@ impl SceneBuilder {
                 }
             }
         }
+        let nm = self.media.len() as u32;
+        let valid = |m: u32| m == NO_MEDIUM || m < nm;
+        for s in &self.shapes {
+            if let Some(i) = s.media {
+                if !(valid(i.interior) && valid(i.exterior)) {
+                    return Err(Error::Scene("a shape refers to a missing medium".into()));
+                }
+            }
+        }
+        let camera_medium = self.camera_medium.unwrap_or(NO_MEDIUM);
+        if !valid(camera_medium) {
+            return Err(Error::Scene("the camera refers to a missing medium".into()));
+        }
+        let has_volumes = self.shapes.iter().any(|s| {
+            s.media.is_some() || matches!(self.materials[s.material as usize], Material::Null)
+        }) || camera_medium != NO_MEDIUM;
         let has_opacity = self.shapes.iter().any(|s| s.opacity.is_some());
         Ok(Scene {
             prims,
@@ -705,6 +764,9 @@ impl SceneBuilder {
             material_textures: self.material_textures,
             texture_bytes: self.texture_bytes,
             warnings: self.warnings,
+            media: self.media,
+            camera_medium,
+            has_volumes,
             has_opacity,
             bvh,
         })
@@ -979,6 +1041,45 @@ impl Scene {
                 _ => f32::INFINITY,
             }
         })
+    }
+
+    /// True if rays cross shape `shape` without scattering (a `null` BSDF).
+    #[inline]
+    pub fn is_null(&self, shape: u32) -> bool {
+        matches!(
+            self.materials[self.shapes[shape as usize].material as usize],
+            Material::Null
+        )
+    }
+
+    /// The transmittance of the shadow ray from `o` along unit `d` over `tmax` (`∞` allowed)
+    /// that starts in medium `medium`: zero if a surface that scatters is in the way, else
+    /// the product of the media's transmittances ([`Medium::transmittance_along`]: closed form
+    /// or ratio tracking with `rng`) over the pieces between the `null` surfaces it
+    /// crosses (each crossing of a surface that bounds media moves it into
+    /// [`medium::MediumInterface::target`]), as Mitsuba 3's `volpath` evaluates its emitter
+    /// samples. Zero after [`MAX_NULL_CROSSINGS`] crossings.
+    pub fn transmittance(&self, o: Vec3, d: Vec3, tmax: f32, medium: u32, rng: &mut Rng) -> Vec3 {
+        let (mut o, mut left, mut medium, mut tr) = (o, tmax, medium, Vec3::ONE);
+        for _ in 0..=MAX_NULL_CROSSINGS {
+            let hit = self.intersect(o, d, 0.0, left);
+            let piece = hit.as_ref().map_or(left, |h| h.t);
+            if let Some(m) = self.media.get(medium as usize) {
+                tr *= m.transmittance_along(o, d, piece, rng);
+            }
+            let Some(h) = hit else {
+                return tr;
+            };
+            if !self.is_null(h.shape) || tr.max_element() <= 0.0 {
+                return Vec3::ZERO;
+            }
+            if let Some(i) = self.shapes[h.shape as usize].media {
+                medium = i.target(d, h.ng);
+            }
+            left -= h.t;
+            o = crate::render::wavefront::offset(h.p, h.ng, d);
+        }
+        Vec3::ZERO
     }
 
     /// Samples a point uniformly by area on area light `li`: `(point, emitting normal)`.

@@ -24,6 +24,26 @@ pub fn shared_scenes() -> PathBuf {
     dir
 }
 
+/// `(name, width, height, mean, se)`: one row of a `mitsuba3.csv` of Mitsuba 3 image means
+/// (written by the `measure.py` beside it).
+pub type MitsubaReference = (String, u32, u32, [f64; 3], [f64; 3]);
+
+/// The rows of the `mitsuba3.csv` at `path`.
+pub fn mitsuba_references(path: &Path) -> Vec<MitsubaReference> {
+    csv_rows(path, 9)
+        .into_iter()
+        .map(|f| {
+            (
+                f[0].clone(),
+                f[1].parse().expect("width"),
+                f[2].parse().expect("height"),
+                [3, 4, 5].map(|i| number(&f[i])),
+                [6, 7, 8].map(|i| number(&f[i])),
+            )
+        })
+        .collect()
+}
+
 /// A fresh, empty scratch folder `name` under the tests' target temporary directory.
 pub fn scratch_dir(name: &str) -> PathBuf {
     let d = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(name);

@@ -50,7 +50,8 @@ fn finite_non_negative(v: glam::Vec3) -> bool {
 /// range, finite non-negative reflectance and emission, a finite GGX
 /// `α > 0` and IOR, light tables with positive finite area and monotone
 /// CDFs, a finite camera with positive finite field of view, positive image
-/// size and sample count (any `max_depth`). Then a few camera rays must be finite unit
+/// size and sample count (any `max_depth`), media with finite non-negative coefficients,
+/// `σs ≤ σt` and `|g| < 1`. Then a few camera rays must be finite unit
 /// directions, they and light samples must not panic, and hits must be finite and inside the
 /// ray's interval.
 pub fn check_scene(what: &str, s: &Scene) {
@@ -76,6 +77,14 @@ pub fn check_scene(what: &str, s: &Scene) {
         if let Some(e) = shape.emission {
             assert!(finite_non_negative(e), "{what}: shape {i} emission {e}");
         }
+    }
+    for (i, m) in s.media.iter().enumerate() {
+        let ok = finite_non_negative(m.sigma_t)
+            && finite_non_negative(m.sigma_s)
+            && (m.sigma_s - m.sigma_t).max_element() <= 0.0
+            && m.g > -1.0
+            && m.g < 1.0;
+        assert!(ok, "{what}: medium {i} {m:?}");
     }
     for m in &s.materials {
         let ok = match *m {
@@ -173,6 +182,9 @@ pub fn check_scene(what: &str, s: &Scene) {
                     && (b as usize) < s.materials.len()
                     && (0.0..=1.0).contains(&weight)
             }
+            Material::Null => true,
+            // Made per medium vertex, never loaded as a material.
+            Material::Phase { .. } => false,
             Material::TwoSided { front, back } => {
                 (front as usize) < s.materials.len() && (back as usize) < s.materials.len()
             }
@@ -212,6 +224,13 @@ pub fn check_scene(what: &str, s: &Scene) {
             assert!((h.shape as usize) < s.shapes.len());
         }
         let _ = s.occluded(o, d, 1e-4, 1.0);
+        // Through media and null surfaces: a transmittance in [0, 1] per channel.
+        let mut rng = guiding_core::rng::Pcg32::new(1, 2);
+        let tr = s.transmittance(o, d, f32::INFINITY, s.camera_medium, &mut rng);
+        assert!(
+            tr.is_finite() && tr.min_element() >= 0.0 && tr.max_element() <= 1.0,
+            "{what}: transmittance {tr}"
+        );
         if let Some(es) = s.sample_emitter(o, u, v, 0.5) {
             assert!(es.pdf.is_finite() && es.pdf > 0.0, "{what}: emitter pdf");
             assert!(

@@ -122,8 +122,18 @@ pub struct GuidedOptions {
     /// Rough conductors with a GGX alpha below this are not guided (near-specular).
     pub min_alpha: f32,
     /// Radiance-target vMF guides (NPM) are multiplied by the clamped cosine of the shading
-    /// normal before sampling (Open PGL's `ApplyCosineProduct`).
+    /// normal before sampling (Open PGL's `ApplyCosineProduct`). Off in a render whose medium
+    /// vertices are guided ([`GuidedOptions::guide_media`]): the guide cache keeps one
+    /// product lane per surface-normal bin, and a medium vertex has no normal.
     pub cosine_product: bool,
+    /// Scattering points inside media are guided like surface vertices: the guide's
+    /// distribution over the whole sphere (their queries and training samples carry a zero
+    /// normal: "no surface") in one-sample MIS with the phase function, the selection
+    /// probability and the per-cell fit as at surfaces. Off: they sample the phase function.
+    pub guide_media: bool,
+    /// At guided medium vertices, NPM guides are multiplied by the vMF fit of the phase
+    /// function (Open PGL's product in volumes); off: the guide alone (radiance).
+    pub phase_product: bool,
     /// When guide queries are answered from a spatial cache of the decoded guide.
     pub cache: CacheMode,
     /// Cells of the guide cache along the scene box's longest axis.
@@ -186,6 +196,8 @@ impl Default for GuidedOptions {
             selection_probability: guiding::config::PRESET_SELECTION_PROBABILITY,
             min_alpha: 0.05,
             cosine_product: true,
+            guide_media: true,
+            phase_product: true,
             cache: CacheMode::Always,
             cache_resolution: CacheOptions::default().resolution,
             fit_selection: true,
@@ -249,6 +261,8 @@ pub struct GuidedStats {
     pub training: Duration,
     /// Rays traced (closest-hit and shadow).
     pub rays: u64,
+    /// Scattering points inside media.
+    pub medium_vertices: u64,
     /// What guided roulette and splitting did (`--rr guided`).
     pub roulette: Option<crate::render::roulette::RouletteStats>,
     /// The guide cache: `None` when off, else why it was not used or its size.
@@ -818,6 +832,7 @@ impl<'g> Guided<'g> {
         stats.trace = rs.trace;
         stats.wall = rs.wall;
         stats.rays = rs.rays;
+        stats.medium_vertices = rs.medium_vertices;
         stats.roulette = rs.roulette;
         let fs = self.guide.stats();
         stats.training_steps = fs.steps;
@@ -875,6 +890,10 @@ pub struct GuidedWorker<'g> {
     pdfs: GuidePdfQueue,
     /// Guide pdf of each vertex's continuation direction.
     guide_pdf: Vec<f32>,
+    /// The phase-function product's lanes, lobe axes and concentrations (scratch).
+    lobe_lanes: Vec<u32>,
+    lobe_axes: Vec<Vec3>,
+    lobe_kappas: Vec<f32>,
 }
 
 impl<'g> GuidedWorker<'g> {
@@ -907,6 +926,40 @@ impl<'g> GuidedWorker<'g> {
             samples: GuideSampleQueue::default(),
             pdfs: GuidePdfQueue::default(),
             guide_pdf: Vec::new(),
+            lobe_lanes: Vec::new(),
+            lobe_axes: Vec::new(),
+            lobe_kappas: Vec::new(),
+        }
+    }
+
+    /// The product of the guide with the vMF fit of the phase function at the bounce's
+    /// guided medium vertices (Henyey–Greenstein with `g ≠ 0`: the lobe
+    /// [`guiding_core::lobe::vmf::hg_vmf_kappa`]`(g)` around the forward direction `−ω_o`,
+    /// or `ω_o` for `g < 0`); NASG and DF guides are left as they are.
+    fn multiply_phase_lobes(&mut self, verts: &Vertices) {
+        self.lobe_lanes.clear();
+        self.lobe_axes.clear();
+        self.lobe_kappas.clear();
+        for i in 0..verts.len() {
+            let (qi, Material::Phase { g }) = (self.guided_index[i], verts.bsdf[i]) else {
+                continue;
+            };
+            let kappa = guiding_core::lobe::vmf::hg_vmf_kappa(g);
+            if qi == NONE || kappa <= 0.0 {
+                continue;
+            }
+            let forward = -verts.wo[i];
+            self.lobe_lanes.push(qi);
+            self.lobe_axes
+                .push(if g > 0.0 { forward } else { -forward });
+            self.lobe_kappas.push(kappa);
+        }
+        if !self.lobe_lanes.is_empty() {
+            let _ = self.decoded.apply_lobe_product(
+                &self.lobe_lanes,
+                &self.lobe_axes,
+                &self.lobe_kappas,
+            );
         }
     }
 
@@ -952,7 +1005,7 @@ impl VertexStrategy for GuidedWorker<'_> {
         }
         for i in 0..verts.len() {
             let mat = &verts.bsdf[i];
-            if mat.guidable(self.gopts.min_alpha) {
+            if self.trains(mat) {
                 if self.cache.is_some() {
                     // Three 10-bit uniforms (cell centres of a 1024-grid) for the lookup.
                     let bits = rng[verts.slot[i] as usize].next_u32();
@@ -961,9 +1014,16 @@ impl VertexStrategy for GuidedWorker<'_> {
                         .push(Vec3::new(unit(bits), unit(bits >> 10), unit(bits >> 20)));
                 }
                 self.guided_index.push(self.queries.len() as u32);
+                // A medium vertex's query has no normal (its `ns` is only the phase
+                // function's frame).
+                let normal = if mat.is_phase() {
+                    Vec3::ZERO
+                } else {
+                    verts.ns[i]
+                };
                 self.queries.push(QueryPoint::from_vec3(
                     verts.position[i],
-                    verts.ns[i],
+                    normal,
                     verts.wo[i],
                     mat.roughness(),
                 ));
@@ -1018,6 +1078,9 @@ impl VertexStrategy for GuidedWorker<'_> {
                 .extend(self.queries.iter().map(|q| Vec3::from_array(q.normal)));
             self.decoded.apply_cosine_product(&self.normals);
         }
+        if self.gopts.phase_product {
+            self.multiply_phase_lobes(verts);
+        }
         self.selection.clear();
         for k in 0..nq {
             self.selection.push(self.decoded.selection_probability(k));
@@ -1047,7 +1110,7 @@ impl VertexStrategy for GuidedWorker<'_> {
     }
 
     fn trains(&self, mat: &Material) -> bool {
-        mat.guidable(self.gopts.min_alpha)
+        mat.guidable(self.gopts.min_alpha) || (self.gopts.guide_media && mat.is_phase())
     }
 
     fn sample(&mut self, verts: &Vertices, rng: &mut [Rng], out: &mut Continuations) {

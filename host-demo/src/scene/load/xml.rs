@@ -40,10 +40,13 @@ use crate::scene::load::exr::read_exr;
 use crate::scene::load::obj::parse_obj;
 use crate::scene::load::ply::parse_ply;
 use crate::scene::load::serialized::parse_serialized;
+use crate::scene::medium::{MediumInterface, NO_MEDIUM};
 use crate::scene::texture::{Filter, ImageCache, Param, Texture, UvMap, Wrap};
 use crate::scene::{quad_triangles, Camera, MaterialTextures, Prim, Scene, SceneBuilder, Settings};
 use glam::{Mat4, Vec2, Vec3};
 use roxmltree::{Document, Node};
+
+mod media;
 use std::borrow::Cow;
 use std::collections::{HashMap, HashSet};
 use std::path::{Component, Path, PathBuf};
@@ -127,6 +130,10 @@ pub fn load_str_opts(
         default_material: None,
         integrator: None,
         sensor: None,
+        null_material: None,
+        black_material: None,
+        media: HashMap::new(),
+        camera_medium: None,
     };
     let text = substitute(text, file, &ctx.params)?;
     let doc = parse_doc(&text, file)?;
@@ -250,6 +257,7 @@ struct ShapeData {
     material: u32,
     emission: Option<Vec3>,
     opacity: Option<Param>,
+    media: Option<MediumInterface>,
 }
 
 struct Ctx<'r> {
@@ -286,8 +294,14 @@ struct Ctx<'r> {
     images: ImageCache,
     builder: SceneBuilder,
     default_material: Option<u32>,
+    null_material: Option<u32>,
+    black_material: Option<u32>,
     integrator: Option<(u32, u32)>,
     sensor: Option<(Camera, u32, u32, u32)>,
+    /// Media by id.
+    media: HashMap<String, u32>,
+    /// The sensor's medium, if it has one.
+    camera_medium: Option<u32>,
 }
 
 fn elements<'a, 'i>(n: Node<'a, 'i>) -> impl Iterator<Item = Node<'a, 'i>> {
@@ -713,6 +727,9 @@ impl Ctx<'_> {
             rr_depth: self.integrator.map_or(5, |d| d.1),
         };
         let mut builder = std::mem::take(&mut self.builder);
+        if let Some(m) = self.camera_medium {
+            builder.set_camera_medium(m);
+        }
         builder.texture_bytes = self.images.bytes();
         builder.build(camera, settings)
     }
@@ -768,6 +785,9 @@ impl Ctx<'_> {
             "bsdf" | "texture" => self.define(n)?,
             "shape" => self.shape(n)?,
             "emitter" => self.emitter(n)?,
+            "medium" => {
+                self.medium(n)?;
+            }
             "include" => self.include(n)?,
             // Mitsuba 3: a folder where relative file names are also looked up.
             "path" => {
@@ -833,7 +853,9 @@ impl Ctx<'_> {
     /// nested `<integrator>`.
     fn integrator(&mut self, n: Node) -> Result<(u32, u32)> {
         let ty = n.attribute("type").unwrap_or("");
-        let known = ty == "path";
+        // The volumetric path tracers are `path` with media (host-demo renders media
+        // whichever integrator the file names).
+        let known = matches!(ty, "path" | "volpath" | "volpath_simple" | "volpathmis");
         let (mut depth, mut rr_depth) = (if ty == "direct" { 2 } else { 1024 }, 5);
         if !known {
             let instead = match ty {
@@ -887,6 +909,11 @@ impl Ctx<'_> {
         let (mut w, mut h, mut spp) = (768u32, 576u32, 4u32);
         for p in elements(n) {
             let tag = p.tag_name().name();
+            if matches!(tag, "medium" | "ref") {
+                // The medium the camera sits in.
+                self.camera_medium = Some(self.medium_or_ref(p)?);
+                continue;
+            }
             let pname = match tag {
                 "sampler" | "film" => Cow::Borrowed(""),
                 _ => self.name(p)?,
@@ -1398,6 +1425,7 @@ impl Ctx<'_> {
             "mask" => return self.mask_bsdf(n),
             "bumpmap" | "normalmap" => return self.bump_bsdf(n, ty),
             "phong" | "ward" => self.phong_ward_bsdf(n, ty, &mut tex)?,
+            "null" => Material::Null,
             _ => self.unknown_bsdf(n)?,
         };
         Ok(self.add_material(m, tex))
@@ -2017,6 +2045,29 @@ impl Ctx<'_> {
         Err(self.err(p, format!("reference to unknown bsdf id \"{id}\"")))
     }
 
+    /// The `null` material of Mitsuba 0.6's medium boundaries without a BSDF (created on
+    /// first use).
+    fn null_material(&mut self) -> u32 {
+        if let Some(m) = self.null_material {
+            return m;
+        }
+        let m = self.builder.material(Material::Null);
+        self.null_material = Some(m);
+        m
+    }
+
+    /// The black diffuse material of area emitters without a BSDF (created on first use).
+    fn black_material(&mut self) -> u32 {
+        if let Some(m) = self.black_material {
+            return m;
+        }
+        let m = self.builder.material(Material::Diffuse {
+            reflectance: Vec3::ZERO,
+        });
+        self.black_material = Some(m);
+        m
+    }
+
     /// The grey diffuse material of shapes without a BSDF (created on first use).
     fn default_material(&mut self) -> u32 {
         if let Some(m) = self.default_material {
@@ -2097,6 +2148,9 @@ impl Ctx<'_> {
     fn add_shape(&mut self, d: ShapeData) {
         self.builder
             .shape_with(d.prims, d.uvs, d.material, d.emission, d.opacity);
+        if let Some(m) = d.media {
+            self.builder.set_last_shape_media(m);
+        }
     }
 
     /// Opacity of a shape with material `m` (a mask, or a twosided around a mask).
@@ -2131,6 +2185,7 @@ impl Ctx<'_> {
                 material: self.default_material(),
                 emission: None,
                 opacity: None,
+                media: None,
             });
         }
         let props = self.shape_props(n, ty)?;
@@ -2149,10 +2204,33 @@ impl Ctx<'_> {
         if props.flip {
             flip_shape(&mut prims, &mut uvs);
         }
+        let media =
+            (props.interior.is_some() || props.exterior.is_some()).then(|| MediumInterface {
+                interior: props.interior.unwrap_or(NO_MEDIUM),
+                exterior: props.exterior.unwrap_or(NO_MEDIUM),
+            });
+        let legacy = n
+            .document()
+            .root_element()
+            .attribute("version")
+            .is_some_and(|v| v.starts_with('0'));
         let material = match props.material {
             Some(m) => m,
+            // Mitsuba 0.6: a shape that bounds a medium and has no BSDF is an index-matched
+            // boundary (Mitsuba 3 gives it its default diffuse BSDF, as here).
+            None if legacy && media.is_some() => self.null_material(),
+            // Mitsuba (3 and 0.6) gives an area emitter without a BSDF a black diffuse one.
+            None if props.emission.is_some() => self.black_material(),
             None => self.default_material(),
         };
+        if props.emission.is_some()
+            && matches!(self.builder.materials()[material as usize], Material::Null)
+        {
+            return Err(self.err(
+                n,
+                "an area emitter on a shape with a null BSDF is not supported",
+            ));
+        }
         let opacity = self.opacity_of(material);
         Ok(ShapeData {
             prims,
@@ -2160,6 +2238,7 @@ impl Ctx<'_> {
             material,
             emission: props.emission,
             opacity,
+            media,
         })
     }
 
@@ -2176,6 +2255,8 @@ impl Ctx<'_> {
             shape_index: 0,
             center: Vec3::ZERO,
             radius: 1.0,
+            interior: None,
+            exterior: None,
         };
         for p in elements(n) {
             let tag = p.tag_name().name();
@@ -2206,6 +2287,8 @@ impl Ctx<'_> {
                 ("boolean", "collapse", "obj") => {}
                 ("point", "center", "sphere") => s.center = self.vec3(p)?,
                 ("float", "radius", "sphere") => s.radius = self.float(p)?,
+                ("ref" | "medium", "interior", _) => s.interior = Some(self.medium_or_ref(p)?),
+                ("ref" | "medium", "exterior", _) => s.exterior = Some(self.medium_or_ref(p)?),
                 ("ref", _, _) => s.material = Some(self.bsdf_ref(p)?),
                 ("bsdf", _, _) => s.material = Some(self.bsdf(p)?),
                 ("emitter", _, _) => {
@@ -2318,6 +2401,9 @@ struct ShapeProps {
     face_normals: bool,
     /// The nested or referenced BSDF, if any.
     material: Option<u32>,
+    /// The media inside and outside (`interior`, `exterior`), if given.
+    interior: Option<u32>,
+    exterior: Option<u32>,
     /// The radiance of a nested area emitter.
     emission: Option<Vec3>,
     /// The mesh file (meshes).
