@@ -334,6 +334,14 @@ impl Camera {
         } else {
             (t * aspect, t)
         };
+        // A field of view so small (or an aspect ratio so extreme) that a half-angle tangent
+        // rounds to 0 or overflows gives no image (found by the scene parser's corpus replay:
+        // `fov` 1e-39).
+        if !(tan_x > 0.0 && tan_x.is_finite() && tan_y > 0.0 && tan_y.is_finite()) {
+            return Err(Error::Scene(format!(
+                "fov {fov_deg} at {width}x{height} gives no image (tan of the half angles {tan_x}, {tan_y})"
+            )));
+        }
         Ok(Camera {
             to_world,
             tan_x,
