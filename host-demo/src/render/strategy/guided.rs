@@ -16,6 +16,12 @@
 //!    each, and the weight is `f·cos / p(ω)` with the same combined density (one-sample MIS
 //!    of guide and BSDF), so every pass is unbiased whatever the state of the guide.
 //!
+//! Scattering points inside media are guidable too ([`GuidedOptions::guide_media`]): queried
+//! with a zero normal (the guide over the whole sphere), an NPM lane multiplied by the vMF fit
+//! of the phase function ([`GuidedOptions::phase_product`]), the phase function in the BSDF's
+//! place in the MIS. A render that guides them runs without the cosine product and the
+//! per-cell selection fit ([`crate::render::render_guided`]).
+//!
 //! # Training
 //!
 //! The library's [`TrainingSchedule`] decides when: the passes that start in the first
