@@ -324,6 +324,11 @@ struct GuideArgs {
     /// pass), instead of the constant --selection-probability; c = 0 skips the guide there.
     #[arg(long, value_enum, default_value = "on")]
     fit_selection: OnOff,
+    /// At guided scattering points inside media, multiply an NPM guide by the vMF fit of the
+    /// Henyey–Greenstein phase function (Open PGL's product in volumes); off: the radiance
+    /// guide alone.
+    #[arg(long, value_enum, default_value = "on")]
+    phase_product: OnOff,
     /// With --time: once training has stopped, alternate 4 guided and 4 unguided passes
     /// (BSDF sampling and NEE), compare relMSE per pass x seconds per pass on the image,
     /// and switch the guide off for the rest of the render when it does not pay.
