@@ -74,6 +74,15 @@ pub(crate) fn side_ok(wo: Vec3, wi: Vec3, ng: Vec3, ns: Vec3) -> bool {
     gi != 0.0 && (go * gi > 0.0) == shading_reflect
 }
 
+/// Mitsuba's throughput Russian roulette (`--rr throughput`): the survival probability
+/// `q = min(max(β), 0.95)` if the path survives (its throughput then divided by `q`, which
+/// keeps the estimator unbiased), `None` if it ends. One rule for surface and medium vertices.
+#[inline]
+fn throughput_survival(beta: Vec3, rng: &mut Rng) -> Option<f32> {
+    let q = beta.max_element().min(0.95);
+    (!q.is_nan() && q > 0.0 && rng.next_f32() < q).then_some(q)
+}
+
 /// Shadow ray `(origin, unit direction, tmax)` from the vertex at `p` (geometric normal `ng`)
 /// to an emitter sample; unbounded for the environment, stopping just short of area and point
 /// lights. `None` if degenerate.
@@ -397,12 +406,9 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                 continue; // absorbed, or the back of a one-sided BSDF
             }
             if rr {
-                // Russian roulette (Mitsuba: q = min(max(throughput), 0.95)); the survivors'
-                // throughput is divided by q, which keeps the estimator unbiased.
-                let q = beta.max_element().min(0.95);
-                if q.is_nan() || q <= 0.0 || self.rng[slot as usize].next_f32() >= q {
+                let Some(q) = throughput_survival(beta, &mut self.rng[slot as usize]) else {
                     continue;
-                }
+                };
                 beta /= q;
                 if let Some(r) = &mut recorder {
                     r.scale_continuation(slot, 1.0 / q);
@@ -484,10 +490,9 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
             );
         }
         if rr {
-            let q = beta.max_element().min(0.95);
-            if q.is_nan() || q <= 0.0 || self.rng[slot as usize].next_f32() >= q {
+            let Some(q) = throughput_survival(beta, &mut self.rng[slot as usize]) else {
                 return;
-            }
+            };
             beta /= q;
             if let Some(r) = self.recorder.as_mut().filter(|_| tracked) {
                 r.scale_continuation(slot, 1.0 / q);
