@@ -1112,6 +1112,59 @@ enum PgStatus pg_distributions_selection_probability(const struct PgDistribution
                                                      float *out);
 
 /**
+ * Multiplies the first `n` distributions by the clamped cosine of their
+ * normals (`normals`: `3n` finite floats; NPM §4.2, Open PGL's
+ * `ApplyCosineProduct`, Rust `DistributionBatch::apply_cosine_product`):
+ * a radiance guide then samples `∝ L_i · cos`. A zero normal ("no surface",
+ * a scattering point in a medium) leaves its distribution as it is; others
+ * are normalised. Later `pg_distributions_sample` / `_pdf` use the product
+ * (exact densities of what they sample); a second call multiplies again.
+ * `PG_INVALID_ARGUMENT` for NASG and DF distributions (no closed form) and
+ * non-finite normals; `PG_SIZE_MISMATCH`, `PG_STALE` as
+ * `pg_distributions_sample` (nothing changed then).
+ *
+ * # Safety
+ * `distributions` NULL or a live handle no other call is using; `normals`
+ * NULL or of length `3n`.
+ */
+enum PgStatus pg_distributions_apply_cosine_product(struct PgDistributions *distributions,
+                                                    size_t n,
+                                                    const float *normals);
+
+/**
+ * Multiplies the first `n` distributions by vMF lobes
+ * `e^{κᵢ (aᵢ·ω − 1)}` (`axes`: `3n` floats, each axis finite and non-zero
+ * where `κᵢ > 0`, normalised; `kappas`: `n` finite values `≥ 0`, `0`
+ * leaving the distribution as it is), in closed form (Rust
+ * `DistributionBatch::apply_lobe_product`): at a scattering point in a
+ * medium, the product of a radiance guide with the vMF fit of the phase
+ * function (`pg_hg_vmf_kappa`, its axis the forward direction `−wo` for
+ * `g > 0`, `wo` for `g < 0`), as Open PGL guides in volumes. Later samples
+ * and pdfs use the product; a second call multiplies again. Errors as
+ * `pg_distributions_apply_cosine_product`.
+ *
+ * # Safety
+ * `distributions` NULL or a live handle no other call is using; each array
+ * NULL or of the stated length.
+ */
+enum PgStatus pg_distributions_apply_lobe_product(struct PgDistributions *distributions,
+                                                  size_t n,
+                                                  const float *axes,
+                                                  const float *kappas);
+
+/**
+ * The concentration `κ` of the vMF lobe fitted to a Henyey–Greenstein phase
+ * function of asymmetry `g ∈ (−1, 1)` (equal mean cosine `|g|`, Rust
+ * `guiding_core::lobe::vmf::hg_vmf_kappa`; `0` for `g = 0`), into `*out`:
+ * the `κ` of `pg_distributions_apply_lobe_product` at a medium vertex.
+ * `PG_INVALID_ARGUMENT` for `g` outside `(−1, 1)` or NaN.
+ *
+ * # Safety
+ * `out` NULL or writable.
+ */
+enum PgStatus pg_hg_vmf_kappa(float g, float *out);
+
+/**
  * Fills `*vertex` with the defaults: zeros, except `roughness`,
  * `emitted_mis_weight` and `continuation_scale`, which are 1.
  *

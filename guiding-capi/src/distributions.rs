@@ -227,3 +227,155 @@ pub unsafe extern "C" fn pg_distributions_selection_probability(
         })
     })
 }
+
+impl PgDistributions {
+    /// Runs `body(batch, start, m)` on each decoded batch holding some of the
+    /// first `n` lanes (as `with_batches`, mutable), after the same checks:
+    /// `PG_SIZE_MISMATCH` if it holds fewer than `n`, `PG_STALE` if the field
+    /// was updated since the query. `body` returns whether it could multiply
+    /// (vMF lanes); a `false` is `PG_INVALID_ARGUMENT` naming `what` (the
+    /// first batch's, before any changed: all are of one field).
+    fn multiply_batches(
+        &mut self,
+        n: usize,
+        what: &str,
+        mut body: impl FnMut(&mut DistributionBatch, usize, usize) -> bool,
+    ) -> Result<(), Failure> {
+        self.with_batches(n, |_, _, _, _| Ok(()))?;
+        if n == 0 {
+            return Ok(());
+        }
+        // All batches are of one field: the first refuses or none does.
+        let mut start = 0;
+        for b in &mut self.batches {
+            if start >= n {
+                break;
+            }
+            let m = b.len().min(n - start);
+            if !body(b, start, m) {
+                return Err(Failure::invalid(format!(
+                    "{what} needs vMF mixtures (PG_REPRESENTATION_NPM; the lobe product: \
+                     decoded on the CPU); NASG and DF have no closed-form product"
+                )));
+            }
+            start += b.len();
+        }
+        Ok(())
+    }
+}
+
+/// Multiplies the first `n` distributions by the clamped cosine of their
+/// normals (`normals`: `3n` finite floats; NPM §4.2, Open PGL's
+/// `ApplyCosineProduct`, Rust `DistributionBatch::apply_cosine_product`):
+/// a radiance guide then samples `∝ L_i · cos`. A zero normal ("no surface",
+/// a scattering point in a medium) leaves its distribution as it is; others
+/// are normalised. Later `pg_distributions_sample` / `_pdf` use the product
+/// (exact densities of what they sample); a second call multiplies again.
+/// `PG_INVALID_ARGUMENT` for NASG and DF distributions (no closed form) and
+/// non-finite normals; `PG_SIZE_MISMATCH`, `PG_STALE` as
+/// `pg_distributions_sample` (nothing changed then).
+///
+/// # Safety
+/// `distributions` NULL or a live handle no other call is using; `normals`
+/// NULL or of length `3n`.
+#[no_mangle]
+pub unsafe extern "C" fn pg_distributions_apply_cosine_product(
+    distributions: *mut PgDistributions,
+    n: usize,
+    normals: *const f32,
+) -> PgStatus {
+    guard("pg_distributions_apply_cosine_product", || {
+        let d = unsafe { ptr::as_mut(distributions, "distributions") }?;
+        let n3 = times(n, 3, "normals")?;
+        let normals = unsafe { ptr::slice(normals, n3, "normals") }?;
+        let normals = finite_vectors(normals, "normals")?;
+        d.multiply_batches(n, "the cosine product", |b, start, m| {
+            b.apply_cosine_product(&normals[start..start + m])
+        })
+    })
+}
+
+/// Multiplies the first `n` distributions by vMF lobes
+/// `e^{κᵢ (aᵢ·ω − 1)}` (`axes`: `3n` floats, each axis finite and non-zero
+/// where `κᵢ > 0`, normalised; `kappas`: `n` finite values `≥ 0`, `0`
+/// leaving the distribution as it is), in closed form (Rust
+/// `DistributionBatch::apply_lobe_product`): at a scattering point in a
+/// medium, the product of a radiance guide with the vMF fit of the phase
+/// function (`pg_hg_vmf_kappa`, its axis the forward direction `−wo` for
+/// `g > 0`, `wo` for `g < 0`), as Open PGL guides in volumes. Later samples
+/// and pdfs use the product; a second call multiplies again. Errors as
+/// `pg_distributions_apply_cosine_product`.
+///
+/// # Safety
+/// `distributions` NULL or a live handle no other call is using; each array
+/// NULL or of the stated length.
+#[no_mangle]
+pub unsafe extern "C" fn pg_distributions_apply_lobe_product(
+    distributions: *mut PgDistributions,
+    n: usize,
+    axes: *const f32,
+    kappas: *const f32,
+) -> PgStatus {
+    guard("pg_distributions_apply_lobe_product", || {
+        let d = unsafe { ptr::as_mut(distributions, "distributions") }?;
+        let n3 = times(n, 3, "axes")?;
+        let axes = unsafe { ptr::slice(axes, n3, "axes") }?;
+        let kappas = unsafe { ptr::slice(kappas, n, "kappas") }?;
+        let axes = finite_vectors(axes, "axes")?;
+        for (i, (&k, a)) in kappas.iter().zip(&axes).enumerate() {
+            if !(k >= 0.0 && k.is_finite()) {
+                return Err(Failure::invalid(format!(
+                    "kappas[{i}] = {k} is not a finite value >= 0"
+                )));
+            }
+            if k > 0.0 && guiding_core::frame::is_no_surface(*a) {
+                return Err(Failure::invalid(format!(
+                    "axes[{i}] is zero where kappas[{i}] = {k} > 0"
+                )));
+            }
+        }
+        d.multiply_batches(n, "the lobe product", |b, start, m| {
+            let lanes: Vec<u32> = (0..m as u32).collect();
+            b.apply_lobe_product(&lanes, &axes[start..start + m], &kappas[start..start + m])
+        })
+    })
+}
+
+/// The concentration `κ` of the vMF lobe fitted to a Henyey–Greenstein phase
+/// function of asymmetry `g ∈ (−1, 1)` (equal mean cosine `|g|`, Rust
+/// `guiding_core::lobe::vmf::hg_vmf_kappa`; `0` for `g = 0`), into `*out`:
+/// the `κ` of `pg_distributions_apply_lobe_product` at a medium vertex.
+/// `PG_INVALID_ARGUMENT` for `g` outside `(−1, 1)` or NaN.
+///
+/// # Safety
+/// `out` NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn pg_hg_vmf_kappa(g: f32, out: *mut f32) -> PgStatus {
+    guard("pg_hg_vmf_kappa", || {
+        if !(g > -1.0 && g < 1.0) {
+            return Err(Failure::invalid(format!(
+                "g = {g} is not in (-1, 1) (a Henyey-Greenstein asymmetry)"
+            )));
+        }
+        let out = unsafe { ptr::as_mut(out, "out") }?;
+        *out = guiding_core::lobe::vmf::hg_vmf_kappa(g);
+        Ok(())
+    })
+}
+
+/// The vectors of a `3n`-float array, each finite (any length).
+fn finite_vectors(v: &[f32], what: &str) -> Result<Vec<Vec3>, Failure> {
+    v.chunks_exact(3)
+        .enumerate()
+        .map(|(i, c)| {
+            let x = Vec3::new(c[0], c[1], c[2]);
+            if x.is_finite() {
+                Ok(x)
+            } else {
+                Err(Failure::invalid(format!(
+                    "{what}[{i}] = {x} has a NaN or infinite value"
+                )))
+            }
+        })
+        .collect()
+}

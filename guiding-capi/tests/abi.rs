@@ -1922,3 +1922,282 @@ fn schedule_phases_of_time_and_spp_budgets() {
         pg_schedule_release(spp);
     }
 }
+
+/// `pg_distributions_apply_cosine_product` and `_apply_lobe_product` give, lane by lane and
+/// across decode chunks, what `DistributionBatch::apply_cosine_product` and
+/// `apply_lobe_product` give in Rust; a zero normal or `κ = 0` leaves a lane as it is;
+/// `pg_hg_vmf_kappa` is `hg_vmf_kappa`.
+#[test]
+fn products_in_c_equal_the_rust_batch_products() {
+    let a = args(PG_REPRESENTATION_NPM);
+    let h = FieldAndDistributions::new(&a);
+    let mut rust = GuidingField::new(rust_config(PG_REPRESENTATION_NPM), LO, HI).unwrap();
+    let mut rng = Pcg32::new(11, 3);
+    let s = samples(&mut rng, 300);
+    // SAFETY: valid array and handle.
+    unsafe {
+        expect_ok(pg_field_add_samples(h.field, s.as_ptr(), s.len()));
+        expect_ok(pg_field_update(h.field, null_mut()));
+    }
+    let core: Vec<guiding::TrainingSample> = s.iter().map(|x| bytemuck::cast(*x)).collect();
+    rust.add_samples(&core);
+    rust.update();
+    // More than one decode chunk (guiding::QUERY_CHUNK = 1024 lanes).
+    let n = 1500;
+    let q: Vec<PgQueryPoint> = (0..n).map(|_| random_query(&mut rng)).collect();
+    let rq: Vec<guiding::QueryPoint> = q.iter().map(|x| bytemuck::cast(*x)).collect();
+    let u: Vec<f32> = (0..2 * n).map(|_| rng.next_f32()).collect();
+    let us: Vec<Vec2> = u.chunks_exact(2).map(|c| Vec2::new(c[0], c[1])).collect();
+    // Every third normal zero ("no surface"), every fifth kappa 0.
+    let normals: Vec<Vec3> = (0..n)
+        .map(|i| {
+            if i % 3 == 0 {
+                Vec3::ZERO
+            } else {
+                square_to_uniform_sphere(Vec2::new(rng.next_f32(), rng.next_f32())) * 2.0
+            }
+        })
+        .collect();
+    let axes: Vec<Vec3> = (0..n)
+        .map(|_| square_to_uniform_sphere(Vec2::new(rng.next_f32(), rng.next_f32())))
+        .collect();
+    let kappas: Vec<f32> = (0..n)
+        .map(|i| {
+            if i % 5 == 0 {
+                0.0
+            } else {
+                guiding_core::lobe::vmf::hg_vmf_kappa(rng.uniform(-0.95, 0.95))
+            }
+        })
+        .collect();
+    let flat = |v: &[Vec3]| v.iter().flat_map(|x| x.to_array()).collect::<Vec<f32>>();
+    let lanes: Vec<u32> = (0..n as u32).collect();
+    for product in ["cosine", "lobe"] {
+        let mut batch = guiding::DistributionBatch::new();
+        rust.decode_batch(&rq, &mut batch);
+        let mut plain = vec![0.0f32; n];
+        let plain_dirs: Vec<Vec3> = (0..n).map(|i| axes[(i + 1) % n]).collect();
+        rust.pdf_decoded(&batch, &lanes, &plain_dirs, &mut plain)
+            .unwrap();
+        let applied = match product {
+            "cosine" => batch.apply_cosine_product(&normals),
+            _ => batch.apply_lobe_product(&lanes, &axes, &kappas),
+        };
+        assert!(applied);
+        let mut want = vec![
+            guiding::DirectionSample {
+                direction: Vec3::ZERO,
+                pdf: 0.0
+            };
+            n
+        ];
+        rust.sample_decoded(&batch, &lanes, &us, &mut want).unwrap();
+        let mut want_eval = vec![0.0f32; n];
+        rust.pdf_decoded(&batch, &lanes, &plain_dirs, &mut want_eval)
+            .unwrap();
+        let (mut dirs, mut pdfs, mut eval) =
+            (vec![0.0f32; 3 * n], vec![0.0f32; n], vec![0.0f32; n]);
+        // SAFETY: arrays of the stated lengths, live handles.
+        unsafe {
+            expect_ok(pg_field_query(h.field, n, q.as_ptr(), h.d));
+            let status = match product {
+                "cosine" => pg_distributions_apply_cosine_product(h.d, n, flat(&normals).as_ptr()),
+                _ => pg_distributions_apply_lobe_product(
+                    h.d,
+                    n,
+                    flat(&axes).as_ptr(),
+                    kappas.as_ptr(),
+                ),
+            };
+            expect_ok(status);
+            expect_ok(dist_sample(h.d, n, &u, &mut dirs, &mut pdfs));
+            expect_ok(pg_distributions_pdf(
+                h.d,
+                n,
+                flat(&plain_dirs).as_ptr(),
+                eval.as_mut_ptr(),
+            ));
+        }
+        let mut unchanged = 0;
+        for i in 0..n {
+            assert_eq!(
+                dirs[3 * i..3 * i + 3],
+                want[i].direction.to_array(),
+                "{product} {i}"
+            );
+            assert_eq!(pdfs[i], want[i].pdf, "{product} {i}");
+            assert_eq!(eval[i], want_eval[i], "{product} {i}");
+            let identity = match product {
+                "cosine" => normals[i] == Vec3::ZERO,
+                _ => kappas[i] == 0.0,
+            };
+            if identity {
+                assert_eq!(eval[i], plain[i], "{product} lane {i} should be unchanged");
+                unchanged += 1;
+            }
+        }
+        assert!(unchanged > n / 6, "{product}: {unchanged} identity lanes");
+        // The product changed the other lanes.
+        let changed = (0..n).filter(|&i| eval[i] != plain[i]).count();
+        assert!(changed > n / 2, "{product}: only {changed} lanes changed");
+    }
+    for g in [-0.9f32, -0.3, 0.0, 0.5, 0.99] {
+        let mut k = -1.0f32;
+        // SAFETY: valid pointer.
+        expect_ok(unsafe { pg_hg_vmf_kappa(g, &mut k) });
+        assert_eq!(k, guiding_core::lobe::vmf::hg_vmf_kappa(g));
+    }
+}
+
+/// The products refuse what they cannot do, with messages, and change nothing then: NASG,
+/// bad normals, axes and concentrations, stale distributions, too many lanes, NULLs.
+#[test]
+fn products_refuse_bad_arguments() {
+    let mut rng = Pcg32::new(12, 1);
+    let q: Vec<PgQueryPoint> = (0..4).map(|_| random_query(&mut rng)).collect();
+    let good3 = [
+        0.0f32, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0,
+    ];
+    let good_k = [1.0f32, 2.0, 0.0, 5.0];
+    let (c, l) = (
+        "pg_distributions_apply_cosine_product",
+        "pg_distributions_apply_lobe_product",
+    );
+    // SAFETY: arrays of the stated lengths (or NULL on purpose), live handles.
+    unsafe {
+        let nasg = FieldAndDistributions::new(&args(PG_REPRESENTATION_NASG));
+        expect_ok(pg_field_query(nasg.field, 4, q.as_ptr(), nasg.d));
+        let mut before = [0.0f32; 4];
+        expect_ok(pg_distributions_pdf(
+            nasg.d,
+            4,
+            good3.as_ptr(),
+            before.as_mut_ptr(),
+        ));
+        expect(
+            pg_distributions_apply_cosine_product(nasg.d, 4, good3.as_ptr()),
+            PG_INVALID_ARGUMENT,
+            c,
+            "vMF",
+        );
+        expect(
+            pg_distributions_apply_lobe_product(nasg.d, 4, good3.as_ptr(), good_k.as_ptr()),
+            PG_INVALID_ARGUMENT,
+            l,
+            "vMF",
+        );
+        let mut after = [0.0f32; 4];
+        expect_ok(pg_distributions_pdf(
+            nasg.d,
+            4,
+            good3.as_ptr(),
+            after.as_mut_ptr(),
+        ));
+        assert_eq!(before, after);
+
+        let h = FieldAndDistributions::new(&args(PG_REPRESENTATION_NPM));
+        expect_ok(pg_field_query(h.field, 4, q.as_ptr(), h.d));
+        let mut before = [0.0f32; 4];
+        expect_ok(pg_distributions_pdf(
+            h.d,
+            4,
+            good3.as_ptr(),
+            before.as_mut_ptr(),
+        ));
+        let mut nan3 = good3;
+        nan3[4] = f32::NAN;
+        expect(
+            pg_distributions_apply_cosine_product(h.d, 4, nan3.as_ptr()),
+            PG_INVALID_ARGUMENT,
+            c,
+            "normals[1]",
+        );
+        expect(
+            pg_distributions_apply_lobe_product(h.d, 4, nan3.as_ptr(), good_k.as_ptr()),
+            PG_INVALID_ARGUMENT,
+            l,
+            "axes[1]",
+        );
+        for (bad, needle) in [
+            (-1.0f32, "kappas[3]"),
+            (f32::INFINITY, "kappas[3]"),
+            (f32::NAN, "kappas[3]"),
+        ] {
+            let k = [1.0, 2.0, 0.0, bad];
+            expect(
+                pg_distributions_apply_lobe_product(h.d, 4, good3.as_ptr(), k.as_ptr()),
+                PG_INVALID_ARGUMENT,
+                l,
+                needle,
+            );
+        }
+        // A zero axis with κ > 0 (lane 3's axis is (0, 0, -1): make lane 0's zero).
+        let mut zero_axis = good3;
+        zero_axis[2] = 0.0;
+        expect(
+            pg_distributions_apply_lobe_product(h.d, 4, zero_axis.as_ptr(), good_k.as_ptr()),
+            PG_INVALID_ARGUMENT,
+            l,
+            "axes[0] is zero",
+        );
+        expect(
+            pg_distributions_apply_cosine_product(h.d, 5, null()),
+            PG_NULL_POINTER,
+            c,
+            "normals",
+        );
+        let five = [0.0f32; 15];
+        expect(
+            pg_distributions_apply_cosine_product(h.d, 5, five.as_ptr()),
+            PG_SIZE_MISMATCH,
+            c,
+            "n = 5",
+        );
+        expect(
+            pg_distributions_apply_lobe_product(h.d, 4, good3.as_ptr(), null()),
+            PG_NULL_POINTER,
+            l,
+            "kappas",
+        );
+        expect(
+            pg_distributions_apply_lobe_product(null_mut(), 0, null(), null()),
+            PG_NULL_POINTER,
+            l,
+            "distributions",
+        );
+        expect_ok(pg_distributions_apply_lobe_product(h.d, 0, null(), null()));
+        let mut after = [0.0f32; 4];
+        expect_ok(pg_distributions_pdf(
+            h.d,
+            4,
+            good3.as_ptr(),
+            after.as_mut_ptr(),
+        ));
+        assert_eq!(before, after, "a refused product changed the distributions");
+        // Stale after an update.
+        let s = samples(&mut rng, 300);
+        expect_ok(pg_field_add_samples(h.field, s.as_ptr(), s.len()));
+        expect_ok(pg_field_update(h.field, null_mut()));
+        expect(
+            pg_distributions_apply_cosine_product(h.d, 4, good3.as_ptr()),
+            PG_STALE,
+            c,
+            "",
+        );
+        let mut k = 0.0f32;
+        for g in [1.0f32, -1.0, f32::NAN, 2.0] {
+            expect(
+                pg_hg_vmf_kappa(g, &mut k),
+                PG_INVALID_ARGUMENT,
+                "pg_hg_vmf_kappa",
+                "(-1, 1)",
+            );
+        }
+        expect(
+            pg_hg_vmf_kappa(0.5, null_mut()),
+            PG_NULL_POINTER,
+            "pg_hg_vmf_kappa",
+            "out",
+        );
+    }
+}

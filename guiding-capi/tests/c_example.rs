@@ -2,7 +2,9 @@
 //! as strict C99, and `examples/toy_renderer.c` compiles against the
 //! staticlib cargo built, runs, and passes its own checks (pdf consistency,
 //! an unbiased guided estimator with less than half the variance of uniform
-//! sampling, error paths, save/load).
+//! sampling, the same at scattering points in a medium with the phase-lobe
+//! product, error paths, save/load), and fails its medium check when its MIS
+//! density skips the product (the negative control).
 #![cfg(unix)]
 
 use std::path::{Path, PathBuf};
@@ -129,6 +131,22 @@ fn toy_renderer_builds_runs_and_passes_its_checks() {
             failed.push(rep);
         }
     }
+    // The negative control of check (e): samples of the product, densities of the bare
+    // guide. The estimate is biased and the check says so.
+    let scratch = tmp.join(format!("toy-defect-{}.guide", std::process::id()));
+    let out = Command::new(&exe)
+        .arg(&scratch)
+        .args(["npm", "spp", "defect-medium-pdf"])
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {}: {e}", exe.display()));
     let _ = std::fs::remove_file(&exe);
+    let _ = std::fs::remove_file(&scratch);
     assert!(failed.is_empty(), "toy_renderer failed for {failed:?}");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    println!("--- defect-medium-pdf ({}):\n{stderr}", out.status);
+    assert!(
+        !out.status.success() && stderr.contains("medium estimate"),
+        "the medium check missed the sample / pdf mismatch:\n{}{stderr}",
+        String::from_utf8_lossy(&out.stdout)
+    );
 }

@@ -47,6 +47,17 @@ impl Frame {
     }
 }
 
+/// Whether `n` is the library's "no surface" normal: exactly zero, what a
+/// renderer passes for a scattering point inside a participating medium
+/// (`QueryPoint::normal`, `TrainingSample::normal`). Such a point has no
+/// hemisphere and no cosine: the guide is a full-sphere distribution there,
+/// and the cosine product leaves it unchanged.
+#[inline]
+#[must_use]
+pub fn is_no_surface(n: Vec3) -> bool {
+    n.x == 0.0 && n.y == 0.0 && n.z == 0.0
+}
+
 /// Unit vector along `v`, or `fallback` when `v` is zero, tiny, infinite or NaN.
 ///
 /// The guard that keeps degenerate inputs (a zero normal, a NaN mean) from

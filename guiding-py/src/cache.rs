@@ -137,7 +137,7 @@ impl Cache {
         let (cache, samples, mis) = (&mut self.inner, &recorder.kept, &recorder.kept_mis);
         let mis = (mis.len() == samples.len()).then_some(mis.as_slice());
         let report = py
-            .allow_threads(|| cache.fit_selection(&field.inner, samples, mis, &fit))
+            .allow_threads(|| cache.fit_selection(&field.inner, samples, mis, None, &fit))
             .map_err(py_err)?;
         Ok(SelectionReport::from(&report))
     }

@@ -214,7 +214,8 @@ impl DistributionBatch {
     /// radiance-target guide then samples `∝ L_i · cos` instead of `∝ L_i`,
     /// which on diffuse surfaces is the product with the BSDF. Samples and
     /// pdfs of the batch use the product afterwards (still exact densities
-    /// of what is sampled). Returns `false` and changes nothing for NASG and
+    /// of what is sampled). A lane whose normal is zero (no surface: a
+    /// scattering point in a medium) stays as it is. Returns `false` and changes nothing for NASG and
     /// DF (no closed-form product) or when the lengths differ.
     pub fn apply_cosine_product(&mut self, normals: &[Vec3]) -> bool {
         let has_vmf = match &mut self.location {
@@ -245,15 +246,20 @@ impl DistributionBatch {
     }
 
     /// Multiplies the vMF mixtures of the lanes `lanes[j]` by the vMF lobe
-    /// `e^{κ_j (a_j·ω − 1)}` (`axes[j]` unit, `kappas[j] ≥ 0`), closed form
-    /// ([`VmfMixture::product_with_lobe`](guiding_core::mixture::vmf::VmfMixture::product_with_lobe)):
+    /// `e^{κ_j (a_j·ω − 1)}` (`axes[j]`, normalised; `kappas[j] ≥ 0`), closed form
+    /// ([`VmfMixture::product_with_lobe`](guiding_core::mixture::vmf::VmfMixture::product_with_lobe),
+    /// batched: [`guiding_core::model::batched::lobe_product_batch`]):
     /// the product of a radiance guide with the vMF fit of a phase function
     /// ([`guiding_core::lobe::vmf::hg_vmf_kappa`], its axis the forward or
     /// backward direction) at scattering points inside media, as Open PGL
     /// guides in volumes. Samples and pdfs of those lanes use the product
-    /// afterwards (exact densities of what is sampled). Returns `false` and
-    /// changes nothing for NASG and DF, for lanes on a device, when the
-    /// lengths differ or a lane is out of range.
+    /// afterwards (exact densities of what is sampled); the other lanes, and
+    /// lanes whose `κ` is 0 (or non-finite, or whose axis is), stay as they
+    /// are. Lanes served by a [`crate::GuideCache`] are copied out of the
+    /// shared cells first, only the multiplied ones. A lane listed twice gets
+    /// the last of its lobes. Returns `false` and changes nothing for NASG and
+    /// DF, for lanes on a device, when the lengths differ or a lane is out of
+    /// range.
     pub fn apply_lobe_product(&mut self, lanes: &[u32], axes: &[Vec3], kappas: &[f32]) -> bool {
         let n = self.len();
         if lanes.len() != axes.len()
@@ -272,18 +278,52 @@ impl DistributionBatch {
         if !has_vmf {
             return false;
         }
-        if lanes.is_empty() {
+        // The lanes that get a product, their mixtures and lobes (one batched kernel).
+        let mut picked = Vec::with_capacity(lanes.len());
+        let mut lobes = Vec::with_capacity(lanes.len());
+        for j in 0..lanes.len() {
+            let lobe = [axes[j].x, axes[j].y, axes[j].z, kappas[j]];
+            if kappas[j] > 0.0 && kappas[j].is_finite() && axes[j].is_finite() {
+                picked.push(lanes[j]);
+                lobes.push(lobe);
+            }
+        }
+        if picked.is_empty() {
             return true;
         }
-        self.materialize();
-        let vmf = self.items.lanes.vmf_mut();
-        for j in 0..lanes.len() {
-            let (axis, kappa) = (axes[j], kappas[j]);
-            if !(kappa > 0.0 && kappa.is_finite() && axis.is_finite()) {
-                continue;
+        let mut mixtures: Vec<_> = picked
+            .iter()
+            .map(|&l| {
+                let (items, k) = self.resolve(l as usize);
+                items.lanes.vmf()[k]
+            })
+            .collect();
+        guiding_core::model::batched::lobe_product_batch(&mut mixtures, &lobes);
+        // Written back: in place where the batch owns the lane, else as a lane of its own
+        // (the cache's cells are shared), with the cell's fitted selection probability.
+        let items = &mut self.items;
+        if let LaneLocation::Cache { cells, source } = &mut self.location {
+            let fitted = !cells.lane_selection.is_empty();
+            if fitted {
+                items.lane_selection.resize(items.len(), items.selection);
             }
-            let m = &mut vmf[lanes[j] as usize];
-            *m = m.product_with_lobe(guiding_core::frame::normalize_or(axis, Vec3::Z), kappa);
+            for (&l, m) in picked.iter().zip(&mixtures) {
+                let s = &mut source[l as usize];
+                if *s & CACHE_MISS != 0 {
+                    items.lanes.vmf_mut()[(*s & !CACHE_MISS) as usize] = *m;
+                } else {
+                    if fitted {
+                        items.lane_selection.push(cells.lane_selection[*s as usize]);
+                    }
+                    *s = CACHE_MISS | items.len() as u32;
+                    items.lanes.vmf_mut().push(*m);
+                }
+            }
+        } else {
+            let vmf = items.lanes.vmf_mut();
+            for (&l, m) in picked.iter().zip(&mixtures) {
+                vmf[l as usize] = *m;
+            }
         }
         true
     }

@@ -38,6 +38,9 @@
 //!   so the per-vertex product is gone too. On a plane the mean normal is
 //!   the normal; on a curved surface it is off by at most the normal's
 //!   spread within the cell and bin (a valid distribution all the same).
+//!   Queries without a surface (a zero normal: scattering points inside a
+//!   medium) have a lane of their own per cell, the guide without the
+//!   product, so surfaces and media share one cache.
 //!
 //! Product-target guides also depend on `ωo`, the normal and the roughness,
 //! so [`GuidingField::build_cache`] refuses them.
@@ -98,9 +101,18 @@ impl Default for CacheOptions {
     }
 }
 
-/// The octahedral bin (`NORMAL_BINS²` of them) of a normal; a zero or
-/// non-finite one counts as `+z` (the normal its lane's product falls back to).
+/// The lane of a cell that serves queries without a surface (a zero normal,
+/// [`guiding_core::frame::is_no_surface`]: scattering points in a medium): the
+/// guide without a cosine product.
+const NO_SURFACE_BIN: u8 = (NORMAL_BINS * NORMAL_BINS) as u8;
+
+/// The octahedral bin (`NORMAL_BINS²` of them) of a normal; a zero one is
+/// [`NO_SURFACE_BIN`], a non-finite one counts as `+z` (the normal its lane's
+/// product falls back to).
 fn normal_bin(n: Vec3) -> u8 {
+    if guiding_core::frame::is_no_surface(n) {
+        return NO_SURFACE_BIN;
+    }
     let l1 = n.x.abs() + n.y.abs() + n.z.abs();
     let p = if l1 > 0.0 && l1.is_finite() {
         n / l1
@@ -593,6 +605,33 @@ fn decode_cells(
     }
 }
 
+/// A vMF lobe `e^{κ (a·ω − 1)}` a renderer multiplied a vertex's guide by
+/// before sampling ([`DistributionBatch::apply_lobe_product`]; e.g. the vMF
+/// fit [`guiding_core::lobe::vmf::hg_vmf_kappa`] of a Henyey–Greenstein
+/// phase function around the forward direction), one per training sample
+/// for [`GuideCache::fit_selection`]. `κ = 0` (the [`Default`]): no product.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ProductLobe {
+    /// The lobe's axis (normalised; a zero or non-finite axis means no product).
+    pub axis: [f32; 3],
+    /// Its concentration `κ ≥ 0`.
+    pub kappa: f32,
+}
+
+impl ProductLobe {
+    /// `mixture` times the lobe, as `apply_lobe_product` makes it; `None`
+    /// when the lobe is no product (`κ ≤ 0` or non-finite, a non-finite axis).
+    pub(crate) fn multiply(
+        &self,
+        mixture: &VmfMixture<NPM_LOBES>,
+    ) -> Option<VmfMixture<NPM_LOBES>> {
+        let axis = Vec3::from_array(self.axis);
+        (self.kappa > 0.0 && self.kappa.is_finite() && axis.is_finite()).then(|| {
+            mixture.product_with_lobe(guiding_core::frame::normalize_or(axis, Vec3::Z), self.kappa)
+        })
+    }
+}
+
 /// Options of [`GuideCache::fit_selection`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SelectionFit {
@@ -722,7 +761,11 @@ impl GuideCache {
     /// emission found along `ω_i` counts with its MIS weight, as in the
     /// render), else its training radiance.
     /// `q` is the lane the sample's position and normal fall in (with the
-    /// cache's cosine product, if it has one). Each cell's sums get
+    /// cache's cosine product, if it has one), times `lobes[i]` where given
+    /// and `κ > 0` (vMF lanes: the renderer's
+    /// [`DistributionBatch::apply_lobe_product`] at that vertex, e.g. the
+    /// phase function's lobe at a scattering point in a medium; without it
+    /// the fit would weigh a guide the renderer does not sample). Each cell's sums get
     /// `prior_samples` pseudo-samples of the global mean
     /// (`M̂(c) + n₀ · M̂_all(c) / N`), so sparse cells lean on the fit over
     /// all samples (a cell without samples takes it). The probabilities then
@@ -738,13 +781,14 @@ impl GuideCache {
     /// [`GuidingError::StaleDistribution`] as [`Self::decode_batch`];
     /// [`GuidingError::InvalidConfig`] unless `0 ≤ min ≤ max < 1`, or for a
     /// NASG field (it learns its own selection probability);
-    /// [`GuidingError::LengthMismatch`] if `mis_radiance` is given with
-    /// another length than `samples`.
+    /// [`GuidingError::LengthMismatch`] if `mis_radiance` or `lobes` is
+    /// given with another length than `samples`.
     pub fn fit_selection(
         &mut self,
         field: &GuidingField,
         samples: &[guiding_core::sample::TrainingSample],
         mis_radiance: Option<&[[f32; 3]]>,
+        lobes: Option<&[ProductLobe]>,
         fit: &SelectionFit,
     ) -> Result<SelectionReport, GuidingError> {
         self.check(field)?;
@@ -761,7 +805,14 @@ impl GuideCache {
                 });
             }
         }
-        let sums = self.selection_moments(field, samples, mis_radiance, fit)?;
+        if let Some(l) = lobes {
+            if l.len() != samples.len() {
+                return Err(GuidingError::LengthMismatch {
+                    what: format!("{} samples, {} product lobes", samples.len(), l.len()),
+                });
+            }
+        }
+        let sums = self.selection_moments(field, samples, mis_radiance, lobes, fit)?;
         Ok(self.assign_selection(fit, &sums))
     }
 
@@ -772,6 +823,7 @@ impl GuideCache {
         field: &GuidingField,
         samples: &[guiding_core::sample::TrainingSample],
         mis_radiance: Option<&[[f32; 3]]>,
+        lobes: Option<&[ProductLobe]>,
         fit: &SelectionFit,
     ) -> Result<Moments, GuidingError> {
         let candidate = |k: usize| fit.candidate(k);
@@ -803,6 +855,15 @@ impl GuideCache {
         let all: Vec<u32> = (0..kept.len() as u32).collect();
         let mut q = vec![0.0f32; kept.len()];
         field.pdf_decoded(&batch, &all, &directions, &mut q)?;
+        // The lanes the renderer multiplied by a lobe (vMF only, as
+        // `apply_lobe_product`): their density is the product's.
+        if let (Some(lobes), Lanes::Vmf(mixtures)) = (lobes, &self.items.lanes) {
+            for (k, &i) in kept.iter().enumerate() {
+                if let Some(product) = lobes[i].multiply(&mixtures[lanes[k] as usize]) {
+                    q[k] = product.pdf(directions[k]);
+                }
+            }
+        }
         // Second-moment estimates per cell and candidate (f64 sums).
         let cells = self.points.len();
         let mut moment = vec![[0.0f64; CANDIDATES]; cells];

@@ -101,7 +101,9 @@ pub mod schedule;
 pub mod trial;
 
 pub use batch::DistributionBatch;
-pub use cache::{CacheLookup, CacheOptions, GuideCache, SelectionFit, SelectionReport, VmfTable};
+pub use cache::{
+    CacheLookup, CacheOptions, GuideCache, ProductLobe, SelectionFit, SelectionReport, VmfTable,
+};
 pub use combine::{Combination, CombineOptions, Denominator, GroupWeight, PassCombiner};
 pub use config::{GuidingConfig, ModelSize, Representation, Target, UnknownName};
 pub use device::{DeviceFailure, DeviceSelection, GpuContext};

@@ -627,7 +627,59 @@ fn batched_cosine_product_is_the_per_mixture_product() {
         }
         let w: f32 = b.weight.iter().sum();
         assert!((w - 1.0).abs() <= 1e-5);
+        // No surface: the mixture exactly as it was.
+        if n == Vec3::ZERO {
+            assert_eq!(vmf_floats(b), vmf_floats(m));
+        }
     }
+}
+
+/// The batched lobe product is `product_with_lobe` (what `apply_lobe_product` multiplies
+/// the guides of medium vertices by) up to rounding, the same tolerance as the cosine
+/// product, from a flat lobe to the sharpest HG fit (`κ ≈ 1000`, whose exponents underflow
+/// `f32` without the subtracted maximum); `κ ≤ 0`, NaN `κ` and non-finite axes leave the
+/// mixture exactly as it was.
+#[test]
+fn batched_lobe_product_is_the_per_mixture_product() {
+    use guiding_core::model::batched::lobe_product_batch;
+    let rows = raw_rows(400, 78);
+    let mut ms = vec![VmfMixture::ZERO; rows.len()];
+    decode_vmf_batch(&rows, &mut ms);
+    let mut rng = Pcg32::new(3, 4);
+    let kappas = [0.05f32, 0.7, 3.4, 40.0, 400.0, 998.0, 0.0, -1.0, f32::NAN];
+    let lobes: Vec<[f32; 4]> = (0..ms.len())
+        .map(|i| {
+            let a = match i % 11 {
+                0 => Vec3::ZERO,
+                1 => Vec3::new(f32::NAN, 0.0, 1.0),
+                2 => Vec3::new(0.0, -2.0, 0.0),
+                _ => square_to_uniform_sphere(rng.next_vec2()),
+            };
+            [a.x, a.y, a.z, kappas[i % kappas.len()]]
+        })
+        .collect();
+    let mut batched = ms.clone();
+    lobe_product_batch(&mut batched, &lobes);
+    let tol = 128.0 * f32::EPSILON / 2.0;
+    let mut multiplied = 0;
+    for ((m, b), l) in ms.iter().zip(&batched).zip(&lobes) {
+        let (a, k) = (Vec3::new(l[0], l[1], l[2]), l[3]);
+        if !(k > 0.0 && k.is_finite() && a.is_finite()) {
+            assert_eq!(vmf_floats(b), vmf_floats(m), "lobe {l:?}");
+            continue;
+        }
+        multiplied += 1;
+        let r = m.product_with_lobe(guiding_core::frame::normalize_or(a, Vec3::Z), k);
+        for (x, y) in vmf_floats(b).iter().zip(vmf_floats(&r)) {
+            assert!(
+                (x - y).abs() <= tol * y.abs().max(x.abs()) + 1e-6,
+                "{x} vs {y} (lobe {l:?})\n{b:?}\n{r:?}"
+            );
+        }
+        let w: f32 = b.weight.iter().sum();
+        assert!((w - 1.0).abs() <= 1e-5, "weights sum to {w} (lobe {l:?})");
+    }
+    assert!(multiplied > ms.len() / 2);
 }
 
 /// The lane-parallel NASG decoder against `NasgMixture::decode` (libm's

@@ -1517,7 +1517,7 @@ fn fit_selection_refuses_nasg_bad_ranges_and_stale_fields() {
     let nasg = trained(radiance_presets()[1].1, 161);
     for options in [OPTIONS, PRODUCT] {
         let mut cache = nasg.build_cache(&points, &options).unwrap();
-        let r = cache.fit_selection(&nasg, &samples, None, &SelectionFit::default());
+        let r = cache.fit_selection(&nasg, &samples, None, None, &SelectionFit::default());
         assert!(matches!(r, Err(GuidingError::InvalidConfig(_))), "{r:?}");
     }
     let mut field = npm(162);
@@ -1528,25 +1528,27 @@ fn fit_selection_refuses_nasg_bad_ranges_and_stale_fields() {
             max,
             ..SelectionFit::default()
         };
-        let r = cache.fit_selection(&field, &samples, None, &fit);
+        let r = cache.fit_selection(&field, &samples, None, None, &fit);
         assert!(
             matches!(r, Err(GuidingError::InvalidConfig(_))),
             "[{min}, {max}]: {r:?}"
         );
     }
     let fit = SelectionFit::default();
-    assert!(cache.fit_selection(&field, &samples, None, &fit).is_ok());
+    assert!(cache
+        .fit_selection(&field, &samples, None, None, &fit)
+        .is_ok());
     let mis = vec![[1.0; 3]; samples.len()];
     assert!(cache
-        .fit_selection(&field, &samples, Some(&mis), &fit)
+        .fit_selection(&field, &samples, Some(&mis), None, &fit)
         .is_ok());
-    let r = cache.fit_selection(&field, &samples, Some(&mis[1..]), &fit);
+    let r = cache.fit_selection(&field, &samples, Some(&mis[1..]), None, &fit);
     assert!(
         matches!(r, Err(GuidingError::LengthMismatch { .. })),
         "{r:?}"
     );
     train_once(&mut field, &mut rng);
-    let r = cache.fit_selection(&field, &samples, None, &fit);
+    let r = cache.fit_selection(&field, &samples, None, None, &fit);
     assert!(
         matches!(r, Err(GuidingError::StaleDistribution { .. })),
         "{r:?}"
@@ -1768,7 +1770,9 @@ fn fit_selection_is_the_argmin_of_the_shrunk_second_moment_per_lane() {
             };
             assert_eq!(fit.min, 0.0);
             let (want, global) = expected_fit(&fit, &sets, radiance);
-            let report = cache.fit_selection(&field, &samples, given, &fit).unwrap();
+            let report = cache
+                .fit_selection(&field, &samples, given, None, &fit)
+                .unwrap();
             eprintln!("{label}, prior {prior_samples}: want {want:?}, global {global}: {report:?}");
             assert_eq!(report.samples_used, used as u64, "{label}");
             assert_eq!((report.cells_fitted, report.cells_global), (4, 1));
@@ -1839,7 +1843,9 @@ fn fit_selection_is_the_argmin_of_the_shrunk_second_moment_per_lane() {
             ..fit0
         };
         let (want, global) = expected_fit(&fit, &sets, &training);
-        let report = cache.fit_selection(&field, &samples, None, &fit).unwrap();
+        let report = cache
+            .fit_selection(&field, &samples, None, None, &fit)
+            .unwrap();
         eprintln!("guide cost {guide_cost}, share {variance_share}: want {want:?}, global {global}: {report:?}");
         assert_eq!(report.global, global, "guide cost {guide_cost}");
         let (got, _) = selections(&cache, &field, &queries);
@@ -1864,7 +1870,7 @@ fn fit_selection_is_the_argmin_of_the_shrunk_second_moment_per_lane() {
             variance_share,
             ..fit0
         };
-        let r = cache.fit_selection(&field, &samples, None, &fit);
+        let r = cache.fit_selection(&field, &samples, None, None, &fit);
         assert!(matches!(r, Err(GuidingError::InvalidConfig(_))), "{r:?}");
     }
     // Back to the last fit of the loop above (results[5]) for what follows.
@@ -1873,7 +1879,7 @@ fn fit_selection_is_the_argmin_of_the_shrunk_second_moment_per_lane() {
         ..fit0
     };
     cache
-        .fit_selection(&field, &samples, Some(&mis), &last)
+        .fit_selection(&field, &samples, Some(&mis), None, &last)
         .unwrap();
     // A lane added after the fit takes the (latest) global value.
     let d = at(centre([1, 1, 1]), Vec3::Z, &mut rng);
@@ -1917,7 +1923,9 @@ fn fit_selection_without_prior_keeps_a_lane_own_fit_next_to_a_sample_without_bsd
     let (want, _) = expected_fit(&fit, &[Some(&a[..]), Some(&b[..])], &training);
     // The BSDF fits lane A: the guide off there.
     assert_eq!(want[0], 0.0);
-    cache.fit_selection(&field, &samples, None, &fit).unwrap();
+    cache
+        .fit_selection(&field, &samples, None, None, &fit)
+        .unwrap();
     let (got, _) = selections(&cache, &field, &points);
     assert_eq!(got, want);
 }
@@ -1982,4 +1990,179 @@ fn the_vmf_table_is_the_caches_lookup() {
             "only {checked} probes fell in occupied cells"
         );
     }
+}
+
+// ---------------------------------------------------------------------------
+// Queries without a surface (scattering points in media) and the lobe product.
+
+/// With the cosine product, a query with a zero normal ("no surface") has a lane of its own
+/// per cell, the network's decode without any product (bit for bit), next to the product
+/// lanes of the surface normals in the same cell.
+#[test]
+fn queries_without_a_surface_take_a_lane_without_the_cosine_product() {
+    let (field, mut rng, empty) = npm_with_empty_cache(190, &PRODUCT);
+    let positions = one_position_per_cell(empty.resolution(), &mut rng);
+    let surface: Vec<QueryPoint> = positions
+        .iter()
+        .map(|&p| at(p, fixed_unit(&mut rng), &mut rng))
+        .collect();
+    let medium: Vec<QueryPoint> = positions
+        .iter()
+        .map(|&p| at(p, Vec3::ZERO, &mut rng))
+        .collect();
+    let points: Vec<QueryPoint> = surface.iter().chain(&medium).copied().collect();
+    let cache = field.build_cache(&points, &PRODUCT).unwrap();
+    assert_eq!(cache.cells(), 2 * positions.len());
+    let answer = cached_centred(&cache, &field, &medium);
+    assert_all_hit_with("no surface", &medium, &answer, &network(&field, &medium));
+    // The surface lanes of the same cells hold the product.
+    let normals: Vec<Vec3> = surface.iter().map(|q| Vec3::from_array(q.normal)).collect();
+    let answer = cached_centred(&cache, &field, &surface);
+    assert_all_hit_with(
+        "surface",
+        &surface,
+        &answer,
+        &network_product(&field, &surface, &normals),
+    );
+    // A miss without a surface is the plain decode too.
+    let far = at(
+        Vec3::from_array(HI) + Vec3::splat(5.0),
+        Vec3::ZERO,
+        &mut rng,
+    );
+    let (got, lookup, missed) = cached_centred(&cache, &field, &[far]);
+    assert_eq!((lookup.misses, missed), (1, vec![0]));
+    assert_eq!(got, network(&field, &[far]));
+}
+
+/// `apply_lobe_product` on a batch the cache answered multiplies exactly the listed lanes
+/// (as on the network's own decode, bit for bit), leaves the others and `κ = 0` lanes as
+/// they were, and leaves the cache's shared cells untouched.
+#[test]
+fn a_lobe_product_on_a_cached_batch_copies_only_its_lanes() {
+    let (field, mut rng, empty) = npm_with_empty_cache(191, &OPTIONS);
+    let positions = one_position_per_cell(empty.resolution(), &mut rng);
+    let queries: Vec<QueryPoint> = positions
+        .iter()
+        .map(|&p| at(p, Vec3::ZERO, &mut rng))
+        .collect();
+    let cache = field.build_cache(&queries, &OPTIONS).unwrap();
+    let n = queries.len();
+    // Every other lane, one listed with κ = 0.
+    let lanes: Vec<u32> = (0..n as u32).step_by(2).collect();
+    let axes: Vec<Vec3> = lanes.iter().map(|_| unit(&mut rng)).collect();
+    let mut kappas: Vec<f32> = lanes.iter().map(|_| rng.uniform(0.3, 30.0)).collect();
+    kappas[1] = 0.0;
+    let mut batch = decode_centred(&cache, &field, &queries);
+    assert!(batch.apply_lobe_product(&lanes, &axes, &kappas));
+    let mut want = DistributionBatch::new();
+    field.decode_batch(&queries, &mut want);
+    let plain = fingerprints(&field, &want);
+    assert!(want.apply_lobe_product(&lanes, &axes, &kappas));
+    let want = fingerprints(&field, &want);
+    let got = fingerprints(&field, &batch);
+    let multiplied: HashSet<u32> = lanes
+        .iter()
+        .zip(&kappas)
+        .filter(|(_, &k)| k > 0.0)
+        .map(|(&l, _)| l)
+        .collect();
+    for i in 0..n {
+        assert_eq!(got[i], want[i], "lane {i}");
+        let changed = got[i] != plain[i];
+        assert_eq!(changed, multiplied.contains(&(i as u32)), "lane {i}");
+    }
+    let (again, _, _) = cached_centred(&cache, &field, &queries);
+    assert_eq!(again, plain);
+    // Refused: a lane out of range, lengths that differ; nothing changes.
+    let before = fingerprints(&field, &batch);
+    assert!(!batch.apply_lobe_product(&[n as u32], &[Vec3::Z], &[1.0]));
+    assert!(!batch.apply_lobe_product(&[0, 1], &[Vec3::Z], &[1.0]));
+    assert_eq!(fingerprints(&field, &batch), before);
+}
+
+/// `fit_selection` with product lobes weighs the density the renderer samples at those
+/// samples, the lane times the lobe: on samples whose radiance follows the product, the fit
+/// with the lobes is the written-out argmin over the product's densities and differs from
+/// the fit over the bare lane's (which the same data rates worse); lobes of another length
+/// are refused.
+#[test]
+fn fit_selection_weighs_the_lobe_products_it_is_given() {
+    let (field, mut rng, empty) = npm_with_empty_cache(192, &OPTIONS);
+    let h = empty.cell_size();
+    let centre = cell_centre(&empty, [3, 4, 3]);
+    let point = at(centre, Vec3::ZERO, &mut rng);
+    let mut cache = field.build_cache(&[point], &OPTIONS).unwrap();
+    assert_eq!(cache.cells(), 1);
+    // The lane and its product with a sharp lobe (κ = 40 around +x).
+    let (axis, kappa) = (Vec3::X, 40.0f32);
+    let mut lane = DistributionBatch::new();
+    field.decode_batch(&[point], &mut lane);
+    let mut product = DistributionBatch::new();
+    field.decode_batch(&[point], &mut product);
+    assert!(product.apply_lobe_product(&[0], &[axis], &[kappa]));
+    let q_product = lane_pdf(&field, &product, 0);
+    let q_bare = lane_pdf(&field, &lane, 0);
+    // Medium samples (zero normal) in the cell whose radiance is the product's density:
+    // the guide then matches the integrand (phase value 1/4π as `bsdf_cos` and density).
+    let samples: Vec<(TrainingSample, f32)> = (0..400)
+        .map(|_| {
+            let off = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
+            let wi = unit(&mut rng);
+            let vertex = QueryPoint::from_vec3(centre + off * 0.9 * h, Vec3::ZERO, -axis, 1.0);
+            let s = TrainingSample::new(
+                vertex,
+                wi.to_array(),
+                [q_product(wi); 3],
+                INV_FOUR_PI,
+                INV_FOUR_PI,
+                [INV_FOUR_PI; 3],
+            );
+            (s, q_product(wi))
+        })
+        .collect();
+    let only: Vec<TrainingSample> = samples.iter().map(|(s, _)| *s).collect();
+    let lobes = vec![
+        guiding::ProductLobe {
+            axis: axis.to_array(),
+            kappa
+        };
+        only.len()
+    ];
+    let fit = SelectionFit::default();
+    let with = cache
+        .fit_selection(&field, &only, None, Some(&lobes), &fit)
+        .unwrap();
+    let (c_with, _) = selections(&cache, &field, &[point]);
+    let m = moments(&fit, &samples, &|s| s.radiance);
+    let mean = first_sum(&samples, &|s| s.radiance).powi(2) / samples.len() as f64;
+    assert_eq!(c_with[0], argmin(&fit, &m, mean, 0.0, 1.0));
+    assert!(
+        c_with[0] > 0.5,
+        "the matching product is picked: c = {}",
+        c_with[0]
+    );
+    // The bare lane's densities: another sum, another (lower) choice.
+    let bare_samples: Vec<(TrainingSample, f32)> = samples
+        .iter()
+        .map(|(s, _)| (*s, q_bare(Vec3::from_array(s.wi))))
+        .collect();
+    cache
+        .fit_selection(&field, &only, None, None, &fit)
+        .unwrap();
+    let (c_without, _) = selections(&cache, &field, &[point]);
+    let m = moments(&fit, &bare_samples, &|s| s.radiance);
+    assert_eq!(c_without[0], argmin(&fit, &m, mean, 0.0, 1.0));
+    assert!(
+        c_without[0] < c_with[0],
+        "{} vs {}",
+        c_without[0],
+        c_with[0]
+    );
+    assert!(with.variance_ratio < 1.0);
+    let r = cache.fit_selection(&field, &only, None, Some(&lobes[1..]), &fit);
+    assert!(
+        matches!(r, Err(GuidingError::LengthMismatch { .. })),
+        "{r:?}"
+    );
 }

@@ -288,8 +288,15 @@ impl<const K: usize> VmfMixture<K> {
     ///
     /// Approximation, not an identity: the vMF cosine is positive below the
     /// horizon, so the product keeps a little mass there.
+    ///
+    /// A zero `normal` is the library's "no surface" (a scattering point in a
+    /// participating medium): there is no cosine, and the mixture comes back
+    /// unchanged. A non-finite one reads as `+z`.
     #[must_use]
     pub fn product_with_clamped_cosine(&self, normal: Vec3) -> Self {
+        if crate::frame::is_no_surface(normal) {
+            return *self;
+        }
         let n = crate::frame::normalize_or(normal, Vec3::Z);
         self.product_with_lobe(n, CLAMPED_COSINE_KAPPA)
     }

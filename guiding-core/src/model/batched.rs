@@ -421,10 +421,6 @@ block_kernel!(
     /// [`decode_nasg_block`].
     DecodeNasg: [f32; NASG_OUTPUTS] => NasgMixture<NASG_LOBES>, decode_nasg_block
 );
-block_kernel!(
-    /// [`cosine_product_block`].
-    CosineProduct: Vec3 => VmfMixture<NPM_LOBES>, cosine_product_block
-);
 
 /// Runs `K` over the blocks of [`DECODE_BLOCK`] lanes of `ins` and `outs` (as far as both
 /// go), compiled for AVX2 where this CPU has it: the wider vectors change no bits (Rust
@@ -573,13 +569,14 @@ fn decode_vmf_block(ys: &[[f32; NPM_OUTPUTS]], out: &mut [VmfMixture<NPM_LOBES>]
 }
 
 /// Multiplies each mixture by the clamped cosine of its normal, as
-/// [`VmfMixture::product_with_clamped_cosine`] (NPM §4.2): per lobe `κ' μ' =
-/// κ μ + κ_c n`, weight `∝ w · norm(κ) / norm(κ') · e^{κ' − κ − κ_c}`. Here
-/// the weight is formed in linear space — safe because `κ' ≥ |κ − κ_c|`
-/// bounds the exponent below by `−2κ_c ≈ −4.4` — and every function is
-/// inlined, so a block of 8 mixtures (64 lobes) runs as SIMD. Within a few
-/// ulp of `product_with_clamped_cosine` (which goes through `ln`), and the
-/// result is a valid mixture whose samples and pdfs are exact for itself.
+/// [`VmfMixture::product_with_clamped_cosine`] (NPM §4.2): the lobe product
+/// of [`lobe_product_batch`] with the lobe `κ_c = CLAMPED_COSINE_KAPPA`
+/// around the normalised normal. Every function is inlined, so a block of 8
+/// mixtures (64 lobes) runs as SIMD; within a few ulp of
+/// `product_with_clamped_cosine` (which goes through `ln`), and the result is
+/// a valid mixture whose samples and pdfs are exact for itself. A zero
+/// normal ([`crate::frame::is_no_surface`]) leaves its mixture as it is, as
+/// the scalar product does.
 ///
 /// # Panics
 /// If `mixtures` and `normals` differ in length.
@@ -588,18 +585,89 @@ pub fn cosine_product_batch(mixtures: &mut [VmfMixture<NPM_LOBES>], normals: &[V
     run_blocks::<CosineProduct>(normals, mixtures);
 }
 
+/// Multiplies each mixture by its vMF lobe `e^{κ (a·ω − 1)}` (`lobes[i] = [a_x, a_y, a_z,
+/// κ]`), renormalised, as [`VmfMixture::product_with_lobe`]: per lobe `κ' μ' = κ μ + κ_l a`,
+/// weight `∝ w · norm(κ) / norm(κ') · e^{κ' − κ − κ_l}`. The exponent lies in `[−2κ_l, 0]`
+/// (`κ' ≥ |κ − κ_l|`), far below `f32`'s range for a sharp lobe (an HG fit reaches
+/// `κ_l ≈ 1000`), so the weights are formed in log space as the scalar product does, with
+/// each mixture's largest `ln w + κ' − κ − κ_l` subtracted before `exp` (the factor cancels
+/// in the normalisation); every function inlined, within a few ulp of it. The axis is normalised (`+z` if it
+/// vanishes); `κ ≤ 0`, a non-finite `κ` or a non-finite axis leaves the mixture as it is,
+/// as [`VmfMixture::product_with_lobe`]'s callers skip it.
+///
+/// # Panics
+/// If `mixtures` and `lobes` differ in length.
+pub fn lobe_product_batch(mixtures: &mut [VmfMixture<NPM_LOBES>], lobes: &[[f32; 4]]) {
+    assert_eq!(mixtures.len(), lobes.len(), "one lobe per mixture");
+    run_blocks::<LobeProduct>(lobes, mixtures);
+}
+
+/// What one lane of a lobe-product kernel multiplies by: a unit axis and `κ`, or `None`
+/// for no product.
+trait ProductLobeInput {
+    fn axis_and_kappa(&self) -> Option<(Vec3, f32)>;
+}
+
+impl ProductLobeInput for Vec3 {
+    /// The clamped cosine of a normal (none without a surface).
+    #[inline(always)]
+    fn axis_and_kappa(&self) -> Option<(Vec3, f32)> {
+        (!crate::frame::is_no_surface(*self)).then(|| {
+            (
+                crate::frame::normalize_or(*self, Vec3::Z),
+                crate::mixture::vmf::CLAMPED_COSINE_KAPPA,
+            )
+        })
+    }
+}
+
+impl ProductLobeInput for [f32; 4] {
+    #[inline(always)]
+    fn axis_and_kappa(&self) -> Option<(Vec3, f32)> {
+        let (a, k) = (Vec3::new(self[0], self[1], self[2]), self[3]);
+        (k > 0.0 && k.is_finite() && a.is_finite())
+            .then(|| (crate::frame::normalize_or(a, Vec3::Z), k))
+    }
+}
+
+/// [`lobe_product_block`] over normals (the clamped cosine).
+struct CosineProduct;
+impl BlockKernel for CosineProduct {
+    type In = Vec3;
+    type Out = VmfMixture<NPM_LOBES>;
+    #[inline(always)]
+    fn block(ins: &[Vec3], outs: &mut [VmfMixture<NPM_LOBES>]) {
+        lobe_product_block(ins, outs);
+    }
+}
+
+/// [`lobe_product_block`] over `[a_x, a_y, a_z, κ]` lobes.
+struct LobeProduct;
+impl BlockKernel for LobeProduct {
+    type In = [f32; 4];
+    type Out = VmfMixture<NPM_LOBES>;
+    #[inline(always)]
+    fn block(ins: &[[f32; 4]], outs: &mut [VmfMixture<NPM_LOBES>]) {
+        lobe_product_block(ins, outs);
+    }
+}
+
 #[inline(always)]
-fn cosine_product_block(normals: &[Vec3], ms: &mut [VmfMixture<NPM_LOBES>]) {
+fn lobe_product_block<L: ProductLobeInput>(lobes: &[L], ms: &mut [VmfMixture<NPM_LOBES>]) {
     use crate::lobe::vmf::{VMF_KAPPA_MAX, VMF_KAPPA_UNIFORM};
-    use crate::math::{exp, expm1_nonpositive};
-    use crate::mixture::vmf::CLAMPED_COSINE_KAPPA as KC;
-    let n = ms.len().min(DECODE_BLOCK);
-    // Lobe-major lanes, as decode_vmf_block.
+    use crate::math::{exp, expm1_nonpositive, ln_inline};
+    let n = ms.len().min(lobes.len()).min(DECODE_BLOCK);
+    // Lobe-major lanes, as decode_vmf_block; `kl` the product lobe's κ (0: none).
     let mut lane = [[0.0f32; BLOCK_LOBES]; 8];
     let [w, mx, my, mz, kappa, norm, nx, ny] = &mut lane;
     let mut nz = [0.0f32; BLOCK_LOBES];
+    let mut kl = [0.0f32; BLOCK_LOBES];
+    let mut multiplied = [false; DECODE_BLOCK];
     for b in 0..n {
-        let nn = crate::frame::normalize_or(normals[b], Vec3::Z);
+        let Some((a, k_l)) = lobes[b].axis_and_kappa() else {
+            continue;
+        };
+        multiplied[b] = true;
         for k in 0..NPM_LOBES {
             let i = k * DECODE_BLOCK + b;
             let m = &ms[b];
@@ -609,16 +677,19 @@ fn cosine_product_block(normals: &[Vec3], ms: &mut [VmfMixture<NPM_LOBES>]) {
             mz[i] = m.mean_z[k];
             kappa[i] = m.kappa[k];
             norm[i] = m.norm[k];
-            nx[i] = nn.x;
-            ny[i] = nn.y;
-            nz[i] = nn.z;
+            nx[i] = a.x;
+            ny[i] = a.y;
+            nz[i] = a.z;
+            kl[i] = k_l;
         }
     }
+    // out[0]: w · norm / norm', then the exponent κ' − κ − κ_l in `expo`.
     let mut out = [[0.0f32; BLOCK_LOBES]; 7];
+    let mut expo = [0.0f32; BLOCK_LOBES];
     for i in 0..BLOCK_LOBES {
-        let ax = mx[i] * kappa[i] + nx[i] * KC;
-        let ay = my[i] * kappa[i] + ny[i] * KC;
-        let az = mz[i] * kappa[i] + nz[i] * KC;
+        let ax = mx[i] * kappa[i] + nx[i] * kl[i];
+        let ay = my[i] * kappa[i] + ny[i] * kl[i];
+        let az = mz[i] * kappa[i] + nz[i] * kl[i];
         let kp = (ax * ax + ay * ay + az * az).sqrt();
         // VmfLobe::new(axis, κ'): unit mean (+z if the axis vanishes), κ'
         // clamped, the normaliser 2κ'/(1 − e^{−2κ'})/4π (uniform below
@@ -634,13 +705,38 @@ fn cosine_product_block(normals: &[Vec3], ms: &mut [VmfMixture<NPM_LOBES>]) {
         } else {
             2.0 * kpc / one_minus * INV_FOUR_PI
         };
-        out[0][i] = w[i] * (norm[i] / norm_p) * exp(kpc - kappa[i] - KC);
+        out[0][i] = norm[i] / norm_p;
+        // ln w + κ' − κ − κ_l (−∞ for w = 0).
+        expo[i] = if w[i] > 0.0 {
+            ln_inline(w[i]) + (kpc - kappa[i] - kl[i])
+        } else {
+            f32::NEG_INFINITY
+        };
         out[1][i] = if ok { ax * inv } else { 0.0 };
         out[2][i] = if ok { ay * inv } else { 0.0 };
         out[3][i] = if ok { az * inv } else { 1.0 };
         out[4][i] = if uniform { 0.0 } else { kpc };
         out[5][i] = norm_p;
         out[6][i] = if uniform { 0.0 } else { one_minus };
+    }
+    // Each mixture's largest log-weight.
+    let mut top = [f32::MIN; DECODE_BLOCK];
+    for k in 0..NPM_LOBES {
+        for (t, &e) in top.iter_mut().zip(&expo[k * DECODE_BLOCK..]) {
+            *t = t.max(e);
+        }
+    }
+    // All weights 0 (never for a decoded mixture): nothing to subtract.
+    for t in &mut top {
+        if *t == f32::MIN {
+            *t = 0.0;
+        }
+    }
+    for k in 0..NPM_LOBES {
+        let lanes = k * DECODE_BLOCK..(k + 1) * DECODE_BLOCK;
+        for ((o, &e), &t) in out[0][lanes.clone()].iter_mut().zip(&expo[lanes]).zip(&top) {
+            *o *= exp(e - t);
+        }
     }
     let mut sum = [0.0f32; DECODE_BLOCK];
     for k in 0..NPM_LOBES {
@@ -649,8 +745,11 @@ fn cosine_product_block(normals: &[Vec3], ms: &mut [VmfMixture<NPM_LOBES>]) {
         }
     }
     for (b, m) in ms[..n].iter_mut().enumerate() {
-        // sum > 0: every weight is finite and ≥ 0, and some lobe of a
-        // softmax mixture has weight ≥ 1/K, scaled by at least e^{−2κ_c}·ratio.
+        if !multiplied[b] {
+            continue;
+        }
+        // sum > 0: every weight is finite and ≥ 0, and the weighted lobe of the largest
+        // exponent keeps its weight times norm / norm'.
         let inv_sum = if sum[b] > 0.0 { 1.0 / sum[b] } else { 0.0 };
         for k in 0..NPM_LOBES {
             let i = k * DECODE_BLOCK + b;

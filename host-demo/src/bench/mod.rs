@@ -49,12 +49,14 @@ impl Method {
     /// `pt`), `-nocache` / `-frozen` (`--guide-cache off` / `frozen` instead of the default),
     /// `-notrial` (`--guide-trial off`: the guide stays on whether it pays or not), `-noweights`
     /// (`--pass-weights off`: the plain mean of all passes), `-noprobe` (`--training-probe off`),
+    /// `-nofit` (`--fit-selection off`), `-nocos` (`--cosine-product off`), `-nomedia`
+    /// (`--guide-media off`: medium vertices sample the phase function alone),
     /// and on every method, `pt` and `pt-nee` included, `-grr` (`--rr guided`: the library's
     /// weight window with splitting, kept where its efficiency trial says it pays), `-grra`
     /// (`--rr guided --rr-trial off`: the window in every pass) and `-err`
     /// (`--rr efficiency`).
     pub fn parse(full: &str) -> Result<Self> {
-        const SUFFIXES: [(&str, &[&str]); 9] = [
+        const SUFFIXES: [(&str, &[&str]); 12] = [
             ("-grr", &["--rr", "guided"]),
             ("-grra", &["--rr", "guided", "--rr-trial", "off"]),
             ("-err", &["--rr", "efficiency"]),
@@ -64,6 +66,9 @@ impl Method {
             ("-notrial", &["--guide-trial", "off"]),
             ("-noweights", &["--pass-weights", "off"]),
             ("-noprobe", &["--training-probe", "off"]),
+            ("-nofit", &["--fit-selection", "off"]),
+            ("-nocos", &["--cosine-product", "off"]),
+            ("-nomedia", &["--guide-media", "off"]),
         ];
         let mut name = full;
         let mut extra: Vec<&str> = Vec::new();

@@ -329,6 +329,15 @@ struct GuideArgs {
     /// guide alone.
     #[arg(long, value_enum, default_value = "on")]
     phase_product: OnOff,
+    /// Multiply a radiance-target NPM guide by the clamped cosine of the shading normal
+    /// (Open PGL's `ApplyCosineProduct`; the cache keeps one product lane per normal bin, and
+    /// one without it for scattering points in media).
+    #[arg(long, value_enum, default_value = "on")]
+    cosine_product: OnOff,
+    /// Guide the scattering points inside media (full-sphere guide, in one-sample MIS with
+    /// the phase function); off: they sample the phase function alone.
+    #[arg(long, value_enum, default_value = "on")]
+    guide_media: OnOff,
     /// With --time: once training has stopped, alternate 4 guided and 4 unguided passes
     /// (BSDF sampling and NEE), compare relMSE per pass x seconds per pass on the image,
     /// and switch the guide off for the rest of the render when it does not pay.

@@ -311,6 +311,8 @@ fn run_guided(
         cache_resolution: tuning.cache_resolution,
         fit_selection: matches!(args.fit_selection, OnOff::On),
         phase_product: matches!(args.phase_product, OnOff::On),
+        cosine_product: matches!(args.cosine_product, OnOff::On),
+        guide_media: matches!(args.guide_media, OnOff::On),
         efficiency_trial: matches!(args.guide_trial, OnOff::On),
         weight_passes: matches!(args.pass_weights, OnOff::On),
         training_probe: matches!(args.training_probe, OnOff::On),

@@ -380,7 +380,7 @@ pub fn c_api(data: &[u8]) {
         // cleared on release), arrays are locals of at least the stated
         // length or NULL.
         // The slot and NULL-handle bits do not take part in the choice.
-        match (op & 0x3f) % 23 {
+        match (op & 0x3f) % 24 {
             0 | 1 => op_new_field(&mut r, &mut s, slot),
             2 => {
                 unsafe { pg_field_release(s.fields[slot]) };
@@ -456,6 +456,7 @@ pub fn c_api(data: &[u8]) {
             19 => op_schedule(&mut r, &mut s, null_handle),
             20 => op_train_scheduled(&mut r, &s, field, null_handle),
             21 => op_roulette(&mut r, &mut s, null_handle),
+            22 => op_dist_product(&mut r, &s, slot, dist),
             _ => null_sweep(),
         }
     }
@@ -620,6 +621,80 @@ fn op_dist_sample(r: &mut ByteReader<'_>, s: &State, slot: usize, dist: *mut PgD
     }
     expect_size(st, dist, n, s.held[slot], valid);
     out.check("distributions", st, &u, valid);
+}
+
+/// `pg_distributions_apply_cosine_product` or `_apply_lobe_product` on random (sometimes
+/// non-finite, zero, negative) normals, axes and concentrations: invalid ones are refused
+/// with `PG_INVALID_ARGUMENT`, and after a product every lane still samples a unit direction
+/// with a positive, finite density.
+fn op_dist_product(r: &mut ByteReader<'_>, s: &State, slot: usize, dist: *mut PgDistributions) {
+    let n = usize::from(r.byte()) % (MAX_N + 2);
+    let cosine = r.byte() % 2 == 0;
+    let vectors: Vec<f32> = (0..n).flat_map(|_| r.c_dir3()).collect();
+    let kappas: Vec<f32> = (0..n)
+        .map(|_| match r.byte() % 4 {
+            0 => r.c_value(),
+            1 => 0.0,
+            _ => r.unit() * 1000.0,
+        })
+        .collect();
+    let valid = vectors.iter().all(|x| x.is_finite())
+        && (cosine
+            || kappas.iter().zip(vectors.chunks_exact(3)).all(|(&k, a)| {
+                k >= 0.0 && k.is_finite() && !(k > 0.0 && a.iter().all(|&x| x == 0.0))
+            }));
+    let st = if cosine {
+        check(
+            unsafe { pg_distributions_apply_cosine_product(dist, n, vectors.as_ptr()) },
+            "pg_distributions_apply_cosine_product",
+        )
+    } else {
+        check(
+            unsafe {
+                pg_distributions_apply_lobe_product(dist, n, vectors.as_ptr(), kappas.as_ptr())
+            },
+            "pg_distributions_apply_lobe_product",
+        )
+    };
+    if dist.is_null() {
+        assert_eq!(st, PgStatus::PG_NULL_POINTER, "{}", last_error());
+        return;
+    }
+    if !valid {
+        assert_eq!(st, PgStatus::PG_INVALID_ARGUMENT, "{}", last_error());
+        return;
+    }
+    if n > s.held[slot] {
+        assert_eq!(st, PgStatus::PG_SIZE_MISMATCH, "{}", last_error());
+        return;
+    }
+    // NASG and DF distributions are refused, stale ones too.
+    assert!(
+        matches!(
+            st,
+            PgStatus::PG_OK | PgStatus::PG_STALE | PgStatus::PG_INVALID_ARGUMENT
+        ),
+        "{st:?}: {}",
+        last_error()
+    );
+    if st == PgStatus::PG_OK && n > 0 {
+        let u: Vec<f32> = (0..2 * n).map(|_| r.unit()).collect();
+        let mut out = SampleOutputs::new(n);
+        let st = check(
+            unsafe {
+                pg_distributions_sample(
+                    dist,
+                    n,
+                    u.as_ptr(),
+                    out.dirs.as_mut_ptr(),
+                    out.pdfs.as_mut_ptr(),
+                )
+            },
+            "pg_distributions_sample",
+        );
+        assert_eq!(st, PgStatus::PG_OK, "{}", last_error());
+        out.check("product", st, &u, true);
+    }
 }
 
 fn op_dist_pdf(r: &mut ByteReader<'_>, s: &State, slot: usize, dist: *mut PgDistributions) {
@@ -866,7 +941,7 @@ fn null_sweep() {
     let one = [0.5f32];
     let room = [0u32];
     unsafe {
-        let calls: [(PgStatus, &str); 58] = [
+        let calls: [(PgStatus, &str); 61] = [
             (pg_weight_window_set_defaults(null_mut()), "window defaults"),
             (
                 pg_weight_window_decide(
@@ -969,6 +1044,15 @@ fn null_sweep() {
             ),
             (pg_distributions_new(null_mut()), "dist new"),
             (pg_distributions_len(null(), &mut n), "len"),
+            (
+                pg_distributions_apply_cosine_product(null_mut(), 0, null()),
+                "cosine product",
+            ),
+            (
+                pg_distributions_apply_lobe_product(null_mut(), 0, null(), null()),
+                "lobe product",
+            ),
+            (pg_hg_vmf_kappa(0.5, null_mut()), "hg kappa"),
             (
                 pg_distributions_sample(null(), 0, null(), null_mut(), null_mut()),
                 "dist sample",

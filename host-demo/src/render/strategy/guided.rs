@@ -128,9 +128,9 @@ pub struct GuidedOptions {
     /// Rough conductors with a GGX alpha below this are not guided (near-specular).
     pub min_alpha: f32,
     /// Radiance-target vMF guides (NPM) are multiplied by the clamped cosine of the shading
-    /// normal before sampling (Open PGL's `ApplyCosineProduct`). Off in a render whose medium
-    /// vertices are guided ([`GuidedOptions::guide_media`]): the guide cache keeps one
-    /// product lane per surface-normal bin, and a medium vertex has no normal.
+    /// normal before sampling (Open PGL's `ApplyCosineProduct`). Medium vertices have no
+    /// normal and no cosine: the library leaves their guide as it is (the cache keeps a lane
+    /// without the product for them).
     pub cosine_product: bool,
     /// Scattering points inside media are guided like surface vertices: the guide's
     /// distribution over the whole sphere (their queries and training samples carry a zero
@@ -740,7 +740,7 @@ impl<'g> Guided<'g> {
         };
         let samples = &self.last_samples;
         let mis = (self.last_mis.len() == samples.len()).then_some(self.last_mis.as_slice());
-        let refitted = match cache.fit_selection(self.guide, samples, mis, &fit) {
+        let refitted = match cache.fit_selection(self.guide, samples, mis, None, &fit) {
             Ok(report) => {
                 self.stats.selection_refit = Some((fit.variance_share, report));
                 true
@@ -1286,8 +1286,9 @@ impl<'g> Strategy for Guided<'g> {
                     self.stats.guide_cost = Some(fit.guide_cost);
                     let mis =
                         (self.last_mis.len() == samples.len()).then_some(self.last_mis.as_slice());
-                    self.stats.selection_fit =
-                        cache.fit_selection(self.guide, &samples, mis, &fit).ok();
+                    self.stats.selection_fit = cache
+                        .fit_selection(self.guide, &samples, mis, None, &fit)
+                        .ok();
                     self.stats.cache_build += t0.elapsed();
                 }
                 // Kept for the refit after the efficiency trial.
