@@ -100,6 +100,13 @@
 #define PG_REJECTION_KINDS 4
 
 /**
+ * The scattering optical depth below which `pg_guides_medium` says a medium is not worth
+ * guiding (Rust `guiding::media::MIN_GUIDED_SCATTERING_DEPTH`; a literal for cbindgen,
+ * equal to it by a test).
+ */
+#define PG_MIN_GUIDED_SCATTERING_DEPTH 0.05
+
+/**
  * Result of every `pg_*` call that can fail. On anything but `PG_OK`,
  * `pg_last_error()` says what went wrong and what to change.
  */
@@ -1153,18 +1160,6 @@ enum PgStatus pg_distributions_apply_lobe_product(struct PgDistributions *distri
                                                   const float *kappas);
 
 /**
- * The concentration `κ` of the vMF lobe fitted to a Henyey–Greenstein phase
- * function of asymmetry `g ∈ (−1, 1)` (equal mean cosine `|g|`, Rust
- * `guiding_core::lobe::vmf::hg_vmf_kappa`; `0` for `g = 0`), into `*out`:
- * the `κ` of `pg_distributions_apply_lobe_product` at a medium vertex.
- * `PG_INVALID_ARGUMENT` for `g` outside `(−1, 1)` or NaN.
- *
- * # Safety
- * `out` NULL or writable.
- */
-enum PgStatus pg_hg_vmf_kappa(float g, float *out);
-
-/**
  * Fills `*vertex` with the defaults: zeros, except `roughness`,
  * `emitted_mis_weight` and `continuation_scale`, which are 1.
  *
@@ -1525,6 +1520,32 @@ enum PgStatus pg_pixel_estimates(uint32_t width,
                                  uint32_t passes,
                                  uint32_t radius,
                                  float *out);
+
+/**
+ * The concentration `κ` of the vMF lobe fitted to a Henyey–Greenstein phase
+ * function of asymmetry `g ∈ (−1, 1)` (equal mean cosine `|g|`, Rust
+ * `guiding_core::lobe::vmf::hg_vmf_kappa`; `0` for `g = 0`), into `*out`:
+ * the `κ` of `pg_distributions_apply_lobe_product` at a medium vertex.
+ * `PG_INVALID_ARGUMENT` for `g` outside `(−1, 1)` or NaN.
+ *
+ * # Safety
+ * `out` NULL or writable.
+ */
+enum PgStatus pg_hg_vmf_kappa(float g, float *out);
+
+/**
+ * The library's thin-medium rule (Rust `guiding::media`, whose docs give the reasoning): a
+ * medium whose largest scattering coefficient is `max_scattering` (over its volume and
+ * colour channels) over a region of diagonal `extent` (the box of the shapes it fills, or
+ * the scene's box for a medium around the camera; `INFINITY` for one without bounds) has
+ * the scattering optical depth `τ_s = max_scattering · extent`, written to `*depth` (may
+ * be NULL), and is worth guiding when `τ_s ≥ 0.05` (`PG_MIN_GUIDED_SCATTERING_DEPTH`),
+ * written to `*guided`. `PG_INVALID_ARGUMENT` for a negative or NaN input.
+ *
+ * # Safety
+ * `depth` NULL or writable; `guided` NULL or writable.
+ */
+enum PgStatus pg_guides_medium(float max_scattering, float extent, float *depth, bool *guided);
 
 #ifdef __cplusplus
 }  // extern "C"

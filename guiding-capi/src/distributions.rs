@@ -341,28 +341,6 @@ pub unsafe extern "C" fn pg_distributions_apply_lobe_product(
     })
 }
 
-/// The concentration `κ` of the vMF lobe fitted to a Henyey–Greenstein phase
-/// function of asymmetry `g ∈ (−1, 1)` (equal mean cosine `|g|`, Rust
-/// `guiding_core::lobe::vmf::hg_vmf_kappa`; `0` for `g = 0`), into `*out`:
-/// the `κ` of `pg_distributions_apply_lobe_product` at a medium vertex.
-/// `PG_INVALID_ARGUMENT` for `g` outside `(−1, 1)` or NaN.
-///
-/// # Safety
-/// `out` NULL or writable.
-#[no_mangle]
-pub unsafe extern "C" fn pg_hg_vmf_kappa(g: f32, out: *mut f32) -> PgStatus {
-    guard("pg_hg_vmf_kappa", || {
-        if !(g > -1.0 && g < 1.0) {
-            return Err(Failure::invalid(format!(
-                "g = {g} is not in (-1, 1) (a Henyey-Greenstein asymmetry)"
-            )));
-        }
-        let out = unsafe { ptr::as_mut(out, "out") }?;
-        *out = guiding_core::lobe::vmf::hg_vmf_kappa(g);
-        Ok(())
-    })
-}
-
 /// The vectors of a `3n`-float array, each finite (any length).
 fn finite_vectors(v: &[f32], what: &str) -> Result<Vec<Vec3>, Failure> {
     v.chunks_exact(3)

@@ -131,10 +131,13 @@ pub mod schedule;
 
 pub mod roulette;
 
+pub mod media;
+
 mod ptr;
 
 pub use distributions::*;
 pub use field::*;
+pub use media::*;
 pub use recorder::*;
 pub use roulette::*;
 pub use schedule::*;

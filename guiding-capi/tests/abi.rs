@@ -2201,3 +2201,46 @@ fn products_refuse_bad_arguments() {
         );
     }
 }
+
+/// `pg_guides_medium` is the library's thin-medium rule (`guiding::media`): the depth
+/// `σ_s,max · d` and its verdict against `PG_MIN_GUIDED_SCATTERING_DEPTH`, `depth` optional;
+/// negative or NaN inputs and a NULL `guided` are refused.
+#[test]
+fn the_thin_medium_rule_in_c_is_the_library_rule() {
+    for (sigma, extent) in [
+        (0.108f32, 9.786f32),
+        (0.002, 9.786),
+        (0.05, 1.0),
+        (0.049_999, 1.0),
+        (0.0, f32::INFINITY),
+        (1e-3, f32::INFINITY),
+    ] {
+        let (mut depth, mut guided) = (f32::NAN, false);
+        // SAFETY: valid pointers.
+        expect_ok(unsafe { pg_guides_medium(sigma, extent, &mut depth, &mut guided) });
+        assert_eq!(Some(depth), guiding::media::scattering_depth(sigma, extent));
+        assert_eq!(guided, guiding::media::guides_medium(sigma, extent));
+        let mut again = !guided;
+        // SAFETY: `depth` may be NULL.
+        expect_ok(unsafe { pg_guides_medium(sigma, extent, null_mut(), &mut again) });
+        assert_eq!(again, guided);
+    }
+    assert_eq!(
+        PG_MIN_GUIDED_SCATTERING_DEPTH,
+        guiding::media::MIN_GUIDED_SCATTERING_DEPTH
+    );
+    let mut guided = false;
+    for (sigma, extent) in [
+        (-1.0f32, 1.0f32),
+        (1.0, -0.5),
+        (f32::NAN, 1.0),
+        (1.0, f32::NAN),
+    ] {
+        // SAFETY: valid pointers.
+        let st = unsafe { pg_guides_medium(sigma, extent, null_mut(), &mut guided) };
+        expect(st, PG_INVALID_ARGUMENT, "pg_guides_medium", ">= 0");
+    }
+    // SAFETY: NULL on purpose.
+    let st = unsafe { pg_guides_medium(1.0, 1.0, null_mut(), null_mut()) };
+    expect(st, PG_NULL_POINTER, "pg_guides_medium", "guided");
+}

@@ -94,6 +94,7 @@ pub mod error;
 pub mod evidence;
 pub mod field;
 pub mod file;
+pub mod media;
 mod models;
 pub mod recorder;
 pub mod roulette;

@@ -26,6 +26,11 @@
 //! the continuation's density (a sample / pdf mismatch at the surface and medium vertices it
 //! guides), must fail the same test.
 //!
+//! The thin-medium rule (`thin_media_are_not_guided_and_dense_ones_are`): each medium's extent
+//! and scattering optical depth as the rule defines them, and guided renders that guide the
+//! fog-box's scattering points, none of the same fog thinned 100×, and all of it again with
+//! the rule off.
+//!
 //! Run with `cargo test --release -p host-demo --test media` (about 30 s).
 
 mod common;
@@ -352,4 +357,65 @@ fn media_constructs_load_as_mitsuba_reads_them() {
         assert!(e.contains(says), "{body}: {e}");
         assert!(e.contains("media.xml"), "no file in {e}");
     }
+}
+
+/// The thin-medium rule (`guiding::media`, `host_demo::render::media_guiding`): a medium's
+/// extent is the box of the shapes it fills (the fog-box's null cube, side 1.6) or the whole
+/// scene around the camera (the fog-room, a cube of side 4); its scattering optical depth
+/// `σ_s,max · d` decides. The dense fog's scattering points are guided; thinned 100× (depth
+/// 0.031 < 0.05) none is, while the same render with the rule off (`--guide-media on`)
+/// guides them, and with the rule on the thin fog's vertices still scatter (phase sampling).
+#[test]
+fn thin_media_are_not_guided_and_dense_ones_are() {
+    use host_demo::render::media_guiding;
+    let load = |f: &str| xml::load_file(&data_dir().join(f)).unwrap_or_else(|e| panic!("{e}"));
+    let dense = load("fog-box.xml");
+    let g = media_guiding(&dense);
+    let diagonal = 1.6 * 3f32.sqrt();
+    assert_eq!(g.len(), 1);
+    assert!((g[0].extent - diagonal).abs() < 1e-4, "{g:?}");
+    assert!(
+        (g[0].scattering_depth - 1.12 * diagonal).abs() < 1e-3,
+        "{g:?}"
+    );
+    assert!(g[0].guided);
+    let room = load("fog-room.xml");
+    let (lo, hi) = room.bounds();
+    let g_room = media_guiding(&room);
+    assert_eq!(g_room[0].extent, (hi - lo).length());
+    assert!(
+        (g_room[0].extent - 4.0 * 3f32.sqrt()).abs() < 1e-3,
+        "{g_room:?}"
+    );
+    let mut thin = load("fog-box.xml");
+    thin.media[0].sigma_t *= 0.01;
+    thin.media[0].sigma_s *= 0.01;
+    let g_thin = media_guiding(&thin);
+    assert!((g_thin[0].scattering_depth - 0.0112 * diagonal).abs() < 1e-4);
+    assert!(!g_thin[0].guided);
+    // Guided renders: (scene, rule on) -> guided medium vertices.
+    let run = |sc: &Scene, rule: bool| {
+        let o = RenderOptions {
+            spp: 32,
+            max_depth: sc.settings.max_depth,
+            width: 32,
+            height: 32,
+            seed: 9,
+            ..RenderOptions::default()
+        };
+        let config = common::training_config(1024, 2, 7);
+        let mut guide = common::npm_guide(Target::Radiance, ModelSize::Small, sc, config);
+        let gopts = GuidedOptions {
+            thin_media_rule: rule,
+            ..GuidedOptions::default()
+        };
+        let (_, stats) =
+            render_guided(sc, &o, &gopts, &mut guide).unwrap_or_else(|e| panic!("{e}"));
+        assert!(stats.medium_vertices > 0);
+        assert!(stats.guided_medium_vertices <= stats.guided_vertices);
+        stats.guided_medium_vertices
+    };
+    assert!(run(&dense, true) > 0);
+    assert_eq!(run(&thin, true), 0);
+    assert!(run(&thin, false) > 0);
 }

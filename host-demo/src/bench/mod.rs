@@ -50,13 +50,14 @@ impl Method {
     /// `-notrial` (`--guide-trial off`: the guide stays on whether it pays or not), `-noweights`
     /// (`--pass-weights off`: the plain mean of all passes), `-noprobe` (`--training-probe off`),
     /// `-nofit` (`--fit-selection off`), `-nocos` (`--cosine-product off`), `-nomedia`
-    /// (`--guide-media off`: medium vertices sample the phase function alone),
+    /// (`--guide-media off`: medium vertices sample the phase function alone), `-allmedia`
+    /// (`--guide-media on`: every medium guided, the thin-medium rule ignored),
     /// and on every method, `pt` and `pt-nee` included, `-grr` (`--rr guided`: the library's
     /// weight window with splitting, kept where its efficiency trial says it pays), `-grra`
     /// (`--rr guided --rr-trial off`: the window in every pass) and `-err`
     /// (`--rr efficiency`).
     pub fn parse(full: &str) -> Result<Self> {
-        const SUFFIXES: [(&str, &[&str]); 12] = [
+        const SUFFIXES: [(&str, &[&str]); 13] = [
             ("-grr", &["--rr", "guided"]),
             ("-grra", &["--rr", "guided", "--rr-trial", "off"]),
             ("-err", &["--rr", "efficiency"]),
@@ -69,6 +70,7 @@ impl Method {
             ("-nofit", &["--fit-selection", "off"]),
             ("-nocos", &["--cosine-product", "off"]),
             ("-nomedia", &["--guide-media", "off"]),
+            ("-allmedia", &["--guide-media", "on"]),
         ];
         let mut name = full;
         let mut extra: Vec<&str> = Vec::new();

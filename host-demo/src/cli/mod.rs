@@ -99,6 +99,17 @@ enum OnOff {
     Off,
 }
 
+/// A setting the library can decide (auto) or the user forces.
+#[derive(Clone, Copy, ValueEnum)]
+enum AutoOnOff {
+    /// The library's rule decides.
+    Auto,
+    /// Always.
+    On,
+    /// Never.
+    Off,
+}
+
 #[derive(Subcommand)]
 enum Cmd {
     /// Render a scene to an EXR file (plus a PNG preview next to it) and print the image mean.
@@ -335,9 +346,11 @@ struct GuideArgs {
     #[arg(long, value_enum, default_value = "on")]
     cosine_product: OnOff,
     /// Guide the scattering points inside media (full-sphere guide, in one-sample MIS with
-    /// the phase function); off: they sample the phase function alone.
-    #[arg(long, value_enum, default_value = "on")]
-    guide_media: OnOff,
+    /// the phase function): auto, those of the media the library's thin-medium rule says are
+    /// worth it (scattering optical depth across the medium >= 0.05, `guiding::media`); on,
+    /// every medium; off, none (they sample the phase function alone).
+    #[arg(long, value_enum, default_value = "auto")]
+    guide_media: AutoOnOff,
     /// With --time: once training has stopped, alternate 4 guided and 4 unguided passes
     /// (BSDF sampling and NEE), compare relMSE per pass x seconds per pass on the image,
     /// and switch the guide off for the rest of the render when it does not pay.

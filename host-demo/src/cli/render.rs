@@ -1,7 +1,11 @@
 //! `host-demo render`: one image, its statistics and its output files.
 
-use super::stats::{Budget, CommonStages, GuidedRun, OutputFiles, PlainRun, RunStats, StatsDoc};
-use super::{CacheArg, Cmd, DeviceArg, GuideArgs, Integrator, OnOff, TargetArg, TuningArgs};
+use super::stats::{
+    Budget, CommonStages, GuidedRun, MediaInputs, OutputFiles, PlainRun, RunStats, StatsDoc,
+};
+use super::{
+    AutoOnOff, CacheArg, Cmd, DeviceArg, GuideArgs, Integrator, OnOff, TargetArg, TuningArgs,
+};
 use guiding_core::field::{FieldConfig, PlateauConfig};
 use guiding_core::loss::Target;
 use host_demo::render::strategy::guide::build_guide;
@@ -312,7 +316,8 @@ fn run_guided(
         fit_selection: matches!(args.fit_selection, OnOff::On),
         phase_product: matches!(args.phase_product, OnOff::On),
         cosine_product: matches!(args.cosine_product, OnOff::On),
-        guide_media: matches!(args.guide_media, OnOff::On),
+        guide_media: !matches!(args.guide_media, AutoOnOff::Off),
+        thin_media_rule: matches!(args.guide_media, AutoOnOff::Auto),
         efficiency_trial: matches!(args.guide_trial, OnOff::On),
         weight_passes: matches!(args.pass_weights, OnOff::On),
         training_probe: matches!(args.training_probe, OnOff::On),
@@ -429,14 +434,23 @@ impl Finished<'_> {
             Outcome::Plain(p) => p.roulette.as_ref(),
             Outcome::Guided(g) => g.stats.roulette.as_ref(),
         };
-        let (medium_vertices, media_guided) = match self.outcome {
-            Outcome::Plain(p) => (p.medium_vertices, false),
+        let (medium_vertices, guided_medium_vertices, media_guided, thin_rule) = match self.outcome
+        {
+            Outcome::Plain(p) => (p.medium_vertices, 0, false, true),
             Outcome::Guided(g) => (
                 g.stats.medium_vertices,
+                g.stats.guided_medium_vertices,
                 g.options.guide_media && !sc.media.is_empty(),
+                g.options.thin_media_rule,
             ),
         };
-        let media = (sc, medium_vertices, media_guided);
+        let media = MediaInputs {
+            scene: sc,
+            medium_vertices,
+            guided_medium_vertices,
+            media_guided,
+            thin_rule,
+        };
         let common = CommonStages::new(nee_ran, nee_asked, opts.rr, media, roulette);
         let run = match self.outcome {
             Outcome::Plain(p) => RunStats::Plain(Box::new(PlainRun::new(p, common))),

@@ -7,6 +7,8 @@
 //! depends on what ran (a stage that did not run has only `ran` and `reason`) are untagged
 //! enums or `Option`s.
 
+use guiding::media::MIN_GUIDED_SCATTERING_DEPTH;
+use host_demo::render::media_guiding;
 use host_demo::render::strategy::guided::{GROUP_GUIDED, GROUP_UNGUIDED};
 use host_demo::render::{GuidedStats, PassWeightStats, ProbeStats, RenderStats, TrialStats};
 use host_demo::render::{Roulette, RouletteStats};
@@ -176,9 +178,9 @@ impl GuidedRr {
     }
 }
 
-/// Participating media: whether the scene has any (or `null` surfaces), and the
-/// scattering points the render made in them.
-#[derive(Serialize, Clone, Copy)]
+/// Participating media: whether the scene has any (or `null` surfaces), the scattering
+/// points the render made in them, and which media the guided integrator guided.
+#[derive(Serialize, Clone)]
 struct MediaStage {
     ran: bool,
     reason: &'static str,
@@ -188,6 +190,35 @@ struct MediaStage {
     camera_in_medium: bool,
     /// Scattering points inside media (phase-function vertices).
     medium_vertices: u64,
+    /// Of those, the ones the guide guided (the media `guiding` lists as guided).
+    guided_medium_vertices: u64,
+    /// Per medium, in the scene's order: the library's thin-medium rule
+    /// (`guiding::media`) and whether this render guided its scattering points.
+    guiding: Vec<MediumGuidingStage>,
+}
+
+/// One medium's entry of [`MediaStage::guiding`].
+#[derive(Serialize, Clone)]
+struct MediumGuidingStage {
+    /// `τ_s = σ_s,max · d`.
+    scattering_depth: f32,
+    /// `d`: the diagonal of the region the medium fills.
+    extent: f32,
+    /// Its scattering points were guided.
+    guided: bool,
+    reason: String,
+}
+
+/// What the media stage reports: the scene, its scattering points, and whether (and by the
+/// thin-medium rule or not) the render guided media.
+pub(super) struct MediaInputs<'a> {
+    pub scene: &'a Scene,
+    pub medium_vertices: u64,
+    pub guided_medium_vertices: u64,
+    /// A guided render with `--guide-media` auto or on, in a scene with media.
+    pub media_guided: bool,
+    /// `--guide-media auto`: the library's thin-medium rule decides per medium.
+    pub thin_rule: bool,
 }
 
 /// The NEE, media and Russian-roulette stages, the same for every integrator.
@@ -204,9 +235,16 @@ impl CommonStages {
         nee_ran: bool,
         nee_asked: bool,
         rr: Roulette,
-        (scene, medium_vertices, media_guided): (&Scene, u64, bool),
+        media: MediaInputs<'_>,
         guided: Option<&RouletteStats>,
     ) -> Self {
+        let MediaInputs {
+            scene,
+            medium_vertices,
+            guided_medium_vertices,
+            media_guided,
+            thin_rule,
+        } = media;
         let rr_depth = scene.settings.rr_depth;
         let reason = if nee_ran {
             "NEE + MIS on every non-delta vertex (delta BSDFs are not connected)"
@@ -224,8 +262,9 @@ impl CommonStages {
                 ran: scene.has_volumes,
                 reason: if scene.has_volumes && media_guided {
                     "free-flight sampling in homogeneous media, null surfaces crossed, shadow \
-                     rays carry transmittance; medium vertices are guided (the guide over the \
-                     whole sphere in MIS with the phase function; the cosine product is off)"
+                     rays carry transmittance; the scattering points of the media in `guiding` \
+                     are guided (the guide over the whole sphere in MIS with the phase \
+                     function)"
                 } else if scene.has_volumes {
                     "free-flight sampling in homogeneous media, null surfaces crossed, shadow \
                      rays carry transmittance; medium vertices sample the phase function"
@@ -235,6 +274,34 @@ impl CommonStages {
                 media: scene.media.len(),
                 camera_in_medium: scene.camera_medium != NO_MEDIUM,
                 medium_vertices,
+                guided_medium_vertices,
+                guiding: media_guiding(scene)
+                    .iter()
+                    .map(|m| MediumGuidingStage {
+                        scattering_depth: m.scattering_depth,
+                        extent: m.extent,
+                        guided: media_guided && (m.guided || !thin_rule),
+                        reason: if !media_guided {
+                            "phase sampling: not a guided render, or --guide-media off".into()
+                        } else if !thin_rule {
+                            "guided: --guide-media on (every medium)".into()
+                        } else if m.guided {
+                            format!(
+                                "guided: scattering optical depth {:.3} >= {}",
+                                m.scattering_depth, MIN_GUIDED_SCATTERING_DEPTH
+                            )
+                        } else {
+                            format!(
+                                "skipped (thin): scattering optical depth {:.3} < {}, a ray \
+                                 crossing it scatters with probability below {:.1} %; phase \
+                                 sampling, no training samples",
+                                m.scattering_depth,
+                                MIN_GUIDED_SCATTERING_DEPTH,
+                                100.0 * (1.0 - (-m.scattering_depth).exp())
+                            )
+                        },
+                    })
+                    .collect(),
             },
             russian_roulette: RrStage {
                 ran: rr != Roulette::Off,

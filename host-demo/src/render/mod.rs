@@ -44,6 +44,34 @@ pub fn render_with_stats(scene: &Scene, opts: &RenderOptions) -> (Image, RenderS
     }
 }
 
+/// What the library's thin-medium rule ([`guiding::media`]) says about one medium of a scene.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MediumGuiding {
+    /// Its scattering optical depth `τ_s = σ_s,max · d` ([`guiding::media::scattering_depth`]).
+    pub scattering_depth: f32,
+    /// `d`: the diagonal of the region it fills ([`Scene::medium_extent`]).
+    pub extent: f32,
+    /// `τ_s ≥` [`guiding::media::MIN_GUIDED_SCATTERING_DEPTH`]: its scattering points are
+    /// guided (with [`GuidedOptions::guide_media`]); else they sample the phase function and
+    /// make no training samples.
+    pub guided: bool,
+}
+
+/// [`MediumGuiding`] of every medium of `scene`, in order.
+pub fn media_guiding(scene: &Scene) -> Vec<MediumGuiding> {
+    (0..scene.media.len())
+        .map(|m| {
+            let extent = scene.medium_extent(m as u32);
+            let sigma = scene.media[m].max_scattering();
+            MediumGuiding {
+                scattering_depth: guiding::media::scattering_depth(sigma, extent).unwrap_or(0.0),
+                extent,
+                guided: guiding::media::guides_medium(sigma, extent),
+            }
+        })
+        .collect()
+}
+
 /// Renders `scene` with guided path tracing, training `guide` online as the library's
 /// schedule (`gopts.schedule`) says. `opts.integrator` is ignored (NEE follows
 /// `gopts.nee`). The guide runs where it was put: on the CPU threads, or on a Vulkan device
@@ -61,7 +89,12 @@ pub fn render_guided(
     // The efficiency trial weighs time: only a time budget asks that question. Without NEE
     // its unguided arm is BSDF sampling alone, whose trial passes cost the image far more
     // than they can save on a scene with small emitters (see `GuidedOptions`).
-    let guided_media = gopts.guide_media && !scene.media.is_empty();
+    // The library's thin-medium rule, per medium (see `media_guiding`).
+    let media_guided: Vec<bool> = media_guiding(scene)
+        .iter()
+        .map(|m| gopts.guide_media && (m.guided || !gopts.thin_media_rule))
+        .collect();
+    let guided_media = media_guided.contains(&true);
     let gopts = GuidedOptions {
         efficiency_trial: gopts.efficiency_trial
             && opts.time_budget.is_some()
@@ -80,7 +113,7 @@ pub fn render_guided(
         Some(t) => guiding::Budget::Seconds(t.as_secs_f64()),
         None => guiding::Budget::Spp(opts.spp),
     };
-    let mut strategy = Guided::new(guide, &gopts, budget)?;
+    let mut strategy = Guided::new(guide, &gopts, budget, media_guided)?;
     let (img, rs) = wavefront::render_passes(scene, opts, gopts.nee, &mut strategy)?;
     Ok((img, strategy.finish(&rs)))
 }

@@ -399,7 +399,8 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
                 vertex.roughness = mat.roughness();
                 // Radiance propagates through every vertex; only those the strategy guides
                 // make training samples (none when only the roulette's grid records).
-                vertex.is_delta = !(self.strategy_records && self.strategy.trains(&mat));
+                vertex.is_delta = !(self.strategy_records
+                    && self.strategy.trains(&mat, crate::scene::medium::NO_MEDIUM));
                 r.add_vertex(slot, vertex);
             }
             if mat.is_black() || (mat.one_sided() && ns.dot(-d) <= 0.0) {
@@ -475,7 +476,7 @@ impl<'s, V: VertexStrategy> Worker<'s, V> {
         let mat = Material::Phase {
             g: self.scene.media[medium as usize].g,
         };
-        let trains = self.strategy_records && self.strategy.trains(&mat);
+        let trains = self.strategy_records && self.strategy.trains(&mat, medium);
         if let Some(r) = self.recorder.as_mut().filter(|_| tracked) {
             // No normal: a training sample of a point in a medium ("no surface").
             r.add_vertex(

@@ -107,6 +107,13 @@ fn attenuation(sigma: Vec3, t: f32) -> Vec3 {
 }
 
 impl Medium {
+    /// The largest scattering coefficient over the medium and its colour channels:
+    /// `max σs`, times the grid's largest density for a heterogeneous medium.
+    pub fn max_scattering(&self) -> f32 {
+        let d = self.density.as_ref().map_or(1.0, |g| g.max);
+        self.sigma_s.max_element() * d
+    }
+
     /// A medium from Mitsuba 3's parameters: `sigma_t`, `albedo` and `scale` (`σt = scale ·
     /// sigma_t`, `σs = albedo ⊙ σt`). Errors name the bad value.
     pub fn new(sigma_t: Vec3, albedo: Vec3, scale: f32, g: f32) -> Result<Self, String> {

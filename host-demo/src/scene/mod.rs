@@ -782,6 +782,39 @@ impl SceneBuilder {
 }
 
 impl Scene {
+    /// The diagonal of the region medium `m` fills: the bounding box of the shapes whose
+    /// interior it is, or the whole scene's box where it surrounds the camera or lies outside
+    /// a shape (it has no bounds of its own there).
+    pub fn medium_extent(&self, m: u32) -> f32 {
+        let whole = |s: &Self| {
+            let (lo, hi) = s.bounds();
+            (hi - lo).length()
+        };
+        if self.camera_medium == m {
+            return whole(self);
+        }
+        let mut lo = Vec3::splat(f32::INFINITY);
+        let mut hi = Vec3::splat(f32::NEG_INFINITY);
+        for (p, &shape) in self.prims.iter().zip(&self.prim_shape) {
+            let Some(mi) = self.shapes[shape as usize].media else {
+                continue;
+            };
+            if mi.exterior == m {
+                return whole(self);
+            }
+            if mi.interior == m {
+                let b = p.aabb();
+                lo = lo.min(Vec3::from(b.min));
+                hi = hi.max(Vec3::from(b.max));
+            }
+        }
+        if lo.cmple(hi).all() {
+            (hi - lo).length()
+        } else {
+            0.0
+        }
+    }
+
     /// Axis-aligned bounding box `(min, max)` of every primitive (the guiding grid's box);
     /// `(0, 0)` for an empty scene.
     pub fn bounds(&self) -> (Vec3, Vec3) {

@@ -380,7 +380,7 @@ pub fn c_api(data: &[u8]) {
         // cleared on release), arrays are locals of at least the stated
         // length or NULL.
         // The slot and NULL-handle bits do not take part in the choice.
-        match (op & 0x3f) % 24 {
+        match (op & 0x3f) % 25 {
             0 | 1 => op_new_field(&mut r, &mut s, slot),
             2 => {
                 unsafe { pg_field_release(s.fields[slot]) };
@@ -457,6 +457,7 @@ pub fn c_api(data: &[u8]) {
             20 => op_train_scheduled(&mut r, &s, field, null_handle),
             21 => op_roulette(&mut r, &mut s, null_handle),
             22 => op_dist_product(&mut r, &s, slot, dist),
+            23 => op_media_rules(&mut r),
             _ => null_sweep(),
         }
     }
@@ -694,6 +695,44 @@ fn op_dist_product(r: &mut ByteReader<'_>, s: &State, slot: usize, dist: *mut Pg
         );
         assert_eq!(st, PgStatus::PG_OK, "{}", last_error());
         out.check("product", st, &u, true);
+    }
+}
+
+/// `pg_hg_vmf_kappa` and `pg_guides_medium` on arbitrary values: `g` outside `(−1, 1)` or NaN,
+/// negative or NaN coefficients and extents are `PG_INVALID_ARGUMENT`; otherwise `κ` is finite
+/// and `≥ 0`, the depth is the product (0 if either is 0) and the verdict is `depth ≥
+/// PG_MIN_GUIDED_SCATTERING_DEPTH`.
+fn op_media_rules(r: &mut ByteReader<'_>) {
+    let g = r.c_value();
+    let mut kappa = f32::NAN;
+    let st = check(unsafe { pg_hg_vmf_kappa(g, &mut kappa) }, "pg_hg_vmf_kappa");
+    if g > -1.0 && g < 1.0 {
+        assert_eq!(st, PgStatus::PG_OK, "{}", last_error());
+        assert!(kappa.is_finite() && kappa >= 0.0, "g {g}: kappa {kappa}");
+    } else {
+        assert_eq!(st, PgStatus::PG_INVALID_ARGUMENT, "g {g}");
+    }
+    let (sigma, extent) = (r.c_value(), r.c_value());
+    let (mut depth, mut guided) = (f32::NAN, false);
+    let st = check(
+        unsafe { pg_guides_medium(sigma, extent, &mut depth, &mut guided) },
+        "pg_guides_medium",
+    );
+    if sigma >= 0.0 && extent >= 0.0 {
+        assert_eq!(st, PgStatus::PG_OK, "{}", last_error());
+        let want = if sigma == 0.0 || extent == 0.0 {
+            0.0
+        } else {
+            sigma * extent
+        };
+        assert_eq!(depth, want, "sigma {sigma} extent {extent}");
+        assert_eq!(guided, depth >= PG_MIN_GUIDED_SCATTERING_DEPTH);
+    } else {
+        assert_eq!(
+            st,
+            PgStatus::PG_INVALID_ARGUMENT,
+            "sigma {sigma} extent {extent}"
+        );
     }
 }
 
@@ -941,7 +980,7 @@ fn null_sweep() {
     let one = [0.5f32];
     let room = [0u32];
     unsafe {
-        let calls: [(PgStatus, &str); 61] = [
+        let calls: [(PgStatus, &str); 62] = [
             (pg_weight_window_set_defaults(null_mut()), "window defaults"),
             (
                 pg_weight_window_decide(
@@ -1053,6 +1092,10 @@ fn null_sweep() {
                 "lobe product",
             ),
             (pg_hg_vmf_kappa(0.5, null_mut()), "hg kappa"),
+            (
+                pg_guides_medium(1.0, 1.0, null_mut(), null_mut()),
+                "guides medium",
+            ),
             (
                 pg_distributions_sample(null(), 0, null(), null_mut(), null_mut()),
                 "dist sample",

@@ -46,7 +46,7 @@ impl VertexStrategy for BsdfSampling {
         lights.sampling_pdf.extend_from_slice(&lights.bsdf_pdf);
     }
 
-    fn trains(&self, _: &Material) -> bool {
+    fn trains(&self, _: &Material, _: u32) -> bool {
         false
     }
 

@@ -137,6 +137,10 @@ pub struct GuidedOptions {
     /// normal: "no surface") in one-sample MIS with the phase function, the selection
     /// probability and the per-cell fit as at surfaces. Off: they sample the phase function.
     pub guide_media: bool,
+    /// With `guide_media`: only the media the library's thin-medium rule says are worth it
+    /// ([`guiding::media::guides_medium`], see [`crate::render::media_guiding`]); off: every
+    /// medium.
+    pub thin_media_rule: bool,
     /// At guided medium vertices, NPM guides are multiplied by the vMF fit of the phase
     /// function (Open PGL's product in volumes); off: the guide alone (radiance).
     pub phase_product: bool,
@@ -203,6 +207,7 @@ impl Default for GuidedOptions {
             min_alpha: 0.05,
             cosine_product: true,
             guide_media: true,
+            thin_media_rule: true,
             phase_product: true,
             cache: CacheMode::Always,
             cache_resolution: CacheOptions::default().resolution,
@@ -269,6 +274,9 @@ pub struct GuidedStats {
     pub rays: u64,
     /// Scattering points inside media.
     pub medium_vertices: u64,
+    /// Of those, the guided ones (the media the thin-medium rule keeps, see
+    /// [`crate::render::media_guiding`]; in every pass with the guide on).
+    pub guided_medium_vertices: u64,
     /// What guided roulette and splitting did (`--rr guided`).
     pub roulette: Option<crate::render::roulette::RouletteStats>,
     /// The guide cache: `None` when off, else why it was not used or its size.
@@ -605,6 +613,8 @@ pub struct Guided<'g> {
     probe_pass: Option<(u32, u64)>,
     /// The library's training schedule.
     schedule: TrainingSchedule,
+    /// Per medium of the scene: its scattering points are guided.
+    media_guided: Vec<bool>,
 }
 
 impl<'g> Guided<'g> {
@@ -617,6 +627,7 @@ impl<'g> Guided<'g> {
         guide: &'g mut GuidingField,
         gopts: &GuidedOptions,
         budget: guiding::Budget,
+        media_guided: Vec<bool>,
     ) -> Result<Self, GuidingError> {
         let schedule = TrainingSchedule::new(gopts.schedule, budget)?;
         let device = guide.device_name();
@@ -659,6 +670,7 @@ impl<'g> Guided<'g> {
             use_cache,
             last_samples: Vec::new(),
             last_mis: Vec::new(),
+            media_guided,
             trial: None,
             pass_arm: None,
             guide_off: false,
@@ -860,6 +872,7 @@ fn query_points(samples: &[TrainingSample]) -> Vec<QueryPoint> {
 pub struct WorkerReport {
     queries: u64,
     guided_vertices: u64,
+    guided_medium_vertices: u64,
     query_time: Duration,
     /// The first failure of the guide's device in this pass (the render ends after it).
     device_error: Option<GuidingError>,
@@ -882,6 +895,9 @@ pub struct GuidedWorker<'g> {
     jitter: Vec<Vec3>,
     missed: Vec<u32>,
     gopts: GuidedOptions,
+    /// Per medium: its scattering points are guided (the library's thin-medium rule and
+    /// [`GuidedOptions::guide_media`]).
+    media_guided: &'g [bool],
     report: WorkerReport,
     /// Per vertex: its index among the guidable vertices, or [`NONE`].
     guided_index: Vec<u32>,
@@ -907,6 +923,7 @@ impl<'g> GuidedWorker<'g> {
         guide: &'g GuidingField,
         cache: Option<&'g GuideCache>,
         gopts: GuidedOptions,
+        media_guided: &'g [bool],
         off: bool,
     ) -> Self {
         Self {
@@ -916,9 +933,11 @@ impl<'g> GuidedWorker<'g> {
             jitter: Vec::new(),
             missed: Vec::new(),
             gopts,
+            media_guided,
             report: WorkerReport {
                 queries: 0,
                 guided_vertices: 0,
+                guided_medium_vertices: 0,
                 query_time: Duration::ZERO,
                 device_error: None,
                 cache_hits: 0,
@@ -1011,7 +1030,7 @@ impl VertexStrategy for GuidedWorker<'_> {
         }
         for i in 0..verts.len() {
             let mat = &verts.bsdf[i];
-            if self.trains(mat) {
+            if self.trains(mat, verts.media[i][0]) {
                 if self.cache.is_some() {
                     // Three 10-bit uniforms (cell centres of a 1024-grid) for the lookup.
                     let bits = rng[verts.slot[i] as usize].next_u32();
@@ -1023,6 +1042,7 @@ impl VertexStrategy for GuidedWorker<'_> {
                 // A medium vertex's query has no normal (its `ns` is only the phase
                 // function's frame).
                 let normal = if mat.is_phase() {
+                    self.report.guided_medium_vertices += 1;
                     Vec3::ZERO
                 } else {
                     verts.ns[i]
@@ -1115,8 +1135,9 @@ impl VertexStrategy for GuidedWorker<'_> {
         }
     }
 
-    fn trains(&self, mat: &Material) -> bool {
-        mat.guidable(self.gopts.min_alpha) || (self.gopts.guide_media && mat.is_phase())
+    fn trains(&self, mat: &Material, medium: u32) -> bool {
+        mat.guidable(self.gopts.min_alpha)
+            || (mat.is_phase() && self.media_guided.get(medium as usize) == Some(&true))
     }
 
     fn sample(&mut self, verts: &Vertices, rng: &mut [Rng], out: &mut Continuations) {
@@ -1220,7 +1241,13 @@ impl<'g> Strategy for Guided<'g> {
     }
 
     fn worker(&self) -> GuidedWorker<'_> {
-        GuidedWorker::new(self.guide, self.cache.as_ref(), self.gopts, self.guide_off)
+        GuidedWorker::new(
+            self.guide,
+            self.cache.as_ref(),
+            self.gopts,
+            &self.media_guided,
+            self.guide_off,
+        )
     }
 
     fn report(&self, worker: GuidedWorker<'_>) -> WorkerReport {
@@ -1447,6 +1474,7 @@ impl<'g> Strategy for Guided<'g> {
                 st.guide_queries_training += r.queries;
             }
             st.guided_vertices += r.guided_vertices;
+            st.guided_medium_vertices += r.guided_medium_vertices;
             st.query += r.query_time;
         }
         self.pass_query_seconds += chunk_query_seconds;

@@ -145,8 +145,10 @@ pub trait VertexStrategy {
     /// Fills `lights.sampling_pdf` with this strategy's density of each light direction.
     fn light_pdfs(&mut self, verts: &Vertices, lights: &mut LightSamples);
 
-    /// Whether vertices of material `mat` make training samples (the strategy guides them).
-    fn trains(&self, mat: &Material) -> bool;
+    /// Whether vertices of material `mat` make training samples (the strategy guides them);
+    /// `medium` is the medium of a scattering point (its phase function is `mat`), else
+    /// [`crate::scene::medium::NO_MEDIUM`].
+    fn trains(&self, mat: &Material, medium: u32) -> bool;
 
     /// Samples one continuation per vertex into `out` (already reset to ended paths), drawing
     /// from the path's random stream `rng[slot]`.
