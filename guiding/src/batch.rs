@@ -282,10 +282,9 @@ impl DistributionBatch {
         let mut picked = Vec::with_capacity(lanes.len());
         let mut lobes = Vec::with_capacity(lanes.len());
         for j in 0..lanes.len() {
-            let lobe = [axes[j].x, axes[j].y, axes[j].z, kappas[j]];
-            if kappas[j] > 0.0 && kappas[j].is_finite() && axes[j].is_finite() {
+            if guiding_core::lobe::vmf::product_lobe(axes[j], kappas[j]).is_some() {
                 picked.push(lanes[j]);
-                lobes.push(lobe);
+                lobes.push([axes[j].x, axes[j].y, axes[j].z, kappas[j]]);
             }
         }
         if picked.is_empty() {

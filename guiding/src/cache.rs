@@ -612,24 +612,11 @@ fn decode_cells(
 /// for [`GuideCache::fit_selection`]. `κ = 0` (the [`Default`]): no product.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ProductLobe {
-    /// The lobe's axis (normalised; a zero or non-finite axis means no product).
+    /// The lobe's axis (normalised; a non-finite one means no product, see
+    /// [`guiding_core::lobe::vmf::product_lobe`]).
     pub axis: [f32; 3],
     /// Its concentration `κ ≥ 0`.
     pub kappa: f32,
-}
-
-impl ProductLobe {
-    /// `mixture` times the lobe, as `apply_lobe_product` makes it; `None`
-    /// when the lobe is no product (`κ ≤ 0` or non-finite, a non-finite axis).
-    pub(crate) fn multiply(
-        &self,
-        mixture: &VmfMixture<NPM_LOBES>,
-    ) -> Option<VmfMixture<NPM_LOBES>> {
-        let axis = Vec3::from_array(self.axis);
-        (self.kappa > 0.0 && self.kappa.is_finite() && axis.is_finite()).then(|| {
-            mixture.product_with_lobe(guiding_core::frame::normalize_or(axis, Vec3::Z), self.kappa)
-        })
-    }
 }
 
 /// Options of [`GuideCache::fit_selection`].
@@ -856,12 +843,21 @@ impl GuideCache {
         let mut q = vec![0.0f32; kept.len()];
         field.pdf_decoded(&batch, &all, &directions, &mut q)?;
         // The lanes the renderer multiplied by a lobe (vMF only, as
-        // `apply_lobe_product`): their density is the product's.
+        // `apply_lobe_product`, with the same kernel): their density is the product's.
         if let (Some(lobes), Lanes::Vmf(mixtures)) = (lobes, &self.items.lanes) {
+            let (mut lobed, mut products, mut rows) = (Vec::new(), Vec::new(), Vec::new());
             for (k, &i) in kept.iter().enumerate() {
-                if let Some(product) = lobes[i].multiply(&mixtures[lanes[k] as usize]) {
-                    q[k] = product.pdf(directions[k]);
+                let l = &lobes[i];
+                let axis = Vec3::from_array(l.axis);
+                if guiding_core::lobe::vmf::product_lobe(axis, l.kappa).is_some() {
+                    lobed.push(k);
+                    products.push(mixtures[lanes[k] as usize]);
+                    rows.push([l.axis[0], l.axis[1], l.axis[2], l.kappa]);
                 }
+            }
+            guiding_core::model::batched::lobe_product_batch(&mut products, &rows);
+            for (&k, product) in lobed.iter().zip(&products) {
+                q[k] = product.pdf(directions[k]);
             }
         }
         // Second-moment estimates per cell and candidate (f64 sums).

@@ -186,6 +186,17 @@ impl VmfLobe {
     }
 }
 
+/// The unit axis and concentration of a lobe product `e^{κ (a·ω − 1)}` given as `axis`
+/// (any length; `+z` if it vanishes) and `kappa`, or `None` when it is no product: `κ ≤ 0`,
+/// a non-finite `κ` or a non-finite axis leave a distribution as it is. The one rule of
+/// [`crate::model::batched::lobe_product_batch`] and its callers.
+#[inline]
+#[must_use]
+pub fn product_lobe(axis: Vec3, kappa: f32) -> Option<(Vec3, f32)> {
+    (kappa > 0.0 && kappa.is_finite() && axis.is_finite())
+        .then(|| (crate::frame::normalize_or(axis, Vec3::Z), kappa))
+}
+
 /// The concentration `κ` of the vMF lobe whose mean cosine `coth κ − 1/κ` equals `|g|`, the
 /// mean cosine of a Henyey–Greenstein phase function: Banerjee et al. (2005)'s approximation
 /// `κ ≈ r (3 − r²) / (1 − r²)`, `r = |g|` (within 4 % of the exact inverse over `r ≤ 0.99`),

@@ -591,9 +591,9 @@ pub fn cosine_product_batch(mixtures: &mut [VmfMixture<NPM_LOBES>], normals: &[V
 /// (`κ' ≥ |κ − κ_l|`), far below `f32`'s range for a sharp lobe (an HG fit reaches
 /// `κ_l ≈ 1000`), so the weights are formed in log space as the scalar product does, with
 /// each mixture's largest `ln w + κ' − κ − κ_l` subtracted before `exp` (the factor cancels
-/// in the normalisation); every function inlined, within a few ulp of it. The axis is normalised (`+z` if it
-/// vanishes); `κ ≤ 0`, a non-finite `κ` or a non-finite axis leaves the mixture as it is,
-/// as [`VmfMixture::product_with_lobe`]'s callers skip it.
+/// in the normalisation); every function inlined, within a few ulp of it. Which lobes are a
+/// product, and their normalised axes: [`crate::lobe::vmf::product_lobe`] (the others leave
+/// their mixture as it is).
 ///
 /// # Panics
 /// If `mixtures` and `lobes` differ in length.
@@ -624,9 +624,7 @@ impl ProductLobeInput for Vec3 {
 impl ProductLobeInput for [f32; 4] {
     #[inline(always)]
     fn axis_and_kappa(&self) -> Option<(Vec3, f32)> {
-        let (a, k) = (Vec3::new(self[0], self[1], self[2]), self[3]);
-        (k > 0.0 && k.is_finite() && a.is_finite())
-            .then(|| (crate::frame::normalize_or(a, Vec3::Z), k))
+        crate::lobe::vmf::product_lobe(Vec3::new(self[0], self[1], self[2]), self[3])
     }
 }
 

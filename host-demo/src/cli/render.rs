@@ -434,22 +434,19 @@ impl Finished<'_> {
             Outcome::Plain(p) => p.roulette.as_ref(),
             Outcome::Guided(g) => g.stats.roulette.as_ref(),
         };
-        let (medium_vertices, guided_medium_vertices, media_guided, thin_rule) = match self.outcome
-        {
-            Outcome::Plain(p) => (p.medium_vertices, 0, false, true),
+        let (medium_vertices, guided_medium_vertices, options) = match self.outcome {
+            Outcome::Plain(p) => (p.medium_vertices, 0, None),
             Outcome::Guided(g) => (
                 g.stats.medium_vertices,
                 g.stats.guided_medium_vertices,
-                g.options.guide_media && !sc.media.is_empty(),
-                g.options.thin_media_rule,
+                Some(&g.options),
             ),
         };
         let media = MediaInputs {
             scene: sc,
             medium_vertices,
             guided_medium_vertices,
-            media_guided,
-            thin_rule,
+            options,
         };
         let common = CommonStages::new(nee_ran, nee_asked, opts.rr, media, roulette);
         let run = match self.outcome {

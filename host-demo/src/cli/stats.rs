@@ -10,7 +10,9 @@
 use guiding::media::MIN_GUIDED_SCATTERING_DEPTH;
 use host_demo::render::media_guiding;
 use host_demo::render::strategy::guided::{GROUP_GUIDED, GROUP_UNGUIDED};
-use host_demo::render::{GuidedStats, PassWeightStats, ProbeStats, RenderStats, TrialStats};
+use host_demo::render::{
+    GuidedOptions, GuidedStats, PassWeightStats, ProbeStats, RenderStats, TrialStats,
+};
 use host_demo::render::{Roulette, RouletteStats};
 use host_demo::scene::medium::NO_MEDIUM;
 use host_demo::scene::Scene;
@@ -215,10 +217,8 @@ pub(super) struct MediaInputs<'a> {
     pub scene: &'a Scene,
     pub medium_vertices: u64,
     pub guided_medium_vertices: u64,
-    /// A guided render with `--guide-media` auto or on, in a scene with media.
-    pub media_guided: bool,
-    /// `--guide-media auto`: the library's thin-medium rule decides per medium.
-    pub thin_rule: bool,
+    /// The guided render's options (`None`: an unguided render).
+    pub options: Option<&'a GuidedOptions>,
 }
 
 /// The NEE, media and Russian-roulette stages, the same for every integrator.
@@ -242,9 +242,11 @@ impl CommonStages {
             scene,
             medium_vertices,
             guided_medium_vertices,
-            media_guided,
-            thin_rule,
+            options,
         } = media;
+        // A guided render with `--guide-media` auto or on, in a scene with media.
+        let media_guided = options.is_some_and(|o| o.guide_media) && !scene.media.is_empty();
+        let thin_rule = options.is_none_or(|o| o.thin_media_rule);
         let rr_depth = scene.settings.rr_depth;
         let reason = if nee_ran {
             "NEE + MIS on every non-delta vertex (delta BSDFs are not connected)"
@@ -280,7 +282,7 @@ impl CommonStages {
                     .map(|m| MediumGuidingStage {
                         scattering_depth: m.scattering_depth,
                         extent: m.extent,
-                        guided: media_guided && (m.guided || !thin_rule),
+                        guided: options.is_some_and(|o| o.guides_medium(m)),
                         reason: if !media_guided {
                             "phase sampling: not a guided render, or --guide-media off".into()
                         } else if !thin_rule {

@@ -92,7 +92,7 @@ pub fn render_guided(
     // The library's thin-medium rule, per medium (see `media_guiding`).
     let media_guided: Vec<bool> = media_guiding(scene)
         .iter()
-        .map(|m| gopts.guide_media && (m.guided || !gopts.thin_media_rule))
+        .map(|m| gopts.guides_medium(m))
         .collect();
     let guided_media = media_guided.contains(&true);
     let gopts = GuidedOptions {

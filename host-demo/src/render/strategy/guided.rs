@@ -198,6 +198,15 @@ impl Default for TestHooks {
     }
 }
 
+impl GuidedOptions {
+    /// Whether these options guide the scattering points of medium `m`: `guide_media`, and the
+    /// thin-medium rule keeps it or is off.
+    #[must_use]
+    pub fn guides_medium(&self, m: &crate::render::MediumGuiding) -> bool {
+        self.guide_media && (m.guided || !self.thin_media_rule)
+    }
+}
+
 impl Default for GuidedOptions {
     fn default() -> Self {
         Self {
