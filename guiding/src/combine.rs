@@ -77,8 +77,8 @@ pub enum Denominator {
     /// The other half's, box filtered around the pixel (radius at least 1): independent of the
     /// pixel's own values. With a few heavy-tailed passes a pixel's mean and its deviations
     /// come from the same rare large value, and the self-normalised `V` of every group looks
-    /// alike (the trial's negative control in `guiding::trial` shows the same); the training
-    /// probe compares its few passes with this.
+    /// alike (the trial's negative control in `guiding::trial` shows the same): for
+    /// comparing groups of a few passes each.
     OtherHalf,
 }
 

@@ -121,7 +121,10 @@ pub use roulette::{
     continuation_count, pixel_estimates, pixel_variances, Decision, GridOptions, GridStats,
     RadianceGrid, WeightWindow, WindowTrial,
 };
-pub use schedule::{Budget, ScheduleOptions, ScheduleReport, StepRule, TrainingSchedule};
+pub use schedule::{
+    Budget, ScheduleOptions, ScheduleReport, StepRule, TrainingSchedule, EARLY_LOOK_AT,
+    EARLY_LOOK_MIN_STEPS,
+};
 pub use trial::{GuideTrial, TrialArm, TrialOptions, TrialVerdict, TRIAL_TRIM};
 
 /// The code examples of the embedding guide, `docs/manual/embedding.md` (the

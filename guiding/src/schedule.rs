@@ -45,6 +45,27 @@
 use crate::GuidingError;
 use guiding_core::field::FieldConfig;
 
+/// How far into the training phase a renderer with an efficiency trial takes its **early
+/// look** ([`TrainingSchedule::look_due`]): a quarter of the phase (5 % of the budget with the
+/// default [`ScheduleOptions::train_fraction`]).
+///
+/// **Why.** On a scene where the guide cannot pay (the shared Cornell box, veach-mis), the
+/// whole training phase is lost: a third of its wall clock trains, the guide cache is rebuilt
+/// after every update and the traced passes record, so it renders about a third of the
+/// passes `pt-nee` would (35 against 98 in the first 6 s of a 30-s Cornell box,
+/// `docs/bench-2026-12-06-trial/`), 11 % of the render. A guide trained for a quarter of the
+/// phase already shows whether it is heading anywhere: on `builtin:door` after 1.2 s of a
+/// 30-s render (136 Adam steps) the trial measured 0.81 [0.68, 0.98] of the unguided cost,
+/// on the Cornell box (65 steps) 1.13 [1.05, 1.21] and on veach-mis 1.14 [1.04, 1.25]
+/// (`docs/bench-2026-12-07-look/`). A quarter keeps three quarters of the loss on such scenes
+/// and gives a paying guide the rest of its phase.
+pub const EARLY_LOOK_AT: f64 = 0.25;
+
+/// Adam steps the guide must have had before the early look (the look waits for them): a
+/// quarter of the 256 at which the learning tests (`tests/learning.rs`, 300 steps) reach their
+/// thresholds; the look judges a guide's direction, not its end state.
+pub const EARLY_LOOK_MIN_STEPS: u64 = 64;
+
 /// Options of a [`TrainingSchedule`]: the library's defaults are what `host-demo bench`
 /// measures.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -152,6 +173,12 @@ pub struct TrainingSchedule {
     steps: u64,
     updates: u64,
     over: bool,
+    /// The early look was due (it is due once).
+    looked: bool,
+    /// Seconds and passes of an early look after which training resumed: the training phase
+    /// ends that much later, so the look does not cost the guide its training.
+    paused_seconds: f64,
+    paused_passes: u32,
 }
 
 impl TrainingSchedule {
@@ -178,6 +205,9 @@ impl TrainingSchedule {
             steps: 0,
             updates: 0,
             over: false,
+            looked: false,
+            paused_seconds: 0.0,
+            paused_passes: 0,
         })
     }
 
@@ -194,17 +224,67 @@ impl TrainingSchedule {
         if self.over {
             return false;
         }
-        let on = match self.budget {
-            Budget::Seconds(b) => elapsed < self.options.train_fraction * b,
-            Budget::Spp(spp) => {
-                let passes = (self.options.train_fraction * f64::from(spp)).round();
-                f64::from(pass) < passes.min(f64::from(spp))
-            }
-        };
+        let on = self.phase_progress(elapsed, pass) < 1.0;
         if !on {
             self.over = true;
         }
         on
+    }
+
+    /// How much of the training phase work starting now has behind it: `elapsed` over the
+    /// phase's seconds, or `pass` over its passes (1 or more: the phase is over; an empty
+    /// phase counts as over). Seconds and passes of an early look after which training
+    /// resumed do not count.
+    fn phase_progress(&self, elapsed: f64, pass: u32) -> f64 {
+        let (done, phase) = match self.budget {
+            Budget::Seconds(b) => (
+                elapsed - self.paused_seconds,
+                self.options.train_fraction * b,
+            ),
+            Budget::Spp(spp) => (
+                f64::from(pass.saturating_sub(self.paused_passes)),
+                (self.options.train_fraction * f64::from(spp))
+                    .round()
+                    .min(f64::from(spp)),
+            ),
+        };
+        if phase > 0.0 {
+            done / phase
+        } else {
+            1.0
+        }
+    }
+
+    /// Whether the renderer should take its early look now, before the pass `pass` that
+    /// starts `elapsed` seconds into the render: [`EARLY_LOOK_AT`] of the training phase is
+    /// behind it and the guide has had [`EARLY_LOOK_MIN_STEPS`] Adam steps, the phase is not
+    /// over, and no look was due before. Answers `true` once.
+    ///
+    /// The look (host-demo's, `--training-probe`) is a short efficiency trial
+    /// ([`crate::GuideTrial`], its first look only) of the guide as it is, read from the
+    /// guide cache without recording; [`crate::TrialVerdict::worth_more_training`] says
+    /// whether training goes on ([`Self::resume_after_look`]) or ends
+    /// ([`Self::end_training`]). Whether the guide stays on is left to the trial after
+    /// training: the look never switches a guide off.
+    pub fn look_due(&mut self, elapsed: f64, pass: u32) -> bool {
+        if self.over || self.looked || self.steps < EARLY_LOOK_MIN_STEPS {
+            return false;
+        }
+        let progress = self.phase_progress(elapsed, pass);
+        if !(EARLY_LOOK_AT..1.0).contains(&progress) {
+            return false;
+        }
+        self.looked = true;
+        true
+    }
+
+    /// Training resumes after an early look of `seconds` (wall clock) and `passes` passes: the
+    /// training phase ends that much later. Non-finite or negative seconds count as 0.
+    pub fn resume_after_look(&mut self, seconds: f64, passes: u32) {
+        if seconds.is_finite() && seconds > 0.0 {
+            self.paused_seconds += seconds;
+        }
+        self.paused_passes = self.paused_passes.saturating_add(passes);
     }
 
     /// Ends the training phase now (the loss converged, or the renderer's own verdict).
@@ -512,5 +592,57 @@ mod tests {
             );
         }
         assert!(TrainingSchedule::new(o, Budget::Seconds(f64::NAN)).is_err());
+    }
+
+    /// The early look is due once: a quarter of the phase and 64 steps behind it, not after
+    /// the phase; training resumed after it ends the phase as much later. Each rule broken
+    /// (a look before the quarter, before the steps, twice, or a phase not extended) fails.
+    #[test]
+    fn the_early_look_is_due_once_and_a_resumed_phase_ends_later() {
+        // 10 s budget: a 2-s training phase, the look from 0.5 s.
+        let mut s = schedule(Budget::Seconds(10.0));
+        s.record_update(EARLY_LOOK_MIN_STEPS as u32, 0.1);
+        assert!(!s.look_due(0.49, 3), "before a quarter of the phase");
+        assert!(s.look_due(0.5, 4));
+        assert!(!s.look_due(0.6, 5), "due once");
+        s.resume_after_look(0.3, 4);
+        assert!(s.in_training_phase(2.2, 9), "the phase ends 0.3 s later");
+        assert!(!s.in_training_phase(2.4, 10));
+
+        let mut s = schedule(Budget::Seconds(10.0));
+        s.record_update(EARLY_LOOK_MIN_STEPS as u32 - 1, 0.1);
+        assert!(!s.look_due(1.0, 4), "before the minimum of steps");
+        s.record_update(1, 0.01);
+        assert!(
+            s.look_due(1.9, 8),
+            "the steps came late: the look waits for them"
+        );
+        let mut s = schedule(Budget::Seconds(10.0));
+        s.record_update(100, 0.1);
+        assert!(!s.look_due(2.0, 9), "never once the phase is over");
+        let mut s = schedule(Budget::Seconds(10.0));
+        s.record_update(100, 0.1);
+        s.end_training();
+        assert!(!s.look_due(1.0, 5), "nor after end_training");
+
+        // 40 spp: 8 training passes, the look from pass 2; a 4-pass look moves the end to 12.
+        let mut s = schedule(Budget::Spp(40));
+        s.record_update(100, 0.1);
+        assert!(!s.look_due(0.0, 1));
+        assert!(s.look_due(0.0, 2));
+        s.resume_after_look(f64::NAN, 4);
+        assert!(s.in_training_phase(0.0, 11));
+        assert!(!s.in_training_phase(0.0, 12));
+        // No training phase: never due.
+        let mut s = TrainingSchedule::new(
+            ScheduleOptions {
+                train_fraction: 0.0,
+                ..ScheduleOptions::DEFAULT
+            },
+            Budget::Seconds(10.0),
+        )
+        .unwrap();
+        s.record_update(100, 0.1);
+        assert!(!s.look_due(0.0, 0));
     }
 }

@@ -182,6 +182,18 @@ pub struct TrialVerdict {
     pub pixels_skipped: u64,
 }
 
+impl TrialVerdict {
+    /// The early look's rule ([`crate::TrainingSchedule::look_due`]): more training is worth
+    /// its time only for a guide that already looks cheaper than none, `cost_ratio < 1` (a
+    /// point estimate: the look decides where to spend the training phase, not whether the
+    /// guide stays on). A guide at or above 1, or without a ratio, keeps what it has learned
+    /// and goes to the trial after training, which switches it off only on evidence.
+    #[must_use]
+    pub fn worth_more_training(&self) -> bool {
+        self.cost_ratio < 1.0
+    }
+}
+
 /// Per-arm sums of one trial: the arm's passes alternate between two halves (pass `i` of the
 /// arm goes to half `i mod 2`), whose independent estimates give the split-half interval.
 #[derive(Clone, Debug, Default)]
@@ -679,7 +691,33 @@ fn box_filter(width: usize, height: usize, image: &[[f32; 3]], r: usize) -> Vec<
 
 #[cfg(test)]
 mod tests {
-    use super::box_filter;
+    use super::{box_filter, TrialVerdict, Verdict};
+
+    /// The early look trains on only below a point estimate of 1: a guide at 1 or above, or
+    /// without a ratio (a black image), stops training (and keeps what it learned).
+    #[test]
+    fn more_training_is_worth_it_only_below_a_cost_ratio_of_one() {
+        let v = |cost_ratio: f64| TrialVerdict {
+            keep_guide: true,
+            evidence: Verdict::Undecided,
+            ratio_low: cost_ratio * 0.5,
+            ratio_high: cost_ratio * 2.0,
+            guided_variance: 1.0,
+            unguided_variance: 1.0,
+            guided_seconds: 1.0,
+            unguided_seconds: 1.0,
+            cost_ratio,
+            guided_passes: 2,
+            unguided_passes: 2,
+            z: 3.0,
+            pixels_skipped: 0,
+        };
+        assert!(v(0.999).worth_more_training());
+        assert!(v(0.2).worth_more_training());
+        assert!(!v(1.0).worth_more_training());
+        assert!(!v(1.3).worth_more_training());
+        assert!(!v(f64::NAN).worth_more_training());
+    }
 
     #[test]
     fn box_filter_keeps_constants_and_averages_an_impulse() {

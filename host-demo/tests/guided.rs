@@ -526,17 +526,18 @@ fn pass_weights_keep_the_image_unbiased() {
     assert_same_mean("plain mean", &plain, &reference);
 }
 
-/// (g) The training probe: the first training pass of a time-budget render with NEE runs with
-/// the guide off; once the guide has had `probe::MIN_STEPS` Adam steps, the next training pass
-/// is guided and, after it, compared with the unguided one. Forced to abandon, training ends
-/// there and every later pass runs with the guide off (no trial); forced to keep, training runs
-/// its course and the trial follows. Both images stay unbiased (z-test against pt-nee as in
-/// (a)); with the probe off there is none.
+/// (g) The training probe: a quarter of the way into the training phase, once the guide has
+/// had `guiding::EARLY_LOOK_MIN_STEPS` Adam steps, training pauses for an early look (guided
+/// passes from the guide cache against unguided ones, nothing recorded). Forced to end
+/// training, the look's pass is where training stopped, the guide keeps the steps it had and
+/// goes on to the efficiency trial (the probe never switches it off); forced to go on,
+/// training resumes after the look and its phase ends as much later. Every image stays
+/// unbiased (z-test against pt-nee as in (a)); with the probe off there is no look.
 #[test]
-fn training_probe_abandons_training_and_keeps_the_image_unbiased() {
+fn training_probe_decides_how_long_to_train_and_keeps_the_image_unbiased() {
     let (scene, w, h, reference) = cornell_with_reference();
-    // 64 steps per training pass (the epoch rule, capped), so the probe's 256 steps come
-    // after the fourth training pass however loaded the machine is.
+    // 64 steps per training pass (the epoch rule, capped), so the look's 64 steps are there
+    // after the first training pass however loaded the machine is.
     let config = FieldConfig::DEFAULT
         .with_threads(2)
         .with_seed(5)
@@ -559,30 +560,31 @@ fn training_probe_abandons_training_and_keeps_the_image_unbiased() {
         };
         render_guided(&scene, &o, &gopts, &mut g).expect("guided render")
     };
-    let (img, st) = run(true, Some(true));
-    eprintln!("{st}");
-    let probe = st.probe.expect("the probe ran");
-    let v = probe.verdict.expect("a verdict after MIN_STEPS");
-    assert!(v.steps >= host_demo::render::strategy::probe::MIN_STEPS);
-    assert!(v.guided_pass >= 1 && v.at_pass > v.guided_pass, "{v:?}");
-    assert!(v.abandoned && v.ratio.ratio.is_finite() && v.ratio.ratio > 0.0);
-    assert!(v.ratio.low <= v.ratio.ratio && v.ratio.ratio <= v.ratio.high);
-    assert_eq!(st.training_passes, v.at_pass);
-    assert!(st.trial.is_none());
-    // Pass 0 and every pass from the verdict on; the passes in between were guided.
-    assert_eq!(probe.passes_guide_off, st.passes - (v.at_pass - 1));
-    assert_eq!(st.samples_recorded_after_training, 0);
-    assert_same_mean("probe abandoned", &img, &reference);
-
     let (img, st) = run(true, Some(false));
     eprintln!("{st}");
-    let probe = st.probe.expect("the probe ran");
-    let v = probe.verdict.expect("a verdict");
-    assert!(!v.abandoned);
-    assert_eq!(probe.passes_guide_off, 1);
-    assert!(st.training_passes > v.at_pass);
+    let probe = st.probe.expect("the look ran");
+    let v = probe.verdict.expect("the look's estimate");
+    assert!(probe.steps >= guiding::EARLY_LOOK_MIN_STEPS && !probe.resumed);
+    assert!(probe.at_pass >= 1 && probe.passes >= 4, "{probe:?}");
+    assert_eq!(probe.passes, v.guided_passes + v.unguided_passes);
+    assert!(v.cost_ratio.is_finite() && v.cost_ratio > 0.0);
+    // Training ended at the look, with the steps the guide had there.
+    assert_eq!(st.training_passes, probe.at_pass);
+    assert_eq!(st.training_steps, probe.steps);
+    assert_eq!(st.samples_recorded_after_training, 0);
+    // The guide went on to the trial: the look does not switch it off.
     assert!(st.trial.is_some());
-    assert_same_mean("probe kept", &img, &reference);
+    assert_same_mean("look ended training", &img, &reference);
+
+    let (img, st) = run(true, Some(true));
+    eprintln!("{st}");
+    let probe = st.probe.expect("the look ran");
+    assert!(probe.resumed && probe.verdict.is_some());
+    // Training resumed after the look's passes, which recorded nothing.
+    assert!(st.training_passes > probe.at_pass, "{st}");
+    assert!(st.training_steps > probe.steps);
+    assert_eq!(st.samples_recorded_after_training, 0);
+    assert_same_mean("look resumed training", &img, &reference);
 
     let (_, st) = run(false, None);
     assert!(st.probe.is_none());
@@ -594,7 +596,8 @@ fn training_probe_abandons_training_and_keeps_the_image_unbiased() {
 /// [1.8, 2.2], at 128 px and 8 s; with the default per-cell fit it is 1.2 [1.08, 1.36], also
 /// off): the trial's interval lies above 1 and the guide is off for every pass after it. The
 /// same rule keeps a guide whose interval straddles 1 (`tests/guide_trial.rs`) and one whose
-/// early passes looked bad (`probe::tests::early_bad_passes_are_not_judged`).
+/// early passes looked bad ((g): the training probe's early look only decides how long to
+/// train, never whether the guide stays on).
 #[test]
 fn a_guide_that_does_not_pay_on_the_cornell_box_is_switched_off() {
     let path = concat!(

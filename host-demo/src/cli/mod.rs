@@ -361,9 +361,11 @@ struct GuideArgs {
     /// other half of a checkerboard so the image stays unbiased) instead of the plain mean.
     #[arg(long, value_enum, default_value = "on")]
     pass_weights: OnOff,
-    /// With the trial on: render the first training pass with the guide off and, after 3
-    /// guided training passes, end training and keep the guide off when even the best of
-    /// them costs more than the unguided pass (relMSE per pass x seconds per pass).
+    /// With the trial on: a quarter of the way into the training phase (and after 64 Adam
+    /// steps), pause training for an early look (2 to 4 guided passes read from the guide
+    /// cache against as many with the guide off, relMSE per pass x seconds per pass), and
+    /// train on only when the guide already looks cheaper than none; otherwise training ends
+    /// there and the trial after it decides whether the guide stays on.
     #[arg(long, value_enum, default_value = "on")]
     training_probe: OnOff,
     /// NEE in the guided integrator (default: on when the scene has an emitter NEE can sample).

@@ -626,26 +626,25 @@ impl TrialEstimate {
 /// The training probe: off, without a verdict, or its verdict.
 type ProbeStage = VerdictStage<ProbeUnfinished, ProbeFinished>;
 
-/// A training probe without a verdict yet.
+/// A training probe whose look has no estimate (the render ended first).
 #[derive(Serialize)]
 struct ProbeUnfinished {
-    passes_guide_off: u32,
+    at_pass: u32,
+    steps: u64,
+    passes: u32,
 }
 
-/// A training probe's verdict ([`host_demo::render::strategy::probe::ProbeVerdict`]).
+/// A training probe's look and decision ([`host_demo::render::strategy::probe::ProbeStats`]).
 #[derive(Serialize)]
 struct ProbeFinished {
     at_pass: u32,
-    abandoned: bool,
-    guided_pass: u32,
-    steps_before_guided_pass: u64,
-    guided_relmse_per_pass: Option<f64>,
-    unguided_relmse_per_pass: Option<f64>,
-    unguided_seconds_per_pass: f64,
-    guided_seconds_per_pass_after_training: f64,
-    cost_ratio: Option<f64>,
-    cost_ratio_interval: [Option<f64>; 2],
-    passes_guide_off: u32,
+    steps: u64,
+    passes: u32,
+    seconds: f64,
+    /// Training went on after the look (the guide looked cheaper than none).
+    training_resumed: bool,
+    #[serde(flatten)]
+    estimate: TrialEstimate,
 }
 
 /// The inverse-variance combination of the passes: off, or what it did.
@@ -845,24 +844,23 @@ impl TrialStage {
 impl ProbeStage {
     fn new(p: Option<&ProbeStats>) -> Self {
         let Some(p) = p else {
-            return Self::Off(Stage::skipped("off, or the efficiency trial is off"));
+            return Self::Off(Stage::skipped(
+                "off, the efficiency trial is off, or training ended before the look",
+            ));
         };
         match &p.verdict {
             None => Self::unfinished(ProbeUnfinished {
-                passes_guide_off: p.passes_guide_off,
+                at_pass: p.at_pass,
+                steps: p.steps,
+                passes: p.passes,
             }),
             Some(v) => Self::finished(ProbeFinished {
-                at_pass: v.at_pass,
-                abandoned: v.abandoned,
-                guided_pass: v.guided_pass,
-                steps_before_guided_pass: v.steps,
-                guided_relmse_per_pass: finite(v.ratio.guided_variance),
-                unguided_relmse_per_pass: finite(v.ratio.unguided_variance),
-                unguided_seconds_per_pass: v.unguided_seconds,
-                guided_seconds_per_pass_after_training: v.guided_seconds,
-                cost_ratio: finite(v.ratio.ratio),
-                cost_ratio_interval: [finite(v.ratio.low), finite(v.ratio.high)],
-                passes_guide_off: p.passes_guide_off,
+                at_pass: p.at_pass,
+                steps: p.steps,
+                passes: p.passes,
+                seconds: p.seconds,
+                training_resumed: p.resumed,
+                estimate: TrialEstimate::new(v),
             }),
         }
     }

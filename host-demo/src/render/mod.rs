@@ -21,7 +21,7 @@ pub use roulette::RouletteStats;
 #[cfg(feature = "testing")]
 pub use strategy::guided::TestHooks;
 pub use strategy::guided::{CacheMode, GuidedOptions, GuidedStats, PassWeightStats, TrialStats};
-pub use strategy::probe::{ProbeStats, ProbeVerdict};
+pub use strategy::probe::ProbeStats;
 
 use crate::scene::Scene;
 use guiding::{GuidingError, GuidingField};

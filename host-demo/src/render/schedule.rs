@@ -120,6 +120,12 @@ impl Schedule {
     /// Whether `pass` (just handed out) trains: the first one that does not ends training
     /// for the prediction of the pass time.
     pub fn training_ended(&mut self, pass: &Pass, trains: bool) {
+        if trains && self.training_over {
+            // Training resumed (after the guided strategy's early look): the passes since are
+            // no steady state.
+            self.training_over = false;
+            self.steady_since = None;
+        }
         if !trains {
             self.training_over = true;
             if self.steady_since.is_none() {

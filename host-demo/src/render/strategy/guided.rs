@@ -85,7 +85,7 @@ use crate::render::queues::{
 use crate::render::schedule::Pass;
 use crate::render::strategy::bsdf::sample_bsdf;
 use crate::render::strategy::guide::describe;
-use crate::render::strategy::probe::{self, ProbeStats};
+use crate::render::strategy::probe::ProbeStats;
 use crate::render::strategy::{
     CombinedImage, PassImage, PassSamples, Strategy, Traced, VertexStrategy,
 };
@@ -164,9 +164,10 @@ pub struct GuidedOptions {
     /// training pass is a group of its own (its guide is new), the guided and the unguided
     /// passes after training are one group each. Off: the plain mean of all passes.
     pub weight_passes: bool,
-    /// With the efficiency trial on: the [training probe](super::probe) (the first training
-    /// pass unguided, and training abandoned once the guide has trained and its guided pass is
-    /// worse per pass even at no cost, with a confidence interval above 1).
+    /// With the efficiency trial on: the [training probe](super::probe) (an early look a
+    /// quarter of the way into the training phase, guided against unguided passes at the
+    /// guide's cost after training; training goes on only for a guide that already looks
+    /// cheaper than none).
     pub training_probe: bool,
     /// Test hooks (feature `testing`, which only the test crates enable).
     #[cfg(feature = "testing")]
@@ -180,7 +181,7 @@ pub struct GuidedOptions {
 #[doc(hidden)]
 #[derive(Clone, Copy, Debug)]
 pub struct TestHooks {
-    /// Forces the probe's verdict (`Some(true)` abandons, `Some(false)` keeps).
+    /// Forces the probe's decision (`Some(true)`: training goes on, `Some(false)`: it ends).
     pub probe_force: Option<bool>,
     /// Factor on the guide pdf inside the continuation's combined density (≠ 1 is a
     /// deliberate sample/pdf mismatch, a biased estimator; the power check of
@@ -579,8 +580,9 @@ enum Phase {
     /// Past the warm-up pass: the efficiency trial runs, or has decided (its verdict is in
     /// the statistics).
     Trial,
-    /// The training probe abandoned the guide: every pass from then on runs with it off.
-    Abandoned,
+    /// The training probe's early look: training paused, guided and unguided passes
+    /// alternate (see [`super::probe`]).
+    Look,
 }
 
 /// The guided strategy of one render: the guide (trained between passes, on the CPU or on
@@ -607,19 +609,16 @@ pub struct Guided<'g> {
     /// The current pass's group in `combiner` (`None` when neither the weights nor the probe
     /// need it).
     pass_group: Option<u32>,
-    /// Tracing seconds of the probe's unguided first pass.
-    unguided_seconds: Option<f64>,
+    /// The training probe's look while it runs, and the arm of the current look pass.
+    look: Option<GuideTrial>,
+    look_arm: Option<TrialArm>,
     /// Wall seconds of guide queries in the current pass (thread-seconds over the threads of
-    /// each piece), and those of the probe's guided pass once it has finished.
+    /// each piece).
     pass_query_seconds: f64,
-    probe_query_seconds: Option<f64>,
     /// Guide-query seconds (per thread) and tracing seconds of the training
     /// chunks traced with the cache: the guide's cost for the selection fit.
     cached_query_seconds: f64,
     cached_traced_seconds: f64,
-    /// The first training pass that started after the probe's [`probe::MIN_STEPS`], and the
-    /// steps before it.
-    probe_pass: Option<(u32, u64)>,
     /// The library's training schedule.
     schedule: TrainingSchedule,
     /// Per medium of the scene: its scattering points are guided.
@@ -685,12 +684,11 @@ impl<'g> Guided<'g> {
             guide_off: false,
             combiner: None,
             pass_group: None,
-            unguided_seconds: None,
+            look: None,
+            look_arm: None,
             pass_query_seconds: 0.0,
-            probe_query_seconds: None,
             cached_query_seconds: 0.0,
             cached_traced_seconds: 0.0,
-            probe_pass: None,
             schedule,
         })
     }
@@ -701,11 +699,7 @@ impl<'g> Guided<'g> {
         self.pass_arm = None;
         self.guide_off = false;
         match self.phase {
-            Phase::Abandoned => {
-                self.guide_off = true;
-                return;
-            }
-            Phase::Training => return,
+            Phase::Training | Phase::Look => return,
             _ if !self.gopts.efficiency_trial => return,
             Phase::Stopped => {
                 // The warm-up pass.
@@ -790,29 +784,7 @@ impl<'g> Guided<'g> {
         self.gopts.efficiency_trial && self.gopts.training_probe
     }
 
-    /// The probe's verdict before pass `at_pass`, once a guided training pass traced after
-    /// [`probe::MIN_STEPS`] has finished: the combiner's per-band variances of that pass and of
-    /// the unguided first pass (denominators from the other checkerboard half).
-    fn run_probe(&self, at_pass: u32) -> Option<probe::ProbeVerdict> {
-        let (guided_pass, steps) = self.probe_pass.filter(|&(p, _)| p < at_pass)?;
-        let bands = self
-            .combiner
-            .as_ref()?
-            .band_variances(guiding::Denominator::OtherHalf);
-        let find = |id: u32| bands.iter().find(|(g, _)| *g == id).map(|(_, v)| v);
-        let unguided = self.unguided_seconds?;
-        probe::decide(
-            at_pass,
-            guided_pass,
-            steps,
-            find(GROUP_UNGUIDED)?,
-            find(guided_pass)?,
-            (unguided, unguided + self.probe_query_seconds?),
-            self.probe_force(),
-        )
-    }
-
-    /// The probe verdict a test forces (never in a real render).
+    /// The probe decision a test forces (never in a real render).
     fn probe_force(&self) -> Option<bool> {
         #[cfg(feature = "testing")]
         return self.gopts.test_hooks.probe_force;
@@ -841,6 +813,49 @@ impl<'g> Guided<'g> {
         self.stats.cache_cells = self.cache.as_ref().map_or(0, |c| c.cells() as u64);
         self.stats.cache_build += t0.elapsed();
         Ok(())
+    }
+
+    /// Takes the look pass `image` into the probe's trial; at its first look,
+    /// resumes or ends training ([`guiding::TrialVerdict::worth_more_training`]).
+    fn observe_look_pass(&mut self, arm: TrialArm, image: &PassImage<'_>) {
+        if self.look.is_none() {
+            // Weighted by the image before the look (the mean of the passes so far).
+            let before = mean_image(image.sum_before, image.passes_before);
+            let (w, h) = (image.width as usize, image.height as usize);
+            let options = TrialOptions {
+                continuation: false,
+                ..TrialOptions::default()
+            };
+            self.look = GuideTrial::new(w, h, &before, options).ok();
+        }
+        let recorded = self
+            .look
+            .as_mut()
+            .is_some_and(|t| t.record(arm, image.pixels, image.seconds).is_ok());
+        let force = self.probe_force();
+        let Some(p) = self.stats.probe.as_mut() else {
+            return;
+        };
+        p.passes += 1;
+        p.seconds += image.seconds;
+        let verdict = self.look.as_ref().and_then(GuideTrial::first_look);
+        if recorded && verdict.is_none() {
+            return;
+        }
+        // A look that cannot go on (an empty image, a failed pass) ends like a guide that
+        // does not look cheaper: no more training, the trial after it decides.
+        p.verdict = verdict;
+        let resume = force.unwrap_or_else(|| verdict.is_some_and(|v| v.worth_more_training()));
+        p.resumed = resume;
+        let (seconds, passes) = (p.seconds, p.passes);
+        self.look = None;
+        self.phase = Phase::Training;
+        if resume {
+            self.schedule.resume_after_look(seconds, passes);
+        } else {
+            // The next pass finds the phase over and stops training there.
+            self.schedule.end_training();
+        }
     }
 
     /// Ends training (if the schedule has not) and returns the statistics, with the driver's
@@ -1237,8 +1252,7 @@ impl<'g> Strategy for Guided<'g> {
     /// cost ratio's interval straddles 1.
     fn estimator_settled(&self) -> bool {
         match self.phase {
-            Phase::Abandoned => true,
-            Phase::Training => false,
+            Phase::Training | Phase::Look => false,
             _ if !self.gopts.efficiency_trial => true,
             Phase::Stopped => false,
             Phase::Trial => self
@@ -1265,43 +1279,55 @@ impl<'g> Strategy for Guided<'g> {
 
     /// Records the passes of the schedule's training phase until the loss has converged (a
     /// plateau) or the probe ends training; the first pass that does not record stops
-    /// training.
+    /// training. The probe's look passes (see [`super::probe`]) record nothing and leave
+    /// training paused.
     fn begin_pass(&mut self, pass: &Pass) -> bool {
-        let train = self
-            .schedule
-            .in_training_phase(pass.elapsed.as_secs_f64(), pass.index);
+        let elapsed = pass.elapsed.as_secs_f64();
+        if self.phase == Phase::Training
+            && self.probe_on()
+            && self.stats.probe.is_none()
+            // The look measures the guide at its cost after training: from the cache where
+            // the render will read it from one (not before it is built, `--guide-cache frozen`).
+            && (self.cache.is_some() || !self.use_cache)
+            && self.schedule.look_due(elapsed, pass.index)
+        {
+            self.phase = Phase::Look;
+            self.stats.probe = Some(ProbeStats {
+                at_pass: pass.index,
+                steps: self.guide.stats().steps,
+                ..ProbeStats::default()
+            });
+        }
+        self.pass_query_seconds = 0.0;
+        if self.phase == Phase::Look {
+            let arm = self
+                .look
+                .as_ref()
+                .map_or(Some(TrialArm::Guided), GuideTrial::next_arm);
+            self.pass_arm = None;
+            self.look_arm = arm;
+            self.guide_off = arm == Some(TrialArm::Unguided);
+            self.pass_group = Some(if self.guide_off {
+                GROUP_UNGUIDED
+            } else {
+                pass.index.min(GROUP_UNGUIDED - 1)
+            });
+            return false;
+        }
+        self.look_arm = None;
+        let train = self.schedule.in_training_phase(elapsed, pass.index);
         // (Once stopped, by the schedule or the probe, the field counts as converged.)
         let training = self.phase == Phase::Training;
         let converged = training && self.guide.is_converged();
         if train && converged && self.stats.converged_at_pass.is_none() {
             self.stats.converged_at_pass = Some(pass.index);
         }
-        let mut record = train && !converged && training;
-        let mut abandoned = false;
-        let probe_pending = self.stats.probe.is_some_and(|p| p.verdict.is_none());
-        if record && self.probe_on() && probe_pending {
-            if let Some(verdict) = self.run_probe(pass.index) {
-                if let Some(p) = self.stats.probe.as_mut() {
-                    p.verdict = Some(verdict);
-                }
-                if verdict.abandoned {
-                    record = false;
-                    abandoned = true;
-                }
-            } else if probe::picks_pass(self.guide.stats().steps, self.probe_pass) {
-                // This pass is the guided pass the probe will judge.
-                self.probe_pass = Some((pass.index, self.guide.stats().steps));
-            }
-        }
+        let record = train && !converged && training;
         if !record && training {
             self.schedule.end_training();
             self.guide.stop_training();
-            self.phase = if abandoned {
-                Phase::Abandoned
-            } else {
-                Phase::Stopped
-            };
-            if self.use_cache && !abandoned {
+            self.phase = Phase::Stopped;
+            if self.use_cache {
                 let samples = std::mem::take(&mut self.last_samples);
                 let points = query_points(&samples);
                 // Only a bug makes this fail (radiance target and resolution checked): the
@@ -1331,7 +1357,6 @@ impl<'g> Strategy for Guided<'g> {
                 self.last_samples = samples;
             }
         }
-        self.pass_query_seconds = 0.0;
         if record {
             // The selection fit uses the samples of the last whole training pass.
             self.last_samples.clear();
@@ -1340,28 +1365,13 @@ impl<'g> Strategy for Guided<'g> {
         self.stats.training_passes += u32::from(record);
         self.stats.passes_planned_for_training += u32::from(train);
         self.plan_trial_pass();
-        let probe_pass = record && pass.index == 0 && self.probe_on();
-        if probe_pass {
-            // The probe's unguided pass (see the probe module).
-            self.guide_off = true;
-            self.stats.probe = Some(ProbeStats::default());
-        }
-        if probe_pass || self.phase == Phase::Abandoned {
-            self.stats
-                .probe
-                .get_or_insert_with(ProbeStats::default)
-                .passes_guide_off += 1;
-        }
-        let probe_pending =
-            self.probe_on() && record && self.stats.probe.is_some_and(|p| p.verdict.is_none());
-        self.pass_group =
-            (self.gopts.weight_passes || probe_pending).then_some(if self.guide_off {
-                GROUP_UNGUIDED
-            } else if record {
-                pass.index.min(GROUP_UNGUIDED - 1)
-            } else {
-                GROUP_GUIDED
-            });
+        self.pass_group = self.gopts.weight_passes.then_some(if self.guide_off {
+            GROUP_UNGUIDED
+        } else if record {
+            pass.index.min(GROUP_UNGUIDED - 1)
+        } else {
+            GROUP_GUIDED
+        });
         record
     }
 
@@ -1389,13 +1399,7 @@ impl<'g> Strategy for Guided<'g> {
         Some((c.pixels, c.var_of_mean))
     }
 
-    fn observe_pass_image(&mut self, pass: &Pass, image: &PassImage<'_>) {
-        if pass.index == 0 && self.guide_off && self.probe_on() {
-            self.unguided_seconds = Some(image.seconds);
-        }
-        if self.probe_pass.is_some_and(|(p, _)| p == pass.index) {
-            self.probe_query_seconds = Some(self.pass_query_seconds);
-        }
+    fn observe_pass_image(&mut self, _: &Pass, image: &PassImage<'_>) {
         if let Some(group) = self.pass_group {
             let (w, h) = (image.width as usize, image.height as usize);
             if self.combiner.is_none() {
@@ -1407,6 +1411,10 @@ impl<'g> Strategy for Guided<'g> {
                     self.combiner = None;
                 }
             }
+        }
+        if let Some(arm) = self.look_arm {
+            self.observe_look_pass(arm, image);
+            return;
         }
         let Some(arm) = self.pass_arm else {
             return;
