@@ -184,13 +184,18 @@ pub struct TrialVerdict {
 
 impl TrialVerdict {
     /// The early look's rule ([`crate::TrainingSchedule::look_due`]): more training is worth
-    /// its time only for a guide that already looks cheaper than none, `cost_ratio < 1` (a
-    /// point estimate: the look decides where to spend the training phase, not whether the
-    /// guide stays on). A guide at or above 1, or without a ratio, keeps what it has learned
-    /// and goes to the trial after training, which switches it off only on evidence.
+    /// its time only for a guide whose cost ratio's whole interval already lies below 1 (it
+    /// pays on evidence). The rest of the training phase is a sure cost (a third of its wall
+    /// clock trains), so a straddling look does not buy it: on the suite of 2026-12-07 (15
+    /// looks that straddled or lay below 1, `docs/bench-2026-12-07-look/`) every look of the
+    /// door lay below 1 (upper ends 0.57–0.93) and its guide paid, while of six straddling
+    /// looks that trained on (point estimates 0.89–0.99) three ended in a trial that switched
+    /// the guide off. A guide stopped here keeps what it has learned and goes to the trial
+    /// after training, which switches it off only on evidence; without an interval (a black
+    /// image) there is no evidence either.
     #[must_use]
     pub fn worth_more_training(&self) -> bool {
-        self.cost_ratio < 1.0
+        self.ratio_high < 1.0
     }
 }
 
@@ -693,15 +698,16 @@ fn box_filter(width: usize, height: usize, image: &[[f32; 3]], r: usize) -> Vec<
 mod tests {
     use super::{box_filter, TrialVerdict, Verdict};
 
-    /// The early look trains on only below a point estimate of 1: a guide at 1 or above, or
-    /// without a ratio (a black image), stops training (and keeps what it learned).
+    /// The early look trains on only when the whole interval lies below 1: a straddling
+    /// interval (even with its point estimate below 1), one above 1, or none (a black image)
+    /// stop training (the guide keeps what it learned).
     #[test]
-    fn more_training_is_worth_it_only_below_a_cost_ratio_of_one() {
-        let v = |cost_ratio: f64| TrialVerdict {
+    fn more_training_is_worth_it_only_when_the_interval_lies_below_one() {
+        let v = |cost_ratio: f64, low: f64, high: f64| TrialVerdict {
             keep_guide: true,
             evidence: Verdict::Undecided,
-            ratio_low: cost_ratio * 0.5,
-            ratio_high: cost_ratio * 2.0,
+            ratio_low: low,
+            ratio_high: high,
             guided_variance: 1.0,
             unguided_variance: 1.0,
             guided_seconds: 1.0,
@@ -712,11 +718,12 @@ mod tests {
             z: 3.0,
             pixels_skipped: 0,
         };
-        assert!(v(0.999).worth_more_training());
-        assert!(v(0.2).worth_more_training());
-        assert!(!v(1.0).worth_more_training());
-        assert!(!v(1.3).worth_more_training());
-        assert!(!v(f64::NAN).worth_more_training());
+        assert!(v(0.7, 0.58, 0.85).worth_more_training());
+        assert!(v(0.5, 0.4, 0.999).worth_more_training());
+        assert!(!v(0.89, 0.71, 1.11).worth_more_training(), "straddles");
+        assert!(!v(0.99, 0.85, 1.0).worth_more_training(), "reaches 1");
+        assert!(!v(1.3, 1.2, 1.4).worth_more_training());
+        assert!(!v(f64::NAN, f64::NAN, f64::NAN).worth_more_training());
     }
 
     #[test]

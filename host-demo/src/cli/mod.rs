@@ -364,7 +364,7 @@ struct GuideArgs {
     /// With the trial on: a quarter of the way into the training phase (and after 64 Adam
     /// steps), pause training for an early look (2 to 4 guided passes read from the guide
     /// cache against as many with the guide off, relMSE per pass x seconds per pass), and
-    /// train on only when the guide already looks cheaper than none; otherwise training ends
+    /// train on only when the guide already pays (the interval lies below 1); otherwise training ends
     /// there and the trial after it decides whether the guide stays on.
     #[arg(long, value_enum, default_value = "on")]
     training_probe: OnOff,

@@ -641,7 +641,7 @@ struct ProbeFinished {
     steps: u64,
     passes: u32,
     seconds: f64,
-    /// Training went on after the look (the guide looked cheaper than none).
+    /// Training went on after the look (the look's interval lay below 1).
     training_resumed: bool,
     #[serde(flatten)]
     estimate: TrialEstimate,

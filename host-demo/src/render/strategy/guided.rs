@@ -167,7 +167,7 @@ pub struct GuidedOptions {
     /// With the efficiency trial on: the [training probe](super::probe) (an early look a
     /// quarter of the way into the training phase, guided against unguided passes at the
     /// guide's cost after training; training goes on only for a guide that already looks
-    /// cheaper than none).
+    /// cheaper than none on evidence: an interval below 1).
     pub training_probe: bool,
     /// Test hooks (feature `testing`, which only the test crates enable).
     #[cfg(feature = "testing")]

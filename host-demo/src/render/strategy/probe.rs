@@ -13,8 +13,8 @@
 //!    excludes 1, else 4): guided passes **at the cost the guide will have after training**
 //!    (read from the guide cache, nothing recorded, no Adam step between them) against passes
 //!    with the guide off (`pt-nee`'s estimator), on the render's own image;
-//! 2. resumes training when the guide already looks cheaper than none
-//!    ([`guiding::TrialVerdict::worth_more_training`]: point estimate below 1), the training
+//! 2. resumes training when the guide already pays on evidence
+//!    ([`guiding::TrialVerdict::worth_more_training`]: the interval lies below 1), the training
 //!    phase then ending as much later as the look took
 //!    ([`guiding::TrainingSchedule::resume_after_look`]);
 //! 3. otherwise ends training there: the guide keeps what it has learned, the selection fit
@@ -72,10 +72,10 @@ impl std::fmt::Display for ProbeStats {
                 v.guided_seconds,
                 v.unguided_seconds,
                 if self.resumed {
-                    "the guide looks cheaper than none, training goes on"
+                    "the guide pays (the interval lies below 1), training goes on"
                 } else {
-                    "skipped: the rest of the training phase (the guide does not look cheaper \
-                     than none yet; the trial after training decides whether it stays on)"
+                    "skipped: the rest of the training phase (no evidence yet that the guide \
+                     pays; the trial after training decides whether it stays on)"
                 }
             ),
         }
