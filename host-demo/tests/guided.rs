@@ -547,11 +547,12 @@ fn training_probe_decides_how_long_to_train_and_keeps_the_image_unbiased() {
         time_budget: Some(std::time::Duration::from_secs(3)),
         ..opts(IntegratorKind::PtNee, 1, w, h, 11, 2)
     };
-    let run = |training_probe: bool, probe_force: Option<bool>| {
+    let run_with = |training_probe: bool, probe_force: Option<bool>, weight_passes: bool| {
         let mut g = small_npm_radiance(&scene, config);
         let gopts = GuidedOptions {
             schedule: epochs(0.5, 1e6),
             training_probe,
+            weight_passes,
             test_hooks: TestHooks {
                 probe_force,
                 ..TestHooks::default()
@@ -560,6 +561,7 @@ fn training_probe_decides_how_long_to_train_and_keeps_the_image_unbiased() {
         };
         render_guided(&scene, &o, &gopts, &mut g).expect("guided render")
     };
+    let run = |training_probe, probe_force| run_with(training_probe, probe_force, true);
     let (img, st) = run(true, Some(false));
     eprintln!("{st}");
     let probe = st.probe.expect("the look ran");
@@ -588,6 +590,12 @@ fn training_probe_decides_how_long_to_train_and_keeps_the_image_unbiased() {
 
     let (_, st) = run(false, None);
     assert!(st.probe.is_none());
+
+    // Without pass weights the look still gets its passes' images and decides.
+    let (_, st) = run_with(true, Some(false), false);
+    let probe = st.probe.expect("the look ran");
+    assert!(probe.verdict.is_some() && st.pass_weights.is_none(), "{st}");
+    assert_eq!(st.training_passes, probe.at_pass);
 }
 
 /// (h) A guide that truly does not pay is switched off: on the shared Cornell box (diffuse

@@ -606,15 +606,11 @@ pub struct Guided<'g> {
     guide_off: bool,
     /// The inverse-variance combination of the passes (created at the first pass).
     combiner: Option<PassCombiner>,
-    /// The current pass's group in `combiner` (`None` when neither the weights nor the probe
-    /// need it).
+    /// The current pass's group in `combiner` (`None` without pass weights).
     pass_group: Option<u32>,
     /// The training probe's look while it runs, and the arm of the current look pass.
     look: Option<GuideTrial>,
     look_arm: Option<TrialArm>,
-    /// Wall seconds of guide queries in the current pass (thread-seconds over the threads of
-    /// each piece).
-    pass_query_seconds: f64,
     /// Guide-query seconds (per thread) and tracing seconds of the training
     /// chunks traced with the cache: the guide's cost for the selection fit.
     cached_query_seconds: f64,
@@ -686,7 +682,6 @@ impl<'g> Guided<'g> {
             pass_group: None,
             look: None,
             look_arm: None,
-            pass_query_seconds: 0.0,
             cached_query_seconds: 0.0,
             cached_traced_seconds: 0.0,
             schedule,
@@ -815,18 +810,30 @@ impl<'g> Guided<'g> {
         Ok(())
     }
 
+    /// The combiner group of `pass` (`None` without pass weights): the unguided passes one
+    /// group, a pass whose guide is still training (`own`) a group of its own, the guided
+    /// passes after training one group.
+    fn pass_group(&self, pass: &Pass, own: bool) -> Option<u32> {
+        self.gopts.weight_passes.then_some(if self.guide_off {
+            GROUP_UNGUIDED
+        } else if own {
+            pass.index.min(GROUP_UNGUIDED - 1)
+        } else {
+            GROUP_GUIDED
+        })
+    }
+
     /// Takes the look pass `image` into the probe's trial; at its first look,
     /// resumes or ends training ([`guiding::TrialVerdict::worth_more_training`]).
     fn observe_look_pass(&mut self, arm: TrialArm, image: &PassImage<'_>) {
         if self.look.is_none() {
-            // Weighted by the image before the look (the mean of the passes so far).
-            let before = mean_image(image.sum_before, image.passes_before);
-            let (w, h) = (image.width as usize, image.height as usize);
-            let options = TrialOptions {
-                continuation: false,
-                ..TrialOptions::default()
-            };
-            self.look = GuideTrial::new(w, h, &before, options).ok();
+            self.look = trial_on(
+                image,
+                TrialOptions {
+                    continuation: false,
+                    ..TrialOptions::default()
+                },
+            );
         }
         let recorded = self
             .look
@@ -885,6 +892,15 @@ impl<'g> Guided<'g> {
 }
 
 /// The shading points of training samples (position and normal for the cache).
+/// A trial (the efficiency trial, or the probe's look) starting at the pass `image`, its
+/// pixels weighted by the image before it (the mean of the passes so far); `None` for an
+/// empty image.
+fn trial_on(image: &PassImage<'_>, options: TrialOptions) -> Option<GuideTrial> {
+    let before = mean_image(image.sum_before, image.passes_before);
+    let (w, h) = (image.width as usize, image.height as usize);
+    GuideTrial::new(w, h, &before, options).ok()
+}
+
 fn query_points(samples: &[TrainingSample]) -> Vec<QueryPoint> {
     samples
         .iter()
@@ -1298,7 +1314,6 @@ impl<'g> Strategy for Guided<'g> {
                 ..ProbeStats::default()
             });
         }
-        self.pass_query_seconds = 0.0;
         if self.phase == Phase::Look {
             let arm = self
                 .look
@@ -1307,11 +1322,9 @@ impl<'g> Strategy for Guided<'g> {
             self.pass_arm = None;
             self.look_arm = arm;
             self.guide_off = arm == Some(TrialArm::Unguided);
-            self.pass_group = Some(if self.guide_off {
-                GROUP_UNGUIDED
-            } else {
-                pass.index.min(GROUP_UNGUIDED - 1)
-            });
+            // A guided look pass is a group of its own, as a training pass (its guide is
+            // still training).
+            self.pass_group = self.pass_group(pass, true);
             return false;
         }
         self.look_arm = None;
@@ -1365,13 +1378,7 @@ impl<'g> Strategy for Guided<'g> {
         self.stats.training_passes += u32::from(record);
         self.stats.passes_planned_for_training += u32::from(train);
         self.plan_trial_pass();
-        self.pass_group = self.gopts.weight_passes.then_some(if self.guide_off {
-            GROUP_UNGUIDED
-        } else if record {
-            pass.index.min(GROUP_UNGUIDED - 1)
-        } else {
-            GROUP_GUIDED
-        });
+        self.pass_group = self.pass_group(pass, record);
         record
     }
 
@@ -1380,7 +1387,7 @@ impl<'g> Strategy for Guided<'g> {
     }
 
     fn wants_pass_image(&self, _: &Pass) -> bool {
-        self.pass_arm.is_some() || self.pass_group.is_some()
+        self.pass_arm.is_some() || self.look_arm.is_some() || self.pass_group.is_some()
     }
 
     fn combined_image(&mut self) -> Option<CombinedImage> {
@@ -1420,11 +1427,8 @@ impl<'g> Strategy for Guided<'g> {
             return;
         };
         if self.trial.is_none() {
-            // Weighted by the image before the trial (the mean of the passes so far).
-            let before = mean_image(image.sum_before, image.passes_before);
-            let (w, h) = (image.width as usize, image.height as usize);
             // Only an empty image fails: the trial then never decides (the guide stays on).
-            self.trial = GuideTrial::new(w, h, &before, TrialOptions::default()).ok();
+            self.trial = trial_on(image, TrialOptions::default());
         }
         let Some(trial) = &mut self.trial else {
             return;
@@ -1494,7 +1498,6 @@ impl<'g> Strategy for Guided<'g> {
             st.guided_medium_vertices += r.guided_medium_vertices;
             st.query += r.query_time;
         }
-        self.pass_query_seconds += chunk_query_seconds;
         if cost_sample {
             self.cached_query_seconds += chunk_query_seconds;
             self.cached_traced_seconds += traced.seconds;
