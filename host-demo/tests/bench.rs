@@ -54,6 +54,7 @@ fn methods_and_budgets_parse() {
             "pt-nee-grra",
             "--integrator pt-nee --rr guided --rr-trial off",
         ),
+        ("guided-norr", "--integrator guided --rr off"),
         (
             "npm-radiance-notrial-grr",
             "--integrator guided --guide npm --target radiance --guide-trial off --rr guided",
@@ -73,6 +74,22 @@ fn methods_and_budgets_parse() {
         "pt-nee-product",
     ] {
         assert!(Method::parse(bad).is_err(), "{bad}");
+    }
+    // The suite's "best guided" column: guided methods only, not the window on `pt-nee`.
+    for (method, guided) in [
+        ("guided", true),
+        ("guided-norr", true),
+        ("npm-product-grr", true),
+        ("pt", false),
+        ("pt-nee", false),
+        ("pt-nee-grr", false),
+        ("pt-grr", false),
+    ] {
+        assert_eq!(
+            host_demo::bench::suite::is_guided_method(method),
+            guided,
+            "{method}"
+        );
     }
     assert_eq!(Budget::parse("10").unwrap(), Budget::Seconds(10.0));
     assert_eq!(Budget::parse("2.5s").unwrap(), Budget::Seconds(2.5));

@@ -368,12 +368,48 @@ fn render_and_compare_end_to_end() {
     }
 }
 
-/// A scene with no emitter NEE can sample skips the NEE stage and says so.
+/// `--rr` by default: the weight window (with its trial) for the guided integrator with a time
+/// budget, no roulette for the baselines and for a fixed spp; an explicit `--rr` wins.
+#[test]
+fn roulette_defaults_to_the_window_for_timed_guided_renders() {
+    let dir = scratch("rr-default");
+    let cases: [(&[&str], &str); 5] = [
+        (&["--integrator", "guided", "--time", "1"], "guided"),
+        (&["--integrator", "guided", "--spp", "2"], "off"),
+        (&["--integrator", "pt-nee", "--time", "1"], "off"),
+        (&["--integrator", "pt", "--time", "1"], "off"),
+        (
+            &["--integrator", "guided", "--time", "1", "--rr", "off"],
+            "off",
+        ),
+    ];
+    for (i, (args, mode)) in cases.into_iter().enumerate() {
+        let stats = dir.join(format!("{i}.json"));
+        run_ok(
+            bin()
+                .args(["render", "builtin:cornell-box", "--model-size", "small"])
+                .args(args)
+                .args(["--width", "32", "--height", "32"])
+                .arg("--out")
+                .arg(dir.join(format!("{i}.exr")))
+                .arg("--stats")
+                .arg(&stats),
+        );
+        let s = read_json(&stats);
+        let rr = &s["stages"]["russian_roulette"];
+        assert_eq!(rr["mode"], mode, "{args:?}: {s}");
+        assert_eq!(rr["ran"], mode != "off", "{args:?}: {s}");
+        assert_eq!(rr["guided"].is_object(), mode == "guided", "{args:?}: {s}");
+    }
+}
+
 /// With a guide, the window's efficiency trial waits for the guide's first look: run beside
 /// its first passes, it would weigh the window on a mix of guided and unguided passes, not on
 /// the estimator that renders the rest (on `builtin:door` it measured the unguided arm's gain
 /// while the window did nothing for the guided image). Without a guide (pt-nee) nothing waits.
-/// Without the wait, `waited_passes` is 0 and the window's trial starts with the guide's.
+/// Without the wait, `waited_passes` is 0 and the window's trial starts with the guide's. The
+/// grid learns in the guide's training passes only (with the grid's own phase, the first fifth
+/// of the budget, it learned in passes the guide no longer recorded).
 #[test]
 fn window_trial_waits_for_the_guide_trial() {
     let dir = scratch("window-waits");
@@ -395,6 +431,13 @@ fn window_trial_waits_for_the_guide_trial() {
     let guide = &s["stages"]["efficiency_trial"];
     let waited = g["waited_passes"].as_u64().unwrap();
     let window_passes = g["trial_passes"].as_u64().unwrap();
+    // The grid learns in the guide's training passes and in no others: their paths are
+    // recorded anyway, and recording for the grid alone after the guide's training ended cost
+    // the scenes whose guide does not pay.
+    assert_eq!(
+        g["learning_passes"], s["stages"]["training"]["passes"],
+        "{s}"
+    );
     assert!(g["window_off_passes"].as_u64() >= Some(waited), "{s}");
     if guide["ran"] == true {
         // The training passes (the grid learned in them), the warm-up pass after training and

@@ -53,12 +53,14 @@ impl Method {
     /// (`--guide-media off`: medium vertices sample the phase function alone), `-allmedia`
     /// (`--guide-media on`: every medium guided, the thin-medium rule ignored),
     /// and on every method, `pt` and `pt-nee` included, `-grr` (`--rr guided`: the library's
-    /// weight window with splitting, kept where its efficiency trial says it pays), `-grra`
-    /// (`--rr guided --rr-trial off`: the window in every pass) and `-err`
-    /// (`--rr efficiency`).
+    /// weight window with splitting, kept where its efficiency trial says it pays; `guided`
+    /// with a time budget has it by default), `-grra` (`--rr guided --rr-trial off`: the
+    /// window in every pass), `-err` (`--rr efficiency`) and `-norr` (`--rr off`: `guided`
+    /// without its default window, the guide's share of the gain).
     pub fn parse(full: &str) -> Result<Self> {
-        const SUFFIXES: [(&str, &[&str]); 13] = [
+        const SUFFIXES: [(&str, &[&str]); 14] = [
             ("-grr", &["--rr", "guided"]),
+            ("-norr", &["--rr", "off"]),
             ("-grra", &["--rr", "guided", "--rr-trial", "off"]),
             ("-err", &["--rr", "efficiency"]),
             ("-nonee", &["--nee", "off"]),

@@ -20,6 +20,13 @@ pub const BASELINE: &str = "pt-nee";
 pub const GUIDED: &str = "guided";
 /// BSDF sampling only.
 pub const PT: &str = "pt";
+/// Whether `method` is a guided candidate for the suite's "best guided" column: any method but
+/// `pt` and `pt-nee` and their variants (`pt-nee-grr`, the weight window on the unguided path
+/// tracer, is roulette, not guiding).
+pub fn is_guided_method(method: &str) -> bool {
+    method != PT && method != BASELINE && !method.starts_with("pt-")
+}
+
 /// The suite's default methods.
 pub const METHODS: [&str; 7] = [
     "pt",
@@ -267,7 +274,7 @@ fn row(
     };
     let best = methods
         .iter()
-        .filter(|m| *m != PT && *m != BASELINE)
+        .filter(|m| is_guided_method(m))
         .filter_map(|m| ratio(m))
         .filter(|r| r.ratio.is_finite())
         .reduce(|a, b| if b.ratio < a.ratio { b } else { a });
@@ -324,7 +331,7 @@ pub fn table(
     let ratio_of = |r: &Option<MethodRatio>| r.as_ref().map(|m| m.ratio);
     let best_single = methods
         .iter()
-        .filter(|m| *m != PT && *m != BASELINE)
+        .filter(|m| is_guided_method(m))
         .filter_map(|m| {
             let ratios: Vec<f64> = rows
                 .iter()
@@ -530,7 +537,7 @@ pub fn write(opts: &BenchOptions, records: &[RunRecord], notes: &[String]) -> Re
     let methods: Vec<String> = opts.methods.iter().map(|m| m.name.clone()).collect();
     let guided: Vec<String> = methods
         .iter()
-        .filter(|m| *m != PT && *m != BASELINE)
+        .filter(|m| is_guided_method(m))
         .map(|m| format!("`{m}`"))
         .collect();
     let mut md = String::from("# Benchmark suite\n\n");

@@ -32,6 +32,10 @@ enum Integrator {
 
 #[derive(Clone, Copy, ValueEnum)]
 enum RouletteArg {
+    /// The default: `guided` for the guided integrator with a time budget (the weight window,
+    /// kept only where its efficiency trial says it pays), `off` otherwise (the baselines, as
+    /// in the papers; a fixed spp, where no trial can weigh the window's time).
+    Auto,
     /// No roulette: paths go on to max_depth.
     Off,
     /// Mitsuba's: survival min(max(throughput), 0.95) from the scene's rr_depth.
@@ -42,13 +46,20 @@ enum RouletteArg {
     Efficiency,
 }
 
-impl From<RouletteArg> for host_demo::render::Roulette {
-    fn from(r: RouletteArg) -> Self {
-        match r {
-            RouletteArg::Off => Self::Off,
-            RouletteArg::Throughput => Self::Throughput,
-            RouletteArg::Guided => Self::Guided,
-            RouletteArg::Efficiency => Self::Efficiency,
+impl RouletteArg {
+    /// The roulette of a render with `integrator` and, when `timed`, a time budget (see
+    /// [`RouletteArg::Auto`]). On the suite of published scenes (30 s, 256 px, 3 seeds) the
+    /// window's trial kept it on the classroom, veach-mis and veach-bidir-v3 and switched it off
+    /// on the Cornell box, and the guided render with it was 0.69–1.01× `pt-nee`'s relMSE
+    /// where without it 0.99–1.18× (`docs/bench-2026-12-08-window`).
+    fn resolve(self, integrator: Integrator, timed: bool) -> host_demo::render::Roulette {
+        use host_demo::render::Roulette;
+        match self {
+            Self::Auto if timed && matches!(integrator, Integrator::Guided) => Roulette::Guided,
+            Self::Auto | Self::Off => Roulette::Off,
+            Self::Throughput => Roulette::Throughput,
+            Self::Guided => Roulette::Guided,
+            Self::Efficiency => Roulette::Efficiency,
         }
     }
 }
@@ -131,14 +142,15 @@ enum Cmd {
         /// `--train-fraction` applies to this budget.
         #[arg(long, value_name = "SECONDS")]
         time: Option<f64>,
-        /// Russian roulette: off (the default, like the papers), throughput (Mitsuba's, from
-        /// the scene's rr_depth; a bare `--rr`) or guided (the library's weight window with
-        /// splitting, at every vertex).
+        /// Russian roulette: auto (the default: guided for the guided integrator with --time,
+        /// else off), off (paths go on to max_depth, like the papers), throughput (Mitsuba's,
+        /// from the scene's rr_depth; a bare `--rr`) or guided (the library's weight window with
+        /// splitting, kept with --time only where its efficiency trial says it pays).
         #[arg(
             long,
             value_enum,
             num_args = 0..=1,
-            default_value = "off",
+            default_value = "auto",
             default_missing_value = "throughput"
         )]
         rr: RouletteArg,

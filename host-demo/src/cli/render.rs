@@ -56,7 +56,7 @@ pub(super) fn render_cmd(cmd: Cmd) -> host_demo::Result<()> {
         },
         spp: spp.unwrap_or(sc.settings.spp).max(1),
         time_budget,
-        rr: rr.into(),
+        rr: rr.resolve(integrator, time_budget.is_some()),
         rr_trial: matches!(rr_trial, OnOff::On),
         progress: true,
         max_depth: max_depth.unwrap_or(sc.settings.max_depth),

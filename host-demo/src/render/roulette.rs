@@ -13,9 +13,18 @@
 //!   5 × 5 pixels). Zero continuations end the path, one goes on with its weight (roulette),
 //!   `k > 1` put `k` copies of the vertex in the bounce's batch, each with `β / k`; each copy
 //!   runs its own NEE and samples its own direction, and all add to the same pixel.
-//! * **When the grid learns.** In the library's training phase ([`guiding::TrainingSchedule`]
-//!   with the default options: the first fifth of the budget, the guide's own training phase):
-//!   the driver records every path of those passes (whatever the strategy) and adds each
+//! * **When the grid learns.** With a guide, in the passes the guide records for its training
+//!   ([`crate::render::strategy::Strategy::trains_from_recorded_passes`]), whose paths are
+//!   recorded anyway: the grid stops learning when the guide stops training (the training
+//!   phase's end, a converged loss, or the training probe's look ending it). Until 2026-12-07
+//!   the grid kept its own phase, the first fifth of the budget, and the render recorded every
+//!   path for the grid alone after the look had ended the guide's training: on the suite's
+//!   scenes whose guide does not pay (30 s, 256 px, 3 seeds) 58–64 of the Cornell box's ~400
+//!   passes and 219–258 of veach-mis's ~1600 were recorded where the guide trained in 7–8 and
+//!   28–35, and `guided-grr` came out 1.04× `guided` there. Without a guide (`pt-nee --rr
+//!   guided`), in the library's training phase ([`guiding::TrainingSchedule`] with the default
+//!   options: the first fifth of the budget). In those passes the driver records every path
+//!   and adds each
 //!   continuing vertex's reflected radiance ([`guiding::BatchRecorder::keep_reflected`]) to the
 //!   grid after each piece; then the grid is frozen. Recording in every pass instead cost more
 //!   than the better estimates gained (`builtin:door`, 20 s, 160 px, 3 seeds: `pt-nee-grr`
@@ -189,7 +198,10 @@ impl GuidedRoulette {
 
     /// Before a pass: whether the grid learns in it, and `Î` (or `σ²`) from the passes so far
     /// (`sum`, `sum2`: the per-pixel sums and sums of squares); `settled`: whether the
-    /// strategy's estimator is settled ([`crate::render::strategy::Strategy::estimator_settled`]).
+    /// strategy's estimator is settled ([`crate::render::strategy::Strategy::estimator_settled`]);
+    /// `strategy_records`: for a strategy that trains from recorded passes
+    /// ([`crate::render::strategy::Strategy::trains_from_recorded_passes`]), whether it records
+    /// this one (the grid then learns exactly when the guide does).
     pub fn begin_pass(
         &mut self,
         elapsed: f64,
@@ -197,9 +209,12 @@ impl GuidedRoulette {
         (width, height): (u32, u32),
         sum: &[[f64; 3]],
         sum2: &[[f64; 3]],
-        settled: bool,
+        (settled, strategy_records): (bool, Option<bool>),
     ) {
-        self.learning = self.schedule.in_training_phase(elapsed, pass);
+        self.learning = match strategy_records {
+            Some(records) => records,
+            None => self.schedule.in_training_phase(elapsed, pass),
+        };
         if self.learning {
             self.stats.learning_passes += 1;
         }

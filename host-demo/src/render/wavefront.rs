@@ -795,13 +795,14 @@ pub fn render_passes<S: Strategy>(
         if let Some(g) = &mut roulette {
             let size = (width, height);
             let settled = strategy.estimator_settled();
+            let strategy_records = strategy.trains_from_recorded_passes().then_some(record);
             g.begin_pass(
                 pass.elapsed.as_secs_f64(),
                 pass.index,
                 size,
                 &sum,
                 &sum2,
-                settled,
+                (settled, strategy_records),
             );
         }
         sched.training_ended(

@@ -1279,6 +1279,10 @@ impl<'g> Strategy for Guided<'g> {
         }
     }
 
+    fn trains_from_recorded_passes(&self) -> bool {
+        true
+    }
+
     fn worker(&self) -> GuidedWorker<'_> {
         GuidedWorker::new(
             self.guide,

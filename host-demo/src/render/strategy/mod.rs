@@ -89,6 +89,14 @@ pub trait Strategy: Sync {
         true
     }
 
+    /// Whether the strategy trains something of its own from the passes it records (a guide):
+    /// then the guided roulette's grid learns from exactly those passes (see
+    /// [`crate::render::roulette`]), whose paths are recorded anyway, and stops when the
+    /// strategy's training stops. The default: no training of its own.
+    fn trains_from_recorded_passes(&self) -> bool {
+        false
+    }
+
     /// Whether the strategy wants the image of pass `pass` (its pixel values alone, not the
     /// running mean) through [`Strategy::observe_pass_image`]; asked after
     /// [`Strategy::begin_pass`].
