@@ -38,10 +38,10 @@
  *
  * Ownership
  * - Each handle written to an out pointer (PgField, PgDistributions,
- *   PgRecorder, PgSchedule) belongs to the caller, who releases it exactly once
- *   with its *_release function (NULL is a no-op). On failure the out pointer is set to
- *   NULL. Using a handle after releasing it is undefined behaviour, as with
- *   free().
+ *   PgRecorder, PgSchedule, PgRadianceGrid, PgGuideTrial, PgWindowTrial)
+ *   belongs to the caller, who releases it exactly once with its *_release
+ *   function (NULL is a no-op). On failure the out pointer is set to NULL.
+ *   Using a handle after releasing it is undefined behaviour, as with free().
  * - A PgDistributions keeps its field alive: releasing the field first is
  *   allowed; the distributions stay usable until released or refilled.
  * - All other memory (arrays, strings, structs) stays the caller's; no pointer
@@ -58,8 +58,8 @@
  *   PgDistributions; pg_field_query into it must not overlap any other use of
  *   it (use one per thread).
  * - PgRecorder is not synchronised: one per render thread.
- * - PgSchedule is not synchronised: the render loop uses it (any thread, one
- *   call at a time).
+ * - PgSchedule, PgGuideTrial and PgWindowTrial are not synchronised: the
+ *   render loop uses them (any thread, one call at a time).
  * - A *_release must not overlap any other use of its handle.
  * - The field's own worker threads (PgFieldArgs.threads, 0 = all cores) run
  *   updates and batched queries; set threads = 1 when the renderer calls
@@ -179,6 +179,13 @@ typedef struct PgDistributions PgDistributions;
 typedef struct PgField PgField;
 
 /**
+ * A guide trial (opaque): guided against unguided passes. Not synchronised: the render
+ * loop uses it (any thread, one call at a time). Create with `pg_guide_trial_new`, release
+ * with `pg_guide_trial_release`.
+ */
+typedef struct PgGuideTrial PgGuideTrial;
+
+/**
  * A radiance grid (opaque), internally synchronised: estimates may run from many threads at
  * once; adding takes it exclusively. Create with `pg_radiance_grid_new`, release with
  * `pg_radiance_grid_release`.
@@ -196,6 +203,13 @@ typedef struct PgRecorder PgRecorder;
  * `pg_schedule_new`, release with `pg_schedule_release`.
  */
 typedef struct PgSchedule PgSchedule;
+
+/**
+ * A weight-window trial (opaque): passes with the window against passes without it (Rust
+ * `guiding::WindowTrial`). Not synchronised: the render loop uses it (any thread, one call
+ * at a time). Create with `pg_window_trial_new`, release with `pg_window_trial_release`.
+ */
+typedef struct PgWindowTrial PgWindowTrial;
 
 /**
  * Directional representation code (`PG_REPRESENTATION_*`).
@@ -746,6 +760,78 @@ typedef struct PgRadianceGridStats {
 } PgRadianceGridStats;
 
 /**
+ * An arm of a `PgGuideTrial` (`PG_TRIAL_ARM_*`, the Rust `guiding::TrialArm`).
+ */
+typedef int32_t PgTrialArm;
+
+/**
+ * What a trial's interval says (`PG_EVIDENCE_*`, the Rust `guiding::Verdict`).
+ */
+typedef uint32_t PgEvidence;
+
+/**
+ * What a trial measured and decided at a look (the Rust `guiding::TrialVerdict`). In a
+ * `PgWindowTrial`'s verdict the "guided" fields are the arm with the window and the
+ * "unguided" ones the arm without it.
+ */
+typedef struct PgTrialVerdict {
+    /**
+     * 1: the guide stays on (the interval does not lie above 1), else 0. Where a verdict is
+     * read back (`pg_trial_verdict_worth_more_training`, `pg_window_trial_window_pays`) any
+     * non-zero value counts as 1.
+     */
+    uint32_t keep_guide;
+    /**
+     * `PG_EVIDENCE_*`: what the interval says.
+     */
+    PgEvidence evidence;
+    /**
+     * Lower end of the cost ratio's interval (`NaN` without one).
+     */
+    double ratio_low;
+    /**
+     * Upper end of the cost ratio's interval (`NaN` without one).
+     */
+    double ratio_high;
+    /**
+     * Per-pass relative variance of the guided arm (`V_g`).
+     */
+    double guided_variance;
+    /**
+     * Per-pass relative variance of the unguided arm (`V_u`).
+     */
+    double unguided_variance;
+    /**
+     * Mean seconds per guided pass (`t_g`).
+     */
+    double guided_seconds;
+    /**
+     * Mean seconds per unguided pass (`t_u`).
+     */
+    double unguided_seconds;
+    /**
+     * `(V_g · t_g) / (V_u · t_u)`: below 1 the guide pays (`NaN` if the unguided cost is 0).
+     */
+    double cost_ratio;
+    /**
+     * Passes of the guided arm in this estimate (since its last `pg_guide_trial_restart`).
+     */
+    uint32_t guided_passes;
+    /**
+     * Passes of the unguided arm in this estimate (since its last `pg_guide_trial_restart`).
+     */
+    uint32_t unguided_passes;
+    /**
+     * The interval's normal quantile at this look (larger at later looks: α-spending).
+     */
+    double z;
+    /**
+     * Pixels left out because a trial pass gave them a non-finite value.
+     */
+    uint64_t pixels_skipped;
+} PgTrialVerdict;
+
+/**
  * Neural Parametric Mixtures (Dong et al. 2023): 8 vMF lobes.
  */
 #define PG_REPRESENTATION_NPM 0
@@ -826,6 +912,37 @@ typedef struct PgRadianceGridStats {
  * Samples (passes) per pixel: `PgScheduleArgs.budget` a whole number in `[0, 2³² − 1]`.
  */
 #define PG_BUDGET_SPP 1
+
+/**
+ * The interval contains 1, or none could be formed (a black image): nothing is decided, the
+ * guide (or window) is not shown to pay nor not to pay.
+ */
+#define PG_EVIDENCE_UNDECIDED 0
+
+/**
+ * The whole interval lies below 1: with it, a lower relMSE per second.
+ */
+#define PG_EVIDENCE_PAYS 1
+
+/**
+ * The whole interval lies above 1: it costs more time than it saves variance.
+ */
+#define PG_EVIDENCE_DOES_NOT_PAY 2
+
+/**
+ * The renderer's guided estimator.
+ */
+#define PG_TRIAL_ARM_GUIDED 0
+
+/**
+ * The same renderer with the guide switched off (BSDF sampling and NEE only).
+ */
+#define PG_TRIAL_ARM_UNGUIDED 1
+
+/**
+ * No arm: the trial has its verdict and runs no more passes (`pg_guide_trial_next_arm`).
+ */
+#define PG_TRIAL_ARM_NONE -1
 
 #ifdef __cplusplus
 extern "C" {
@@ -1341,6 +1458,47 @@ enum PgStatus pg_schedule_in_training_phase(struct PgSchedule *schedule,
 enum PgStatus pg_schedule_end_training(struct PgSchedule *schedule);
 
 /**
+ * Writes to `*out` whether the renderer should take its early look at the guide now, before
+ * the pass `pass_index` that starts `elapsed_seconds` into the render (Rust
+ * `TrainingSchedule::look_due`): a quarter of the training phase (`EARLY_LOOK_AT`) is behind
+ * it, the guide has had 64 Adam steps (`EARLY_LOOK_MIN_STEPS`, counted by
+ * `pg_field_train_scheduled`; the look waits for them), the phase is not over, and no look was
+ * due before. Writes true once per schedule.
+ *
+ * The look is a short efficiency trial of the guide as it is (`PgGuideTrial` up to its first
+ * look, `pg_guide_trial_first_look`; training paused, nothing recorded), whose estimate says
+ * whether training goes on (`pg_trial_verdict_worth_more_training`, then
+ * `pg_schedule_resume_after_look`) or ends (`pg_schedule_end_training`). The look never
+ * switches the guide off. A renderer without such a trial need not ask.
+ *
+ * Returns `PG_INVALID_ARGUMENT` (and changes nothing) if `elapsed_seconds` is not finite and
+ * `≥ 0`.
+ *
+ * # Safety
+ * `schedule` must be NULL or a live handle; `out` NULL or writable.
+ */
+enum PgStatus pg_schedule_look_due(struct PgSchedule *schedule,
+                                   double elapsed_seconds,
+                                   uint32_t pass_index,
+                                   bool *out);
+
+/**
+ * Training resumes after an early look that took `look_seconds` (wall clock) and
+ * `look_passes` passes (Rust `TrainingSchedule::resume_after_look`): the training phase ends
+ * that much later, so the look does not cost the guide its training (the seconds count
+ * against a time budget, the passes against an spp budget).
+ *
+ * Returns `PG_INVALID_ARGUMENT` (and changes nothing) if `look_seconds` is not finite and
+ * `≥ 0`.
+ *
+ * # Safety
+ * `schedule` must be NULL or a live handle.
+ */
+enum PgStatus pg_schedule_resume_after_look(struct PgSchedule *schedule,
+                                            double look_seconds,
+                                            uint32_t look_passes);
+
+/**
  * Reports that the renderer traced `paths` paths (camera samples) in `seconds` of the
  * training phase, recording included. The time share and the piece sizes are computed from
  * these reports.
@@ -1520,6 +1678,201 @@ enum PgStatus pg_pixel_estimates(uint32_t width,
                                  uint32_t passes,
                                  uint32_t radius,
                                  float *out);
+
+/**
+ * Creates a guide trial with the library's default options (Rust `TrialOptions::default()`:
+ * 4 passes per arm, an early verdict from 2 + 2 passes when the interval already excludes 1,
+ * `z = 3`, and the continuation of an undecided trial) in `*out` (NULL on failure). `image`
+ * is the renderer's image before the trial, `3 · width · height` floats (RGB, row-major; its
+ * mean so far, which must not include a trial pass); non-finite values count as 0. It weighs
+ * the pixels' relative variances.
+ *
+ * Returns `PG_INVALID_ARGUMENT` for an image without pixels or whose size overflows.
+ *
+ * # Safety
+ * `image` NULL or `3 · width · height` readable floats; `out` NULL or writable.
+ */
+enum PgStatus pg_guide_trial_new(uint32_t width,
+                                 uint32_t height,
+                                 const float *image,
+                                 struct PgGuideTrial **out);
+
+/**
+ * Releases a guide trial (NULL: no-op).
+ *
+ * # Safety
+ * `trial` must be NULL or a live handle that no other call is using.
+ */
+void pg_guide_trial_release(struct PgGuideTrial *trial);
+
+/**
+ * Writes to `*out` the arm the next pass should run (`PG_TRIAL_ARM_GUIDED` or
+ * `PG_TRIAL_ARM_UNGUIDED`), or `PG_TRIAL_ARM_NONE` once the trial has its verdict. Before the
+ * first look the arms alternate, guided first; a continuing trial gives the arm with the
+ * cheaper-looking estimate two passes for each pass of the other (Rust
+ * `GuideTrial::next_arm`).
+ *
+ * # Safety
+ * `trial` NULL or a live handle; `out` NULL or writable.
+ */
+enum PgStatus pg_guide_trial_next_arm(const struct PgGuideTrial *trial, PgTrialArm *out);
+
+/**
+ * Adds one pass of `arm` (the one `pg_guide_trial_next_arm` said): its pixel values,
+ * `3 · width · height` floats in the layout of the trial's image (a pixel with a non-finite
+ * value is left out of the trial and counted), and the wall-clock seconds it took.
+ *
+ * Returns `PG_INVALID_ARGUMENT` (and adds nothing) for an `arm` that is not
+ * `PG_TRIAL_ARM_GUIDED` or `PG_TRIAL_ARM_UNGUIDED`, `seconds` not finite and `≥ 0`, a trial
+ * with its verdict, or an arm that already has its passes before the first look.
+ *
+ * # Safety
+ * `trial` NULL or a live handle no other call is using; `pixels` NULL or
+ * `3 · width · height` readable floats.
+ */
+enum PgStatus pg_guide_trial_record(struct PgGuideTrial *trial,
+                                    PgTrialArm arm,
+                                    const float *pixels,
+                                    double seconds);
+
+/**
+ * Drops the passes of `arm` once the renderer has changed that estimator (e.g. refitted the
+ * guide's selection probabilities after the first look), so that the continuing trial
+ * measures the one that now renders (Rust `GuideTrial::restart`). Does nothing once the
+ * trial has its verdict; the looks made stand.
+ *
+ * Returns `PG_INVALID_ARGUMENT` for an `arm` that is not `PG_TRIAL_ARM_GUIDED` or
+ * `PG_TRIAL_ARM_UNGUIDED`.
+ *
+ * # Safety
+ * `trial` NULL or a live handle no other call is using.
+ */
+enum PgStatus pg_guide_trial_restart(struct PgGuideTrial *trial, PgTrialArm arm);
+
+/**
+ * Writes to `*has` whether the trial has its verdict (it has ended: all passes, or a clear
+ * case early) and, if so, the verdict to `*out`, which is left untouched otherwise. The
+ * guide stays on unless `keep_guide` is 0 (the interval lies above 1).
+ *
+ * # Safety
+ * `trial` NULL or a live handle; `has` and `out` NULL or writable, not overlapping.
+ */
+enum PgStatus pg_guide_trial_verdict(const struct PgGuideTrial *trial,
+                                     bool *has,
+                                     struct PgTrialVerdict *out);
+
+/**
+ * Writes to `*has` whether the trial has made its first look (4 passes per arm, or 2 + 2
+ * when the interval already excludes 1) and, if so, that look's estimate to `*out`, which
+ * is left untouched otherwise: the estimate of the early look
+ * (`pg_trial_verdict_worth_more_training`), whether or not the trial continues after it.
+ *
+ * # Safety
+ * `trial` NULL or a live handle; `has` and `out` NULL or writable, not overlapping.
+ */
+enum PgStatus pg_guide_trial_first_look(const struct PgGuideTrial *trial,
+                                        bool *has,
+                                        struct PgTrialVerdict *out);
+
+/**
+ * The early look's rule (Rust `TrialVerdict::worth_more_training`), into `*out`: more
+ * training is worth its time only for a guide whose cost ratio's whole interval lies below 1
+ * (`ratio_high < 1`: it pays on evidence). False for an interval that straddles 1 or lies
+ * above it, and without one (a black image): then end training
+ * (`pg_schedule_end_training`) and let the trial after training decide whether the guide
+ * stays on.
+ *
+ * Returns `PG_INVALID_ARGUMENT` for an unknown `evidence` code.
+ *
+ * # Safety
+ * `verdict` NULL or readable; `out` NULL or writable, not inside `*verdict`.
+ */
+enum PgStatus pg_trial_verdict_worth_more_training(const struct PgTrialVerdict *verdict, bool *out);
+
+/**
+ * Creates a weight-window trial with the library's default options (as
+ * `pg_guide_trial_new`) in `*out` (NULL on failure), from the image before the trial
+ * (`3 · width · height` floats, RGB, row-major). Start it once the radiance grid has learned;
+ * the grid must not learn from the trial's passes.
+ *
+ * Returns `PG_INVALID_ARGUMENT` for an image without pixels or whose size overflows.
+ *
+ * # Safety
+ * `image` NULL or `3 · width · height` readable floats; `out` NULL or writable.
+ */
+enum PgStatus pg_window_trial_new(uint32_t width,
+                                  uint32_t height,
+                                  const float *image,
+                                  struct PgWindowTrial **out);
+
+/**
+ * Releases a weight-window trial (NULL: no-op).
+ *
+ * # Safety
+ * `trial` must be NULL or a live handle that no other call is using.
+ */
+void pg_window_trial_release(struct PgWindowTrial *trial);
+
+/**
+ * Writes to `*out` whether the next pass runs with the weight window: the ABBA order (with,
+ * without, without, with, …) until the first look, the cheaper-looking arm in two passes of
+ * three while the trial continues, then the verdict's choice
+ * (`pg_window_trial_window_pays`) for the rest of the render.
+ *
+ * # Safety
+ * `trial` NULL or a live handle; `out` NULL or writable.
+ */
+enum PgStatus pg_window_trial_next_pass_uses_window(const struct PgWindowTrial *trial, bool *out);
+
+/**
+ * Writes to `*out` whether the trial still runs (it has no verdict: the next pass is a trial
+ * pass, to record).
+ *
+ * # Safety
+ * `trial` NULL or a live handle; `out` NULL or writable.
+ */
+enum PgStatus pg_window_trial_running(const struct PgWindowTrial *trial, bool *out);
+
+/**
+ * Adds one trial pass: whether it ran with the window (what
+ * `pg_window_trial_next_pass_uses_window` said), its pixel values (`3 · width · height`
+ * floats in the layout of the trial's image) and the wall-clock seconds it took.
+ *
+ * Returns `PG_INVALID_ARGUMENT` (and adds nothing) once the trial has its verdict, for a pass
+ * of the other arm than the order's, or for `seconds` not finite and `≥ 0`.
+ *
+ * # Safety
+ * `trial` NULL or a live handle no other call is using; `pixels` NULL or
+ * `3 · width · height` readable floats.
+ */
+enum PgStatus pg_window_trial_record(struct PgWindowTrial *trial,
+                                     bool with_window,
+                                     const float *pixels,
+                                     double seconds);
+
+/**
+ * Writes to `*has` whether the trial has its verdict and, if so, the verdict to `*out`
+ * (untouched otherwise): its "guided" fields are the arm with the window, its "unguided"
+ * fields the arm without. Whether it keeps the window: `pg_window_trial_window_pays` (its
+ * `keep_guide` is the guide's rule, not the window's).
+ *
+ * # Safety
+ * `trial` NULL or a live handle; `has` and `out` NULL or writable, not overlapping.
+ */
+enum PgStatus pg_window_trial_verdict(const struct PgWindowTrial *trial,
+                                      bool *has,
+                                      struct PgTrialVerdict *out);
+
+/**
+ * Whether a window trial's verdict keeps the window (Rust `WindowTrial::window_pays`), into
+ * `*out`: its whole interval lies below 1 (`evidence` is `PG_EVIDENCE_PAYS`).
+ *
+ * Returns `PG_INVALID_ARGUMENT` for an unknown `evidence` code.
+ *
+ * # Safety
+ * `verdict` NULL or readable; `out` NULL or writable, not inside `*verdict`.
+ */
+enum PgStatus pg_window_trial_window_pays(const struct PgTrialVerdict *verdict, bool *out);
 
 /**
  * The concentration `κ` of the vMF lobe fitted to a Henyey–Greenstein phase

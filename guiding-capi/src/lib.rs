@@ -77,10 +77,16 @@
 //! `pg_field_update` (a fixed `steps_per_update` steps) and
 //! `pg_field_update_proportional` remain for renderers with their own rule.
 //!
+//! With a time budget the renderer can also ask its image whether the guide
+//! pays (`PgGuideTrial`, after training), whether training is worth going on
+//! (the schedule's early look, `pg_schedule_look_due`) and whether the weight
+//! window pays (`PgWindowTrial`): see [`trial`].
+//!
 //! # Ownership
 //!
 //! - Each handle written to an `out` pointer (`PgField`, `PgDistributions`,
-//!   `PgRecorder`, `PgSchedule`, `PgRadianceGrid`) belongs to the caller, who releases it exactly once with
+//!   `PgRecorder`, `PgSchedule`, `PgRadianceGrid`, `PgGuideTrial`,
+//!   `PgWindowTrial`) belongs to the caller, who releases it exactly once with
 //!   its `*_release` function (NULL is a no-op). On failure the `out`
 //!   pointer is set to NULL. Using a handle after releasing it is undefined
 //!   behaviour, as with `free`.
@@ -101,8 +107,8 @@
 //!   one `PgDistributions`; `pg_field_query` into it must not overlap any
 //!   other use of it (use one per thread).
 //! - `PgRecorder` is not synchronised: one per render thread.
-//! - `PgSchedule` is not synchronised: the render loop's thread uses it (any
-//!   thread, one call at a time).
+//! - `PgSchedule`, `PgGuideTrial` and `PgWindowTrial` are not synchronised: the
+//!   render loop uses them (any thread, one call at a time).
 //! - `PgRadianceGrid` is internally synchronised: `pg_radiance_grid_estimate`
 //!   and `_stats` may run from many threads at once; `pg_radiance_grid_add`
 //!   and `pg_recorder_flush_reflected_into` take it exclusively.
@@ -131,6 +137,8 @@ pub mod schedule;
 
 pub mod roulette;
 
+pub mod trial;
+
 pub mod media;
 
 mod ptr;
@@ -142,6 +150,7 @@ pub use recorder::*;
 pub use roulette::*;
 pub use schedule::*;
 pub use status::PgStatus;
+pub use trial::*;
 pub use types::*;
 
 use std::ffi::c_char;
@@ -155,6 +164,8 @@ const _: () = {
     send::<PgRecorder>();
     send::<PgSchedule>();
     send_sync::<PgRadianceGrid>();
+    send::<PgGuideTrial>();
+    send::<PgWindowTrial>();
 };
 
 /// The library version, `"MAJOR.MINOR.PATCH"` (static storage, never freed).

@@ -183,6 +183,20 @@ pub(crate) unsafe fn slice_mut<'a, T>(
     Ok(unsafe { std::slice::from_raw_parts_mut(p, n) })
 }
 
+/// The `n` RGB or xyz triples of `3n` floats at `p` (NULL when `n == 0`).
+///
+/// # Safety
+/// As [`slice`] for `3n` floats.
+pub(crate) unsafe fn triples<'a>(
+    p: *const f32,
+    n: usize,
+    what: &str,
+) -> Result<&'a [[f32; 3]], Failure> {
+    times(n, 3, what)?;
+    // `[f32; 3]` has the alignment of `f32`.
+    unsafe { slice(p.cast::<[f32; 3]>(), n, what) }
+}
+
 /// A memory range an argument covers: name, start address, byte length.
 pub(crate) struct Region<'n> {
     name: &'n str,

@@ -19,7 +19,7 @@
 //! ```
 
 use crate::field::check_unit_square;
-use crate::ptr::{self, disjoint, region, times};
+use crate::ptr::{self, disjoint, region, times, triples};
 use crate::status::{guard, Failure, PgStatus};
 use guiding::{GridOptions, RadianceGrid, WeightWindow};
 use std::sync::{PoisonError, RwLock};
@@ -179,16 +179,6 @@ pub unsafe extern "C" fn pg_weight_window_decide(
         }
         Ok(())
     })
-}
-
-/// The `n` RGB or xyz triples of `3n` floats at `p` (NULL when `n == 0`).
-///
-/// # Safety
-/// As [`ptr::slice`] for `3n` floats.
-unsafe fn triples<'a>(p: *const f32, n: usize, what: &str) -> Result<&'a [[f32; 3]], Failure> {
-    times(n, 3, what)?;
-    // `[f32; 3]` has the alignment of `f32`.
-    unsafe { ptr::slice(p.cast::<[f32; 3]>(), n, what) }
 }
 
 fn options_of(args: &PgRadianceGridArgs) -> GridOptions {

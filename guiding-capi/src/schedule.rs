@@ -1,7 +1,9 @@
 //! `PgSchedule`: the library's training schedule (`guiding::TrainingSchedule`, whose docs give
 //! the rule): when a render trains its field and how many Adam steps each update runs, from
 //! the times and path counts the renderer reports. `pg_field_train_scheduled` is the update
-//! step of the loop (what host-demo's guided integrator runs after each traced piece).
+//! step of the loop (what host-demo's guided integrator runs after each traced piece);
+//! `pg_schedule_look_due` and `pg_schedule_resume_after_look` are its early look (see
+//! [`crate::trial`]).
 
 use crate::field::{write, PgField};
 use crate::ptr;
@@ -222,6 +224,72 @@ pub unsafe extern "C" fn pg_schedule_end_training(schedule: *mut PgSchedule) -> 
         unsafe { ptr::as_mut(schedule, "schedule") }?
             .inner
             .end_training();
+        Ok(())
+    })
+}
+
+/// Writes to `*out` whether the renderer should take its early look at the guide now, before
+/// the pass `pass_index` that starts `elapsed_seconds` into the render (Rust
+/// `TrainingSchedule::look_due`): a quarter of the training phase (`EARLY_LOOK_AT`) is behind
+/// it, the guide has had 64 Adam steps (`EARLY_LOOK_MIN_STEPS`, counted by
+/// `pg_field_train_scheduled`; the look waits for them), the phase is not over, and no look was
+/// due before. Writes true once per schedule.
+///
+/// The look is a short efficiency trial of the guide as it is (`PgGuideTrial` up to its first
+/// look, `pg_guide_trial_first_look`; training paused, nothing recorded), whose estimate says
+/// whether training goes on (`pg_trial_verdict_worth_more_training`, then
+/// `pg_schedule_resume_after_look`) or ends (`pg_schedule_end_training`). The look never
+/// switches the guide off. A renderer without such a trial need not ask.
+///
+/// Returns `PG_INVALID_ARGUMENT` (and changes nothing) if `elapsed_seconds` is not finite and
+/// `≥ 0`.
+///
+/// # Safety
+/// `schedule` must be NULL or a live handle; `out` NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn pg_schedule_look_due(
+    schedule: *mut PgSchedule,
+    elapsed_seconds: f64,
+    pass_index: u32,
+    out: *mut bool,
+) -> PgStatus {
+    guard("pg_schedule_look_due", || {
+        let s = unsafe { ptr::as_mut(schedule, "schedule") }?;
+        let out = unsafe { ptr::as_mut(out, "out") }?;
+        if !(elapsed_seconds.is_finite() && elapsed_seconds >= 0.0) {
+            return Err(Failure::invalid(format!(
+                "elapsed_seconds {elapsed_seconds} is not finite and >= 0"
+            )));
+        }
+        *out = s.inner.look_due(elapsed_seconds, pass_index);
+        Ok(())
+    })
+}
+
+/// Training resumes after an early look that took `look_seconds` (wall clock) and
+/// `look_passes` passes (Rust `TrainingSchedule::resume_after_look`): the training phase ends
+/// that much later, so the look does not cost the guide its training (the seconds count
+/// against a time budget, the passes against an spp budget).
+///
+/// Returns `PG_INVALID_ARGUMENT` (and changes nothing) if `look_seconds` is not finite and
+/// `≥ 0`.
+///
+/// # Safety
+/// `schedule` must be NULL or a live handle.
+#[no_mangle]
+pub unsafe extern "C" fn pg_schedule_resume_after_look(
+    schedule: *mut PgSchedule,
+    look_seconds: f64,
+    look_passes: u32,
+) -> PgStatus {
+    guard("pg_schedule_resume_after_look", || {
+        let s = unsafe { ptr::as_mut(schedule, "schedule") }?;
+        if !(look_seconds.is_finite() && look_seconds >= 0.0) {
+            return Err(Failure::invalid(format!(
+                "look_seconds {look_seconds} is not finite and >= 0"
+            )));
+        }
+        s.inner.resume_after_look(look_seconds, look_passes);
         Ok(())
     })
 }

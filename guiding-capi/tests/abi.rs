@@ -1,11 +1,13 @@
 //! The C ABI called from Rust through its `extern "C"` functions: NULL
 //! pointers, wrong sizes, `n = 0`, NaN inputs, misaligned and overlapping
 //! arrays, release(NULL), double use, stale distributions, corrupt files,
-//! agreement with the Rust API, and concurrent queries during updates.
+//! agreement with the Rust API (fields, schedules, efficiency trials and the
+//! early look), and concurrent queries during updates.
 
 use guiding::{
-    Budget, GuidingConfig, GuidingField, ModelSize, PathRecorder, PathVertex, Representation,
-    ScheduleOptions, StepRule, Target, TrainingSchedule,
+    Budget, GuideTrial, GuidingConfig, GuidingField, ModelSize, PathRecorder, PathVertex,
+    Representation, ScheduleOptions, StepRule, Target, TrainingSchedule, TrialArm, TrialOptions,
+    TrialVerdict, WindowTrial,
 };
 use guiding_capi::*;
 use guiding_core::glam::{Vec2, Vec3};
@@ -2243,4 +2245,718 @@ fn the_thin_medium_rule_in_c_is_the_library_rule() {
     // SAFETY: NULL on purpose.
     let st = unsafe { pg_guides_medium(1.0, 1.0, null_mut(), null_mut()) };
     expect(st, PG_NULL_POINTER, "pg_guides_medium", "guided");
+}
+
+// ---------------------------------------------------------------------------
+// Efficiency trials and the early look.
+
+/// A deterministic LCG (Knuth's MMIX constants) for the trials' synthetic images.
+struct Lcg(u64);
+
+impl Lcg {
+    /// Uniform in `(0, 1)`.
+    fn uniform(&mut self) -> f32 {
+        self.0 = self
+            .0
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        ((self.0 >> 40) as f32 + 0.5) / (1u64 << 24) as f32
+    }
+}
+
+/// The image before a trial: values in `[0.5, 1.5)` per pixel and channel.
+fn trial_image(pixels: usize, rng: &mut Lcg) -> Vec<[f32; 3]> {
+    (0..pixels)
+        .map(|_| {
+            [
+                0.5 + rng.uniform(),
+                0.5 + rng.uniform(),
+                0.5 + rng.uniform(),
+            ]
+        })
+        .collect()
+}
+
+/// One pass: `base` plus uniform noise of standard deviation `sd` per pixel and channel.
+fn noisy_pass(base: &[[f32; 3]], sd: f32, rng: &mut Lcg) -> Vec<[f32; 3]> {
+    let half_width = sd * 3f32.sqrt();
+    base.iter()
+        .map(|b| b.map(|x| x + half_width * (2.0 * rng.uniform() - 1.0)))
+        .collect()
+}
+
+fn floats(image: &[[f32; 3]]) -> *const f32 {
+    image.as_ptr().cast()
+}
+
+/// A verdict no trial writes: an output left untouched still holds it.
+const UNTOUCHED: PgTrialVerdict = PgTrialVerdict {
+    keep_guide: 7,
+    evidence: 7,
+    ratio_low: -7.0,
+    ratio_high: -7.0,
+    guided_variance: -7.0,
+    unguided_variance: -7.0,
+    guided_seconds: -7.0,
+    unguided_seconds: -7.0,
+    cost_ratio: -7.0,
+    guided_passes: 7,
+    unguided_passes: 7,
+    z: -7.0,
+    pixels_skipped: 7,
+};
+
+fn evidence_code(v: guiding::Verdict) -> PgEvidence {
+    match v {
+        guiding::Verdict::Undecided => PG_EVIDENCE_UNDECIDED,
+        guiding::Verdict::Pays => PG_EVIDENCE_PAYS,
+        guiding::Verdict::DoesNotPay => PG_EVIDENCE_DOES_NOT_PAY,
+    }
+}
+
+/// The C verdict is the Rust one, field for field (floats to the bit).
+#[track_caller]
+fn assert_same_verdict(c: Option<PgTrialVerdict>, r: Option<TrialVerdict>) {
+    let (Some(c), Some(r)) = (c, r) else {
+        assert_eq!(c.is_some(), r.is_some(), "C {c:?}, Rust {r:?}");
+        return;
+    };
+    assert_eq!(
+        (c.keep_guide, c.evidence),
+        (u32::from(r.keep_guide), evidence_code(r.evidence)),
+        "C {c:?}, Rust {r:?}"
+    );
+    let bits = |x: [f64; 8]| x.map(f64::to_bits);
+    assert_eq!(
+        bits([
+            c.ratio_low,
+            c.ratio_high,
+            c.guided_variance,
+            c.unguided_variance,
+            c.guided_seconds,
+            c.unguided_seconds,
+            c.cost_ratio,
+            c.z
+        ]),
+        bits([
+            r.ratio_low,
+            r.ratio_high,
+            r.guided_variance,
+            r.unguided_variance,
+            r.guided_seconds,
+            r.unguided_seconds,
+            r.cost_ratio,
+            r.z
+        ]),
+        "C {c:?}, Rust {r:?}"
+    );
+    assert_eq!(
+        (c.guided_passes, c.unguided_passes, c.pixels_skipped),
+        (r.guided_passes, r.unguided_passes, r.pixels_skipped)
+    );
+}
+
+/// A `PgTrialVerdict` getter (`pg_guide_trial_verdict`, `_first_look`, `pg_window_trial_verdict`)
+/// called with an output holding [`UNTOUCHED`]: `None` when it says there is none (and then
+/// left the output alone).
+#[track_caller]
+fn c_verdict<T>(
+    get: unsafe extern "C" fn(*const T, *mut bool, *mut PgTrialVerdict) -> PgStatus,
+    trial: *const T,
+) -> Option<PgTrialVerdict> {
+    let (mut has, mut v) = (true, UNTOUCHED);
+    // SAFETY: a live handle, valid outputs.
+    expect_ok(unsafe { get(trial, &mut has, &mut v) });
+    if !has {
+        assert_eq!(v, UNTOUCHED, "the output is left alone without a verdict");
+    }
+    has.then_some(v)
+}
+
+fn c_worth_more_training(v: &PgTrialVerdict) -> bool {
+    let mut out = false;
+    // SAFETY: valid pointers.
+    expect_ok(unsafe { pg_trial_verdict_worth_more_training(v, &mut out) });
+    out
+}
+
+fn c_window_pays(v: &PgTrialVerdict) -> bool {
+    let mut out = false;
+    // SAFETY: valid pointers.
+    expect_ok(unsafe { pg_window_trial_window_pays(v, &mut out) });
+    out
+}
+
+fn c_next_arm(t: *const PgGuideTrial) -> PgTrialArm {
+    let mut arm = 99;
+    // SAFETY: a live handle, a valid output.
+    expect_ok(unsafe { pg_guide_trial_next_arm(t, &mut arm) });
+    arm
+}
+
+fn arm_code(arm: Option<TrialArm>) -> PgTrialArm {
+    match arm {
+        Some(TrialArm::Guided) => PG_TRIAL_ARM_GUIDED,
+        Some(TrialArm::Unguided) => PG_TRIAL_ARM_UNGUIDED,
+        None => PG_TRIAL_ARM_NONE,
+    }
+}
+
+fn new_guide_trial(width: u32, height: u32, image: &[[f32; 3]]) -> *mut PgGuideTrial {
+    let mut t = null_mut();
+    // SAFETY: `image` has width × height pixels.
+    expect_ok(unsafe { pg_guide_trial_new(width, height, floats(image), &mut t) });
+    assert!(!t.is_null());
+    t
+}
+
+fn new_window_trial(width: u32, height: u32, image: &[[f32; 3]]) -> *mut PgWindowTrial {
+    let mut t = null_mut();
+    // SAFETY: as above.
+    expect_ok(unsafe { pg_window_trial_new(width, height, floats(image), &mut t) });
+    assert!(!t.is_null());
+    t
+}
+
+/// What [`guide_trials_side_by_side`] runs: the noise and seconds per pass of each arm
+/// (guided, unguided), the most passes, and after which pass the unguided arm restarts.
+struct TrialRun {
+    sd: [f32; 2],
+    seconds: [f64; 2],
+    max_passes: usize,
+    restart_after: Option<usize>,
+}
+
+/// Runs a C `PgGuideTrial` and a Rust `GuideTrial` on the same synthetic passes (48 × 40
+/// pixels), checking after every pass that they ask for the same arm and have the same first
+/// look and verdict; returns the Rust trial and the passes run.
+fn guide_trials_side_by_side(run: &TrialRun) -> (GuideTrial, usize) {
+    let (w, h) = (48u32, 40u32);
+    let mut rng = Lcg(17);
+    let base = trial_image((w * h) as usize, &mut rng);
+    let c = new_guide_trial(w, h, &base);
+    let mut rust = GuideTrial::new(w as usize, h as usize, &base, TrialOptions::default()).unwrap();
+    let mut passes = 0;
+    loop {
+        let arm = rust.next_arm();
+        assert_eq!(c_next_arm(c), arm_code(arm), "pass {passes}");
+        let Some(arm) = arm else { break };
+        if passes == run.max_passes {
+            break;
+        }
+        let i = usize::from(arm == TrialArm::Unguided);
+        let pass = noisy_pass(&base, run.sd[i], &mut rng);
+        // SAFETY: a live handle, a pass of the trial's size.
+        expect_ok(unsafe {
+            pg_guide_trial_record(c, arm_code(Some(arm)), floats(&pass), run.seconds[i])
+        });
+        rust.record(arm, &pass, run.seconds[i]).unwrap();
+        passes += 1;
+        assert_same_verdict(c_verdict(pg_guide_trial_verdict, c), rust.verdict());
+        assert_same_verdict(c_verdict(pg_guide_trial_first_look, c), rust.first_look());
+        if run.restart_after == Some(passes) {
+            // SAFETY: a live handle.
+            expect_ok(unsafe { pg_guide_trial_restart(c, PG_TRIAL_ARM_UNGUIDED) });
+            rust.restart(TrialArm::Unguided);
+        }
+        if let Some(v) = c_verdict(pg_guide_trial_first_look, c) {
+            assert_eq!(
+                c_worth_more_training(&v),
+                rust.first_look().unwrap().worth_more_training()
+            );
+        }
+    }
+    if rust.verdict().is_some() {
+        // The trial has ended: no more passes, whatever the arm.
+        let pass = noisy_pass(&base, 0.1, &mut rng);
+        for arm in [PG_TRIAL_ARM_GUIDED, PG_TRIAL_ARM_UNGUIDED] {
+            // SAFETY: as above.
+            let st = unsafe { pg_guide_trial_record(c, arm, floats(&pass), 1.0) };
+            expect(st, PG_INVALID_ARGUMENT, "pg_guide_trial_record", "ended");
+        }
+        assert_same_verdict(c_verdict(pg_guide_trial_verdict, c), rust.verdict());
+    }
+    // SAFETY: a live handle, released once.
+    unsafe { pg_guide_trial_release(c) };
+    (rust, passes)
+}
+
+/// The C guide trial is the Rust `GuideTrial`: the same arms pass by pass and the same first
+/// looks and verdicts, field for field, on synthetic images where one arm has 4× the
+/// per-pixel variance at equal time (a clear verdict, either way), twice the seconds at equal
+/// variance, and equal arms (no verdict: the continuation's 2 : 1 order, a restart).
+#[test]
+fn guide_trial_in_c_equals_the_rust_guide_trial() {
+    let dear = guide_trials_side_by_side(&TrialRun {
+        sd: [0.2, 0.1],
+        seconds: [0.5, 0.5],
+        max_passes: 64,
+        restart_after: None,
+    });
+    let v = dear.0.verdict().expect("a clear case decides");
+    assert_eq!(v.evidence, guiding::Verdict::DoesNotPay, "{v:?}");
+    assert!(!v.keep_guide && v.ratio_low > 1.0 && dear.1 <= 8, "{v:?}");
+
+    let cheap = guide_trials_side_by_side(&TrialRun {
+        sd: [0.1, 0.2],
+        seconds: [0.5, 0.5],
+        max_passes: 64,
+        restart_after: None,
+    });
+    let v = cheap.0.verdict().expect("a clear case decides");
+    assert_eq!(v.evidence, guiding::Verdict::Pays, "{v:?}");
+    assert!(v.keep_guide && v.worth_more_training(), "{v:?}");
+
+    let slow = guide_trials_side_by_side(&TrialRun {
+        sd: [0.1, 0.1],
+        seconds: [2.0, 1.0],
+        max_passes: 64,
+        restart_after: None,
+    });
+    let v = slow.0.verdict().expect("a clear case decides");
+    assert!(!v.keep_guide && (v.cost_ratio - 2.0).abs() < 0.3, "{v:?}");
+
+    let even = guide_trials_side_by_side(&TrialRun {
+        sd: [0.1, 0.1],
+        seconds: [1.0, 1.0],
+        max_passes: 40,
+        restart_after: Some(20),
+    });
+    assert_eq!(even.1, 40);
+    let first = even.0.first_look().expect("4 + 4 passes looked");
+    assert_eq!(first.evidence, guiding::Verdict::Undecided, "{first:?}");
+}
+
+/// The C window trial is the Rust `WindowTrial`: the same ABBA order and continuation, the
+/// same verdicts field for field, and `pg_window_trial_window_pays` is
+/// `WindowTrial::window_pays`; a pass of the other arm than the order's and a pass after the
+/// verdict are refused.
+#[test]
+fn window_trial_in_c_equals_the_rust_window_trial() {
+    for (sd_on, sd_off, max_passes) in [(0.2f32, 0.1f32, 64), (0.1, 0.2, 64), (0.1, 0.1, 24)] {
+        let (w, h) = (40u32, 32u32);
+        let mut rng = Lcg(5);
+        let base = trial_image((w * h) as usize, &mut rng);
+        let c = new_window_trial(w, h, &base);
+        let mut rust =
+            WindowTrial::new(w as usize, h as usize, &base, TrialOptions::default()).unwrap();
+        for pass in 0..max_passes {
+            let (mut on, mut running) = (false, false);
+            // SAFETY: a live handle, valid outputs.
+            unsafe {
+                expect_ok(pg_window_trial_next_pass_uses_window(c, &mut on));
+                expect_ok(pg_window_trial_running(c, &mut running));
+            }
+            assert_eq!(on, rust.next_pass_uses_window(), "pass {pass}");
+            assert_eq!(running, rust.running(), "pass {pass}");
+            if !running {
+                break;
+            }
+            let p = noisy_pass(&base, if on { sd_on } else { sd_off }, &mut rng);
+            // SAFETY: a live handle, a pass of the trial's size.
+            let wrong = unsafe { pg_window_trial_record(c, !on, floats(&p), 1.0) };
+            expect(wrong, PG_INVALID_ARGUMENT, "pg_window_trial_record", "runs");
+            // SAFETY: as above.
+            expect_ok(unsafe { pg_window_trial_record(c, on, floats(&p), 1.0) });
+            rust.record(on, &p, 1.0).unwrap();
+            assert_same_verdict(c_verdict(pg_window_trial_verdict, c), rust.verdict());
+        }
+        if sd_on == sd_off {
+            assert!(
+                rust.running(),
+                "equal arms: no verdict in {max_passes} passes"
+            );
+        } else {
+            let v = c_verdict(pg_window_trial_verdict, c).expect("a clear case decides");
+            let r = rust.verdict().unwrap();
+            assert_eq!(c_window_pays(&v), WindowTrial::window_pays(&r));
+            assert_eq!(c_window_pays(&v), sd_on < sd_off, "{v:?}");
+            let mut on = !c_window_pays(&v);
+            // SAFETY: as above.
+            unsafe {
+                expect_ok(pg_window_trial_next_pass_uses_window(c, &mut on));
+                assert_eq!(on, c_window_pays(&v), "the verdict's choice from now on");
+                let st = pg_window_trial_record(c, on, floats(&base), 1.0);
+                expect(st, PG_INVALID_ARGUMENT, "pg_window_trial_record", "verdict");
+            }
+        }
+        // SAFETY: a live handle, released once.
+        unsafe { pg_window_trial_release(c) };
+    }
+}
+
+/// Bad input to the trial calls returns an error status and changes nothing: NULL handles,
+/// images and outputs, images without pixels or too large to address, misaligned or
+/// overlapping arrays, non-finite or negative seconds, unknown arm and evidence codes.
+#[test]
+fn trial_calls_refuse_bad_input() {
+    let (w, h) = (8u32, 6u32);
+    let mut rng = Lcg(3);
+    let image = trial_image(48, &mut rng);
+    let g = new_guide_trial(w, h, &image);
+    let win = new_window_trial(w, h, &image);
+    let (mut out_g, mut out_w) = (null_mut(), null_mut());
+    let (mut arm, mut flag, mut v) = (0, false, UNTOUCHED);
+    // SAFETY: every non-NULL pointer is valid; NULL ones are the point.
+    unsafe {
+        refuses_null!("out", pg_guide_trial_new(w, h, floats(&image), null_mut()));
+        refuses_null!("image", pg_guide_trial_new(w, h, null(), &mut out_g));
+        refuses_null!("trial", pg_guide_trial_next_arm(null(), &mut arm));
+        refuses_null!("out", pg_guide_trial_next_arm(g, null_mut()));
+        refuses_null!(
+            "trial",
+            pg_guide_trial_record(null_mut(), 0, floats(&image), 1.0)
+        );
+        refuses_null!("pixels", pg_guide_trial_record(g, 0, null(), 1.0));
+        refuses_null!("trial", pg_guide_trial_restart(null_mut(), 0));
+        refuses_null!("trial", pg_guide_trial_verdict(null(), &mut flag, &mut v));
+        refuses_null!("has", pg_guide_trial_verdict(g, null_mut(), &mut v));
+        refuses_null!("out", pg_guide_trial_verdict(g, &mut flag, null_mut()));
+        refuses_null!(
+            "trial",
+            pg_guide_trial_first_look(null(), &mut flag, &mut v)
+        );
+        refuses_null!("has", pg_guide_trial_first_look(g, null_mut(), &mut v));
+        refuses_null!("out", pg_guide_trial_first_look(g, &mut flag, null_mut()));
+        refuses_null!(
+            "verdict",
+            pg_trial_verdict_worth_more_training(null(), &mut flag)
+        );
+        refuses_null!(
+            "out",
+            pg_trial_verdict_worth_more_training(&UNTOUCHED, null_mut())
+        );
+        refuses_null!("out", pg_window_trial_new(w, h, floats(&image), null_mut()));
+        refuses_null!("image", pg_window_trial_new(w, h, null(), &mut out_w));
+        refuses_null!(
+            "trial",
+            pg_window_trial_next_pass_uses_window(null(), &mut flag)
+        );
+        refuses_null!(
+            "out",
+            pg_window_trial_next_pass_uses_window(win, null_mut())
+        );
+        refuses_null!("trial", pg_window_trial_running(null(), &mut flag));
+        refuses_null!("out", pg_window_trial_running(win, null_mut()));
+        refuses_null!(
+            "trial",
+            pg_window_trial_record(null_mut(), true, floats(&image), 1.0)
+        );
+        refuses_null!("pixels", pg_window_trial_record(win, true, null(), 1.0));
+        refuses_null!("trial", pg_window_trial_verdict(null(), &mut flag, &mut v));
+        refuses_null!("has", pg_window_trial_verdict(win, null_mut(), &mut v));
+        refuses_null!("out", pg_window_trial_verdict(win, &mut flag, null_mut()));
+        refuses_null!("verdict", pg_window_trial_window_pays(null(), &mut flag));
+        refuses_null!("out", pg_window_trial_window_pays(&UNTOUCHED, null_mut()));
+        assert!(out_g.is_null() && out_w.is_null());
+        assert_eq!(v, UNTOUCHED);
+        pg_guide_trial_release(null_mut());
+        pg_window_trial_release(null_mut());
+        assert_eq!(last(), "");
+
+        // No pixels, or more than memory holds: refused, `*out` NULL.
+        for (ww, hh, needle) in [
+            (0, 6, "pixels"),
+            (8, 0, "pixels"),
+            (u32::MAX, u32::MAX, "overflow"),
+        ] {
+            let mut t = std::ptr::NonNull::<PgGuideTrial>::dangling().as_ptr();
+            let st = pg_guide_trial_new(ww, hh, floats(&image), &mut t);
+            expect(st, PG_INVALID_ARGUMENT, "pg_guide_trial_new", needle);
+            assert!(t.is_null());
+            let mut t = std::ptr::NonNull::<PgWindowTrial>::dangling().as_ptr();
+            let st = pg_window_trial_new(ww, hh, floats(&image), &mut t);
+            expect(st, PG_INVALID_ARGUMENT, "pg_window_trial_new", needle);
+            assert!(t.is_null());
+        }
+        // A misaligned pass.
+        let bytes = vec![0u32; 3 * 48 + 1];
+        let misaligned = bytes.as_ptr().cast::<u8>().wrapping_add(1).cast::<f32>();
+        let st = pg_guide_trial_record(g, 0, misaligned, 1.0);
+        expect(st, PG_INVALID_ARGUMENT, "pg_guide_trial_record", "aligned");
+        let st = pg_window_trial_record(win, true, misaligned, 1.0);
+        expect(st, PG_INVALID_ARGUMENT, "pg_window_trial_record", "aligned");
+
+        // Seconds that are not finite and >= 0, unknown arms: nothing is added.
+        for seconds in [f64::NAN, -1.0, f64::INFINITY, f64::NEG_INFINITY] {
+            let st = pg_guide_trial_record(g, PG_TRIAL_ARM_GUIDED, floats(&image), seconds);
+            expect(st, PG_INVALID_ARGUMENT, "pg_guide_trial_record", "took");
+            let st = pg_window_trial_record(win, true, floats(&image), seconds);
+            expect(st, PG_INVALID_ARGUMENT, "pg_window_trial_record", "took");
+        }
+        for bad in [PG_TRIAL_ARM_NONE, 2, i32::MIN, i32::MAX] {
+            let st = pg_guide_trial_record(g, bad, floats(&image), 1.0);
+            expect(
+                st,
+                PG_INVALID_ARGUMENT,
+                "pg_guide_trial_record",
+                "PG_TRIAL_ARM",
+            );
+            let st = pg_guide_trial_restart(g, bad);
+            expect(
+                st,
+                PG_INVALID_ARGUMENT,
+                "pg_guide_trial_restart",
+                "PG_TRIAL_ARM",
+            );
+        }
+        assert_eq!(c_next_arm(g), PG_TRIAL_ARM_GUIDED, "nothing was recorded");
+        let mut on = false;
+        expect_ok(pg_window_trial_next_pass_uses_window(win, &mut on));
+        assert!(
+            on,
+            "nothing was recorded: the ABBA order starts with the window"
+        );
+        // The guided arm has its 4 passes before the first look: a fifth is refused.
+        for _ in 0..4 {
+            expect_ok(pg_guide_trial_record(
+                g,
+                PG_TRIAL_ARM_GUIDED,
+                floats(&image),
+                1.0,
+            ));
+        }
+        let st = pg_guide_trial_record(g, PG_TRIAL_ARM_GUIDED, floats(&image), 1.0);
+        expect(
+            st,
+            PG_INVALID_ARGUMENT,
+            "pg_guide_trial_record",
+            "already has",
+        );
+        assert_eq!(c_next_arm(g), PG_TRIAL_ARM_UNGUIDED);
+
+        // Overlapping outputs; an output inside the verdict read.
+        let mut buffer = UNTOUCHED;
+        let inside = (&mut buffer as *mut PgTrialVerdict).cast::<bool>();
+        let st = pg_guide_trial_verdict(g, inside, &mut buffer);
+        expect(
+            st,
+            PG_INVALID_ARGUMENT,
+            "pg_guide_trial_verdict",
+            "overlaps",
+        );
+        let st = pg_window_trial_verdict(win, inside, &mut buffer);
+        expect(
+            st,
+            PG_INVALID_ARGUMENT,
+            "pg_window_trial_verdict",
+            "overlaps",
+        );
+        let st = pg_trial_verdict_worth_more_training(&buffer, inside);
+        expect(
+            st,
+            PG_INVALID_ARGUMENT,
+            "pg_trial_verdict_worth_more_training",
+            "overlaps",
+        );
+        let st = pg_window_trial_window_pays(&buffer, inside);
+        expect(
+            st,
+            PG_INVALID_ARGUMENT,
+            "pg_window_trial_window_pays",
+            "overlaps",
+        );
+        assert_eq!(buffer, UNTOUCHED);
+
+        // Unknown evidence codes; any non-NaN verdict of a known code is read.
+        let bad = PgTrialVerdict {
+            evidence: 3,
+            ..UNTOUCHED
+        };
+        let st = pg_trial_verdict_worth_more_training(&bad, &mut flag);
+        expect(
+            st,
+            PG_INVALID_ARGUMENT,
+            "pg_trial_verdict_worth_more_training",
+            "PG_EVIDENCE_",
+        );
+        let st = pg_window_trial_window_pays(&bad, &mut flag);
+        expect(
+            st,
+            PG_INVALID_ARGUMENT,
+            "pg_window_trial_window_pays",
+            "PG_EVIDENCE_",
+        );
+        let pays = PgTrialVerdict {
+            evidence: PG_EVIDENCE_PAYS,
+            ratio_high: 0.9,
+            ..UNTOUCHED
+        };
+        assert!(c_worth_more_training(&pays) && c_window_pays(&pays));
+        let straddles = PgTrialVerdict {
+            evidence: PG_EVIDENCE_UNDECIDED,
+            ratio_high: 1.1,
+            ..pays
+        };
+        assert!(!c_worth_more_training(&straddles) && !c_window_pays(&straddles));
+        let no_interval = PgTrialVerdict {
+            ratio_high: f64::NAN,
+            ..straddles
+        };
+        assert!(!c_worth_more_training(&no_interval));
+
+        pg_window_trial_release(win);
+        pg_guide_trial_release(g);
+    }
+}
+
+/// The early look through the C ABI is the Rust schedule's: `pg_schedule_look_due` answers as
+/// `TrainingSchedule::look_due` (not before 64 Adam steps and a quarter of the phase, once),
+/// a look trial's first look decides with `pg_trial_verdict_worth_more_training`, and
+/// `pg_schedule_resume_after_look` moves the end of the phase as the Rust one does (or
+/// `pg_schedule_end_training` ends it). Bad times are refused and change nothing.
+#[test]
+fn early_look_in_c_equals_the_rust_schedule() {
+    // 40 spp, a fifth trains: 8 training passes, the look due from pass 2 once 64 steps ran
+    // (32 per pass: ceil(16 epochs × 512 samples / 256) clamped to 32 steps per update).
+    let (spp, epochs) = (40u32, 16.0);
+    let sa = PgScheduleArgs {
+        step_rule: PG_STEP_RULE_EPOCHS,
+        step_value: epochs,
+        budget_kind: PG_BUDGET_SPP,
+        budget: f64::from(spp),
+        ..schedule_args()
+    };
+    let options = ScheduleOptions {
+        steps: StepRule::Epochs(epochs),
+        ..ScheduleOptions::DEFAULT
+    };
+    // (guided noise, unguided noise): a guide that pays resumes training, one that does not
+    // ends it.
+    for (sd, resumes) in [([0.1f32, 0.2f32], true), ([0.2, 0.1], false)] {
+        let field = new_field(&PgFieldArgs {
+            steps_per_update: 32,
+            ..args(PG_REPRESENTATION_NPM)
+        });
+        let sched = new_schedule(&sa);
+        let mut rust = TrainingSchedule::new(options, Budget::Spp(spp)).unwrap();
+        let mut rng = Pcg32::new(7, 3);
+        let (mut looks, mut training_passes, mut pass) = (0, 0, 0u32);
+        while pass < 24 {
+            let elapsed = 0.1 * f64::from(pass);
+            let (mut due, mut training) = (false, false);
+            // SAFETY: live handles, valid pointers.
+            unsafe {
+                for bad in [f64::NAN, -1.0, f64::INFINITY] {
+                    let st = pg_schedule_look_due(sched, bad, pass, &mut due);
+                    expect(
+                        st,
+                        PG_INVALID_ARGUMENT,
+                        "pg_schedule_look_due",
+                        "elapsed_seconds",
+                    );
+                }
+                expect_ok(pg_schedule_look_due(sched, elapsed, pass, &mut due));
+            }
+            assert_eq!(due, rust.look_due(elapsed, pass), "pass {pass}");
+            if due {
+                looks += 1;
+                assert!(schedule_report(sched).steps >= 64);
+                let (look_passes, look_seconds, more) = early_look(sd);
+                assert_eq!(more, resumes, "{sd:?}");
+                // SAFETY: a live handle.
+                unsafe {
+                    for bad in [f64::NAN, -0.5, f64::INFINITY] {
+                        let st = pg_schedule_resume_after_look(sched, bad, 4);
+                        expect(
+                            st,
+                            PG_INVALID_ARGUMENT,
+                            "pg_schedule_resume_after_look",
+                            "look_seconds",
+                        );
+                    }
+                    if more {
+                        expect_ok(pg_schedule_resume_after_look(
+                            sched,
+                            look_seconds,
+                            look_passes,
+                        ));
+                        rust.resume_after_look(look_seconds, look_passes);
+                    } else {
+                        expect_ok(pg_schedule_end_training(sched));
+                        rust.end_training();
+                    }
+                }
+                // The look's passes were passes of the render.
+                pass += look_passes;
+                continue;
+            }
+            // SAFETY: as above.
+            unsafe {
+                expect_ok(pg_schedule_in_training_phase(
+                    sched,
+                    elapsed,
+                    pass,
+                    &mut training,
+                ));
+            }
+            assert_eq!(
+                training,
+                rust.in_training_phase(elapsed, pass),
+                "pass {pass}"
+            );
+            pass += 1;
+            if !training {
+                continue;
+            }
+            training_passes += 1;
+            let s = samples(&mut rng, 512);
+            let mut report = PgUpdateReport::default();
+            // SAFETY: as above.
+            unsafe {
+                expect_ok(pg_field_add_samples(field, s.as_ptr(), s.len()));
+                expect_ok(pg_schedule_record_traced(sched, 0.01, 512));
+                expect_ok(pg_field_train_scheduled(field, sched, &mut report));
+            }
+            rust.record_traced(0.01, 512);
+            rust.record_update(report.steps, 1e-3);
+            assert_eq!(report.steps, 32);
+        }
+        assert_eq!(looks, 1, "the look is due once");
+        let r = schedule_report(sched);
+        assert_eq!((r.steps, r.training_over), (rust.report().steps, 1));
+        // Resumed: the phase ends as many passes later as the look took, so the guide still
+        // trains its 8 passes; ended at the look: only the 2 passes before it trained.
+        assert_eq!(training_passes, if resumes { 8 } else { 2 }, "{sd:?}");
+        assert_eq!(r.steps, 32 * training_passes);
+        // SAFETY: live handles, released once.
+        unsafe {
+            pg_schedule_release(sched);
+            pg_field_release(field);
+        }
+    }
+}
+
+/// An early look through the C ABI: a `PgGuideTrial` (on a 32 × 24 image, arms of noise
+/// `sd`, equal seconds) up to its first look, checked against the Rust `GuideTrial`; returns
+/// its passes, its seconds and whether `pg_trial_verdict_worth_more_training` says train on.
+fn early_look(sd: [f32; 2]) -> (u32, f64, bool) {
+    let (w, h) = (32u32, 24u32);
+    let mut rng = Lcg(11);
+    let base = trial_image((w * h) as usize, &mut rng);
+    let probe = new_guide_trial(w, h, &base);
+    let mut rust = GuideTrial::new(w as usize, h as usize, &base, TrialOptions::default()).unwrap();
+    let (mut passes, mut seconds) = (0u32, 0.0);
+    let look = loop {
+        if let Some(v) = c_verdict(pg_guide_trial_first_look, probe) {
+            break v;
+        }
+        let arm = c_next_arm(probe);
+        assert_eq!(arm, arm_code(rust.next_arm()));
+        let i = usize::try_from(arm).expect("no verdict before the first look");
+        let pass = noisy_pass(&base, sd[i], &mut rng);
+        // SAFETY: a live handle, a pass of the trial's size.
+        expect_ok(unsafe { pg_guide_trial_record(probe, arm, floats(&pass), 0.25) });
+        rust.record([TrialArm::Guided, TrialArm::Unguided][i], &pass, 0.25)
+            .unwrap();
+        passes += 1;
+        seconds += 0.25;
+        assert!(passes <= 8, "the first look comes by 4 + 4 passes");
+    };
+    assert_same_verdict(Some(look), rust.first_look());
+    let more = c_worth_more_training(&look);
+    assert_eq!(more, rust.first_look().unwrap().worth_more_training());
+    // SAFETY: a live handle, released once.
+    unsafe { pg_guide_trial_release(probe) };
+    (passes, seconds, more)
 }

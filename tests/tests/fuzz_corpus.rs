@@ -447,6 +447,24 @@ fn c_api_seeds() -> Vec<(String, Vec<u8>)> {
         .add_samples(0, 4)
         .bytes(&[20, 1, 21]);
     out.push(("seed-schedule".into(), sched.0));
+    // Efficiency trials on 6 x 6 pixels: a guide trial whose guided passes have 49 times the
+    // variance of the unguided ones (alternating, guided first) up to its verdict, a pass
+    // after it (refused), the verdict getters; a window trial in its ABBA order with the
+    // window's passes the precise ones; the verdict rules on an arbitrary verdict.
+    let mut trials = Calls::default().bytes(&[24, 0, 6, 6, 1, 2, 3, 4, 0, 0]);
+    for pass in 0..6u8 {
+        let sd = if pass % 2 == 0 { 7 } else { 1 };
+        trials = trials.bytes(&[24, 3, 0, sd, pass, 0, 0, 1]);
+    }
+    trials = trials
+        .bytes(&[24, 6, 2])
+        .bytes(&[24, 1, 6, 6, 5, 6, 7, 8, 0, 0]);
+    for (pass, with_window) in [true, false, false, true, true, false].iter().enumerate() {
+        let sd = if *with_window { 1 } else { 7 };
+        trials = trials.bytes(&[24, 4, 0, sd, pass as u8, 0, 0, 1]);
+    }
+    trials = trials.bytes(&[24, 7, 1, 1]).unit(0.4).unit(0.9);
+    out.push(("seed-trials".into(), trials.0));
     out
 }
 

@@ -9,23 +9,29 @@
 //! else is fair game: NULL handles and arrays, unknown codes, NaN and empty
 //! bounds, NaN and out-of-range random numbers and directions, counts larger
 //! than the distributions hold, arbitrary training samples and path
-//! vertices, saved files with corrupted bytes, and schedules with any
-//! options, budgets, times and path counts driving `pg_field_train_scheduled`.
+//! vertices, saved files with corrupted bytes, schedules with any
+//! options, budgets, times and path counts driving `pg_field_train_scheduled`
+//! and their early look, and efficiency trials (`PgGuideTrial`,
+//! `PgWindowTrial`) fed passes of any values, seconds and arms, before and
+//! after their verdicts, each checked against a Rust twin fed the same calls.
 //!
 //! Asserted after every call: the status is one of the `PgStatus` codes and
 //! never `PG_PANIC` (a panic caught at the boundary is a library bug);
 //! `pg_last_error()` is a non-empty string after a failure and `""` after a
 //! success; on success the outputs are valid (finite unit directions, finite
 //! densities, `> 0` for samples, selection probabilities in `[0, 1]`); a
-//! scheduled update runs what the schedule's report then counts.
+//! scheduled update runs what the schedule's report then counts; the early
+//! look is due at most once per schedule; a trial's arms, verdicts and
+//! statuses are its Rust twin's.
 //!
 //! Inputs stay cheap: only `PG_SIZE_SMALL` models (other size codes are
 //! invalid ones), batches of at most 16 samples, at most 4 steps per update,
 //! at most 2 threads, at most 6 queries per call and [`MAX_OPS`] calls; a
 //! valid schedule allows at most 4 epochs per update, so a scheduled update
-//! runs at most 4 · 64 steps.
+//! runs at most 4 · 64 steps. Trial images have at most 6 × 6 pixels.
 
 use super::{special_values, ByteReader};
+use guiding::{GuideTrial, TrialArm, TrialOptions, TrialVerdict, WindowTrial};
 use guiding_capi::*;
 use std::ffi::{CStr, CString};
 use std::ptr::{null, null_mut};
@@ -232,6 +238,19 @@ struct State {
     grid: *mut PgRadianceGrid,
     /// Estimates offered to the grid since it was made (kept or refused).
     grid_offered: u64,
+    /// The schedule's early look was due (it is due once per schedule).
+    looked: bool,
+    guide_trial: *mut PgGuideTrial,
+    /// The Rust trial fed the calls the C one accepted (`Some` while `guide_trial` is live).
+    guide_twin: Option<GuideTrial>,
+    window_trial: *mut PgWindowTrial,
+    /// As `guide_twin`, for `window_trial`.
+    window_twin: Option<WindowTrial>,
+    /// Pixels of the live trials' images (and passes).
+    guide_pixels: usize,
+    window_pixels: usize,
+    /// Trial passes made so far (seeds each pass's noise).
+    trial_passes: u64,
     path: CString,
 }
 
@@ -248,6 +267,8 @@ impl Drop for State {
             pg_recorder_release(self.recorder);
             pg_schedule_release(self.schedule);
             pg_radiance_grid_release(self.grid);
+            pg_guide_trial_release(self.guide_trial);
+            pg_window_trial_release(self.window_trial);
         }
         let path = std::path::PathBuf::from(self.path.to_str().unwrap_or_default());
         let _ = std::fs::remove_file(path);
@@ -356,6 +377,14 @@ pub fn c_api(data: &[u8]) {
         schedule: null_mut(),
         grid: null_mut(),
         grid_offered: 0,
+        looked: false,
+        guide_trial: null_mut(),
+        guide_twin: None,
+        window_trial: null_mut(),
+        window_twin: None,
+        guide_pixels: 0,
+        window_pixels: 0,
+        trial_passes: 0,
         path: temp_path(),
     };
     for _ in 0..MAX_OPS {
@@ -380,7 +409,7 @@ pub fn c_api(data: &[u8]) {
         // cleared on release), arrays are locals of at least the stated
         // length or NULL.
         // The slot and NULL-handle bits do not take part in the choice.
-        match (op & 0x3f) % 25 {
+        match (op & 0x3f) % 26 {
             0 | 1 => op_new_field(&mut r, &mut s, slot),
             2 => {
                 unsafe { pg_field_release(s.fields[slot]) };
@@ -458,6 +487,7 @@ pub fn c_api(data: &[u8]) {
             21 => op_roulette(&mut r, &mut s, null_handle),
             22 => op_dist_product(&mut r, &s, slot, dist),
             23 => op_media_rules(&mut r),
+            24 => op_trials(&mut r, &mut s, null_handle),
             _ => null_sweep(),
         }
     }
@@ -979,8 +1009,84 @@ fn null_sweep() {
     let mut grid_stats = PgRadianceGridStats::default();
     let one = [0.5f32];
     let room = [0u32];
+    let mut guide_trial: *mut PgGuideTrial = std::ptr::dangling_mut();
+    let mut window_trial: *mut PgWindowTrial = std::ptr::dangling_mut();
+    let mut arm = 0;
+    let mut verdict = PgTrialVerdict::from(TrialVerdict {
+        keep_guide: true,
+        evidence: guiding::Verdict::Undecided,
+        ratio_low: 0.5,
+        ratio_high: 2.0,
+        guided_variance: 1.0,
+        unguided_variance: 1.0,
+        guided_seconds: 1.0,
+        unguided_seconds: 1.0,
+        cost_ratio: 1.0,
+        guided_passes: 4,
+        unguided_passes: 4,
+        z: 3.0,
+        pixels_skipped: 0,
+    });
     unsafe {
-        let calls: [(PgStatus, &str); 62] = [
+        let calls: [(PgStatus, &str); 81] = [
+            (
+                pg_guide_trial_new(1, 1, null(), &mut guide_trial),
+                "guide trial image",
+            ),
+            (
+                pg_guide_trial_new(1, 1, o.as_ptr(), null_mut()),
+                "guide trial out",
+            ),
+            (pg_guide_trial_next_arm(null(), &mut arm), "next arm"),
+            (pg_guide_trial_next_arm(null(), null_mut()), "next arm out"),
+            (
+                pg_guide_trial_record(null_mut(), 0, o.as_ptr(), 1.0),
+                "guide record",
+            ),
+            (
+                pg_guide_trial_record(null_mut(), 5, null(), f64::NAN),
+                "guide record pixels",
+            ),
+            (pg_guide_trial_restart(null_mut(), 0), "restart"),
+            (
+                pg_guide_trial_verdict(null(), &mut b, &mut verdict),
+                "guide verdict",
+            ),
+            (
+                pg_guide_trial_first_look(null(), &mut b, &mut verdict),
+                "first look",
+            ),
+            (
+                pg_trial_verdict_worth_more_training(null(), &mut b),
+                "worth more training",
+            ),
+            (
+                pg_trial_verdict_worth_more_training(&verdict, null_mut()),
+                "worth more training out",
+            ),
+            (
+                pg_window_trial_new(1, 1, null(), &mut window_trial),
+                "window trial image",
+            ),
+            (
+                pg_window_trial_next_pass_uses_window(null(), &mut b),
+                "uses window",
+            ),
+            (pg_window_trial_running(null(), &mut b), "running"),
+            (
+                pg_window_trial_record(null_mut(), true, o.as_ptr(), 1.0),
+                "window record",
+            ),
+            (
+                pg_window_trial_verdict(null(), &mut b, &mut verdict),
+                "window verdict",
+            ),
+            (pg_window_trial_window_pays(null(), &mut b), "window pays"),
+            (pg_schedule_look_due(null_mut(), 0.0, 0, &mut b), "look due"),
+            (
+                pg_schedule_resume_after_look(null_mut(), f64::NAN, 1),
+                "resume after look",
+            ),
             (pg_weight_window_set_defaults(null_mut()), "window defaults"),
             (
                 pg_weight_window_decide(
@@ -1164,6 +1270,8 @@ fn null_sweep() {
             sched.is_null(),
             "pg_schedule_new leaves *out NULL on failure"
         );
+        assert!(guide_trial.is_null() && window_trial.is_null());
+        assert_eq!(verdict.ratio_high, 2.0, "outputs untouched");
         for (st, what) in calls {
             // Only the last call's message is kept: check the code here.
             assert_eq!(st, nul, "{what}");
@@ -1174,6 +1282,8 @@ fn null_sweep() {
         pg_recorder_release(null_mut());
         pg_schedule_release(null_mut());
         pg_radiance_grid_release(null_mut());
+        pg_guide_trial_release(null_mut());
+        pg_window_trial_release(null_mut());
         check(PgStatus::PG_OK, "release NULL");
     }
 }
@@ -1287,7 +1397,7 @@ fn op_schedule(r: &mut ByteReader<'_>, s: &mut State, null_handle: bool) {
     let null = sched.is_null();
     // SAFETY (all calls): the handle is NULL or live (the slot is cleared on
     // release), outputs are locals or NULL.
-    match r.byte() % 8 {
+    match r.byte() % 10 {
         0 | 1 => {
             let a = schedule_args(r);
             let null_out = r.byte() % 16 == 0;
@@ -1308,6 +1418,7 @@ fn op_schedule(r: &mut ByteReader<'_>, s: &mut State, null_handle: bool) {
                 assert!(!out.is_null());
                 unsafe { pg_schedule_release(s.schedule) };
                 s.schedule = out;
+                s.looked = false;
                 let rep = schedule_report(out).unwrap();
                 assert_eq!((rep.steps, rep.updates, rep.training_over), (0, 0, 0));
             } else {
@@ -1392,6 +1503,48 @@ fn op_schedule(r: &mut ByteReader<'_>, s: &mut State, null_handle: bool) {
             }
             if st == PgStatus::PG_OK {
                 assert!((1..=pass_paths).contains(&out), "{out} of {pass_paths}");
+            }
+        }
+        8 => {
+            // The early look: due at most once, never once the phase is over or before
+            // EARLY_LOOK_MIN_STEPS steps.
+            let elapsed = f64::from(r.c_value()) * 4.0;
+            let pass = u32::from(r.byte());
+            let mut due = false;
+            let out = if r.byte() % 16 == 15 {
+                null_mut()
+            } else {
+                &mut due as *mut bool
+            };
+            let before = schedule_report(sched);
+            let st = check(
+                unsafe { pg_schedule_look_due(sched, elapsed, pass, out) },
+                "pg_schedule_look_due",
+            );
+            expect_null(st, null || out.is_null());
+            if !null && !out.is_null() {
+                let valid = elapsed.is_finite() && elapsed >= 0.0;
+                assert_eq!(st == PgStatus::PG_OK, valid, "elapsed {elapsed}");
+            }
+            if st == PgStatus::PG_OK && due {
+                let before = before.unwrap();
+                assert!(!s.looked, "the look was due twice");
+                assert_eq!(before.training_over, 0, "a look after the phase");
+                assert!(before.steps >= guiding::EARLY_LOOK_MIN_STEPS, "{before:?}");
+                s.looked = true;
+            }
+        }
+        9 => {
+            let seconds = f64::from(r.c_value()) * 4.0;
+            let passes = u32::from(r.byte());
+            let st = check(
+                unsafe { pg_schedule_resume_after_look(sched, seconds, passes) },
+                "pg_schedule_resume_after_look",
+            );
+            expect_null(st, null);
+            if !null {
+                let valid = seconds.is_finite() && seconds >= 0.0;
+                assert_eq!(st == PgStatus::PG_OK, valid, "seconds {seconds}");
             }
         }
         _ => {
@@ -1678,4 +1831,550 @@ fn op_roulette(r: &mut ByteReader<'_>, s: &mut State, null_handle: bool) {
             }
         }
     }
+}
+
+/// A deterministic LCG (Knuth's MMIX constants) for the trials' synthetic images.
+struct Lcg(u64);
+
+impl Lcg {
+    /// Uniform in `(0, 1)`.
+    fn uniform(&mut self) -> f32 {
+        self.0 = self
+            .0
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        ((self.0 >> 40) as f32 + 0.5) / (1u64 << 24) as f32
+    }
+}
+
+/// A trial image of `pixels` pixels: `mean` plus uniform noise of standard deviation `sd`
+/// per channel (an LCG seeded by `seed`), sometimes with a few arbitrary values (NaN,
+/// infinities, negative, huge).
+fn trial_image(
+    r: &mut ByteReader<'_>,
+    pixels: usize,
+    mean: f32,
+    sd: f32,
+    seed: u64,
+) -> Vec<[f32; 3]> {
+    let mut lcg = Lcg(seed);
+    let half_width = sd * 3f32.sqrt();
+    let mut image: Vec<[f32; 3]> = (0..pixels)
+        .map(|_| [(); 3].map(|()| mean + half_width * (2.0 * lcg.uniform() - 1.0)))
+        .collect();
+    if pixels > 0 && r.byte() % 4 == 3 {
+        for _ in 0..=r.byte() % 3 {
+            let p = usize::from(r.byte()) % pixels;
+            image[p][usize::from(r.byte() % 3)] = r.c_value() * 1e3;
+        }
+    }
+    image
+}
+
+/// Seconds of a trial pass: mostly 0.05 to 0.75, sometimes NaN, infinite, negative, zero or
+/// huge.
+fn trial_seconds(r: &mut ByteReader<'_>) -> f64 {
+    let b = r.byte();
+    if b % 16 == 15 {
+        [
+            f64::NAN,
+            -1.0,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            -0.0,
+            0.0,
+            1e300,
+            f64::MIN_POSITIVE,
+        ][usize::from(b >> 5)]
+    } else {
+        0.05 * f64::from(1 + b % 15)
+    }
+}
+
+fn arm_code(arm: Option<TrialArm>) -> PgTrialArm {
+    match arm {
+        Some(TrialArm::Guided) => PG_TRIAL_ARM_GUIDED,
+        Some(TrialArm::Unguided) => PG_TRIAL_ARM_UNGUIDED,
+        None => PG_TRIAL_ARM_NONE,
+    }
+}
+
+fn arm_of(code: PgTrialArm) -> Option<TrialArm> {
+    match code {
+        PG_TRIAL_ARM_GUIDED => Some(TrialArm::Guided),
+        PG_TRIAL_ARM_UNGUIDED => Some(TrialArm::Unguided),
+        _ => None,
+    }
+}
+
+/// Whether the C verdict is the Rust one, field for field (floats to the bit).
+fn same_verdict(c: &PgTrialVerdict, r: &TrialVerdict) -> bool {
+    let w = PgTrialVerdict::from(*r);
+    let floats = |v: &PgTrialVerdict| {
+        [
+            v.ratio_low,
+            v.ratio_high,
+            v.guided_variance,
+            v.unguided_variance,
+            v.guided_seconds,
+            v.unguided_seconds,
+            v.cost_ratio,
+            v.z,
+        ]
+        .map(f64::to_bits)
+    };
+    let ints = |v: &PgTrialVerdict| {
+        (
+            v.keep_guide,
+            v.evidence,
+            v.guided_passes,
+            v.unguided_passes,
+            v.pixels_skipped,
+        )
+    };
+    let code = match r.evidence {
+        guiding::Verdict::Undecided => PG_EVIDENCE_UNDECIDED,
+        guiding::Verdict::Pays => PG_EVIDENCE_PAYS,
+        guiding::Verdict::DoesNotPay => PG_EVIDENCE_DOES_NOT_PAY,
+    };
+    floats(c) == floats(&w)
+        && ints(c) == ints(&w)
+        && c.evidence == code
+        && c.keep_guide == u32::from(r.keep_guide)
+}
+
+/// A verdict getter of a trial (`pg_guide_trial_verdict`, `_first_look`,
+/// `pg_window_trial_verdict`), checked: `None` when it says there is none, and then its
+/// output is untouched.
+fn c_verdict<T>(
+    get: unsafe extern "C" fn(*const T, *mut bool, *mut PgTrialVerdict) -> PgStatus,
+    trial: *const T,
+    what: &str,
+) -> Option<PgTrialVerdict> {
+    let mut has = true;
+    let mut v = std::mem::MaybeUninit::<PgTrialVerdict>::zeroed();
+    // SAFETY: a live handle; valid outputs.
+    assert_ok(unsafe { get(trial, &mut has, v.as_mut_ptr()) }, what);
+    // SAFETY: zeroed, then written whole or not at all: all-zero is a valid verdict.
+    let v = unsafe { v.assume_init() };
+    if !has {
+        assert_eq!(v.evidence, 0, "{what}: output written without a verdict");
+        assert_eq!(v.z.to_bits(), 0, "{what}: output written without a verdict");
+    }
+    has.then_some(v)
+}
+
+/// The C rules on `v` (`pg_trial_verdict_worth_more_training`, `pg_window_trial_window_pays`)
+/// are the Rust ones on the same fields; an unknown evidence code is refused by both.
+fn check_verdict_rules(v: &PgTrialVerdict) {
+    let (mut worth, mut pays) = (false, false);
+    let st_worth = check(
+        unsafe { pg_trial_verdict_worth_more_training(v, &mut worth) },
+        "pg_trial_verdict_worth_more_training",
+    );
+    let st_pays = check(
+        unsafe { pg_window_trial_window_pays(v, &mut pays) },
+        "pg_window_trial_window_pays",
+    );
+    let evidence = match v.evidence {
+        PG_EVIDENCE_UNDECIDED => guiding::Verdict::Undecided,
+        PG_EVIDENCE_PAYS => guiding::Verdict::Pays,
+        PG_EVIDENCE_DOES_NOT_PAY => guiding::Verdict::DoesNotPay,
+        _ => {
+            assert_eq!(st_worth, PgStatus::PG_INVALID_ARGUMENT, "{v:?}");
+            assert_eq!(st_pays, PgStatus::PG_INVALID_ARGUMENT, "{v:?}");
+            return;
+        }
+    };
+    assert_eq!((st_worth, st_pays), (PgStatus::PG_OK, PgStatus::PG_OK));
+    let rust = TrialVerdict {
+        keep_guide: v.keep_guide != 0,
+        evidence,
+        ratio_low: v.ratio_low,
+        ratio_high: v.ratio_high,
+        guided_variance: v.guided_variance,
+        unguided_variance: v.unguided_variance,
+        guided_seconds: v.guided_seconds,
+        unguided_seconds: v.unguided_seconds,
+        cost_ratio: v.cost_ratio,
+        guided_passes: v.guided_passes,
+        unguided_passes: v.unguided_passes,
+        z: v.z,
+        pixels_skipped: v.pixels_skipped,
+    };
+    assert_eq!(worth, rust.worth_more_training(), "{v:?}");
+    assert_eq!(pays, WindowTrial::window_pays(&rust), "{v:?}");
+}
+
+/// The live trials answer as their Rust twins: next arm, window order, running, verdicts
+/// and first looks (and the rules on them).
+fn check_trials(s: &State) {
+    if let Some(twin) = &s.guide_twin {
+        let t = s.guide_trial;
+        let mut arm = 99;
+        assert_ok(unsafe { pg_guide_trial_next_arm(t, &mut arm) }, "next arm");
+        assert_eq!(arm, arm_code(twin.next_arm()));
+        let verdicts = [
+            (
+                c_verdict(pg_guide_trial_verdict, t, "verdict"),
+                twin.verdict(),
+                "verdict",
+            ),
+            (
+                c_verdict(pg_guide_trial_first_look, t, "first look"),
+                twin.first_look(),
+                "first look",
+            ),
+        ];
+        for (got, want, what) in verdicts {
+            assert_eq!(got.is_some(), want.is_some(), "{what}: {got:?} {want:?}");
+            if let (Some(c), Some(r)) = (got, want) {
+                assert!(same_verdict(&c, &r), "{what}: {c:?} {r:?}");
+                check_verdict_rules(&c);
+            }
+        }
+    }
+    if let Some(twin) = &s.window_twin {
+        let t = s.window_trial;
+        let (mut on, mut running) = (false, false);
+        assert_ok(
+            unsafe { pg_window_trial_next_pass_uses_window(t, &mut on) },
+            "uses window",
+        );
+        assert_ok(
+            unsafe { pg_window_trial_running(t, &mut running) },
+            "running",
+        );
+        assert_eq!(
+            (on, running),
+            (twin.next_pass_uses_window(), twin.running())
+        );
+        let got = c_verdict(pg_window_trial_verdict, t, "window verdict");
+        let want = twin.verdict();
+        assert_eq!(got.is_some(), want.is_some(), "{got:?} {want:?}");
+        assert_eq!(running, want.is_none());
+        if let (Some(c), Some(r)) = (got, want) {
+            assert!(same_verdict(&c, &r), "{c:?} {r:?}");
+            check_verdict_rules(&c);
+        }
+    }
+}
+
+/// Efficiency trials: `PgGuideTrial` and `PgWindowTrial` new (images of up to 6 × 6 pixels,
+/// none, or NULL; any values), release, record (the arm the trial asks for, the other one or
+/// an unknown code; passes of any noise, some values arbitrary, NULL pixels; seconds of any
+/// value; before and after a verdict), restart, verdicts and first looks (NULL and
+/// overlapping outputs), and the verdict rules on arbitrary verdicts. Each live C trial has a
+/// Rust twin fed the same calls: the statuses, arms and verdicts must agree.
+fn op_trials(r: &mut ByteReader<'_>, s: &mut State, null_handle: bool) {
+    let guide = if null_handle {
+        null_mut()
+    } else {
+        s.guide_trial
+    };
+    let window = if null_handle {
+        null_mut()
+    } else {
+        s.window_trial
+    };
+    // SAFETY (all calls): handles are NULL or live (slots are cleared on release), arrays are
+    // locals of the trial's size or NULL, outputs are locals or NULL.
+    match r.byte() % 8 {
+        b @ (0 | 1) => op_new_trial(r, s, b == 1),
+        2 => {
+            if r.byte() % 2 == 0 {
+                unsafe { pg_guide_trial_release(s.guide_trial) };
+                s.guide_trial = null_mut();
+                s.guide_twin = None;
+            } else {
+                unsafe { pg_window_trial_release(s.window_trial) };
+                s.window_trial = null_mut();
+                s.window_twin = None;
+            }
+            check(PgStatus::PG_OK, "trial release");
+        }
+        3 => {
+            let next = s.guide_twin.as_ref().and_then(GuideTrial::next_arm);
+            let b = r.byte();
+            let code = match b % 8 {
+                6 => arm_code(Some(match next {
+                    Some(TrialArm::Guided) => TrialArm::Unguided,
+                    _ => TrialArm::Guided,
+                })),
+                7 => [PG_TRIAL_ARM_NONE, 2, i32::MIN, i32::MAX][usize::from(b >> 6)],
+                _ => arm_code(Some(next.unwrap_or(TrialArm::Guided))),
+            };
+            let pixels = if s.guide_twin.is_some() {
+                s.guide_pixels
+            } else {
+                0
+            };
+            let (pass, null_pixels, seconds) = trial_pass(r, s, pixels);
+            let st = check(
+                unsafe {
+                    pg_guide_trial_record(
+                        guide,
+                        code,
+                        ptr_or_null(&pass, null_pixels).cast(),
+                        seconds,
+                    )
+                },
+                "pg_guide_trial_record",
+            );
+            expect_null(st, guide.is_null() || null_pixels);
+            if guide.is_null() || null_pixels {
+                return check_trials(s);
+            }
+            let twin = s.guide_twin.as_mut().unwrap();
+            let want = arm_of(code).is_some_and(|arm| twin.record(arm, &pass, seconds).is_ok());
+            assert_eq!(
+                st == PgStatus::PG_OK,
+                want,
+                "{st:?} arm {code}, {seconds} s"
+            );
+            if !want {
+                assert_eq!(st, PgStatus::PG_INVALID_ARGUMENT);
+            }
+        }
+        4 => {
+            let next = s
+                .window_twin
+                .as_ref()
+                .is_some_and(WindowTrial::next_pass_uses_window);
+            let with_window = next != (r.byte() % 8 == 7);
+            let pixels = if s.window_twin.is_some() {
+                s.window_pixels
+            } else {
+                0
+            };
+            let (pass, null_pixels, seconds) = trial_pass(r, s, pixels);
+            let st = check(
+                unsafe {
+                    pg_window_trial_record(
+                        window,
+                        with_window,
+                        ptr_or_null(&pass, null_pixels).cast(),
+                        seconds,
+                    )
+                },
+                "pg_window_trial_record",
+            );
+            expect_null(st, window.is_null() || null_pixels);
+            if window.is_null() || null_pixels {
+                return check_trials(s);
+            }
+            let twin = s.window_twin.as_mut().unwrap();
+            let want = twin.record(with_window, &pass, seconds).is_ok();
+            assert_eq!(
+                st == PgStatus::PG_OK,
+                want,
+                "{st:?} window {with_window}, {seconds} s"
+            );
+            if !want {
+                assert_eq!(st, PgStatus::PG_INVALID_ARGUMENT);
+            }
+        }
+        5 => {
+            let code = [
+                PG_TRIAL_ARM_GUIDED,
+                PG_TRIAL_ARM_UNGUIDED,
+                2,
+                PG_TRIAL_ARM_NONE,
+            ][usize::from(r.byte() % 4)];
+            let st = check(
+                unsafe { pg_guide_trial_restart(guide, code) },
+                "pg_guide_trial_restart",
+            );
+            expect_null(st, guide.is_null());
+            if guide.is_null() {
+                return check_trials(s);
+            }
+            match arm_of(code) {
+                Some(arm) => {
+                    assert_eq!(st, PgStatus::PG_OK);
+                    s.guide_twin.as_mut().unwrap().restart(arm);
+                }
+                None => assert_eq!(st, PgStatus::PG_INVALID_ARGUMENT),
+            }
+        }
+        6 => {
+            // Verdict getters with NULL or overlapping outputs: refused, nothing written.
+            let b = r.byte();
+            let mut buffer = PgTrialVerdict::from(TrialVerdict {
+                keep_guide: false,
+                evidence: guiding::Verdict::DoesNotPay,
+                ratio_low: 1.5,
+                ratio_high: 2.5,
+                guided_variance: 1.0,
+                unguided_variance: 1.0,
+                guided_seconds: 1.0,
+                unguided_seconds: 1.0,
+                cost_ratio: 2.0,
+                guided_passes: 2,
+                unguided_passes: 2,
+                z: 3.0,
+                pixels_skipped: 0,
+            });
+            let before = buffer;
+            let mut has = false;
+            let buffer_ptr = &mut buffer as *mut PgTrialVerdict;
+            let (has_ptr, out_ptr, want) = match b % 4 {
+                0 => (null_mut(), buffer_ptr, PgStatus::PG_NULL_POINTER),
+                1 => (&mut has as *mut bool, null_mut(), PgStatus::PG_NULL_POINTER),
+                _ => (
+                    buffer_ptr
+                        .cast::<bool>()
+                        .wrapping_add(usize::from(b >> 2) % 88),
+                    buffer_ptr,
+                    PgStatus::PG_INVALID_ARGUMENT,
+                ),
+            };
+            let sts = [
+                check(
+                    unsafe { pg_guide_trial_verdict(guide, has_ptr, out_ptr) },
+                    "pg_guide_trial_verdict",
+                ),
+                check(
+                    unsafe { pg_guide_trial_first_look(guide, has_ptr, out_ptr) },
+                    "pg_guide_trial_first_look",
+                ),
+                check(
+                    unsafe { pg_window_trial_verdict(window, has_ptr, out_ptr) },
+                    "pg_window_trial_verdict",
+                ),
+            ];
+            for (st, handle) in
+                sts.into_iter()
+                    .zip([guide.is_null(), guide.is_null(), window.is_null()])
+            {
+                let want = if handle {
+                    PgStatus::PG_NULL_POINTER
+                } else {
+                    want
+                };
+                assert_eq!(st, want, "{}", last_error());
+            }
+            // The rules with NULL or overlapping arguments.
+            let inside = buffer_ptr
+                .cast::<bool>()
+                .wrapping_add(usize::from(b >> 2) % 88);
+            for (verdict, out, want) in [
+                (null(), &mut has as *mut bool, PgStatus::PG_NULL_POINTER),
+                (
+                    buffer_ptr.cast_const(),
+                    null_mut(),
+                    PgStatus::PG_NULL_POINTER,
+                ),
+                (
+                    buffer_ptr.cast_const(),
+                    inside,
+                    PgStatus::PG_INVALID_ARGUMENT,
+                ),
+            ] {
+                let st = check(
+                    unsafe { pg_trial_verdict_worth_more_training(verdict, out) },
+                    "pg_trial_verdict_worth_more_training",
+                );
+                assert_eq!(st, want, "{}", last_error());
+                let st = check(
+                    unsafe { pg_window_trial_window_pays(verdict, out) },
+                    "pg_window_trial_window_pays",
+                );
+                assert_eq!(st, want, "{}", last_error());
+            }
+            assert_eq!(buffer, before, "outputs untouched");
+        }
+        _ => {
+            // The rules on any verdict: any evidence code (3 is unknown), any interval.
+            let v = PgTrialVerdict {
+                keep_guide: u32::from(r.byte()),
+                evidence: u32::from(r.byte() % 4),
+                ratio_low: f64::from(r.c_value()) * 2.0,
+                ratio_high: f64::from(r.c_value()) * 2.0,
+                guided_variance: f64::from(r.c_value()),
+                unguided_variance: f64::from(r.c_value()),
+                guided_seconds: 1.0,
+                unguided_seconds: 1.0,
+                cost_ratio: f64::from(r.c_value()) * 2.0,
+                guided_passes: u32::from(r.byte()),
+                unguided_passes: u32::from(r.byte()),
+                z: 3.0,
+                pixels_skipped: u64::from(r.byte()),
+            };
+            check_verdict_rules(&v);
+        }
+    }
+    check_trials(s);
+}
+
+/// `pg_guide_trial_new` or (`window`) `pg_window_trial_new` on an image of up to 6 × 6 pixels
+/// (none is refused), any values, or NULL, into a NULL or valid `out`; a new trial replaces
+/// the slot's, with its Rust twin made from the same image.
+fn op_new_trial(r: &mut ByteReader<'_>, s: &mut State, window: bool) {
+    let (w, h) = (u32::from(r.byte() % 7), u32::from(r.byte() % 7));
+    let pixels = (w * h) as usize;
+    let seed = u64::from(r.u32());
+    let image = trial_image(r, pixels, 1.0, 0.3, seed);
+    let flags = r.byte();
+    let null_image = pixels > 0 && flags % 16 == 15;
+    let null_out = flags >> 4 == 15;
+    let image_ptr = ptr_or_null(&image, null_image).cast::<f32>();
+    let (w_us, h_us, options) = (w as usize, h as usize, TrialOptions::default());
+    // SAFETY: `image` has w × h pixels (or is NULL); `out` is a local or NULL.
+    let (st, out_null) = if window {
+        let mut out: *mut PgWindowTrial = std::ptr::dangling_mut();
+        let out_ptr = if null_out {
+            null_mut()
+        } else {
+            &mut out as *mut _
+        };
+        let st = check(
+            unsafe { pg_window_trial_new(w, h, image_ptr, out_ptr) },
+            "pg_window_trial_new",
+        );
+        if st == PgStatus::PG_OK {
+            let twin = WindowTrial::new(w_us, h_us, &image, options).expect("C made it");
+            unsafe { pg_window_trial_release(s.window_trial) };
+            (s.window_trial, s.window_twin, s.window_pixels) = (out, Some(twin), pixels);
+        }
+        (st, out.is_null())
+    } else {
+        let mut out: *mut PgGuideTrial = std::ptr::dangling_mut();
+        let out_ptr = if null_out {
+            null_mut()
+        } else {
+            &mut out as *mut _
+        };
+        let st = check(
+            unsafe { pg_guide_trial_new(w, h, image_ptr, out_ptr) },
+            "pg_guide_trial_new",
+        );
+        if st == PgStatus::PG_OK {
+            let twin = GuideTrial::new(w_us, h_us, &image, options).expect("C made it");
+            unsafe { pg_guide_trial_release(s.guide_trial) };
+            (s.guide_trial, s.guide_twin, s.guide_pixels) = (out, Some(twin), pixels);
+        }
+        (st, out.is_null())
+    };
+    expect_null(st, null_out || null_image);
+    if null_out || null_image {
+        return;
+    }
+    // No pixels is the only invalid image (any values are taken).
+    assert_eq!(st == PgStatus::PG_OK, pixels > 0, "{w} x {h}: {st:?}");
+    assert_eq!(out_null, pixels == 0, "*out is NULL exactly on failure");
+    if pixels == 0 {
+        assert_eq!(st, PgStatus::PG_INVALID_ARGUMENT);
+    }
+}
+
+/// A trial pass of `pixels` pixels from bytes: noise of standard deviation 0 to 0.35 around 1
+/// (each pass its own seed), some values arbitrary; whether to pass NULL instead; its seconds.
+fn trial_pass(r: &mut ByteReader<'_>, s: &mut State, pixels: usize) -> (Vec<[f32; 3]>, bool, f64) {
+    let sd = 0.05 * f32::from(r.byte() % 8);
+    s.trial_passes += 1;
+    let seed = u64::from(r.byte()) ^ (s.trial_passes << 8);
+    let pass = trial_image(r, pixels, 1.0, sd, seed);
+    let null_pixels = pixels > 0 && r.byte() % 16 == 15;
+    (pass, null_pixels, trial_seconds(r))
 }
