@@ -104,6 +104,17 @@ fn args_of(o: &ScheduleOptions) -> PgScheduleArgs {
 }
 
 /// The options and budget of `args`; the ranges are checked by `TrainingSchedule::new`.
+/// `value` as seconds: finite and `≥ 0`, else `PG_INVALID_ARGUMENT` naming the argument.
+fn non_negative_seconds(value: f64, what: &str) -> Result<(), Failure> {
+    if value.is_finite() && value >= 0.0 {
+        Ok(())
+    } else {
+        Err(Failure::invalid(format!(
+            "{what} {value} is not finite and >= 0"
+        )))
+    }
+}
+
 fn options_of(args: &PgScheduleArgs) -> Result<(ScheduleOptions, Budget), Failure> {
     let steps = match args.step_rule {
         PG_STEP_RULE_TIME_SHARE => StepRule::TimeShare(args.step_value),
@@ -202,11 +213,7 @@ pub unsafe extern "C" fn pg_schedule_in_training_phase(
     guard("pg_schedule_in_training_phase", || {
         let s = unsafe { ptr::as_mut(schedule, "schedule") }?;
         let out = unsafe { ptr::as_mut(out, "out") }?;
-        if !(elapsed_seconds.is_finite() && elapsed_seconds >= 0.0) {
-            return Err(Failure::invalid(format!(
-                "elapsed_seconds {elapsed_seconds} is not finite and >= 0"
-            )));
-        }
+        non_negative_seconds(elapsed_seconds, "elapsed_seconds")?;
         *out = s.inner.in_training_phase(elapsed_seconds, pass_index);
         Ok(())
     })
@@ -256,11 +263,7 @@ pub unsafe extern "C" fn pg_schedule_look_due(
     guard("pg_schedule_look_due", || {
         let s = unsafe { ptr::as_mut(schedule, "schedule") }?;
         let out = unsafe { ptr::as_mut(out, "out") }?;
-        if !(elapsed_seconds.is_finite() && elapsed_seconds >= 0.0) {
-            return Err(Failure::invalid(format!(
-                "elapsed_seconds {elapsed_seconds} is not finite and >= 0"
-            )));
-        }
+        non_negative_seconds(elapsed_seconds, "elapsed_seconds")?;
         *out = s.inner.look_due(elapsed_seconds, pass_index);
         Ok(())
     })
@@ -284,11 +287,7 @@ pub unsafe extern "C" fn pg_schedule_resume_after_look(
 ) -> PgStatus {
     guard("pg_schedule_resume_after_look", || {
         let s = unsafe { ptr::as_mut(schedule, "schedule") }?;
-        if !(look_seconds.is_finite() && look_seconds >= 0.0) {
-            return Err(Failure::invalid(format!(
-                "look_seconds {look_seconds} is not finite and >= 0"
-            )));
-        }
+        non_negative_seconds(look_seconds, "look_seconds")?;
         s.inner.resume_after_look(look_seconds, look_passes);
         Ok(())
     })
@@ -310,11 +309,7 @@ pub unsafe extern "C" fn pg_schedule_record_traced(
 ) -> PgStatus {
     guard("pg_schedule_record_traced", || {
         let s = unsafe { ptr::as_mut(schedule, "schedule") }?;
-        if !(seconds.is_finite() && seconds >= 0.0) {
-            return Err(Failure::invalid(format!(
-                "seconds {seconds} is not finite and >= 0"
-            )));
-        }
+        non_negative_seconds(seconds, "seconds")?;
         s.inner.record_traced(seconds, paths);
         Ok(())
     })
