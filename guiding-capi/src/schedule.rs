@@ -237,16 +237,20 @@ pub unsafe extern "C" fn pg_schedule_end_training(schedule: *mut PgSchedule) -> 
 
 /// Writes to `*out` whether the renderer should take its early look at the guide now, before
 /// the pass `pass_index` that starts `elapsed_seconds` into the render (Rust
-/// `TrainingSchedule::look_due`): a quarter of the training phase (`EARLY_LOOK_AT`) is behind
-/// it, the guide has had 64 Adam steps (`EARLY_LOOK_MIN_STEPS`, counted by
-/// `pg_field_train_scheduled`; the look waits for them), the phase is not over, and no look was
-/// due before. Writes true once per schedule.
+/// `TrainingSchedule::look_due`): the guide has had 64 Adam steps (`EARLY_LOOK_MIN_STEPS`,
+/// counted by `pg_field_train_scheduled`; the look waits for them), the phase is not over, and
+/// the next look's share of the training phase is behind it: a quarter (`EARLY_LOOK_AT`) for
+/// the first, then each following quarter (1/2, 3/4). Writes true at most once per quarter.
 ///
 /// The look is a short efficiency trial of the guide as it is (`PgGuideTrial` up to its first
-/// look, `pg_guide_trial_first_look`; training paused, nothing recorded), whose estimate says
-/// whether training goes on (`pg_trial_verdict_worth_more_training`, then
-/// `pg_schedule_resume_after_look`) or ends (`pg_schedule_end_training`). The look never
-/// switches the guide off. A renderer without such a trial need not ask.
+/// look, `pg_guide_trial_first_look`; training paused, nothing recorded), whose estimate
+/// decides (Rust `TrialVerdict::look_decision`): `PG_EVIDENCE_PAYS`
+/// (`pg_trial_verdict_worth_more_training`): training goes on
+/// (`pg_schedule_resume_after_look`) and the renderer asks no more;
+/// `PG_EVIDENCE_UNDECIDED` with a finite interval: training goes on
+/// (`pg_schedule_resume_after_look`) to the next look; otherwise training ends
+/// (`pg_schedule_end_training`). The look never switches the guide off. A renderer without
+/// such a trial need not ask.
 ///
 /// Returns `PG_INVALID_ARGUMENT` (and changes nothing) if `elapsed_seconds` is not finite and
 /// `≥ 0`.

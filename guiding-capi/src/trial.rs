@@ -40,8 +40,9 @@
 //! pass:
 //!
 //! ```c
-//! bool look;
-//! pg_schedule_look_due(schedule, seconds_since_start, pass, &look);   /* true once */
+//! bool look = false;
+//! if (!guide_pays)                      /* once per quarter of the phase, at most 3 times */
+//!     pg_schedule_look_due(schedule, seconds_since_start, pass, &look);
 //! if (look) {
 //!     /* Pause training: guided passes read the guide as it is (its cache), record nothing
 //!        and run no Adam step; unguided passes switch it off. */
@@ -56,8 +57,11 @@
 //!         pg_guide_trial_first_look(probe, &has, &v);
 //!     }
 //!     if (has) pg_trial_verdict_worth_more_training(&v, &more); /* interval below 1 */
-//!     if (more) pg_schedule_resume_after_look(schedule, look_seconds, look_passes);
+//!     bool straddles = has && v.evidence == PG_EVIDENCE_UNDECIDED && isfinite(v.ratio_high);
+//!     if (more || straddles)                 /* no evidence either way: look again later */
+//!         pg_schedule_resume_after_look(schedule, look_seconds, look_passes);
 //!     else pg_schedule_end_training(schedule);      /* the trial after training decides */
+//!     guide_pays = more;
 //!     pg_guide_trial_release(probe);
 //! }
 //! ```

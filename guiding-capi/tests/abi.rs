@@ -2801,7 +2801,7 @@ fn trial_calls_refuse_bad_input() {
 }
 
 /// The early look through the C ABI is the Rust schedule's: `pg_schedule_look_due` answers as
-/// `TrainingSchedule::look_due` (not before 64 Adam steps and a quarter of the phase, once),
+/// `TrainingSchedule::look_due` (not before 64 Adam steps and a quarter of the phase, once per quarter),
 /// a look trial's first look decides with `pg_trial_verdict_worth_more_training`, and
 /// `pg_schedule_resume_after_look` moves the end of the phase as the Rust one does (or
 /// `pg_schedule_end_training` ends it). Bad times are refused and change nothing.
@@ -2832,6 +2832,7 @@ fn early_look_in_c_equals_the_rust_schedule() {
         let mut rust = TrainingSchedule::new(options, Budget::Spp(spp)).unwrap();
         let mut rng = Pcg32::new(7, 3);
         let (mut looks, mut training_passes, mut pass) = (0, 0, 0u32);
+        let mut paid = false;
         while pass < 24 {
             let elapsed = 0.1 * f64::from(pass);
             let (mut due, mut training) = (false, false);
@@ -2846,14 +2847,20 @@ fn early_look_in_c_equals_the_rust_schedule() {
                         "elapsed_seconds",
                     );
                 }
-                expect_ok(pg_schedule_look_due(sched, elapsed, pass, &mut due));
+                // A renderer whose look showed the guide paying asks no more.
+                if !paid {
+                    expect_ok(pg_schedule_look_due(sched, elapsed, pass, &mut due));
+                }
             }
-            assert_eq!(due, rust.look_due(elapsed, pass), "pass {pass}");
+            if !paid {
+                assert_eq!(due, rust.look_due(elapsed, pass), "pass {pass}");
+            }
             if due {
                 looks += 1;
                 assert!(schedule_report(sched).steps >= 64);
                 let (look_passes, look_seconds, more) = early_look(sd);
                 assert_eq!(more, resumes, "{sd:?}");
+                paid = more;
                 // SAFETY: a live handle.
                 unsafe {
                     for bad in [f64::NAN, -0.5, f64::INFINITY] {
@@ -2912,7 +2919,7 @@ fn early_look_in_c_equals_the_rust_schedule() {
             rust.record_update(report.steps, 1e-3);
             assert_eq!(report.steps, 32);
         }
-        assert_eq!(looks, 1, "the look is due once");
+        assert_eq!(looks, 1, "one look decided (below or above 1)");
         let r = schedule_report(sched);
         assert_eq!((r.steps, r.training_over), (rust.report().steps, 1));
         // Resumed: the phase ends as many passes later as the look took, so the guide still

@@ -125,7 +125,7 @@ pub use schedule::{
     Budget, ScheduleOptions, ScheduleReport, StepRule, TrainingSchedule, EARLY_LOOK_AT,
     EARLY_LOOK_MIN_STEPS,
 };
-pub use trial::{GuideTrial, TrialArm, TrialOptions, TrialVerdict, TRIAL_TRIM};
+pub use trial::{GuideTrial, LookDecision, TrialArm, TrialOptions, TrialVerdict, TRIAL_TRIM};
 
 /// The code examples of the embedding guide, `docs/manual/embedding.md` (the
 /// embedding API and the `guiding-core` kernels), compiled and run as doctests.

@@ -59,6 +59,15 @@ use guiding_core::field::FieldConfig;
 /// on the Cornell box (65 steps) 1.13 [1.05, 1.21] and on veach-mis 1.14 [1.04, 1.25]
 /// (`docs/bench-2026-12-07-look/`). A quarter keeps three quarters of the loss on such scenes
 /// and gives a paying guide the rest of its phase.
+///
+/// A look whose interval straddles 1 decides nothing: training goes on to the next look, a
+/// quarter of the phase later (at 1/2 and 3/4), until a look shows the guide paying
+/// ([`TrainingSchedule::end_looks`]) or not, or the phase ends. One look that had to decide
+/// stopped guides that pay once trained whenever it was too noisy to show it: `builtin:door`
+/// at 160 px (20 s, 3 seeds, `docs/bench-2026-12-08-window/door-160/`): on 4 of 6 renders the
+/// look straddled ([0.62, 1.10] … [0.82, 1.48]), training ended at pass 10–11 and the trial
+/// switched the under-trained guide off; where training went on the guide measured 0.43–0.54
+/// of the unguided cost.
 pub const EARLY_LOOK_AT: f64 = 0.25;
 
 /// Adam steps the guide must have had before the early look (the look waits for them): a
@@ -173,8 +182,8 @@ pub struct TrainingSchedule {
     steps: u64,
     updates: u64,
     over: bool,
-    /// The early look was due (it is due once).
-    looked: bool,
+    /// Training-phase progress at which the next early look is due (`≥ 1`: none).
+    next_look: f64,
     /// Seconds and passes of an early look after which training resumed: the training phase
     /// ends that much later, so the look does not cost the guide its training.
     paused_seconds: f64,
@@ -205,7 +214,7 @@ impl TrainingSchedule {
             steps: 0,
             updates: 0,
             over: false,
-            looked: false,
+            next_look: EARLY_LOOK_AT,
             paused_seconds: 0.0,
             paused_passes: 0,
         })
@@ -255,27 +264,37 @@ impl TrainingSchedule {
         }
     }
 
-    /// Whether the renderer should take its early look now, before the pass `pass` that
-    /// starts `elapsed` seconds into the render: [`EARLY_LOOK_AT`] of the training phase is
-    /// behind it and the guide has had [`EARLY_LOOK_MIN_STEPS`] Adam steps, the phase is not
-    /// over, and no look was due before. Answers `true` once.
+    /// Whether the renderer should take an early look now, before the pass `pass` that starts
+    /// `elapsed` seconds into the render: the guide has had [`EARLY_LOOK_MIN_STEPS`] Adam
+    /// steps, the phase is not over, and the next look's share of the training phase is behind
+    /// it: [`EARLY_LOOK_AT`] for the first, then each following quarter (1/2, 3/4). Answers
+    /// `true` at most once per quarter, and never after [`Self::end_looks`].
     ///
     /// The look (host-demo's, `--training-probe`) is a short efficiency trial
     /// ([`crate::GuideTrial`], its first look only) of the guide as it is, read from the
-    /// guide cache without recording; [`crate::TrialVerdict::worth_more_training`] says
-    /// whether training goes on ([`Self::resume_after_look`]) or ends
-    /// ([`Self::end_training`]). Whether the guide stays on is left to the trial after
-    /// training: the look never switches a guide off.
+    /// guide cache without recording. Its interval decides: below 1
+    /// ([`crate::TrialVerdict::worth_more_training`]) training goes on with no more looks
+    /// ([`Self::resume_after_look`], [`Self::end_looks`]); above 1 training ends
+    /// ([`Self::end_training`]); straddling 1, training goes on to the next look
+    /// ([`Self::resume_after_look`]) and, after the last, to the end of the phase. Whether the
+    /// guide stays on is left to the trial after training: a look never switches a guide off.
     pub fn look_due(&mut self, elapsed: f64, pass: u32) -> bool {
-        if self.over || self.looked || self.steps < EARLY_LOOK_MIN_STEPS {
+        if self.over || self.next_look >= 1.0 || self.steps < EARLY_LOOK_MIN_STEPS {
             return false;
         }
         let progress = self.phase_progress(elapsed, pass);
-        if !(EARLY_LOOK_AT..1.0).contains(&progress) {
+        if !(self.next_look..1.0).contains(&progress) {
             return false;
         }
-        self.looked = true;
+        // The next quarter after this one (a late look, waiting for its steps, skips those
+        // it passed).
+        self.next_look = ((progress / EARLY_LOOK_AT).floor() + 1.0) * EARLY_LOOK_AT;
         true
+    }
+
+    /// No more early looks in this render (a look showed the guide paying).
+    pub fn end_looks(&mut self) {
+        self.next_look = f64::INFINITY;
     }
 
     /// Training resumes after an early look of `seconds` (wall clock) and `passes` passes: the
@@ -594,20 +613,47 @@ mod tests {
         assert!(TrainingSchedule::new(o, Budget::Seconds(f64::NAN)).is_err());
     }
 
-    /// The early look is due once: a quarter of the phase and 64 steps behind it, not after
-    /// the phase; training resumed after it ends the phase as much later. Each rule broken
-    /// (a look before the quarter, before the steps, twice, or a phase not extended) fails.
+    /// The early look is due once per quarter of the phase (1/4, 1/2, 3/4) with 64 steps
+    /// behind it, not after the phase nor after `end_looks`; training resumed after a look ends
+    /// the phase as much later. Each rule broken (a look before its quarter, before the steps,
+    /// twice in a quarter, after `end_looks`, or a phase not extended) fails.
     #[test]
-    fn the_early_look_is_due_once_and_a_resumed_phase_ends_later() {
-        // 10 s budget: a 2-s training phase, the look from 0.5 s.
+    fn the_early_look_is_due_once_per_quarter_and_a_resumed_phase_ends_later() {
+        // 10 s budget: a 2-s training phase, the first look from 0.5 s.
         let mut s = schedule(Budget::Seconds(10.0));
         s.record_update(EARLY_LOOK_MIN_STEPS as u32, 0.1);
         assert!(!s.look_due(0.49, 3), "before a quarter of the phase");
         assert!(s.look_due(0.5, 4));
-        assert!(!s.look_due(0.6, 5), "due once");
+        assert!(!s.look_due(0.6, 5), "due once per quarter");
         s.resume_after_look(0.3, 4);
+        // The look's 0.3 s do not count: the half is at 1.3 s, three quarters at 1.8 s.
+        assert!(!s.look_due(1.29, 6), "before the half");
+        assert!(
+            s.look_due(1.3, 7),
+            "a straddling look: the next one at the half"
+        );
+        assert!(!s.look_due(1.35, 8), "due once per quarter");
+        assert!(s.look_due(1.8, 9), "three quarters");
+        assert!(!s.look_due(2.25, 10), "no look in the last quarter");
         assert!(s.in_training_phase(2.2, 9), "the phase ends 0.3 s later");
         assert!(!s.in_training_phase(2.4, 10));
+
+        // A look that shows the guide paying ends the looks.
+        let mut s = schedule(Budget::Seconds(10.0));
+        s.record_update(100, 0.1);
+        assert!(s.look_due(0.5, 4));
+        s.end_looks();
+        assert!(!s.look_due(1.0, 6), "after end_looks");
+        assert!(!s.look_due(1.5, 8), "after end_looks");
+        // A late first look (its steps came late) is followed by the next quarter after it.
+        let mut s = schedule(Budget::Seconds(10.0));
+        s.record_update(100, 0.1);
+        assert!(s.look_due(1.1, 6), "past the half");
+        assert!(
+            !s.look_due(1.4, 7),
+            "the next look at three quarters, not at the half"
+        );
+        assert!(s.look_due(1.5, 8));
 
         let mut s = schedule(Budget::Seconds(10.0));
         s.record_update(EARLY_LOOK_MIN_STEPS as u32 - 1, 0.1);

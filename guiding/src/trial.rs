@@ -197,6 +197,34 @@ impl TrialVerdict {
     pub fn worth_more_training(&self) -> bool {
         self.ratio_high < 1.0
     }
+
+    /// What an early look with this estimate decides ([`crate::TrainingSchedule::look_due`]):
+    /// training goes on with no more looks when the interval lies below 1
+    /// ([`Self::worth_more_training`]), ends when it lies above 1 or there is none (a black
+    /// image), and goes on to the next look when it straddles 1: a look too noisy to show
+    /// either does not decide the guide's training (see [`crate::EARLY_LOOK_AT`] for the
+    /// measurement).
+    #[must_use]
+    pub fn look_decision(&self) -> LookDecision {
+        if self.worth_more_training() {
+            LookDecision::TrainOn
+        } else if self.ratio_low <= 1.0 && self.ratio_high.is_finite() {
+            LookDecision::LookAgain
+        } else {
+            LookDecision::EndTraining
+        }
+    }
+}
+
+/// What an early look decides ([`TrialVerdict::look_decision`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LookDecision {
+    /// The guide pays on evidence: training goes on to the end of the phase, no more looks.
+    TrainOn,
+    /// No evidence either way: training goes on to the next look (or the end of the phase).
+    LookAgain,
+    /// The guide does not pay on evidence (or nothing could be measured): training ends.
+    EndTraining,
 }
 
 /// Per-arm sums of one trial: the arm's passes alternate between two halves (pass `i` of the
@@ -724,6 +752,20 @@ mod tests {
         assert!(!v(0.99, 0.85, 1.0).worth_more_training(), "reaches 1");
         assert!(!v(1.3, 1.2, 1.4).worth_more_training());
         assert!(!v(f64::NAN, f64::NAN, f64::NAN).worth_more_training());
+        // The look's decision: below 1 trains on, straddling looks again, above 1 (or no
+        // interval) ends training.
+        use super::LookDecision::*;
+        assert_eq!(v(0.7, 0.58, 0.85).look_decision(), TrainOn);
+        assert_eq!(v(0.89, 0.71, 1.11).look_decision(), LookAgain);
+        assert_eq!(v(0.99, 0.85, 1.0).look_decision(), LookAgain, "reaches 1");
+        assert_eq!(v(1.1, 1.0, 1.2).look_decision(), LookAgain, "starts at 1");
+        assert_eq!(v(1.3, 1.2, 1.4).look_decision(), EndTraining);
+        assert_eq!(v(f64::NAN, f64::NAN, f64::NAN).look_decision(), EndTraining);
+        assert_eq!(
+            v(1.0, 0.5, f64::INFINITY).look_decision(),
+            EndTraining,
+            "no finite interval"
+        );
     }
 
     #[test]

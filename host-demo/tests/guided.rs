@@ -11,7 +11,7 @@
 mod common;
 
 use common::{guide, npm_guide, training_config};
-use guiding::{GuidingField, ModelSize, Representation};
+use guiding::{GuidingField, LookDecision, ModelSize, Representation};
 use guiding_core::field::FieldConfig;
 use guiding_core::loss::Target;
 use host_demo::render::{render, Image, IntegratorKind, RenderOptions};
@@ -547,26 +547,28 @@ fn training_probe_decides_how_long_to_train_and_keeps_the_image_unbiased() {
         time_budget: Some(std::time::Duration::from_secs(3)),
         ..opts(IntegratorKind::PtNee, 1, w, h, 11, 2)
     };
-    let run_with = |training_probe: bool, probe_force: Option<bool>, weight_passes: bool| {
-        let mut g = small_npm_radiance(&scene, config);
-        let gopts = GuidedOptions {
-            schedule: epochs(0.5, 1e6),
-            training_probe,
-            weight_passes,
-            test_hooks: TestHooks {
-                probe_force,
-                ..TestHooks::default()
-            },
-            ..GuidedOptions::default()
+    let run_with =
+        |training_probe: bool, probe_force: Option<LookDecision>, weight_passes: bool| {
+            let mut g = small_npm_radiance(&scene, config);
+            let gopts = GuidedOptions {
+                schedule: epochs(0.5, 1e6),
+                training_probe,
+                weight_passes,
+                test_hooks: TestHooks {
+                    probe_force,
+                    ..TestHooks::default()
+                },
+                ..GuidedOptions::default()
+            };
+            render_guided(&scene, &o, &gopts, &mut g).expect("guided render")
         };
-        render_guided(&scene, &o, &gopts, &mut g).expect("guided render")
-    };
     let run = |training_probe, probe_force| run_with(training_probe, probe_force, true);
-    let (img, st) = run(true, Some(false));
+    let (img, st) = run(true, Some(LookDecision::EndTraining));
     eprintln!("{st}");
     let probe = st.probe.expect("the look ran");
     let v = probe.verdict.expect("the look's estimate");
-    assert!(probe.steps >= guiding::EARLY_LOOK_MIN_STEPS && !probe.resumed);
+    assert!(probe.steps >= guiding::EARLY_LOOK_MIN_STEPS && !probe.resumed());
+    assert_eq!(probe.looks, 1);
     assert!(probe.at_pass >= 1 && probe.passes >= 4, "{probe:?}");
     assert_eq!(probe.passes, v.guided_passes + v.unguided_passes);
     assert!(v.cost_ratio.is_finite() && v.cost_ratio > 0.0);
@@ -578,21 +580,36 @@ fn training_probe_decides_how_long_to_train_and_keeps_the_image_unbiased() {
     assert!(st.trial.is_some());
     assert_same_mean("look ended training", &img, &reference);
 
-    let (img, st) = run(true, Some(true));
+    let (img, st) = run(true, Some(LookDecision::TrainOn));
     eprintln!("{st}");
     let probe = st.probe.expect("the look ran");
-    assert!(probe.resumed && probe.verdict.is_some());
-    // Training resumed after the look's passes, which recorded nothing.
+    assert!(probe.resumed() && probe.verdict.is_some());
+    // One look: the guide paid, no more looks; training resumed after the look's passes,
+    // which recorded nothing.
+    assert_eq!(probe.looks, 1, "{st}");
     assert!(st.training_passes > probe.at_pass, "{st}");
     assert!(st.training_steps > probe.steps);
     assert_eq!(st.samples_recorded_after_training, 0);
     assert_same_mean("look resumed training", &img, &reference);
 
+    // No evidence either way at every look: training goes on to a look at each later quarter
+    // of the phase (1/2, 3/4; the third may not fit a loaded machine's phase), then to its end.
+    let (img, st) = run(true, Some(LookDecision::LookAgain));
+    eprintln!("{st}");
+    let probe = st.probe.expect("the looks ran");
+    assert!(probe.resumed() && probe.verdict.is_some());
+    assert!((2..=3).contains(&probe.looks), "{st}");
+    // Training went on after the last look (its pass index also counts the earlier looks'
+    // passes, so compare steps).
+    assert!(st.training_steps > probe.steps, "{st}");
+    assert_eq!(st.samples_recorded_after_training, 0);
+    assert_same_mean("looks again", &img, &reference);
+
     let (_, st) = run(false, None);
     assert!(st.probe.is_none());
 
     // Without pass weights the look still gets its passes' images and decides.
-    let (_, st) = run_with(true, Some(false), false);
+    let (_, st) = run_with(true, Some(LookDecision::EndTraining), false);
     let probe = st.probe.expect("the look ran");
     assert!(probe.verdict.is_some() && st.pass_weights.is_none(), "{st}");
     assert_eq!(st.training_passes, probe.at_pass);

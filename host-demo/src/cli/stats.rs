@@ -8,6 +8,7 @@
 //! enums or `Option`s.
 
 use guiding::media::MIN_GUIDED_SCATTERING_DEPTH;
+use guiding::LookDecision;
 use host_demo::render::media_guiding;
 use host_demo::render::strategy::guided::{GROUP_GUIDED, GROUP_UNGUIDED};
 use host_demo::render::{
@@ -641,8 +642,13 @@ struct ProbeFinished {
     steps: u64,
     passes: u32,
     seconds: f64,
-    /// Training went on after the look (the look's interval lay below 1).
+    /// Training went on after the look (its interval lay below 1, or straddled 1).
     training_resumed: bool,
+    /// What the latest look decided: `train on` (below 1), `look again` (straddles 1) or
+    /// `end training` (above 1, or nothing measured).
+    decision: &'static str,
+    /// Looks taken (one per quarter of the training phase while each straddles 1).
+    looks: u32,
     #[serde(flatten)]
     estimate: TrialEstimate,
 }
@@ -859,7 +865,13 @@ impl ProbeStage {
                 steps: p.steps,
                 passes: p.passes,
                 seconds: p.seconds,
-                training_resumed: p.resumed,
+                training_resumed: p.resumed(),
+                decision: match p.decision {
+                    Some(LookDecision::TrainOn) => "train on",
+                    Some(LookDecision::LookAgain) => "look again",
+                    _ => "end training",
+                },
+                looks: p.looks,
                 estimate: TrialEstimate::new(v),
             }),
         }

@@ -94,8 +94,8 @@ use crate::scene::Scene;
 use glam::{Vec2, Vec3};
 use guiding::{
     CacheOptions, CombineOptions, DirectionSample, DistributionBatch, GroupWeight, GuideCache,
-    GuideTrial, GuidingError, GuidingField, PassCombiner, ScheduleOptions, ScheduleReport,
-    TrainingSchedule, TrialArm, TrialOptions, TrialVerdict,
+    GuideTrial, GuidingError, GuidingField, LookDecision, PassCombiner, ScheduleOptions,
+    ScheduleReport, TrainingSchedule, TrialArm, TrialOptions, TrialVerdict,
 };
 use guiding_core::model::QueryPoint;
 use guiding_core::sample::TrainingSample;
@@ -181,8 +181,8 @@ pub struct GuidedOptions {
 #[doc(hidden)]
 #[derive(Clone, Copy, Debug)]
 pub struct TestHooks {
-    /// Forces the probe's decision (`Some(true)`: training goes on, `Some(false)`: it ends).
-    pub probe_force: Option<bool>,
+    /// Forces every look's decision (whatever its interval says).
+    pub probe_force: Option<LookDecision>,
     /// Factor on the guide pdf inside the continuation's combined density (≠ 1 is a
     /// deliberate sample/pdf mismatch, a biased estimator; the power check of
     /// `tests/unbiased.rs` uses it).
@@ -780,7 +780,7 @@ impl<'g> Guided<'g> {
     }
 
     /// The probe decision a test forces (never in a real render).
-    fn probe_force(&self) -> Option<bool> {
+    fn probe_force(&self) -> Option<LookDecision> {
         #[cfg(feature = "testing")]
         return self.gopts.test_hooks.probe_force;
         #[cfg(not(feature = "testing"))]
@@ -823,8 +823,8 @@ impl<'g> Guided<'g> {
         })
     }
 
-    /// Takes the look pass `image` into the probe's trial; at its first look,
-    /// resumes or ends training ([`guiding::TrialVerdict::worth_more_training`]).
+    /// Takes the look pass `image` into the probe's trial; at its first look, resumes
+    /// training with or without another look, or ends it ([`guiding::TrialVerdict::look_decision`]).
     fn observe_look_pass(&mut self, arm: TrialArm, image: &PassImage<'_>) {
         if self.look.is_none() {
             self.look = trial_on(
@@ -852,16 +852,20 @@ impl<'g> Guided<'g> {
         // A look that cannot go on (an empty image, a failed pass) ends like a guide that
         // does not look cheaper: no more training, the trial after it decides.
         p.verdict = verdict;
-        let resume = force.unwrap_or_else(|| verdict.is_some_and(|v| v.worth_more_training()));
-        p.resumed = resume;
+        let decision = force
+            .unwrap_or_else(|| verdict.map_or(LookDecision::EndTraining, |v| v.look_decision()));
+        p.decision = Some(decision);
         let (seconds, passes) = (p.seconds, p.passes);
         self.look = None;
         self.phase = Phase::Training;
-        if resume {
-            self.schedule.resume_after_look(seconds, passes);
-        } else {
+        match decision {
+            LookDecision::TrainOn => {
+                self.schedule.resume_after_look(seconds, passes);
+                self.schedule.end_looks();
+            }
+            LookDecision::LookAgain => self.schedule.resume_after_look(seconds, passes),
             // The next pass finds the phase over and stops training there.
-            self.schedule.end_training();
+            LookDecision::EndTraining => self.schedule.end_training(),
         }
     }
 
@@ -1305,16 +1309,17 @@ impl<'g> Strategy for Guided<'g> {
         let elapsed = pass.elapsed.as_secs_f64();
         if self.phase == Phase::Training
             && self.probe_on()
-            && self.stats.probe.is_none()
             // The look measures the guide at its cost after training: from the cache where
             // the render will read it from one (not before it is built, `--guide-cache frozen`).
             && (self.cache.is_some() || !self.use_cache)
             && self.schedule.look_due(elapsed, pass.index)
         {
             self.phase = Phase::Look;
+            let looks = self.stats.probe.map_or(0, |p| p.looks) + 1;
             self.stats.probe = Some(ProbeStats {
                 at_pass: pass.index,
                 steps: self.guide.stats().steps,
+                looks,
                 ..ProbeStats::default()
             });
         }

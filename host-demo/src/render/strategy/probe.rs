@@ -13,15 +13,20 @@
 //!    excludes 1, else 4): guided passes **at the cost the guide will have after training**
 //!    (read from the guide cache, nothing recorded, no Adam step between them) against passes
 //!    with the guide off (`pt-nee`'s estimator), on the render's own image;
-//! 2. resumes training when the guide already pays on evidence
-//!    ([`guiding::TrialVerdict::worth_more_training`]: the interval lies below 1), the training
-//!    phase then ending as much later as the look took
-//!    ([`guiding::TrainingSchedule::resume_after_look`]);
-//! 3. otherwise ends training there: the guide keeps what it has learned, the selection fit
-//!    runs, and the efficiency trial after training decides whether it stays on, by its
-//!    evidence rule (an interval above 1). **The probe never switches a guide off**, so a
-//!    guide whose early passes looked bad is not lost by it: the trial judges it with the cost
-//!    and the selection it renders with.
+//! 2. decides by the look's interval ([`guiding::TrialVerdict::look_decision`]): below 1 (the
+//!    guide pays on evidence) training resumes with no more looks; straddling 1 (no evidence
+//!    either way) training resumes to the next look, a quarter of the phase later (at most
+//!    three looks, at 1/4, 1/2 and 3/4); above 1 training ends. A resumed phase ends as much
+//!    later as the look took ([`guiding::TrainingSchedule::resume_after_look`]);
+//! 3. a guide whose training ended keeps what it has learned, the selection fit runs, and the
+//!    efficiency trial after training decides whether it stays on, by its evidence rule (an
+//!    interval above 1). **The probe never switches a guide off**, so a guide whose early
+//!    passes looked bad is not lost by it: the trial judges it with the cost and the selection
+//!    it renders with.
+//!
+//! Until 2026-12-08 there was one look, and a straddling one ended training: on
+//! `builtin:door` at 160 px it stopped guides that pay once trained on 4 of 6 renders (see
+//! [`guiding::EARLY_LOOK_AT`]).
 //!
 //! The old probe compared one guided *training* pass with one unguided pass after 256 Adam
 //! steps: one pass per arm gave intervals like [0.43, 2.47] (classroom), and the 256 steps
@@ -29,7 +34,7 @@
 //! unbiased estimate and stays in the image (the guided ones as a pass group of their own in
 //! the pass combination, the unguided ones with the other unguided passes).
 
-use guiding::TrialVerdict;
+use guiding::{LookDecision, TrialVerdict};
 
 /// What the probe of a guided render did.
 #[derive(Clone, Copy, Debug, Default)]
@@ -44,8 +49,21 @@ pub struct ProbeStats {
     pub seconds: f64,
     /// The look's estimate (`None`: the render ended before it, or a black image).
     pub verdict: Option<TrialVerdict>,
-    /// Training went on after the look.
-    pub resumed: bool,
+    /// What the look decided (`None` before its first look).
+    pub decision: Option<LookDecision>,
+    /// Looks taken so far, this one included (one per quarter of the training phase while
+    /// each straddles 1; the fields above are the latest's).
+    pub looks: u32,
+}
+
+impl ProbeStats {
+    /// Training went on after the look (it paid on evidence, or had no evidence either way).
+    pub fn resumed(&self) -> bool {
+        matches!(
+            self.decision,
+            Some(LookDecision::TrainOn | LookDecision::LookAgain)
+        )
+    }
 }
 
 impl std::fmt::Display for ProbeStats {
@@ -59,8 +77,10 @@ impl std::fmt::Display for ProbeStats {
             ),
             Some(v) => write!(
                 f,
-                "training probe before pass {} (after {} steps), {} + {} passes in {:.3} s: \
-                 cost ratio {:.3} [{:.3}, {:.3}] ({:.4} s per guided pass, {:.4} s unguided): {}",
+                "training probe, look {} before pass {} (after {} steps), {} + {} passes in \
+                 {:.3} s: cost ratio {:.3} [{:.3}, {:.3}] ({:.4} s per guided pass, {:.4} s \
+                 unguided): {}",
+                self.looks,
                 self.at_pass,
                 self.steps,
                 v.guided_passes,
@@ -71,11 +91,18 @@ impl std::fmt::Display for ProbeStats {
                 v.ratio_high,
                 v.guided_seconds,
                 v.unguided_seconds,
-                if self.resumed {
-                    "the guide pays (the interval lies below 1), training goes on"
-                } else {
-                    "skipped: the rest of the training phase (no evidence yet that the guide \
-                     pays; the trial after training decides whether it stays on)"
+                match self.decision {
+                    Some(LookDecision::TrainOn) => {
+                        "the guide pays (the interval lies below 1), training goes on"
+                    }
+                    Some(LookDecision::LookAgain) => {
+                        "no evidence either way (the interval straddles 1), training goes on to \
+                         the next look"
+                    }
+                    _ => {
+                        "skipped: the rest of the training phase (the interval lies above 1; the \
+                         trial after training decides whether the guide stays on)"
+                    }
                 }
             ),
         }
