@@ -136,6 +136,12 @@ struct WindowTrialStats {
     ratio_low: f64,
     ratio_high: f64,
     z: f64,
+    /// Each arm's relMSE per pass (`V`) and mean seconds per pass (`t`): the cost ratio is
+    /// `V_on t_on / (V_off t_off)`.
+    on_relmse_per_pass: f64,
+    on_seconds_per_pass: f64,
+    off_relmse_per_pass: f64,
+    off_seconds_per_pass: f64,
 }
 
 impl WindowTrialStats {
@@ -149,6 +155,10 @@ impl WindowTrialStats {
             ratio_low: v.ratio_low,
             ratio_high: v.ratio_high,
             z: v.z,
+            on_relmse_per_pass: v.guided_variance,
+            on_seconds_per_pass: v.guided_seconds,
+            off_relmse_per_pass: v.unguided_variance,
+            off_seconds_per_pass: v.unguided_seconds,
         }
     }
 }

@@ -21,8 +21,8 @@
 //! success; on success the outputs are valid (finite unit directions, finite
 //! densities, `> 0` for samples, selection probabilities in `[0, 1]`); a
 //! scheduled update runs what the schedule's report then counts; the early
-//! look is due at most once per schedule; a trial's arms, verdicts and
-//! statuses are its Rust twin's.
+//! look is due at most three times per schedule (once per quarter of the
+//! training phase); a trial's arms, verdicts and statuses are its Rust twin's.
 //!
 //! Inputs stay cheap: only `PG_SIZE_SMALL` models (other size codes are
 //! invalid ones), batches of at most 16 samples, at most 4 steps per update,
