@@ -914,18 +914,21 @@ typedef struct PgTrialVerdict {
 #define PG_BUDGET_SPP 1
 
 /**
- * The interval contains 1, or none could be formed (a black image): nothing is decided, the
- * guide (or window) is not shown to pay nor not to pay.
+ * The interval contains 1, none could be formed (a black image), or the untrimmed point
+ * estimate contradicts it: nothing is decided, the guide (or window) is not shown to pay nor
+ * not to pay.
  */
 #define PG_EVIDENCE_UNDECIDED 0
 
 /**
- * The whole interval lies below 1: with it, a lower relMSE per second.
+ * The whole interval lies below 1, and so does the untrimmed point estimate (Rust
+ * `TrialOptions::robust_to_trim`): with it, a lower relMSE per second.
  */
 #define PG_EVIDENCE_PAYS 1
 
 /**
- * The whole interval lies above 1: it costs more time than it saves variance.
+ * The whole interval lies above 1, and so does the untrimmed point estimate: it costs more
+ * time than it saves variance.
  */
 #define PG_EVIDENCE_DOES_NOT_PAY 2
 

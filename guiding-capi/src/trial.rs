@@ -76,12 +76,15 @@ use std::mem::size_of;
 
 /// What a trial's interval says (`PG_EVIDENCE_*`, the Rust `guiding::Verdict`).
 pub type PgEvidence = u32;
-/// The interval contains 1, or none could be formed (a black image): nothing is decided, the
-/// guide (or window) is not shown to pay nor not to pay.
+/// The interval contains 1, none could be formed (a black image), or the untrimmed point
+/// estimate contradicts it: nothing is decided, the guide (or window) is not shown to pay nor
+/// not to pay.
 pub const PG_EVIDENCE_UNDECIDED: PgEvidence = 0;
-/// The whole interval lies below 1: with it, a lower relMSE per second.
+/// The whole interval lies below 1, and so does the untrimmed point estimate (Rust
+/// `TrialOptions::robust_to_trim`): with it, a lower relMSE per second.
 pub const PG_EVIDENCE_PAYS: PgEvidence = 1;
-/// The whole interval lies above 1: it costs more time than it saves variance.
+/// The whole interval lies above 1, and so does the untrimmed point estimate: it costs more
+/// time than it saves variance.
 pub const PG_EVIDENCE_DOES_NOT_PAY: PgEvidence = 2;
 
 /// An arm of a `PgGuideTrial` (`PG_TRIAL_ARM_*`, the Rust `guiding::TrialArm`).

@@ -37,7 +37,8 @@
 //!    [0.83, 1.27] after 121 + 242 passes, as wide as after 4 + 4); the halves' differences
 //!    hold only the noise and narrow as `1/√passes`.
 //!    The guide is switched off only when the whole interval lies above 1
-//!    ([`TrialVerdict::keep_guide`]); when it straddles 1 the guide stays on.
+//!    ([`TrialVerdict::keep_guide`]) and the untrimmed point estimate does too
+//!    ([`TrialOptions::robust_to_trim`]); else the guide stays on.
 //!
 //! This is the pixel-level counterpart of Müller et al.'s "is guiding worth it" question
 //! (*Practical Path Guiding*, 2017, spends a budget fraction on learning and decides nothing;
@@ -90,6 +91,18 @@ use crate::GuidingError;
 /// benchmark: the terms are winsorised, not dropped, so every band keeps its pixel count in
 /// both arms and halves and the bands stay paired. A guide whose whole gain is removing rare
 /// fireflies is credited only for what the trimmed metric sees of it.
+///
+/// The trim is not the image's, though: a render of `T` passes shows `T / k` times the rare
+/// events of `k` trial passes and its trimmed relMSE still drops only 0.1 % of the pixels, so a
+/// trial of few passes hides rare large values that the image keeps. On veach-mis (30 s, 256
+/// px) the weight window's trial saw the window's variance at 1.00–1.03× the plain passes' after
+/// 2–4 passes per arm and at 1.105× after 748 + 578 (its roulette survivors are the rarer,
+/// larger values), kept the window on 2 of 3 seeds from the early look, and the image came out
+/// 1.07× worse. Trimming less at few passes lets single fireflies decide (a trim scaled by
+/// `k / T` gave cost ratios of 0.006 and 182 with intervals that excluded 1,
+/// `docs/bench-2026-12-08-window/`). So a verdict must hold both ways
+/// ([`TrialOptions::robust_to_trim`]): the trimmed interval excludes 1 *and* the untrimmed
+/// point estimate lies on the same side; a verdict that the trimmed pixels would overturn waits.
 pub const TRIAL_TRIM: f64 = 0.001;
 
 /// The two estimators a [`GuideTrial`] compares.
@@ -129,6 +142,11 @@ pub struct TrialOptions {
     /// arm and half: the largest `⌊trim · N⌋` terms count as the largest one left. Default
     /// [`TRIAL_TRIM`] (why: there).
     pub trim: f64,
+    /// A verdict must not rest on the trimmed pixels: the interval's [`Verdict::Pays`] or
+    /// [`Verdict::DoesNotPay`] stands only when the untrimmed point estimate of the cost ratio
+    /// lies on the same side of 1, else the evidence is [`Verdict::Undecided`] (see
+    /// [`TRIAL_TRIM`]). Off: the trimmed interval alone decides.
+    pub robust_to_trim: bool,
     /// An interval that still straddles 1 after `K` passes per arm does not end the trial: it
     /// goes on with a 2 : 1 split of passes and α-spending looks (see the
     /// [module docs](self)). Off: the trial ends at `K` passes per arm whatever the interval.
@@ -144,6 +162,7 @@ impl Default for TrialOptions {
             epsilon: 0.01,
             smoothing_radius: 2,
             trim: TRIAL_TRIM,
+            robust_to_trim: true,
             continuation: true,
         }
     }
@@ -155,7 +174,9 @@ pub struct TrialVerdict {
     /// The guide stays on: the cost ratio's interval does not lie above 1 (it pays, or the
     /// evidence does not say it does not).
     pub keep_guide: bool,
-    /// What the interval says ([`crate::evidence::CostRatio::verdict`]).
+    /// What the interval says ([`crate::evidence::CostRatio::verdict`]), withheld
+    /// ([`Verdict::Undecided`]) when the untrimmed point estimate lies on the other side of 1
+    /// ([`TrialOptions::robust_to_trim`]).
     pub evidence: Verdict,
     /// Lower end of the cost ratio's interval (`NaN` without one).
     pub ratio_low: f64,
@@ -558,6 +579,8 @@ impl GuideTrial {
             [0, 1, 2].map(|_| vec![0.0f64; bands]),
         ];
         let sets: &[usize] = if split { &[1, 2] } else { &[0] };
+        // The same sums without the winsorisation (for `robust_to_trim`).
+        let mut raw = var.clone();
         let mut terms = vec![0.0f64; used.len()];
         for (a, arm) in self.arms.iter().enumerate() {
             let [h0, h1] = &arm.halves;
@@ -579,16 +602,18 @@ impl GuideTrial {
                 let cap = winsor_cap(&terms, self.options.trim);
                 for (t, &b) in terms.iter().zip(&band) {
                     var[a][set][b] += t.min(cap);
+                    raw[a][set][b] += t;
                 }
             }
         }
         // Bands whose every pixel was left out carry no evidence.
         let kept: Vec<usize> = (0..bands).filter(|&b| cells[b] > 0).collect();
-        let per_band = |a: usize, set: usize| -> Vec<f64> {
+        let bands_of = |sums: &[[Vec<f64>; 3]; 2], a: usize, set: usize| -> Vec<f64> {
             kept.iter()
-                .map(|&b| var[a][set][b] / cells[b] as f64)
+                .map(|&b| sums[a][set][b] / cells[b] as f64)
                 .collect()
         };
+        let per_band = |a: usize, set: usize| bands_of(&var, a, set);
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
         let (tg, tu) = (
             self.arms[0].seconds / f64::from(self.arms[0].passes),
@@ -617,7 +642,21 @@ impl GuideTrial {
         };
         let (cg, cu) = (vg * tg, vu * tu);
         let cost_ratio = if cu > 0.0 { cg / cu } else { f64::NAN };
-        let evidence = interval.map_or(Verdict::Undecided, |c| c.verdict());
+        // The untrimmed point estimate, `V` formed as the trimmed one's.
+        let untrimmed_v = |a: usize| {
+            if split {
+                (mean(&bands_of(&raw, a, 1)) + mean(&bands_of(&raw, a, 2))) / 2.0
+            } else {
+                mean(&bands_of(&raw, a, 0))
+            }
+        };
+        let untrimmed = untrimmed_v(0) * tg / (untrimmed_v(1) * tu);
+        let trimmed_alone = !self.options.robust_to_trim;
+        let evidence = match interval.map_or(Verdict::Undecided, |c| c.verdict()) {
+            Verdict::Pays if !(trimmed_alone || untrimmed < 1.0) => Verdict::Undecided,
+            Verdict::DoesNotPay if !(trimmed_alone || untrimmed > 1.0) => Verdict::Undecided,
+            e => e,
+        };
         TrialVerdict {
             keep_guide: evidence != Verdict::DoesNotPay,
             evidence,

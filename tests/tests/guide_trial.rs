@@ -594,3 +594,72 @@ fn rare_fireflies_in_one_arm_do_not_decide_the_trial() {
     );
     assert!(control.cost_ratio < 0.2, "{}", control.cost_ratio);
 }
+
+/// A verdict that the trimmed pixels would overturn waits (`TrialOptions::robust_to_trim`).
+/// One arm has Gaussian noise of scale 1 plus, in every pass, one value 300× the mean in one
+/// pixel of each band; the other has scale 1.3 (1.69× the variance) and nothing else. Each
+/// half of a 4 + 4 trial holds 64 such values, fewer than the 65 pixel terms it winsorises:
+/// trimmed, the arm with events looks 0.59× as costly and the interval excludes 1; untrimmed
+/// (what a render of many passes shows), it is many times dearer. With the events in the
+/// guided arm the trimmed interval says "pays", with them in the unguided arm "does not pay";
+/// both wait (the guide stays on). Negative control: with the rule off the trimmed interval
+/// decides alone, both ways.
+#[test]
+fn a_verdict_that_the_trimmed_pixels_overturn_waits() {
+    const FW: usize = 512;
+    const FH: usize = 128;
+    let bands = guiding::evidence::band_count(FH);
+    // Each half's events (2 passes × bands) are all winsorised.
+    assert!(2 * bands <= (guiding::TRIAL_TRIM * (FW * FH) as f64) as usize);
+    let run = |events_in: TrialArm, robust_to_trim: bool| {
+        let options = TrialOptions {
+            early_verdict: false,
+            continuation: false,
+            robust_to_trim,
+            ..TrialOptions::default()
+        };
+        let image = vec![MEAN; FW * FH];
+        let mut trial = GuideTrial::new(FW, FH, &image, options).expect("valid trial");
+        let mut rng = Rng::new(71);
+        let mut with_events = 0;
+        while let Some(arm) = trial.next_arm() {
+            let scale = if arm == events_in { 1.0 } else { 1.3 };
+            let mut pixels: Vec<[f32; 3]> = (0..FW * FH)
+                .map(|p| MEAN.map(|m| Noise::Gauss(scale).draw(p, f64::from(m), &mut rng) as f32))
+                .collect();
+            if arm == events_in {
+                for b in 0..bands {
+                    let row = b * FH / bands;
+                    pixels[row * FW + 31 + 7 * with_events] = MEAN.map(|m| 300.0 * m);
+                }
+                with_events += 1;
+            }
+            trial.record(arm, &pixels, 1.0).expect("a valid pass");
+        }
+        trial.verdict().expect("finished")
+    };
+    for (events_in, trimmed_says) in [
+        (TrialArm::Guided, guiding::Verdict::Pays),
+        (TrialArm::Unguided, guiding::Verdict::DoesNotPay),
+    ] {
+        let v = run(events_in, true);
+        assert_eq!(
+            v.evidence,
+            guiding::Verdict::Undecided,
+            "events in {events_in:?}: {} [{}, {}]",
+            v.cost_ratio,
+            v.ratio_low,
+            v.ratio_high
+        );
+        assert!(v.keep_guide);
+        let control = run(events_in, false);
+        assert_eq!(
+            control.evidence, trimmed_says,
+            "events in {events_in:?}, trimmed alone: {} [{}, {}]",
+            control.cost_ratio, control.ratio_low, control.ratio_high
+        );
+        // The same passes, the same trimmed estimate: only the rule differs.
+        assert_eq!(control.cost_ratio, v.cost_ratio);
+        assert_eq!(control.ratio_low, v.ratio_low);
+    }
+}

@@ -20,7 +20,8 @@
 //! each arm of either trial as many passes of each arm of the other: neither trial's arms
 //! differ in the other's estimator. Every pass is unbiased, so every pass stays in the image.
 //!
-//! Rules: the window stays when the whole interval of the cost ratio
+//! Rules (each with the untrimmed point estimate on the same side of 1,
+//! [`TrialOptions::robust_to_trim`]): the window stays when the whole interval of the cost ratio
 //! `R = V_on t_on / (V_off t_off)` lies below 1 ([`Verdict::Pays`]) and goes when it lies above;
 //! a first look (2 + 2 passes if the interval already excludes 1, else `K + K`) that straddles 1
 //! continues the trial with the looks and α-spending of the guide's trial
