@@ -375,9 +375,10 @@ struct GuideArgs {
     pass_weights: OnOff,
     /// With the trial on: a quarter of the way into the training phase (and after 64 Adam
     /// steps), pause training for an early look (2 to 4 guided passes read from the guide
-    /// cache against as many with the guide off, relMSE per pass x seconds per pass), and
-    /// train on only when the guide already pays (the interval lies below 1); otherwise training ends
-    /// there and the trial after it decides whether the guide stays on.
+    /// cache against as many with the guide off, relMSE per pass x seconds per pass): when the
+    /// interval lies above 1 training ends there and the trial after it decides whether the
+    /// guide stays on; below 1 training goes on; straddling 1, training goes on to another
+    /// look a quarter of the phase later (at most three).
     #[arg(long, value_enum, default_value = "on")]
     training_probe: OnOff,
     /// NEE in the guided integrator (default: on when the scene has an emitter NEE can sample).
